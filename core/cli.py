@@ -1,0 +1,157 @@
+"""The ``fieldgate`` command line.
+
+Core commands: ``validate``, ``run``, ``plugins``. Plugins add their own
+(``simulate modbus``, ``scan dcon``, ``eds``, ...) through the registry.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import signal
+import sys
+from pathlib import Path
+
+from . import __version__
+from .plugin import Registry, load_registry
+from .runtime import Gateway, GatewayStartError
+from .topology import TopologyError, load_topology
+
+LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
+
+
+def setup_logging(level: str) -> None:
+    logging.basicConfig(level=getattr(logging, level.upper()), format=LOG_FORMAT, stream=sys.stderr, force=True)
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """``--set fronts.can.interface=virtual`` pairs; values are parsed as YAML scalars."""
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ="safe")
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"fieldgate: --set expects PATH=VALUE, got {item!r}")
+        out[key] = yaml.load(value) if value else ""
+    return out
+
+
+def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
+    try:
+        topology = load_topology(args.file, registry, parse_overrides(args.set))
+    except TopologyError as exc:
+        for issue in exc.issues:
+            print(issue, file=sys.stderr)
+        print(f"{args.file}: {len(exc.issues)} error(s)", file=sys.stderr)
+        return 1
+    print(f"{args.file}: valid")
+    print(topology.summary())
+    return 0
+
+
+def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
+    if not registry.plugins:
+        print("no plugins installed")
+        return 0
+    width = max(len(n) for n in registry.plugins)
+    for name, info in sorted(registry.plugins.items()):
+        provides = ", ".join(info.provides) or "-"
+        state = f"  FAILED: {info.error}" if info.error else ""
+        print(f"{name:<{width}}  {info.version:<8}  {provides}  ({info.distribution}){state}")
+    return 0
+
+
+def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
+    try:
+        gateway = Gateway.load(args.file, parse_overrides(args.set), registry)
+    except TopologyError as exc:
+        for issue in exc.issues:
+            print(issue, file=sys.stderr)
+        return 1
+    return asyncio.run(_run(gateway, args))
+
+
+async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
+    log = logging.getLogger("fieldgate")
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        await gateway.start()
+    except GatewayStartError as exc:
+        log.error("cannot start: %s", exc)
+        return 2
+    if args.status_every:
+        asyncio.create_task(_print_status(gateway, args.status_every))
+    if args.duration:
+        loop.call_later(args.duration, stop.set)
+    await stop.wait()
+    log.info("stopping")
+    await gateway.stop()
+    return 0
+
+
+async def _print_status(gateway: Gateway, period: float) -> None:
+    while True:
+        await asyncio.sleep(period)
+        parts = [f"{c['id']}={c['value']}({c['quality']})" for c in gateway.image.snapshot()]
+        print(" ".join(parts), flush=True)
+
+
+def build_parser(registry: Registry) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="fieldgate", description="Fieldbus gateway: fieldbus slave fronts, RS-485 poller backs, one YAML topology.")
+    parser.add_argument("--version", action="version", version=f"fieldgate {__version__}")
+    parser.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"], help="log verbosity (default info)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser("validate", help="check a topology file; print every error with file:line:column")
+    p.add_argument("file")
+    p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="override a field, e.g. fronts.can.interface=virtual")
+    p.set_defaults(handler=cmd_validate)
+
+    p = sub.add_parser("run", help="run a gateway until SIGINT/SIGTERM")
+    p.add_argument("file")
+    p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="override a field, e.g. fronts.can.interface=virtual")
+    p.add_argument("--status-every", type=float, default=0, metavar="SECONDS", help="print the process image periodically")
+    p.add_argument("--duration", type=float, default=0, metavar="SECONDS", help="stop by itself after this long")
+    p.set_defaults(handler=cmd_run)
+
+    p = sub.add_parser("plugins", help="list installed plugins with what they provide and their version")
+    p.set_defaults(handler=cmd_plugins)
+
+    groups: dict[str, argparse._SubParsersAction] = {}
+    for command in sorted(registry.commands, key=lambda c: c.path):
+        parent = sub
+        for depth, word in enumerate(command.path[:-1]):
+            key = " ".join(command.path[: depth + 1])
+            if key not in groups:
+                group_parser = parent.add_parser(word, help=f"{word} commands from plugins")
+                groups[key] = group_parser.add_subparsers(dest=f"sub{depth}", metavar="NAME", required=True)
+            parent = groups[key]
+        cp = parent.add_parser(command.path[-1], help=f"{command.help} [{command.plugin}]")
+        command.configure(cp)
+        cp.set_defaults(handler=lambda a, r, run=command.run: run(a))
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    setup_logging("warning")
+    registry = load_registry()
+    parser = build_parser(registry)
+    args = parser.parse_args(argv)
+    setup_logging(args.log_level)
+    try:
+        return int(args.handler(args, registry) or 0)
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

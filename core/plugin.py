@@ -1,0 +1,235 @@
+"""Plugin host: hook specifications, entry-point discovery, front and back interfaces.
+
+A plugin is any module listed in the entry-point group ``fieldgate.plugins``. It
+implements one hook, :func:`PluginSpec.fieldgate_register`, and in it registers its
+front or back types (a pydantic config model plus a factory) and, optionally, CLI
+sub-commands (``fieldgate simulate NAME``, ``fieldgate scan NAME``, ...). fieldgate's
+own plugins register exactly the same way as a third-party package.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.metadata
+import logging
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pluggy
+
+from .health import HealthRegistry
+from .image import ProcessImage
+from .masters import MasterMonitor
+from .topology.model import BackConfig, FrontConfig
+
+if TYPE_CHECKING:
+    from .topology.loader import Topology
+
+ENTRY_POINT_GROUP = "fieldgate.plugins"
+PROJECT = "fieldgate"
+
+hookspec = pluggy.HookspecMarker(PROJECT)
+hookimpl = pluggy.HookimplMarker(PROJECT)
+
+log = logging.getLogger("fieldgate.plugin")
+
+
+class PluginStartError(Exception):
+    """A front or back cannot start (port missing, unknown CAN interface, ...).
+
+    The message is the cause in one line; the runtime adds the component name.
+    """
+
+
+class GatewayContext:
+    """What a front or back may use: the process image, module health, master state."""
+
+    def __init__(self, topology: Topology, image: ProcessImage, health: HealthRegistry, masters: MasterMonitor):
+        self.topology = topology
+        self.image = image
+        self.health = health
+        self.masters = masters
+
+    @property
+    def clock(self) -> Callable[[], float]:
+        return self.image.clock
+
+    @property
+    def state_dir(self) -> Path:
+        return self.topology.state_dir
+
+    def front_channels(self, front: FrontConfig) -> list:
+        """The channels a front serves, in order (its ``expose`` list, or all in the seeds' order)."""
+        from .layout import default_order
+
+        if front.expose is not None:
+            return self.image.match(front.expose)
+        return default_order(self.image, [b.name for b in self.topology.backs])
+
+
+class Component(ABC):
+    """Common life cycle of fronts and backs.
+
+    * ``start()`` acquires resources (ports, buses). Raise :class:`PluginStartError`
+      with a one-line cause when that fails.
+    * ``run()`` does the work until cancelled. If it raises, the runtime logs one line,
+      marks the component's channels comm fault, calls ``stop()`` and starts it again
+      with back-off.
+    * ``stop()`` releases everything; it must be safe to call after a failed start.
+    """
+
+    kind: str = "component"
+
+    def __init__(self, config: Any, context: GatewayContext):
+        self.config = config
+        self.context = context
+        self.name: str = config.name
+        self.log = logging.getLogger(f"fieldgate.{self.kind}.{self.name}")
+
+    @abstractmethod
+    async def start(self) -> None: ...
+
+    @abstractmethod
+    async def run(self) -> None: ...
+
+    @abstractmethod
+    async def stop(self) -> None: ...
+
+    def status(self) -> dict:
+        return {}
+
+    def channel_ids(self) -> list[str]:
+        """Channels to mark comm fault while this component is down."""
+        return []
+
+
+class Front(Component):
+    """A fieldbus slave a PLC talks to. Reads inputs, writes outputs, reports master state."""
+
+    kind = "front"
+
+
+class Back(Component):
+    """A poller of I/O modules. Writes inputs, reads outputs, keeps module health."""
+
+    kind = "back"
+
+    def channel_ids(self) -> list[str]:
+        return [c.id for c in self.context.image.channels(back=self.name)]
+
+
+FrontFactory = Callable[[FrontConfig, GatewayContext], Front]
+BackFactory = Callable[[BackConfig, GatewayContext], Back]
+
+
+@dataclass(frozen=True)
+class ComponentType:
+    role: str  # "front" or "back"
+    type_name: str
+    model: type
+    factory: Callable[[Any, GatewayContext], Component]
+    plugin: str
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Command:
+    """A CLI sub-command contributed by a plugin, e.g. ("simulate", "modbus")."""
+
+    path: tuple[str, ...]
+    help: str
+    configure: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    plugin: str
+
+
+@dataclass
+class PluginInfo:
+    name: str
+    version: str
+    distribution: str
+    error: str = ""  # why the plugin failed to load, if it did
+    provides: list[str] = field(default_factory=list)
+
+
+class Registry:
+    """What the loaded plugins provide."""
+
+    def __init__(self) -> None:
+        self.types: dict[tuple[str, str], ComponentType] = {}
+        self.commands: list[Command] = []
+        self.plugins: dict[str, PluginInfo] = {}
+        self._current = "?"
+
+    def add_front(self, type_name: str, model: type[FrontConfig], factory: FrontFactory, description: str = "") -> None:
+        self._add("front", type_name, model, factory, description)
+
+    def add_back(self, type_name: str, model: type[BackConfig], factory: BackFactory, description: str = "") -> None:
+        self._add("back", type_name, model, factory, description)
+
+    def add_command(self, path: tuple[str, ...], help: str, configure: Callable[[argparse.ArgumentParser], None], run: Callable[[argparse.Namespace], int]) -> None:
+        self.commands.append(Command(tuple(path), help, configure, run, self._current))
+
+    def _add(self, role: str, type_name: str, model: type, factory: Callable, description: str) -> None:
+        key = (role, type_name)
+        if key in self.types:
+            raise ValueError(f"{role} type {type_name!r} registered by both {self.types[key].plugin} and {self._current}")
+        self.types[key] = ComponentType(role, type_name, model, factory, self._current, description)
+        if self._current in self.plugins:
+            self.plugins[self._current].provides.append(f"{role}:{type_name}")
+
+    def lookup(self, role: str, type_name: str) -> ComponentType | None:
+        return self.types.get((role, type_name))
+
+    def type_names(self, role: str) -> list[str]:
+        return sorted(t for (r, t) in self.types if r == role)
+
+
+class PluginSpec:
+    @hookspec
+    def fieldgate_register(self, registry: Registry) -> None:
+        """Register front/back types and CLI commands with ``registry``."""
+
+
+def _make_manager() -> pluggy.PluginManager:
+    pm = pluggy.PluginManager(PROJECT)
+    pm.add_hookspecs(PluginSpec)
+    return pm
+
+
+def load_registry(extra_plugins: list[object] | None = None) -> Registry:
+    """Discover plugins through the entry-point group and collect what they register.
+
+    A plugin that fails to import or to register is recorded with its error (shown by
+    ``fieldgate plugins``) and skipped; it never prevents the others from loading.
+    ``extra_plugins`` lets tests and embedding code add plugin objects directly.
+    """
+    registry = Registry()
+    pm = _make_manager()
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        dist = ep.dist.name if ep.dist else "?"
+        version = ep.dist.version if ep.dist else "?"
+        info = PluginInfo(ep.name, version, dist)
+        registry.plugins[ep.name] = info
+        try:
+            module = ep.load()
+            pm.register(module, name=ep.name)
+        except Exception as exc:  # broken third-party plugin: report, keep going
+            info.error = f"{type(exc).__name__}: {exc}"
+            log.error("plugin %s (%s) failed to load: %s", ep.name, dist, info.error)
+    for i, plugin in enumerate(extra_plugins or []):
+        name = getattr(plugin, "PLUGIN_NAME", f"extra{i}")
+        registry.plugins[name] = PluginInfo(name, getattr(plugin, "__version__", "0"), "(in process)")
+        pm.register(plugin, name=name)
+    for name, plugin in pm.list_name_plugin():
+        registry._current = name
+        try:
+            pm.subset_hook_caller("fieldgate_register", remove_plugins=[p for n, p in pm.list_name_plugin() if n != name])(registry=registry)
+        except Exception as exc:
+            registry.plugins[name].error = f"{type(exc).__name__}: {exc}"
+            log.error("plugin %s failed to register: %s", name, registry.plugins[name].error)
+    registry._current = "?"
+    return registry

@@ -1,0 +1,390 @@
+"""The polling engine every RS-485 back end shares (Modbus RTU, DCON, third parties).
+
+A back-end plugin supplies only its codec and module profiles:
+
+* a :class:`PolledModule` subclass per module kind, whose ``read_inputs`` and
+  ``write_outputs`` perform transactions over the plugin's link and raise
+  :class:`CommError` on failure;
+* a :class:`SerialBack` subclass that opens and closes the link and makes the modules.
+
+Core does the rest, once for all protocols: one :class:`LineScheduler` per serial line
+(one transaction at a time, writes ahead of reads, per-module poll periods,
+write-on-change with optional cyclic rewrite, periodic line jobs such as a host
+watchdog), the module health model (error counters, offline after consecutive
+failures, slow re-probe of offline modules, recovery), input quality (stale after a
+failed read, comm fault while offline) and per-line statistics.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import Any
+
+from .health import ErrorKind, LineStats, ModuleHealth
+from .image import Change, ChannelSpec, ProcessImage, Quality
+from .plugin import Back, GatewayContext
+from .topology.model import ModuleConfig, SerialBackConfig
+
+log = logging.getLogger("fieldgate.polling")
+
+Reading = Any  # a value, or (value, Quality) for module-reported quality
+
+
+class CommError(Exception):
+    """A transaction failed. ``kind`` says how; the text is for logs and status."""
+
+    def __init__(self, kind: ErrorKind, text: str):
+        super().__init__(text)
+        self.kind = kind
+
+
+class PolledModule(ABC):
+    """One module on a line, as its back-end plugin speaks to it."""
+
+    def __init__(self, config: ModuleConfig, specs: list[ChannelSpec]):
+        self.config = config
+        self.address = config.address
+        self.specs = specs
+        self.inputs = [s.id for s in specs if not s.kind.is_output]
+        self.outputs = [s.id for s in specs if s.kind.is_output]
+
+    @abstractmethod
+    async def read_inputs(self) -> dict[str, Reading]:
+        """Read every input channel; returns {channel id: value or (value, Quality)}."""
+
+    async def write_outputs(self, values: dict[str, Any]) -> None:
+        """Write the given output channels (current process-image values)."""
+        if values:
+            raise NotImplementedError(f"{type(self).__name__} has outputs but no write_outputs()")
+
+    async def probe(self) -> None:
+        """Check the module answers (used while it is offline). Default: read its inputs."""
+        await self.read_inputs()
+
+    async def on_online(self) -> None:
+        """Called after the first successful contact and after each recovery (configure watchdogs...)."""
+
+
+@dataclass
+class LineJob:
+    """A periodic transaction that is not a module poll (DCON ``~**`` host-OK, ...)."""
+
+    name: str
+    period: float
+    action: Callable[[], Awaitable[None]]
+    enabled: Callable[[], bool] = lambda: True
+    due: float = 0.0
+
+
+class _ModuleState:
+    def __init__(self, module: PolledModule, health: ModuleHealth, period: float):
+        self.module = module
+        self.health = health
+        self.period = period
+        self.due = 0.0
+        self.dirty: set[str] = set()
+        self.contacted = False  # on_online() ran since the last loss of contact
+        self.burst_logged = False
+
+
+class LineScheduler:
+    """Runs the transactions of one serial line, one at a time."""
+
+    def __init__(
+        self,
+        name: str,
+        modules: list[PolledModule],
+        image: ProcessImage,
+        health: dict[int, ModuleHealth],
+        *,
+        poll_period: float = 0.1,
+        offline_probe_period: float = 5.0,
+        write_period: float | None = None,
+        retries: int = 0,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.name = name
+        self.image = image
+        self.clock = clock
+        self.offline_probe_period = offline_probe_period
+        self.write_period = write_period
+        self.retries = retries
+        self.stats = LineStats(name)
+        self.jobs: list[LineJob] = []
+        self._states = [
+            _ModuleState(m, health[m.address], (m.config.poll_ms / 1000) if m.config.poll_ms else poll_period) for m in modules
+        ]
+        self._by_output = {cid: st for st in self._states for cid in st.module.outputs}
+        self._wake = asyncio.Event()
+        self._subscription = None
+        self._cycle_start: float | None = None
+        self._cycle_seen: set[int] = set()
+        self._next_rewrite = 0.0
+
+    # -- outputs --------------------------------------------------------------
+    def attach(self) -> None:
+        """Subscribe to output changes (write-on-change)."""
+        if self._subscription is None and self._by_output:
+            self._subscription = self.image.subscribe(self._on_output_change, ids=self._by_output)
+
+    def detach(self) -> None:
+        if self._subscription is not None:
+            self._subscription.cancel()
+            self._subscription = None
+
+    def _on_output_change(self, change: Change) -> None:
+        if change.value_changed:
+            self._by_output[change.channel.id].dirty.add(change.channel.id)
+            self._wake.set()
+
+    def mark_all_outputs_dirty(self) -> None:
+        for st in self._states:
+            st.dirty.update(st.module.outputs)
+        self._wake.set()
+
+    @property
+    def pending_writes(self) -> int:
+        return sum(len(st.dirty) for st in self._states)
+
+    # -- scheduling -----------------------------------------------------------
+    def add_job(self, job: LineJob) -> None:
+        self.jobs.append(job)
+        self._wake.set()
+
+    async def run(self) -> None:
+        self.attach()
+        try:
+            while True:
+                deadline = await self.step()
+                if deadline is None:
+                    continue
+                delay = deadline - self.clock()
+                if delay > 0:
+                    self._wake.clear()
+                    try:
+                        await asyncio.wait_for(self._wake.wait(), delay)
+                    except TimeoutError:
+                        pass
+        finally:
+            self.detach()
+
+    async def step(self) -> float | None:
+        """Do the one most urgent transaction, if any is due.
+
+        Returns None after doing work (call again at once), else the time of the next
+        due work. Tests call it directly with a fake clock.
+        """
+        now = self.clock()
+        if self.write_period is not None and now >= self._next_rewrite:
+            self._next_rewrite = now + self.write_period
+            for st in self._states:
+                if st.health.online:
+                    st.dirty.update(st.module.outputs)
+        for st in self._states:  # writes ahead of reads, for modules that answer
+            if st.dirty and (st.health.online or st.due <= now):
+                await self._write(st)
+                return None
+        for job in self.jobs:
+            if job.due <= now and job.enabled():
+                await self._job(job)
+                return None
+        due_state = min(self._states, key=lambda s: s.due, default=None)
+        if due_state is not None and due_state.due <= now:
+            await self._poll(due_state)
+            return None
+        candidates = [s.due for s in self._states] + [j.due for j in self.jobs if j.enabled()]
+        if self.write_period is not None:
+            candidates.append(self._next_rewrite)
+        return min(candidates, default=now + 1.0)
+
+    # -- transactions ---------------------------------------------------------
+    async def _attempt(self, st: _ModuleState, action: Callable[[], Awaitable[Any]]) -> tuple[bool, Any]:
+        """Run one transaction with retries; record health. Returns (ok, result)."""
+        for attempt in range(self.retries + 1):
+            started = self.clock()
+            self.stats.requests += 1
+            try:
+                result = await action()
+            except CommError as exc:
+                self._failed(st, exc.kind, str(exc))
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:  # codec bug or port failure: count it, never stop the line
+                log.debug("line %s module %d: unexpected error", self.name, st.module.address, exc_info=True)
+                self._failed(st, ErrorKind.IO, f"{type(exc).__name__}: {exc}")
+            else:
+                came_back = st.health.record_success(self.clock() - started, self.clock())
+                if st.burst_logged:
+                    log.info("line %s module %d answers again", self.name, st.module.address)
+                st.burst_logged = False
+                if came_back or not st.contacted:
+                    st.contacted = True
+                    await self._on_online(st)
+                return True, result
+            if not st.health.online:
+                break  # no retries for a module already offline
+        return False, None
+
+    async def _on_online(self, st: _ModuleState) -> None:
+        try:
+            await st.module.on_online()
+        except CommError as exc:
+            self._failed(st, exc.kind, f"on_online: {exc}")
+        except Exception as exc:
+            self._failed(st, ErrorKind.IO, f"on_online: {type(exc).__name__}: {exc}")
+        if st.health.online:
+            st.dirty.update(st.module.outputs)  # bring a recovered module up to date
+
+    def _failed(self, st: _ModuleState, kind: ErrorKind, text: str) -> None:
+        self.stats.errors[kind] += 1
+        if not st.burst_logged:
+            log.warning("line %s module %d: %s: %s", self.name, st.module.address, kind, text)
+            st.burst_logged = True
+        else:
+            log.debug("line %s module %d: %s: %s", self.name, st.module.address, kind, text)
+        went_offline = st.health.record_failure(kind, text)
+        if went_offline:
+            st.contacted = False
+            self.image.set_quality(st.module.inputs, Quality.COMM_FAULT)
+            self.image.set_quality(st.module.outputs, Quality.COMM_FAULT)
+        elif st.health.online:
+            stale = [cid for cid in st.module.inputs if self.image[cid].quality is Quality.GOOD]
+            self.image.set_quality(stale, Quality.STALE)
+
+    async def _poll(self, st: _ModuleState) -> None:
+        started = self.clock()
+        if st.health.online:
+            ok, readings = await self._attempt(st, st.module.read_inputs)
+        else:
+            ok, _ = await self._attempt(st, st.module.probe)
+            readings = None
+            if ok and st.module.inputs:
+                ok, readings = await self._attempt(st, st.module.read_inputs)
+        if ok and readings:
+            self._apply(readings)
+        if ok and st.module.outputs:
+            self.image.set_quality([c for c in st.module.outputs if self.image[c].quality is not Quality.GOOD], Quality.GOOD)
+        st.due = started + (st.period if st.health.online else self.offline_probe_period)
+        self._count_cycle(st)
+
+    def _apply(self, readings: dict[str, Reading]) -> None:
+        for cid, reading in readings.items():
+            value, quality = reading if isinstance(reading, tuple) else (reading, Quality.GOOD)
+            self.image.update_input(cid, value, quality)
+
+    async def _write(self, st: _ModuleState) -> None:
+        ids, st.dirty = st.dirty, set()
+        values = {cid: self.image.value(cid) for cid in st.module.outputs if cid in ids}
+        ok, _ = await self._attempt(st, lambda: st.module.write_outputs(values))
+        self.stats.writes += 1
+        if not ok:
+            st.dirty |= ids  # keep them for the next chance
+            if not st.health.online:
+                st.due = max(st.due, self.clock() + self.offline_probe_period)
+
+    async def _job(self, job: LineJob) -> None:
+        job.due = self.clock() + job.period
+        self.stats.requests += 1
+        try:
+            await job.action()
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            self.stats.errors[ErrorKind.IO] += 1
+            log.debug("line %s job %s failed: %s", self.name, job.name, exc)
+
+    def _count_cycle(self, st: _ModuleState) -> None:
+        now = self.clock()
+        if self._cycle_start is None:
+            self._cycle_start = now
+        self._cycle_seen.add(st.module.address)
+        online = {s.module.address for s in self._states if s.health.online}
+        if online <= self._cycle_seen:
+            self.stats.cycles += 1
+            self.stats.last_cycle_time = now - self._cycle_start
+            self._cycle_start, self._cycle_seen = now, set()
+
+    def status(self) -> dict:
+        return {**self.stats.as_dict(), "pending_writes": self.pending_writes, "modules": [s.health.as_dict() for s in self._states]}
+
+
+class SerialBack(Back):
+    """A back end that polls modules over one serial line with the shared scheduler.
+
+    Subclasses implement :meth:`open_link`, :meth:`close_link` and :meth:`make_module`.
+    """
+
+    config: SerialBackConfig
+
+    def __init__(self, config: SerialBackConfig, context: GatewayContext):
+        super().__init__(config, context)
+        self.link: Any = None
+        self.scheduler: LineScheduler | None = None
+        self.health: dict[int, ModuleHealth] = {}
+        for module in config.modules:
+            self.health[module.address] = context.health.add(
+                ModuleHealth(self.name, module.address, module.model or "", config.fail_threshold)
+            )
+
+    @abstractmethod
+    async def open_link(self) -> Any:
+        """Open the serial port (or URL). Raise PluginStartError with the cause on failure."""
+
+    @abstractmethod
+    async def close_link(self) -> None: ...
+
+    @abstractmethod
+    def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> PolledModule: ...
+
+    def line_jobs(self) -> list[LineJob]:
+        """Periodic line-level transactions (host watchdog...). Default: none."""
+        return []
+
+    async def start(self) -> None:
+        self.link = await self.open_link()
+        specs = [s for s in self.context.topology.channel_specs if s.source.back == self.name]
+        modules = [self.make_module(m, [s for s in specs if s.source.module == m.address]) for m in self.config.modules]
+        cfg = self.config
+        self.scheduler = LineScheduler(
+            self.name,
+            modules,
+            self.context.image,
+            self.health,
+            poll_period=cfg.poll_ms / 1000,
+            offline_probe_period=cfg.offline_probe_ms / 1000,
+            write_period=None if cfg.write_period_ms is None else cfg.write_period_ms / 1000,
+            retries=cfg.retries,
+            clock=self.context.clock,
+        )
+        for job in self.line_jobs():
+            self.scheduler.add_job(job)
+        self.scheduler.attach()  # outputs written by fronts from now on are queued
+
+    async def run(self) -> None:
+        assert self.scheduler is not None
+        await self.scheduler.run()
+
+    async def flush_outputs(self, timeout: float = 2.0) -> None:
+        """Write pending outputs (shutdown values) before the line closes."""
+        if self.scheduler is None or self.link is None:
+            return
+        deadline = self.context.clock() + timeout
+        while self.scheduler.pending_writes and self.context.clock() < deadline:
+            await self.scheduler.step()
+
+    async def stop(self) -> None:
+        if self.scheduler is not None:
+            self.scheduler.detach()
+        if self.link is not None:
+            try:
+                await self.close_link()
+            finally:
+                self.link = None
+
+    def status(self) -> dict:
+        return self.scheduler.status() if self.scheduler else {"line": self.name, "running": False}

@@ -1,0 +1,195 @@
+"""Running a gateway: start backs then fronts, supervise, restart with back-off, stop cleanly.
+
+This is also the embedding API::
+
+    gw = Gateway.load("topology.yaml", overrides={"fronts.can.interface": "virtual"})
+    await gw.start()          # inside your running event loop
+    gw.write("rs485/m3/do0", True)
+    print(gw.read("rs485/m1/di0"))
+    await gw.stop()
+
+or ``async with Gateway.load(...) as gw: ...``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from .health import HealthRegistry
+from .image import ProcessImage, Quality
+from .masters import MasterMonitor
+from .plugin import Component, GatewayContext, PluginStartError, Registry, load_registry
+from .topology import Topology, load_topology
+
+log = logging.getLogger("fieldgate.runtime")
+
+MAX_BACKOFF = 60.0
+
+
+class GatewayStartError(Exception):
+    """A component could not start; the message names it and the cause in one line."""
+
+
+class Gateway:
+    def __init__(self, topology: Topology, registry: Registry, clock: Callable[[], float] = time.monotonic):
+        self.topology = topology
+        self.registry = registry
+        self.image = ProcessImage(clock)
+        self.health = HealthRegistry()
+        self.masters = MasterMonitor(self.image)
+        self.context = GatewayContext(topology, self.image, self.health, self.masters)
+        for spec in topology.channel_specs:
+            self.image.add(spec)
+        self.backs: list[Component] = []
+        self.fronts: list[Component] = []
+        self._tasks: dict[str, asyncio.Task] = {}
+        self._restarts: dict[str, int] = {}
+        self.running = False
+
+    @classmethod
+    def load(cls, source: str | Path | dict, overrides: dict[str, Any] | None = None, registry: Registry | None = None) -> Gateway:
+        registry = registry or load_registry()
+        return cls(load_topology(source, registry, overrides), registry)
+
+    # -- life cycle -----------------------------------------------------------
+    async def start(self) -> None:
+        """Start every back, then every front. On any failure, stop what started and raise."""
+        try:
+            for cfg in self.topology.backs:
+                self.backs.append(self._create("back", cfg))
+            for cfg in self.topology.fronts:
+                self.masters.register(cfg.name)
+                self.fronts.append(self._create("front", cfg))
+            for comp in self.backs + self.fronts:
+                await self._start_one(comp)
+        except GatewayStartError:
+            await self._stop_components()
+            raise
+        self.running = True
+        for comp in self.backs + self.fronts:
+            self._tasks[comp.name] = asyncio.create_task(self._supervise(comp), name=f"fieldgate:{comp.name}")
+        log.info("gateway %s running: %d back(s), %d front(s)", self.topology.gateway.name, len(self.backs), len(self.fronts))
+
+    def _create(self, role: str, cfg: Any) -> Component:
+        ctype = self.registry.lookup(role, cfg.type)
+        if ctype is None:
+            raise GatewayStartError(f"{role} {cfg.name}: no plugin provides type '{cfg.type}'")
+        try:
+            return ctype.factory(cfg, self.context)
+        except PluginStartError as exc:
+            raise GatewayStartError(f"{role} {cfg.name} ({cfg.type}): {exc}") from None
+
+    async def _start_one(self, comp: Component) -> None:
+        try:
+            await comp.start()
+        except PluginStartError as exc:
+            raise GatewayStartError(f"{comp.kind} {comp.name} ({comp.config.type}): {exc}") from None
+        except Exception as exc:
+            raise GatewayStartError(f"{comp.kind} {comp.name} ({comp.config.type}): {type(exc).__name__}: {exc}") from exc
+        comp.started = True  # type: ignore[attr-defined]
+
+    async def _supervise(self, comp: Component) -> None:
+        backoff = comp.config.restart_backoff_s
+        while True:
+            try:
+                await comp.run()
+                cause = "run() returned while the gateway was running"
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                cause = f"{type(exc).__name__}: {exc}"
+                log.debug("%s %s failed", comp.kind, comp.name, exc_info=True)
+            self._restarts[comp.name] = self._restarts.get(comp.name, 0) + 1
+            log.error("%s %s failed: %s; restarting in %.1f s", comp.kind, comp.name, cause, backoff)
+            self.image.set_quality(comp.channel_ids(), Quality.COMM_FAULT, origin=comp.name)
+            await self._safe_stop(comp)
+            while True:
+                await asyncio.sleep(backoff)
+                backoff = min(backoff * 2, MAX_BACKOFF)
+                try:
+                    await comp.start()
+                    log.info("%s %s restarted", comp.kind, comp.name)
+                    break
+                except asyncio.CancelledError:
+                    raise
+                except Exception as exc:
+                    log.error("%s %s restart failed: %s; next try in %.1f s", comp.kind, comp.name, exc, backoff)
+                    await self._safe_stop(comp)
+
+    async def _safe_stop(self, comp: Component) -> None:
+        try:
+            await comp.stop()
+        except Exception as exc:
+            log.error("%s %s: error while stopping: %s", comp.kind, comp.name, exc)
+
+    async def stop(self) -> None:
+        """Fronts stop, outputs go to their shutdown values, backs flush and close."""
+        for comp in self.fronts:
+            await self._cancel(comp)
+        for comp in self.fronts:
+            await self._safe_stop(comp)
+        changed = self.image.apply_shutdown_modes()
+        if changed:
+            log.info("shutdown values applied to %d output(s)", len(changed))
+        for comp in self.backs:
+            flush = getattr(comp, "flush_outputs", None)
+            if flush is not None and getattr(comp, "started", False):
+                await self._cancel(comp)
+                try:
+                    await flush()
+                except Exception as exc:
+                    log.error("back %s: could not write shutdown values: %s", comp.name, exc)
+        await self._stop_components()
+        self.running = False
+        log.info("gateway %s stopped", self.topology.gateway.name)
+
+    async def _cancel(self, comp: Component) -> None:
+        task = self._tasks.pop(comp.name, None)
+        if task is not None:
+            task.cancel()
+            try:
+                await task
+            except (asyncio.CancelledError, Exception):
+                pass
+
+    async def _stop_components(self) -> None:
+        for comp in self.fronts + self.backs:
+            await self._cancel(comp)
+        for comp in reversed(self.fronts + self.backs):
+            if getattr(comp, "started", False):
+                await self._safe_stop(comp)
+                comp.started = False  # type: ignore[attr-defined]
+
+    async def __aenter__(self) -> Gateway:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.stop()
+
+    # -- embedding API --------------------------------------------------------
+    def read(self, channel_id: str) -> bool | int | float:
+        return self.image.value(channel_id)
+
+    def write(self, channel_id: str, value: bool | int | float) -> None:
+        self.image.write_output(channel_id, value, origin="api")
+
+    def component(self, name: str) -> Component:
+        for comp in self.fronts + self.backs:
+            if comp.name == name:
+                return comp
+        raise KeyError(f"no front or back named {name!r}")
+
+    def status(self) -> dict:
+        return {
+            "gateway": self.topology.gateway.name,
+            "running": self.running,
+            "fronts": {c.name: {**c.status(), "master_ok": self.masters.is_ok(c.name), "restarts": self._restarts.get(c.name, 0)} for c in self.fronts},
+            "backs": {c.name: {**c.status(), "restarts": self._restarts.get(c.name, 0)} for c in self.backs},
+            "modules": [m.as_dict() for m in self.health.modules()],
+        }

@@ -1,0 +1,186 @@
+"""Serial ports for back ends and simulators, and pseudo-terminal pairs for tests.
+
+:class:`AsyncSerial` wraps a pyserial port (a device path or a pyserial URL such as
+``socket://host:port``) for asyncio: reads are woken by ``loop.add_reader`` on the
+port's file descriptor, so a poller never blocks the event loop (and so never delays
+a CAN answer).
+
+:class:`PtyPair` gives two tty paths joined by a relay thread, the way a null-modem
+cable joins two real ports: a back end opens one end, a simulator the other, and both
+run their real serial code. The relay can pace bytes at a baud rate and inject faults.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import select
+import threading
+import time
+import tty
+from collections.abc import Callable
+
+import serial
+
+from .plugin import PluginStartError
+
+_PARITY = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
+
+
+class AsyncSerial:
+    def __init__(self, port: serial.SerialBase):
+        self.port = port
+        self._buffer = bytearray()
+        self._data = asyncio.Event()
+        self._loop = asyncio.get_running_loop()
+        self._fd = port.fileno()
+        self._loop.add_reader(self._fd, self._readable)
+        self.closed = False
+
+    @classmethod
+    async def open(cls, url: str, baudrate: int = 9600, bytesize: int = 8, parity: str = "N", stopbits: int = 1) -> AsyncSerial:
+        """Open a port; failures become PluginStartError with a one-line cause."""
+        try:
+            port = serial.serial_for_url(url, baudrate=baudrate, bytesize=bytesize, parity=_PARITY[parity], stopbits=stopbits, timeout=0, write_timeout=2)
+        except serial.SerialException as exc:
+            raise PluginStartError(f"cannot open serial port {url}: {_cause(exc)}") from None
+        except ValueError as exc:
+            raise PluginStartError(f"invalid serial settings for {url}: {exc}") from None
+        return cls(port)
+
+    def _readable(self) -> None:
+        try:
+            chunk = self.port.read(4096)
+        except (serial.SerialException, OSError):
+            chunk = b""
+            self._loop.remove_reader(self._fd)
+        if chunk:
+            self._buffer += chunk
+        self._data.set()
+
+    def reset_input(self) -> None:
+        """Drop whatever arrived unsolicited (late replies, line noise)."""
+        self._buffer.clear()
+
+    async def write(self, data: bytes) -> None:
+        self.port.write(data)
+
+    async def read_until(self, terminator: bytes, timeout: float) -> bytes:
+        """Bytes up to and including ``terminator``; TimeoutError when it does not come."""
+        deadline = self._loop.time() + timeout
+        while True:
+            end = self._buffer.find(terminator)
+            if end >= 0:
+                frame = bytes(self._buffer[: end + len(terminator)])
+                del self._buffer[: end + len(terminator)]
+                return frame
+            await self._wait(deadline)
+
+    async def read_frame(self, timeout: float, gap: float) -> bytes:
+        """Bytes of one frame ended by a silent ``gap`` (Modbus RTU t3.5 framing)."""
+        deadline = self._loop.time() + timeout
+        while not self._buffer:
+            await self._wait(deadline)
+        while True:
+            size = len(self._buffer)
+            try:
+                await self._wait(self._loop.time() + gap)
+            except TimeoutError:
+                if len(self._buffer) == size:
+                    frame = bytes(self._buffer)
+                    self._buffer.clear()
+                    return frame
+
+    async def _wait(self, deadline: float) -> None:
+        remaining = deadline - self._loop.time()
+        if remaining <= 0:
+            raise TimeoutError
+        self._data.clear()
+        await asyncio.wait_for(self._data.wait(), remaining)
+
+    async def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            try:
+                self._loop.remove_reader(self._fd)
+            except (ValueError, OSError):
+                pass
+            self.port.close()
+
+
+def _cause(exc: serial.SerialException) -> str:
+    inner = exc.args[1] if len(exc.args) > 1 else None
+    if exc.errno == 2 or "No such file" in str(exc):
+        return "no such device"
+    if exc.errno == 13 or "Permission denied" in str(exc):
+        return "permission denied"
+    return str(inner or exc)
+
+
+def char_time(baudrate: int, bits_per_char: int = 11) -> float:
+    """Seconds per character on the wire (start + 8 data + parity/stop = 11 bits by default)."""
+    return bits_per_char / baudrate
+
+
+class PtyPair:
+    """Two pseudo-terminals joined by a relay: ``a`` and ``b`` are tty paths.
+
+    ``baudrate`` paces the relay like a wire (10 bits a byte); ``fault`` is a callable
+    applied to each chunk going b → a (simulator to back), returning the bytes to
+    deliver (``b""`` drops them). Use as a context manager, or call ``close()``.
+    """
+
+    def __init__(self, baudrate: int | None = None):
+        self._ends = []
+        for _ in range(2):
+            master, slave = os.openpty()
+            tty.setraw(master)
+            tty.setraw(slave)
+            self._ends.append((master, slave))
+        self.a = os.ttyname(self._ends[0][1])
+        self.b = os.ttyname(self._ends[1][1])
+        self.baudrate = baudrate
+        self.fault: Callable[[bytes], bytes] | None = None
+        self._stop = threading.Event()
+        self._threads = [
+            threading.Thread(target=self._pump, args=(self._ends[0][0], self._ends[1][0], False), daemon=True),
+            threading.Thread(target=self._pump, args=(self._ends[1][0], self._ends[0][0], True), daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+
+    def _pump(self, src: int, dst: int, to_a: bool) -> None:
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([src], [], [], 0.05)
+                if not ready:
+                    continue
+                data = os.read(src, 4096)
+            except OSError:
+                return
+            if to_a and self.fault is not None:
+                data = self.fault(data)
+            if self.baudrate:
+                time.sleep(len(data) * 10 / self.baudrate)
+            if data:
+                try:
+                    os.write(dst, data)
+                except OSError:
+                    return
+
+    def close(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=1)
+        for master, slave in self._ends:
+            for fd in (master, slave):
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+
+    def __enter__(self) -> PtyPair:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

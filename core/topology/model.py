@@ -1,0 +1,98 @@
+"""Pydantic models of the topology file that core owns, and the bases plugins extend.
+
+A plugin registers one model per front or back ``type``; it subclasses
+:class:`FrontConfig` or :class:`BackConfig` (RS-485 pollers: :class:`SerialBackConfig`)
+so that every section shares the same strictness (unknown keys are errors) and the
+same common fields.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+
+from ..image import ChannelSpec, ErrorMode, Kind
+
+Identifier = Annotated[str, StringConstraints(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$")]
+
+
+class StrictModel(BaseModel):
+    """Every topology model forbids unknown keys; the error report suggests the closest one."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class ValueMode(StrictModel):
+    value: bool | int | float = Field(description="value the output goes to")
+
+
+ErrorModeSpec = Literal["hold"] | ValueMode
+
+
+def to_error_mode(spec: ErrorModeSpec | None) -> ErrorMode | None:
+    if spec is None:
+        return None
+    if spec == "hold":
+        return ErrorMode.hold()
+    return ErrorMode.to(spec.value)
+
+
+class GatewaySection(StrictModel):
+    name: Identifier
+    description: str = ""
+    state_dir: str = Field("fieldgate-state", description="directory for persisted settings (relative to the topology file)")
+
+
+class ComponentConfig(StrictModel):
+    name: Identifier
+    type: str
+    restart_backoff_s: float = Field(1.0, gt=0, le=300, description="first delay before restarting after a run-time failure; doubles up to 60 s")
+
+
+class FrontConfig(ComponentConfig):
+    expose: list[str] | None = Field(
+        None,
+        description="channel ids or glob patterns this front serves, in order; default: every channel in the seeds' order",
+    )
+
+
+class ModuleConfig(StrictModel):
+    """One RS-485 module. Plugins subclass it to add model presets and channel declarations."""
+
+    address: int = Field(ge=0, le=255)
+    name: str | None = None
+    model: str | None = None
+    poll_ms: int | None = Field(None, ge=1, le=3_600_000, description="poll period; default: the line's poll_ms")
+    error_mode: ErrorModeSpec = Field("hold", description="outputs' error mode when a front loses its master")
+    shutdown_mode: ErrorModeSpec | None = Field(None, description="outputs' value on gateway shutdown; default: leave as is")
+    error_modes: dict[str, ErrorModeSpec] = Field(default_factory=dict, description="per-channel override, key e.g. do3 or ao0")
+
+    def output_modes(self, kind: Kind, index: int) -> tuple[ErrorMode, ErrorMode | None]:
+        local = f"{kind.value}{index}"
+        spec = self.error_modes.get(local, self.error_mode)
+        return to_error_mode(spec), to_error_mode(self.shutdown_mode)
+
+
+class BackConfig(ComponentConfig):
+    modules: list[ModuleConfig] = Field(default_factory=list)
+
+    def channel_specs(self) -> list[ChannelSpec]:
+        """Every channel this back provides. Plugins implement it."""
+        raise NotImplementedError(f"{type(self).__name__} must implement channel_specs()")
+
+
+class SerialBackConfig(BackConfig):
+    """Settings every RS-485 poller shares; the line scheduler in core reads them."""
+
+    port: str = Field(description="serial device (/dev/ttyUSB0), or a pyserial URL such as socket://127.0.0.1:5020")
+    baudrate: int = Field(9600, ge=300, le=4_000_000)
+    bytesize: Literal[7, 8] = 8
+    parity: Literal["N", "E", "O"] = "N"
+    stopbits: Literal[1, 2] = 1
+    timeout_ms: int = Field(200, ge=1, le=60_000, description="reply timeout per transaction")
+    retries: int = Field(0, ge=0, le=10, description="immediate retries of a failed transaction before it counts as failed")
+    poll_ms: int = Field(100, ge=0, le=3_600_000, description="default poll period of each module; 0 = as fast as the line allows")
+    fail_threshold: int = Field(3, ge=0, le=100, description="a module is offline when its consecutive failures exceed this")
+    offline_probe_ms: int = Field(5000, ge=10, le=3_600_000, description="re-probe period of an offline module")
+    write_period_ms: int | None = Field(None, ge=10, description="also rewrite outputs cyclically at this period; default: on change only")

@@ -1,0 +1,1 @@
+"""fieldgate.plugins.dcon"""

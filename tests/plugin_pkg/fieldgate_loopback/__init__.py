@@ -1,0 +1,84 @@
+"""A loopback back end: each module's DO n is wired to its DI n, AO n to AI n.
+
+Like the demo bench of the I-7232D manual (M-7055D outputs wired to M-7052D inputs),
+but in software. ``fail_start`` and ``fail_after_s`` inject start-up and run-time
+failures, so the gateway's supervision can be tested.
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+from pydantic import Field
+
+from fieldgate import Back, ChannelSpec, Kind, PluginStartError, Source, channel_id, hookimpl
+from fieldgate.topology import BackConfig, ModuleConfig
+
+__version__ = "1.0.0"
+
+
+class LoopbackModule(ModuleConfig):
+    digital: int = Field(0, ge=0, le=64, description="number of DO channels, each looped back to a DI")
+    analog: int = Field(0, ge=0, le=32, description="number of AO channels, each looped back to an AI")
+
+
+class LoopbackConfig(BackConfig):
+    type: str = "loopback"
+    modules: list[LoopbackModule] = Field(min_length=1)
+    fail_start: str | None = Field(None, description="test hook: start() fails with this cause")
+    fail_after_s: float | None = Field(None, gt=0, description="test hook: run() fails after this long")
+
+    def channel_specs(self) -> list[ChannelSpec]:
+        specs = []
+        for m in self.modules:
+            for kinds, count in (((Kind.DI, Kind.DO), m.digital), ((Kind.AI, Kind.AO), m.analog)):
+                for i in range(count):
+                    for kind in kinds:
+                        err, shut = m.output_modes(kind, i) if kind.is_output else (None, None)
+                        extra = {"error_mode": err, "shutdown_mode": shut} if kind.is_output else {}
+                        specs.append(ChannelSpec(channel_id(self.name, m.address, kind, i), kind, Source(self.name, m.address, i), **extra))
+        return specs
+
+
+class LoopbackBack(Back):
+    def __init__(self, config: LoopbackConfig, context):
+        super().__init__(config, context)
+        self._sub = None
+        self.starts = 0
+
+    async def start(self) -> None:
+        self.starts += 1
+        if self.config.fail_start:
+            raise PluginStartError(self.config.fail_start)
+        image = self.context.image
+        outputs = [c.id for c in image.channels(back=self.name) if c.kind.is_output]
+        self._sub = image.subscribe(self._echo, ids=outputs)
+        for cid in outputs:
+            self._echo_id(cid)
+
+    def _echo(self, change) -> None:
+        self._echo_id(change.channel.id)
+
+    def _echo_id(self, cid: str) -> None:
+        out = self.context.image[cid]
+        twin = channel_id(self.name, out.source.module, Kind.DI if out.kind is Kind.DO else Kind.AI, out.source.index)
+        self.context.image.update_input(twin, out.value)
+
+    async def run(self) -> None:
+        if self.config.fail_after_s is not None:
+            await asyncio.sleep(self.config.fail_after_s)
+            raise RuntimeError("injected run-time failure")
+        await asyncio.Event().wait()
+
+    async def stop(self) -> None:
+        if self._sub is not None:
+            self._sub.cancel()
+            self._sub = None
+
+    def status(self) -> dict:
+        return {"starts": self.starts}
+
+
+@hookimpl
+def fieldgate_register(registry) -> None:
+    registry.add_back("loopback", LoopbackConfig, LoopbackBack, "outputs looped back to inputs (test plugin)")
