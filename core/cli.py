@@ -67,7 +67,7 @@ def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
 
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
     try:
-        gateway = Gateway.load(args.file, parse_overrides(args.set), registry)
+        gateway = Gateway.load(args.file, parse_overrides(args.set), registry, simulate=args.simulate, animate=args.simulate)
     except TopologyError as exc:
         for issue in exc.issues:
             print(issue, file=sys.stderr)
@@ -117,6 +117,7 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run a gateway until SIGINT/SIGTERM")
     p.add_argument("file")
     p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="override a field, e.g. fronts.can.interface=virtual")
+    p.add_argument("--simulate", action="store_true", help="serve every back from simulated modules on pseudo-terminals (no hardware)")
     p.add_argument("--status-every", type=float, default=0, metavar="SECONDS", help="print the process image periodically")
     p.add_argument("--duration", type=float, default=0, metavar="SECONDS", help="stop by itself after this long")
     p.set_defaults(handler=cmd_run)

@@ -146,6 +146,31 @@ class Command:
     plugin: str
 
 
+class Simulator(ABC):
+    """Simulated modules of one back, serving the far end of a serial port.
+
+    Registered per back type with :meth:`Registry.add_simulator`; used by
+    ``fieldgate run --simulate`` (the demo) and by tests.
+    """
+
+    @abstractmethod
+    async def start(self) -> None: ...
+
+    @abstractmethod
+    async def stop(self) -> None: ...
+
+    @abstractmethod
+    def set_input(self, channel_id: str, value: bool | int | float) -> None:
+        """Drive a simulated module input (it shows up in the gateway after the next poll)."""
+
+    @abstractmethod
+    def get_output(self, channel_id: str) -> bool | int | float:
+        """What the gateway last wrote to a simulated module output."""
+
+
+SimulatorFactory = Callable[..., Simulator]  # (back_config, port: str, animate: bool) -> Simulator
+
+
 @dataclass
 class PluginInfo:
     name: str
@@ -161,6 +186,7 @@ class Registry:
     def __init__(self) -> None:
         self.types: dict[tuple[str, str], ComponentType] = {}
         self.commands: list[Command] = []
+        self.simulators: dict[str, SimulatorFactory] = {}
         self.plugins: dict[str, PluginInfo] = {}
         self._current = "?"
 
@@ -172,6 +198,10 @@ class Registry:
 
     def add_command(self, path: tuple[str, ...], help: str, configure: Callable[[argparse.ArgumentParser], None], run: Callable[[argparse.Namespace], int]) -> None:
         self.commands.append(Command(tuple(path), help, configure, run, self._current))
+
+    def add_simulator(self, back_type: str, factory: SimulatorFactory) -> None:
+        """``factory(back_config, port, animate)`` returns a :class:`Simulator` for that back type."""
+        self.simulators[back_type] = factory
 
     def _add(self, role: str, type_name: str, model: type, factory: Callable, description: str) -> None:
         key = (role, type_name)

@@ -23,6 +23,7 @@ from typing import Any
 from .health import HealthRegistry
 from .image import ProcessImage, Quality
 from .masters import MasterMonitor
+from .simulation import SimulationBench
 from .plugin import Component, GatewayContext, PluginStartError, Registry, load_registry
 from .topology import Topology, load_topology
 
@@ -36,8 +37,9 @@ class GatewayStartError(Exception):
 
 
 class Gateway:
-    def __init__(self, topology: Topology, registry: Registry, clock: Callable[[], float] = time.monotonic):
+    def __init__(self, topology: Topology, registry: Registry, clock: Callable[[], float] = time.monotonic, *, simulate: bool = False, animate: bool = False):
         self.topology = topology
+        self.bench = SimulationBench(topology, registry, animate) if simulate else None
         self.registry = registry
         self.image = ProcessImage(clock)
         self.health = HealthRegistry()
@@ -52,13 +54,20 @@ class Gateway:
         self.running = False
 
     @classmethod
-    def load(cls, source: str | Path | dict, overrides: dict[str, Any] | None = None, registry: Registry | None = None) -> Gateway:
+    def load(cls, source: str | Path | dict, overrides: dict[str, Any] | None = None, registry: Registry | None = None, **options: Any) -> Gateway:
+        """Load a topology; ``simulate=True`` serves every back from its plugin's simulator."""
         registry = registry or load_registry()
-        return cls(load_topology(source, registry, overrides), registry)
+        return cls(load_topology(source, registry, overrides), registry, **options)
 
     # -- life cycle -----------------------------------------------------------
     async def start(self) -> None:
         """Start every back, then every front. On any failure, stop what started and raise."""
+        if self.bench is not None:
+            try:
+                await self.bench.start()
+            except PluginStartError as exc:
+                await self.bench.stop()
+                raise GatewayStartError(str(exc)) from None
         try:
             for cfg in self.topology.backs:
                 self.backs.append(self._create("back", cfg))
@@ -69,6 +78,8 @@ class Gateway:
                 await self._start_one(comp)
         except GatewayStartError:
             await self._stop_components()
+            if self.bench is not None:
+                await self.bench.stop()
             raise
         self.running = True
         for comp in self.backs + self.fronts:
@@ -145,6 +156,8 @@ class Gateway:
                 except Exception as exc:
                     log.error("back %s: could not write shutdown values: %s", comp.name, exc)
         await self._stop_components()
+        if self.bench is not None:
+            await self.bench.stop()
         self.running = False
         log.info("gateway %s stopped", self.topology.gateway.name)
 
