@@ -36,8 +36,19 @@ def parse_overrides(items: list[str]) -> dict:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise SystemExit(f"fieldgate: --set expects PATH=VALUE, got {item!r}")
-        out[key] = yaml.load(value) if value else ""
+        out[key] = _scalar(yaml, value)
     return out
+
+
+def _scalar(yaml, text: str):
+    """A YAML value; text that only looks like a mapping (``a: b``) stays a string."""
+    try:
+        value = yaml.load(text) if text else ""
+    except Exception:
+        return text
+    if isinstance(value, (dict, list)) and not text.lstrip().startswith(("{", "[")):
+        return text
+    return value
 
 
 def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:

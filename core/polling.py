@@ -237,8 +237,8 @@ class LineScheduler:
             self._failed(st, exc.kind, f"on_online: {exc}")
         except Exception as exc:
             self._failed(st, ErrorKind.IO, f"on_online: {type(exc).__name__}: {exc}")
-        if st.health.online:
-            st.dirty.update(st.module.outputs)  # bring a recovered module up to date
+        if st.health.online:  # bring the module up to date with what fronts (or the config) set
+            st.dirty.update(cid for cid in st.module.outputs if self.image[cid].written_by or self.image[cid].spec.initial is not None)
 
     def _failed(self, st: _ModuleState, kind: ErrorKind, text: str) -> None:
         self.stats.errors[kind] += 1

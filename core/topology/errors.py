@@ -54,13 +54,16 @@ def position(root: Any, loc: tuple, *, key: bool = False) -> tuple[int | None, i
         last = i == len(parts) - 1
         if isinstance(node, dict) and part in node:
             lc = getattr(node, "lc", None)
-            if lc is not None:
+            child = node[part]
+            if not (key and last) and not _is_scalar(child) and _own_position(child)[0] is not None:
+                best = _own_position(child)  # inside a nested mapping or list: point at its content
+            elif lc is not None:
                 try:
-                    line, col = lc.key(part) if (key and last) or not _is_scalar(node[part]) else lc.value(part)
+                    line, col = lc.key(part) if (key and last) or not _is_scalar(child) else lc.value(part)
                     best = (line + 1, col + 1)
                 except (KeyError, TypeError):
                     pass
-            node = node[part]
+            node = child
         elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
             lc = getattr(node, "lc", None)
             if lc is not None:

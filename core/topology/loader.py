@@ -87,8 +87,8 @@ def read_yaml(path: str | Path) -> Any:
         mark = exc.problem_mark or exc.context_mark
         problem = (exc.problem or "invalid YAML").strip()
         if "duplicate key" in problem:
-            first = exc.context_mark
-            problem = f"{problem.split(' with value')[0]} (first defined on line {first.line + 1}); each key may appear once"
+            start = exc.context_mark
+            problem = f"{problem.split(' with value')[0]} in the mapping that starts on line {start.line + 1}; each key may appear once"
         line, col = (mark.line + 1, mark.column + 1) if mark else (None, None)
         raise TopologyError([ConfigIssue(file, line, col, "", f"YAML syntax: {problem}")]) from None
     except YAMLError as exc:
@@ -246,6 +246,8 @@ def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]
         except ValueError as exc:
             issue(("backs", b_index), str(exc))
 
+    if issues:
+        return issues  # channel ids are incomplete: checking expose would only add noise
     ids = {s.id for s in topology.channel_specs}
     for f_index, front in enumerate(topology.fronts):
         for e_index, pattern in enumerate(front.expose or []):

@@ -1,8 +1,12 @@
-"""A loopback back end: each module's DO n is wired to its DI n, AO n to AI n.
+"""A third-party fieldgate plugin with one back and one front, used by the tests.
 
-Like the demo bench of the I-7232D manual (M-7055D outputs wired to M-7052D inputs),
-but in software. ``fail_start`` and ``fail_after_s`` inject start-up and run-time
-failures, so the gateway's supervision can be tested.
+* back ``loopback``: each module's DO n is wired to its DI n, AO n to AI n, like the
+  demo bench of the I-7232D manual (M-7055D outputs wired to M-7052D inputs), in software.
+* front ``memory``: a front without a bus; it records the channels it serves and can
+  be told its master is lost.
+
+``fail_start`` and ``fail_after_s`` inject start-up and run-time failures, so the
+gateway's supervision can be tested.
 """
 
 from __future__ import annotations
@@ -11,8 +15,8 @@ import asyncio
 
 from pydantic import Field
 
-from fieldgate import Back, ChannelSpec, Kind, PluginStartError, Source, channel_id, hookimpl
-from fieldgate.topology import BackConfig, ModuleConfig
+from fieldgate import Back, ChannelSpec, Front, Kind, PluginStartError, Source, channel_id, hookimpl
+from fieldgate.topology import BackConfig, FrontConfig, ModuleConfig
 
 __version__ = "1.0.0"
 
@@ -79,6 +83,34 @@ class LoopbackBack(Back):
         return {"starts": self.starts}
 
 
+class MemoryFrontConfig(FrontConfig):
+    type: str = "memory"
+    fail_start: str | None = Field(None, description="test hook: start() fails with this cause")
+
+
+class MemoryFront(Front):
+    def __init__(self, config: MemoryFrontConfig, context):
+        super().__init__(config, context)
+        self.channels: list[str] = []
+        self.stopped = False
+
+    async def start(self) -> None:
+        if self.config.fail_start:
+            raise PluginStartError(self.config.fail_start)
+        self.channels = [c.id for c in self.context.front_channels(self.config)]
+
+    async def run(self) -> None:
+        await asyncio.Event().wait()
+
+    async def stop(self) -> None:
+        self.stopped = True
+
+    def lose_master(self, reason: str = "heartbeat timeout") -> list[str]:
+        outputs = [c for c in self.channels if self.context.image[c].kind.is_output]
+        return self.context.masters.lost(self.name, reason, outputs)
+
+
 @hookimpl
 def fieldgate_register(registry) -> None:
     registry.add_back("loopback", LoopbackConfig, LoopbackBack, "outputs looped back to inputs (test plugin)")
+    registry.add_front("memory", MemoryFrontConfig, MemoryFront, "a front without a bus (test plugin)")

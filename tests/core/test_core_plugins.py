@@ -1,0 +1,58 @@
+"""Plugin discovery through the entry-point group: built-in and third-party alike."""
+
+import importlib.metadata
+import subprocess
+import sys
+
+import pytest
+
+from fieldgate import hookimpl, load_registry
+from fieldgate.plugin import ENTRY_POINT_GROUP
+
+
+def test_external_package_is_found_through_its_entry_point_alone():
+    eps = {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+    assert eps["loopback"].dist.name == "fieldgate-loopback"  # installed from tests/plugin_pkg, not part of fieldgate
+    registry = load_registry()
+    info = registry.plugins["loopback"]
+    assert (info.version, info.distribution, info.error) == ("1.0.0", "fieldgate-loopback", "")
+    assert info.provides == ["back:loopback", "front:memory"]
+    assert registry.lookup("back", "loopback").model.__name__ == "LoopbackConfig"
+
+
+def test_builtin_plugins_register_through_the_same_group():
+    eps = {ep.name: ep.value for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+    builtin = {name: value for name, value in eps.items() if value.startswith("fieldgate.plugins.")}
+    registry = load_registry()
+    for name in builtin:
+        assert registry.plugins[name].distribution == "fieldgate"
+        assert registry.plugins[name].error == "", registry.plugins[name].error
+
+
+class Broken:
+    PLUGIN_NAME = "broken"
+
+    @hookimpl
+    def fieldgate_register(self, registry):
+        raise RuntimeError("cannot register")
+
+
+class Clash:
+    PLUGIN_NAME = "clash"
+
+    @hookimpl
+    def fieldgate_register(self, registry):
+        registry.add_back("loopback", object, object)
+
+
+def test_a_broken_plugin_is_reported_and_does_not_hide_the_others():
+    registry = load_registry(extra_plugins=[Broken(), Clash()])
+    assert "RuntimeError: cannot register" in registry.plugins["broken"].error
+    assert "registered by both loopback and clash" in registry.plugins["clash"].error
+    assert registry.lookup("back", "loopback").plugin == "loopback"
+
+
+def test_fieldgate_plugins_lists_name_version_and_what_each_provides():
+    out = subprocess.run([sys.executable, "-m", "fieldgate", "plugins"], capture_output=True, text=True, check=True).stdout
+    line = next(l for l in out.splitlines() if l.startswith("loopback"))
+    assert "1.0.0" in line and "back:loopback, front:memory" in line and "(fieldgate-loopback)" in line

@@ -1,0 +1,137 @@
+"""Gateway life cycle: start order, stop with shutdown values, start failures, run-time restarts."""
+
+import asyncio
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from fieldgate import Gateway, GatewayStartError, Quality
+
+
+async def test_start_read_write_and_loopback_through_the_api(registry, topology_dict):
+    async with Gateway.load(topology_dict(), registry=registry) as gw:
+        assert [c.name for c in gw.backs] == ["io"] and [c.name for c in gw.fronts] == ["plc"]
+        gw.write("io/m3/do1", True)
+        assert gw.read("io/m3/di1") is True and gw.image["io/m3/di1"].quality is Quality.GOOD
+        front = gw.component("plc")
+        # default order: modules by ascending address, then channel index
+        assert front.channels[:2] == ["io/m1/di0", "io/m1/do0"]
+        assert gw.status()["fronts"]["plc"]["master_ok"] is True
+    assert front.stopped and not gw.running
+
+
+async def test_master_lost_applies_error_modes_once(registry, topology_dict):
+    async with Gateway.load(topology_dict(), registry=registry) as gw:
+        front = gw.component("plc")
+        changed = front.lose_master()
+        assert sorted(changed) == ["io/m3/ao0", "io/m3/do0", "io/m3/do1"]  # module 3 has error_mode value 1
+        assert gw.read("io/m3/ao0") == 1 and gw.read("io/m3/di0") is True  # looped back to the input
+        assert gw.read("io/m1/do0") is False  # module 1 holds
+        gw.write("io/m3/do0", False)
+        assert front.lose_master() == []  # already lost: nothing re-applied
+        assert gw.status()["fronts"]["plc"]["master_ok"] is False
+        gw.masters.ok("plc")
+        assert gw.masters.all_ok
+
+
+async def test_stop_applies_shutdown_values(registry, topology_dict):
+    gw = Gateway.load(topology_dict(), registry=registry)
+    await gw.start()
+    gw.write("io/m3/do0", True)
+    await gw.stop()
+    assert gw.read("io/m3/do0") is False and gw.read("io/m3/ao0") == 0
+
+
+async def test_start_failure_names_component_and_cause_and_stops_the_rest(registry, topology_dict):
+    gw = Gateway.load(topology_dict(fail_start="permission denied on can0"), registry=registry)
+    with pytest.raises(GatewayStartError, match=r"^front plc \(memory\): permission denied on can0$"):
+        await gw.start()
+    back = gw.component("io")
+    assert back._sub is None  # the back that had started was stopped again
+    assert not gw.running
+
+
+async def test_run_time_failure_marks_channels_comm_fault_and_restarts_with_backoff(registry, topology_dict, caplog):
+    topo = topology_dict()
+    topo["backs"][0].update(fail_after_s=0.05, restart_backoff_s=0.05)
+    gw = Gateway.load(topo, registry=registry)
+    await gw.start()
+    back = gw.component("io")
+    seen = []
+    gw.image.subscribe(lambda ch: seen.append(ch.quality), ids=["io/m1/di0"])
+    try:
+        for _ in range(100):
+            await asyncio.sleep(0.02)
+            if back.starts >= 3:
+                break
+        assert back.starts >= 3
+        assert Quality.COMM_FAULT in seen
+        assert gw.status()["backs"]["io"]["restarts"] >= 2
+        assert "back io failed: RuntimeError: injected run-time failure; restarting in 0.1 s" in caplog.text
+    finally:
+        await gw.stop()
+
+
+TOPOLOGY = textwrap.dedent(
+    """\
+    gateway: {name: cli}
+    fronts:
+      - {name: plc, type: memory}
+    backs:
+      - name: io
+        type: loopback
+        modules: [{address: 1, digital: 1, shutdown_mode: {value: 1}}]
+    """
+)
+
+
+def cli(*args):
+    return [sys.executable, "-m", "fieldgate", *args]
+
+
+def test_cli_start_failure_is_one_clear_line_and_exit_2(tmp_path):
+    path = tmp_path / "t.yaml"
+    path.write_text(TOPOLOGY)
+    result = subprocess.run(cli("run", str(path), "--set", "backs.io.fail_start=cannot open /dev/ttyS9: no such device"), capture_output=True, text=True, timeout=30)
+    assert result.returncode == 2
+    errors = [l for l in result.stderr.splitlines() if "ERROR" in l]
+    assert len(errors) == 1 and errors[0].endswith("cannot start: back io (loopback): cannot open /dev/ttyS9: no such device")
+    assert "Traceback" not in result.stderr
+
+
+def test_cli_invalid_file_exit_1_with_line(tmp_path):
+    path = tmp_path / "t.yaml"
+    path.write_text(TOPOLOGY.replace("type: memory", "type: devicenet"))
+    result = subprocess.run(cli("run", str(path)), capture_output=True, text=True, timeout=30)
+    assert result.returncode == 1
+    assert f"{path}:3:" in result.stderr and "front type 'devicenet'" in result.stderr
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_cli_signal_stops_cleanly_with_exit_0_and_shutdown_values(tmp_path, sig):
+    path = tmp_path / "t.yaml"
+    path.write_text(TOPOLOGY)
+    proc = subprocess.Popen(cli("--log-level", "info", "run", str(path)), stderr=subprocess.PIPE, text=True)
+    lines = []
+    for line in proc.stderr:
+        lines.append(line)
+        if "running" in line:
+            break
+    proc.send_signal(sig)
+    rest = proc.communicate(timeout=20)[1]
+    log = "".join(lines) + rest
+    assert proc.returncode == 0, log
+    assert "shutdown values applied to 1 output(s)" in log and "gateway cli stopped" in log
+
+
+def test_cli_validate_prints_a_summary(tmp_path):
+    path = tmp_path / "t.yaml"
+    path.write_text(TOPOLOGY)
+    result = subprocess.run(cli("validate", str(path)), capture_output=True, text=True, timeout=30)
+    assert result.returncode == 0
+    assert "gateway cli: 1 front(s), 1 back(s), 1 module(s), 2 channel(s)" in result.stdout
+    assert "1 DI, 1 DO, 0 AI, 0 AO" in result.stdout
