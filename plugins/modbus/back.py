@@ -1,0 +1,192 @@
+"""The ``modbus`` back: module profiles for core's line scheduler.
+
+Core's :class:`~fieldgate.polling.LineScheduler` decides *when* (writes ahead of reads,
+poll periods, offline and re-probe, quality); this module decides *what goes on the
+wire*: coalesced reads with per-point fallback, and write requests for changed outputs.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from itertools import groupby
+
+from fieldgate.image import ChannelSpec, Quality
+from fieldgate.polling import PolledModule, SerialBack
+from fieldgate.topology import ModuleConfig
+
+from . import values as regvalues
+from .client import ModbusExceptionError, ModbusLink
+from .codec import ExceptionCode, Function
+from .config import ModbusBackConfig, ModbusModuleConfig, Point, module_points
+from .plan import ReadBlock, decode_block, plan_reads, plan_writes
+
+log = logging.getLogger("fieldgate.modbus")
+
+
+class ModbusModule(PolledModule):
+    """One Modbus slave: its read plan, its outputs, and the points it refused."""
+
+    def __init__(self, config: ModbusModuleConfig, specs: list[ChannelSpec], link: ModbusLink, points: list[Point], *, retry_period: float = 5.0, clock: Callable[[], float]):
+        super().__init__(config, specs)
+        self.link = link
+        self.unit = config.address
+        self.clock = clock
+        self.retry_period = retry_period
+        self.outputs_by_id = {p.channel: p for p in points if p.kind.is_output}
+        inputs = [p for p in points if not p.kind.is_output]
+        # A module with outputs only is read back, so that a dead module is noticed.
+        self._readable = inputs or list(self.outputs_by_id.values())
+        self._discard = not inputs
+        self._limits = (config.max_read_registers, config.max_read_bits)
+        self._gap = config.coalesce_gap
+        self.bad: dict[str, float] = {}  # channel -> when to try it again
+        self.last: dict[str, object] = {}
+        self.allow_multiple_writes = True
+        self._due: dict[int, float] = {}  # block id -> next read, for groups with their own poll_ms
+        self._logged: set[tuple] = set()
+        self.replan()
+
+    def replan(self) -> None:
+        points = [p for p in self._readable if p.channel not in self.bad]
+        self.blocks: list[ReadBlock] = []
+        for period in sorted({p.period or 0 for p in points}):
+            same = [p for p in points if (p.period or 0) == period]
+            self.blocks.extend(plan_reads(same, *self._limits, gap=self._gap))
+
+    # -- reads ------------------------------------------------------------------------
+    async def read_inputs(self) -> dict[str, object]:
+        readings: dict[str, object] = {}
+        now = self.clock()
+        for block in list(self.blocks):
+            period = block.points[0].period
+            if period and self._due.get(id(block), 0) > now:
+                continue
+            try:
+                data = await self._read(block)
+            except ModbusExceptionError as exc:
+                readings.update(await self._fallback(block, exc))
+            else:
+                readings.update(decode_block(block, data))
+            if period:
+                self._due[id(block)] = now + period
+        readings.update(await self._retry_bad(now))
+        if self._discard:
+            return {}
+        self.last.update({k: v for k, v in readings.items() if not isinstance(v, tuple)})
+        return readings
+
+    async def _read(self, block: ReadBlock) -> list:
+        if block.table.is_bits:
+            return await self.link.read_bits(self.unit, block.function, block.address, block.count)
+        return await self.link.read_registers(self.unit, block.function, block.address, block.count)
+
+    async def _fallback(self, block: ReadBlock, exc: ModbusExceptionError) -> dict[str, object]:
+        """A coalesced read was refused: read its points one by one, drop the ones refused."""
+        self._log_once(("block", block.describe()), "module %d: %s answered exception %d; reading its points one by one", self.unit, block.describe(), exc.code)
+        readings: dict[str, object] = {}
+        singles = [ReadBlock(block.table, p.address, p.width, [p]) for p in block.points] if len(block.points) > 1 else []
+        for single in singles:
+            try:
+                readings.update(decode_block(single, await self._read(single)))
+            except ModbusExceptionError as point_exc:
+                readings.update(self._refused(single.points[0], point_exc))
+        if not singles:
+            readings.update(self._refused(block.points[0], exc))
+        self._gap = 0  # never coalesce across a refused address again
+        self.replan()
+        return readings
+
+    def _refused(self, p: Point, exc: ModbusExceptionError) -> dict[str, object]:
+        self.bad[p.channel] = self.clock() + self.retry_period
+        self._log_once(("point", p.channel), "module %d: %s (%s %d) refused with exception %d; quality config-error", self.unit, p.channel, p.table.value, p.address, exc.code)
+        return {p.channel: (self.last.get(p.channel, _zero(p)), Quality.CONFIG_ERROR)}
+
+    async def _retry_bad(self, now: float) -> dict[str, object]:
+        readings: dict[str, object] = {}
+        points = {p.channel: p for p in self._readable}
+        recovered = False
+        for cid, due in list(self.bad.items()):
+            p = points[cid]
+            if due > now:
+                readings[cid] = (self.last.get(cid, _zero(p)), Quality.CONFIG_ERROR)
+                continue
+            single = ReadBlock(p.table, p.address, p.width, [p])
+            try:
+                readings.update(decode_block(single, await self._read(single)))
+            except ModbusExceptionError as exc:
+                readings.update(self._refused(p, exc))
+            else:
+                del self.bad[cid]
+                self._logged.discard(("point", cid))
+                recovered = True
+        if recovered:
+            self.replan()
+        return readings
+
+    # -- writes -----------------------------------------------------------------------
+    async def write_outputs(self, values: dict[str, object]) -> None:
+        changes = [(self.outputs_by_id[cid], v) for cid, v in values.items() if cid in self.outputs_by_id]
+        for op in plan_writes([(p, v) for p, v in changes if p.bit is None], self.allow_multiple_writes):
+            await self._write(op.function, op.address, op.values, op.points)
+        in_registers = sorted(((p, v) for p, v in changes if p.bit is not None), key=lambda pv: pv[0].address)
+        for address, items in groupby(in_registers, key=lambda pv: pv[0].address):
+            await self._write_bits_of_register(address, list(items))
+
+    async def _write(self, function: int, address: int, words: list, points: list[Point]) -> None:
+        try:
+            await self.link.write(self.unit, function, address, words)
+        except ModbusExceptionError as exc:
+            multiple = function in (Function.WRITE_MULTIPLE_COILS, Function.WRITE_MULTIPLE_REGISTERS)
+            if multiple and exc.code == ExceptionCode.ILLEGAL_FUNCTION and self.allow_multiple_writes:
+                self.allow_multiple_writes = False
+                log.warning("module %d refuses FC%d; writing with single-write functions from now on", self.unit, function)
+                single = Function.WRITE_SINGLE_COIL if function == Function.WRITE_MULTIPLE_COILS else Function.WRITE_SINGLE_REGISTER
+                for i, word in enumerate(words):
+                    await self._write(single, address + i, [word], points)
+                return
+            # The module will not take this value: keep the line going, count it, say it once.
+            self._log_once(("write", function, address), "module %d refused FC%d at %d with exception %d (%s)", self.unit, function, address, exc.code, ", ".join(p.channel for p in points))
+
+    async def _write_bits_of_register(self, address: int, items: list[tuple[Point, object]]) -> None:
+        """Digital outputs inside a holding register: read, change the bits, write back."""
+        (current,) = await self.link.read_registers(self.unit, Function.READ_HOLDING_REGISTERS, address, 1)
+        for p, value in items:
+            current = regvalues.set_bit(current, p.bit, bool(value))
+        forced = Function.WRITE_MULTIPLE_REGISTERS if any(p.write_fc == 16 for p, _ in items) else Function.WRITE_SINGLE_REGISTER
+        await self._write(forced, address, [current], [p for p, _ in items])
+
+    def _log_once(self, key: tuple, message: str, *args) -> None:
+        if key in self._logged:
+            log.debug(message, *args)
+        else:
+            self._logged.add(key)
+            log.warning(message, *args)
+
+
+def _zero(p: Point):
+    return False if p.kind.is_digital else 0
+
+
+class ModbusBack(SerialBack):
+    """Modbus RTU master on one RS-485 line."""
+
+    config: ModbusBackConfig
+
+    async def open_link(self) -> ModbusLink:
+        link = ModbusLink.from_config(self.config)
+        await link.open()
+        return link
+
+    async def close_link(self) -> None:
+        self.link.close()
+
+    def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> ModbusModule:
+        points = module_points(self.name, config)
+        return ModbusModule(config, specs, self.link, points, retry_period=self.config.offline_probe_ms / 1000, clock=self.context.clock)
+
+    def status(self) -> dict:
+        status = super().status()
+        if self.link is not None:
+            status["modbus"] = self.link.stats.as_dict()
+        return status

@@ -1,0 +1,222 @@
+"""Topology models of the ``modbus`` back and their expansion into points.
+
+A module declares channel groups by Modbus table (coils, discrete inputs, holding
+registers, input registers), or names a ``model`` preset, or both (preset channels
+first). :func:`module_points` turns a module into :class:`Point` objects: one per
+channel, saying where it lives on the wire and how to convert it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from fieldgate.image import ChannelSpec, DataType, Kind, Source, channel_id
+from fieldgate.topology import ModuleConfig, SerialBackConfig, StrictModel
+
+from . import presets
+from .codec import MAX_READ_BITS, MAX_READ_REGISTERS
+from .values import WORDS
+
+
+class Table(StrEnum):
+    COILS = "coils"  # FC1 read, FC5/FC15 write
+    DISCRETE_INPUTS = "discrete_inputs"  # FC2
+    HOLDING_REGISTERS = "holding_registers"  # FC3 read, FC6/FC16 write
+    INPUT_REGISTERS = "input_registers"  # FC4
+
+    @property
+    def is_bits(self) -> bool:
+        return self in (Table.COILS, Table.DISCRETE_INPUTS)
+
+    @property
+    def read_function(self) -> int:
+        return {Table.COILS: 1, Table.DISCRETE_INPUTS: 2, Table.HOLDING_REGISTERS: 3, Table.INPUT_REGISTERS: 4}[self]
+
+
+# Which tables each channel kind may live in.
+_ALLOWED = {
+    Kind.DI: {Table.DISCRETE_INPUTS, Table.COILS, Table.INPUT_REGISTERS, Table.HOLDING_REGISTERS},
+    Kind.DO: {Table.COILS, Table.HOLDING_REGISTERS},
+    Kind.AI: {Table.INPUT_REGISTERS, Table.HOLDING_REGISTERS},
+    Kind.AO: {Table.HOLDING_REGISTERS},
+}
+
+RegisterType = Literal["int16", "uint16", "int32", "uint32", "float32"]
+
+
+class ChannelGroup(StrictModel):
+    """``count`` consecutive channels of one kind, starting at ``address`` in ``table``."""
+
+    kind: Literal["di", "do", "ai", "ao"]
+    table: Table
+    address: int = Field(ge=0, le=0xFFFF, description="first PDU address (0-based, as on the wire)")
+    count: int = Field(1, ge=1, le=2000, description="number of channels")
+    type: RegisterType | None = Field(None, description="analog channels: register data type (default int16)")
+    word_order: Literal["big", "little"] = Field("big", description="32-bit types: big = high word first, little = low word first")
+    first_bit: int = Field(0, ge=0, le=15, description="digital channels in registers: bit of the first channel; the next ones follow, LSB first, across registers")
+    write_fc: Literal[5, 6, 15, 16] | None = Field(None, description="outputs: force a write function (default: single writes for one point, multiple for runs)")
+    poll_ms: int | None = Field(None, ge=1, le=3_600_000, description="read this group at most this often (default: every module poll)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ChannelGroup:
+        kind = Kind(self.kind)
+        if self.table not in _ALLOWED[kind]:
+            allowed = ", ".join(sorted(t.value for t in _ALLOWED[kind]))
+            raise ValueError(f"{self.kind} channels cannot live in {self.table.value}; use one of: {allowed}")
+        if self.type is not None and (kind.is_digital or self.table.is_bits):
+            raise ValueError(f"type applies to analog channels in registers, not to {self.kind} channels")
+        if self.write_fc is not None:
+            if not kind.is_output:
+                raise ValueError("write_fc applies to outputs (do, ao) only")
+            expected = (5, 15) if self.table is Table.COILS else (6, 16)
+            if self.write_fc not in expected:
+                raise ValueError(f"write_fc {self.write_fc} does not write {self.table.value}; use {expected[0]} or {expected[1]}")
+            if self.write_fc == 6 and WORDS[self.dtype] == 2:
+                raise ValueError("32-bit values need write_fc 16 (two registers written at once)")
+        if self.last_address > 0xFFFF:
+            raise ValueError(f"the group runs past address 65535 (ends at {self.last_address})")
+        return self
+
+    @property
+    def dtype(self) -> DataType:
+        if Kind(self.kind).is_digital:
+            return DataType.BOOL
+        return DataType(self.type or "int16")
+
+    @property
+    def last_address(self) -> int:
+        if self.table.is_bits:
+            return self.address + self.count - 1
+        if Kind(self.kind).is_digital:
+            return self.address + (self.first_bit + self.count - 1) // 16
+        return self.address + self.count * WORDS[self.dtype] - 1
+
+
+class ModbusModuleConfig(ModuleConfig):
+    address: int = Field(ge=1, le=247, description="Modbus unit id (slave address)")
+    model: str | None = Field(None, description=f"preset: {', '.join(presets.names())}")
+    channels: list[ChannelGroup] = Field(default_factory=list, description="channel groups (after the preset's, if any)")
+    counts: dict[Literal["di", "do", "ai", "ao"], int] = Field(
+        default_factory=dict, description="use only the first N channels of a kind from the preset, e.g. {ai: 1}"
+    )
+    max_read_registers: int = Field(MAX_READ_REGISTERS, ge=1, le=MAX_READ_REGISTERS, description="largest coalesced register read")
+    max_read_bits: int = Field(MAX_READ_BITS, ge=1, le=MAX_READ_BITS, description="largest coalesced bit read")
+    coalesce_gap: int = Field(0, ge=0, le=100, description="also read across holes of up to this many unused registers/bits")
+
+    @model_validator(mode="after")
+    def _known_model(self) -> ModbusModuleConfig:
+        if self.model is not None and presets.find(self.model) is None:
+            raise ValueError(f"unknown model '{self.model}'; presets: {', '.join(presets.names())}; or leave model out and declare channels")
+        if self.model is None and not self.channels:
+            raise ValueError("a module needs a model preset or a channels list")
+        for kind, n in self.counts.items():
+            if n < 0:
+                raise ValueError(f"counts.{kind} must be 0 or more")
+        _check_output_overlap(self.groups())
+        return self
+
+    def groups(self) -> list[ChannelGroup]:
+        """Preset groups (cut to ``counts``) followed by the declared ones."""
+        out: list[ChannelGroup] = []
+        preset = presets.find(self.model) if self.model else None
+        left = dict(self.counts)
+        for raw in preset.groups if preset else ():
+            group = ChannelGroup(**raw)
+            if group.kind in left:
+                take = min(group.count, left[group.kind])
+                left[group.kind] -= take
+                if take == 0:
+                    continue
+                group = group.model_copy(update={"count": take})
+            out.append(group)
+        return out + list(self.channels)
+
+
+def _check_output_overlap(groups: list[ChannelGroup]) -> None:
+    owners: dict[tuple, int] = {}
+    for i, g in enumerate(groups):
+        if not Kind(g.kind).is_output:
+            continue
+        for cell in _cells(g):
+            if cell in owners and owners[cell] != i:
+                raise ValueError(f"output channels overlap in {g.table.value} at address {cell[1]}")
+            owners[cell] = i
+
+
+def _cells(g: ChannelGroup):
+    if g.table.is_bits:
+        return [(g.table, a) for a in range(g.address, g.address + g.count)]
+    if Kind(g.kind).is_digital:
+        return [(g.table, g.address + (g.first_bit + i) // 16, (g.first_bit + i) % 16) for i in range(g.count)]
+    return [(g.table, a) for a in range(g.address, g.last_address + 1)]
+
+
+@dataclass(frozen=True)
+class Point:
+    """One channel and where it lives on the wire."""
+
+    channel: str
+    kind: Kind
+    index: int
+    table: Table
+    address: int  # bit address, or first register
+    dtype: DataType
+    word_order: str = "big"
+    bit: int | None = None  # digital channel inside a register
+    write_fc: int | None = None
+    period: float | None = None
+
+    @property
+    def width(self) -> int:
+        """Registers or bits this point occupies."""
+        return 1 if self.table.is_bits or self.bit is not None else WORDS[self.dtype]
+
+    @property
+    def end(self) -> int:
+        return self.address + self.width
+
+
+def module_points(back: str, module: ModbusModuleConfig) -> list[Point]:
+    points: list[Point] = []
+    next_index = {k: 0 for k in Kind}
+    for g in module.groups():
+        kind = Kind(g.kind)
+        period = g.poll_ms / 1000 if g.poll_ms else None
+        for i in range(g.count):
+            index = next_index[kind]
+            next_index[kind] += 1
+            cid = channel_id(back, module.address, kind, index)
+            common = {"write_fc": g.write_fc, "period": period, "word_order": g.word_order}
+            if g.table.is_bits:
+                points.append(Point(cid, kind, index, g.table, g.address + i, DataType.BOOL, **common))
+            elif kind.is_digital:
+                bit = g.first_bit + i
+                points.append(Point(cid, kind, index, g.table, g.address + bit // 16, DataType.BOOL, bit=bit % 16, **common))
+            else:
+                points.append(Point(cid, kind, index, g.table, g.address + i * WORDS[g.dtype], g.dtype, **common))
+    return points
+
+
+class ModbusBackConfig(SerialBackConfig):
+    type: Literal["modbus"] = "modbus"
+    modules: list[ModbusModuleConfig] = Field(min_length=1)
+    inter_frame_ms: float | None = Field(
+        None, ge=0, le=1000, description="silence kept before each request; default 3.5 character times (1.75 ms above 19200 baud)"
+    )
+
+    def channel_specs(self) -> list[ChannelSpec]:
+        specs = []
+        for m in self.modules:
+            for p in module_points(self.name, m):
+                extra = {}
+                if p.kind.is_output:
+                    extra["error_mode"], extra["shutdown_mode"] = m.output_modes(p.kind, p.index)
+                specs.append(ChannelSpec(p.channel, p.kind, Source(self.name, m.address, p.index), dtype=p.dtype, **extra))
+        return specs
+
+    def points(self) -> dict[int, list[Point]]:
+        return {m.address: module_points(self.name, m) for m in self.modules}

@@ -1,0 +1,420 @@
+"""Simulated Modbus RTU modules on a serial port (or one end of a pseudo-terminal pair).
+
+Our own RTU responder, not pymodbus's server: pymodbus 3.16.1 answers requests for unit
+ids it does not serve (exception 4, even with ``ignore_missing_devices``), which no real
+multi-drop line does, and fault injection needs control of every byte. The responder
+(:class:`RtuResponder`) is sans-I/O; :class:`ModbusSimulator` is its serial shell.
+
+* Every module of a back config is served with the same points as the back (so the same
+  model presets); addresses outside them answer exception 2 (illegal data address).
+* ``set_input`` / ``get_output`` by channel id; ``inject`` faults per module: no answer,
+  bad CRC, exception code, delay, garbage, truncated frame, reply from a wrong address.
+* ``animate=True`` makes unwired inputs move (DI count in binary, AI ramp up and down)
+  and wires outputs to inputs like the I-7232D demo bench: DO of a module with outputs to
+  the DI of an input-only module (M-7055D -> M-7052D), AO to an AI-only module
+  (M-7024 -> M-7017R), so a user sees the loop through the gateway.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import serial
+
+from fieldgate.image import DataType, Kind
+from fieldgate.plugin import PluginStartError, Simulator
+
+from . import values as regvalues
+from .codec import (
+    MAX_READ_BITS,
+    MAX_READ_REGISTERS,
+    MAX_WRITE_BITS,
+    MAX_WRITE_REGISTERS,
+    ExceptionCode,
+    Request,
+    crc_ok,
+    exception_response,
+    frame as rtu_frame,
+    parse_request,
+    read_bits_response,
+    read_registers_response,
+    request_length,
+    write_response,
+)
+from .config import ModbusBackConfig, Point, Table
+
+log = logging.getLogger("fieldgate.modbus.simulator")
+
+FAULT_KINDS = ("no_answer", "crc", "exception", "delay", "garbage", "truncate", "wrong_address")
+
+_TABLE_OF = {1: Table.COILS, 2: Table.DISCRETE_INPUTS, 3: Table.HOLDING_REGISTERS, 4: Table.INPUT_REGISTERS,
+             5: Table.COILS, 6: Table.HOLDING_REGISTERS, 15: Table.COILS, 16: Table.HOLDING_REGISTERS}
+
+
+@dataclass
+class Fault:
+    """A misbehaviour of one simulated module.
+
+    ``count`` replies are affected (None: until cleared); ``table``/``address`` limit it
+    to requests that touch that address.
+    """
+
+    kind: str
+    count: int | None = None
+    code: int = ExceptionCode.SERVER_DEVICE_FAILURE
+    delay: float = 0.5
+    table: Table | None = None
+    address: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in FAULT_KINDS:
+            raise ValueError(f"unknown fault '{self.kind}'; one of: {', '.join(FAULT_KINDS)}")
+
+    def matches(self, request: Request) -> bool:
+        if self.table is not None and _TABLE_OF.get(request.function) is not self.table:
+            return False
+        return self.address is None or request.address <= self.address < request.address + request.count
+
+
+@dataclass
+class Reply:
+    frame: bytes
+    delay: float = 0.0
+
+
+class SimModule:
+    """The memory of one module: sparse tables holding exactly the cells its points use."""
+
+    def __init__(self, address: int, points: list[Point]):
+        self.address = address
+        self.points = points
+        self.tables: dict[Table, dict[int, int | bool]] = {t: {} for t in Table}
+        self.faults: list[Fault] = []
+        self.on_write: Callable[[SimModule], None] | None = None
+        for p in points:
+            for a in range(p.address, p.end):
+                self.tables[p.table][a] = False if p.table.is_bits else 0
+
+    # -- values by point ------------------------------------------------------------
+    def set_point(self, p: Point, value) -> None:
+        cells = self.tables[p.table]
+        if p.table.is_bits:
+            cells[p.address] = bool(value)
+        elif p.bit is not None:
+            cells[p.address] = regvalues.set_bit(cells[p.address], p.bit, bool(value))
+        else:
+            for i, word in enumerate(regvalues.encode(p.dtype, value, p.word_order)):
+                cells[p.address + i] = word
+
+    def get_point(self, p: Point):
+        cells = self.tables[p.table]
+        if p.table.is_bits:
+            return cells[p.address]
+        if p.bit is not None:
+            return regvalues.get_bit(cells[p.address], p.bit)
+        return regvalues.decode(p.dtype, [cells[p.address + i] for i in range(p.width)], p.word_order)
+
+    # -- requests -------------------------------------------------------------------
+    def handle(self, req: Request) -> bytes:
+        fc = req.function
+        table = _TABLE_OF.get(fc)
+        if table is None:
+            return exception_response(self.address, fc, ExceptionCode.ILLEGAL_FUNCTION)
+        limit = {1: MAX_READ_BITS, 2: MAX_READ_BITS, 3: MAX_READ_REGISTERS, 4: MAX_READ_REGISTERS, 15: MAX_WRITE_BITS, 16: MAX_WRITE_REGISTERS}.get(fc, 1)
+        if not 1 <= req.count <= limit:
+            return exception_response(self.address, fc, ExceptionCode.ILLEGAL_DATA_VALUE)
+        cells = self.tables[table]
+        span = range(req.address, req.address + req.count)
+        if any(a not in cells for a in span):
+            return exception_response(self.address, fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
+        if fc in (1, 2):
+            return read_bits_response(self.address, fc, [cells[a] for a in span])
+        if fc in (3, 4):
+            return read_registers_response(self.address, fc, [cells[a] for a in span])
+        for a, v in zip(span, req.values):
+            cells[a] = bool(v) if table.is_bits else v
+        if self.on_write is not None:
+            self.on_write(self)
+        return write_response(req)
+
+    def take_fault(self, req: Request) -> Fault | None:
+        for fault in self.faults:
+            if fault.matches(req):
+                if fault.count is not None:
+                    fault.count -= 1
+                    if fault.count <= 0:
+                        self.faults.remove(fault)
+                return fault
+        return None
+
+
+class RtuResponder:
+    """Slave side of an RTU line, sans-I/O: ``feed(bytes, now)`` returns the replies to send.
+
+    Requests are framed by content (length from the function code); bytes that do not
+    form a request with a good CRC are dropped, as is any partial frame older than the
+    inter-frame ``gap``. Requests for unit ids not served get no answer at all.
+    """
+
+    def __init__(self, modules: dict[int, SimModule], gap: float = 0.05):
+        self.modules = modules
+        self.gap = gap
+        self.buffer = bytearray()
+        self.last_rx = -math.inf
+        self.log: deque[Request] = deque(maxlen=1000)
+        self.dropped = 0  # bad frames
+        self.served = 0
+
+    def feed(self, data: bytes, now: float) -> list[Reply]:
+        if self.buffer and now - self.last_rx > self.gap:
+            self.buffer.clear()  # a partial frame followed by silence is dead
+            self.dropped += 1
+        self.last_rx = now
+        self.buffer += data
+        replies = []
+        while self.buffer:
+            try:
+                length = request_length(self.buffer)
+            except ValueError:
+                self._drop()
+                break
+            if length is None or len(self.buffer) < length:
+                break
+            adu = bytes(self.buffer[:length])
+            del self.buffer[:length]
+            if not crc_ok(adu):
+                self._drop()
+                break
+            try:
+                req = parse_request(adu)
+            except ValueError:
+                reply = self._malformed(adu)
+                if reply is not None:
+                    replies.append(reply)
+                continue
+            reply = self._answer(req)
+            if reply is not None:
+                replies.append(reply)
+        return replies
+
+    def _drop(self) -> None:
+        self.buffer.clear()
+        self.dropped += 1
+
+    def _malformed(self, adu: bytes) -> Reply | None:
+        module = self.modules.get(adu[0])
+        return None if module is None else Reply(exception_response(adu[0], adu[1], ExceptionCode.ILLEGAL_DATA_VALUE))
+
+    def _answer(self, req: Request) -> Reply | None:
+        self.log.append(req)
+        module = self.modules.get(req.unit)
+        if module is None:
+            return None  # not ours: a real line stays silent
+        fault = module.take_fault(req)
+        if fault is not None and fault.kind == "exception":
+            return Reply(exception_response(req.unit, req.function, fault.code))
+        self.served += 1
+        frame = module.handle(req)
+        if fault is None:
+            return Reply(frame)
+        return _distort(fault, frame)
+
+
+def _distort(fault: Fault, frame: bytes) -> Reply | None:
+    if fault.kind == "no_answer":
+        return None
+    if fault.kind == "crc":
+        return Reply(frame[:-1] + bytes([frame[-1] ^ 0xFF]))
+    if fault.kind == "delay":
+        return Reply(frame, fault.delay)
+    if fault.kind == "garbage":
+        return Reply(bytes([0x55, 0xAA, 0x00, 0xFF, 0x13]))
+    if fault.kind == "truncate":
+        return Reply(frame[: max(2, len(frame) // 2)])
+    if fault.kind == "wrong_address":
+        return Reply(rtu_frame((frame[0] % 247) + 1, frame[1:-2]))
+    return Reply(frame)
+
+
+class ModbusSimulator(Simulator):
+    """The modules of one ``modbus`` back, served on ``port``."""
+
+    def __init__(self, config: ModbusBackConfig, port: str, animate: bool = False, *, animate_period: float = 0.25):
+        self.config = config
+        self.port_name = port
+        self.animate = animate
+        self.animate_period = animate_period
+        self.modules: dict[int, SimModule] = {}
+        self.channels: dict[str, tuple[SimModule, Point]] = {}
+        for address, points in config.points().items():
+            module = SimModule(address, points)
+            self.modules[address] = module
+            for p in points:
+                self.channels[p.channel] = (module, p)
+        gap = max(0.02, 3.5 * 11 / config.baudrate * 4)
+        self.responder = RtuResponder(self.modules, gap)
+        self.wiring = demo_wiring(config) if animate else []
+        self._wired_inputs = {dst for _, dst in self.wiring}
+        for module in self.modules.values():
+            module.on_write = self._propagate
+        self._port: serial.SerialBase | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._task: asyncio.Task | None = None
+        self._timers: set[asyncio.TimerHandle] = set()
+        self.output_listeners: list[Callable[[str, object], None]] = []
+        self._outputs_seen: dict[str, object] = {}
+
+    # -- life cycle -----------------------------------------------------------------
+    async def start(self) -> None:
+        c = self.config
+        try:
+            self._port = serial.serial_for_url(self.port_name, baudrate=c.baudrate, bytesize=c.bytesize, parity=c.parity, stopbits=c.stopbits, timeout=0)
+        except (serial.SerialException, ValueError) as exc:
+            raise PluginStartError(f"simulator cannot open {self.port_name}: {exc}") from None
+        self._loop = asyncio.get_running_loop()
+        self._loop.add_reader(self._port.fileno(), self._readable)
+        self._propagate(None)
+        if self.animate:
+            self._task = asyncio.create_task(self._animate(), name=f"modbus-sim-{self.config.name}")
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            try:
+                await self._task
+            except asyncio.CancelledError:
+                pass
+            self._task = None
+        for timer in self._timers:
+            timer.cancel()
+        self._timers.clear()
+        if self._port is not None:
+            try:
+                self._loop.remove_reader(self._port.fileno())
+            except (ValueError, OSError):
+                pass
+            self._port.close()
+            self._port = None
+
+    def _readable(self) -> None:
+        try:
+            data = self._port.read(4096)
+        except (serial.SerialException, OSError):
+            self._loop.remove_reader(self._port.fileno())
+            return
+        if not data:
+            return
+        for reply in self.responder.feed(data, self._loop.time()):
+            if reply.delay:
+                timer = self._loop.call_later(reply.delay, self._send, reply.frame)
+                self._timers.add(timer)
+            else:
+                self._send(reply.frame)
+
+    def _send(self, frame: bytes) -> None:
+        if self._port is not None:
+            try:
+                self._port.write(frame)
+            except (serial.SerialException, OSError) as exc:
+                log.debug("simulator write failed: %s", exc)
+
+    # -- the Simulator API ------------------------------------------------------------
+    def _lookup(self, channel_id: str) -> tuple[SimModule, Point]:
+        try:
+            return self.channels[channel_id]
+        except KeyError:
+            raise KeyError(f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})") from None
+
+    def set_input(self, channel_id: str, value) -> None:
+        module, point = self._lookup(channel_id)
+        if point.kind.is_output:
+            raise ValueError(f"{channel_id} is an output; the gateway writes it")
+        module.set_point(point, point.dtype.check(value) if point.dtype is not DataType.FLOAT32 else float(value))
+
+    def get_output(self, channel_id: str):
+        module, point = self._lookup(channel_id)
+        return module.get_point(point)
+
+    def get(self, channel_id: str):
+        """Any channel's current value in the simulated module (inputs too)."""
+        module, point = self._lookup(channel_id)
+        return module.get_point(point)
+
+    def inject(self, address: int, fault: Fault) -> None:
+        if address not in self.modules:
+            raise KeyError(f"no simulated module at address {address}")
+        self.modules[address].faults.append(fault)
+
+    def clear_faults(self, address: int | None = None) -> None:
+        for a, module in self.modules.items():
+            if address is None or a == address:
+                module.faults.clear()
+
+    @property
+    def requests(self) -> deque[Request]:
+        return self.responder.log
+
+    # -- wiring and animation --------------------------------------------------------
+    def _propagate(self, _module: SimModule | None) -> None:
+        for src, dst in self.wiring:
+            value = self.get(src)
+            _, dst_point = self._lookup(dst)
+            if dst_point.dtype is not DataType.BOOL and dst_point.dtype is not DataType.FLOAT32:
+                value = max(-0x8000, min(0xFFFF if dst_point.dtype is DataType.UINT16 else 0x7FFF, int(value)))
+            self.set_input(dst, value)
+        for cid, (module, p) in self.channels.items():
+            if p.kind.is_output:
+                value = module.get_point(p)
+                if self._outputs_seen.get(cid) != value:
+                    self._outputs_seen[cid] = value
+                    for listener in self.output_listeners:
+                        listener(cid, value)
+
+    async def _animate(self) -> None:
+        tick = 0
+        while True:
+            await asyncio.sleep(self.animate_period)
+            tick += 1
+            for cid, (module, p) in self.channels.items():
+                if p.kind.is_output or cid in self._wired_inputs:
+                    continue
+                module.set_point(p, _animated_value(p, tick))
+
+
+def _animated_value(p: Point, tick: int):
+    if p.kind is Kind.DI:
+        return bool((tick // 4) >> p.index & 1)  # a binary count, one step a second at the default period
+    phase = (tick + 8 * p.index) % 80 / 80
+    wave = 1 - abs(2 * phase - 1)  # triangle 0..1..0 over 20 s
+    if p.dtype is DataType.FLOAT32:
+        return round(10 * wave, 3)
+    high = 0xFFFF if p.dtype is DataType.UINT16 else 0x7FFF
+    return int(wave * high)
+
+
+def demo_wiring(config: ModbusBackConfig) -> list[tuple[str, str]]:
+    """Output -> input pairs of the I-7232D demo bench, found in any topology.
+
+    Modules with DO are paired, in address order, with modules that have DI and no
+    outputs; the same for AO and AI-only modules. Channel n drives channel n.
+    """
+    points = config.points()
+
+    def having(kind: Kind, without: Kind | None = None) -> list[list[Point]]:
+        out = []
+        for address in sorted(points):
+            pts = points[address]
+            if any(p.kind is kind for p in pts) and not (without and any(p.kind.is_output for p in pts)):
+                out.append([p for p in pts if p.kind is kind])
+        return out
+
+    pairs = []
+    for out_kind, in_kind in ((Kind.DO, Kind.DI), (Kind.AO, Kind.AI)):
+        for outs, ins in zip(having(out_kind), having(in_kind, without=out_kind)):
+            pairs.extend((o.channel, i.channel) for o, i in zip(outs, ins))
+    return pairs
