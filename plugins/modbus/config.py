@@ -12,7 +12,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from fieldgate.image import ChannelSpec, DataType, Kind, Source, channel_id
 from fieldgate.topology import ModuleConfig, SerialBackConfig, StrictModel
@@ -35,6 +36,11 @@ class Table(StrEnum):
     @property
     def read_function(self) -> int:
         return {Table.COILS: 1, Table.DISCRETE_INPUTS: 2, Table.HOLDING_REGISTERS: 3, Table.INPUT_REGISTERS: 4}[self]
+
+
+def _invalid(message: str) -> PydanticCustomError:
+    """A validation error whose message is ours alone (no "Value error," prefix)."""
+    return PydanticCustomError("modbus_config", message.replace("{", "{{").replace("}", "}}"))
 
 
 # Which tables each channel kind may live in.
@@ -66,19 +72,19 @@ class ChannelGroup(StrictModel):
         kind = Kind(self.kind)
         if self.table not in _ALLOWED[kind]:
             allowed = ", ".join(sorted(t.value for t in _ALLOWED[kind]))
-            raise ValueError(f"{self.kind} channels cannot live in {self.table.value}; use one of: {allowed}")
+            raise _invalid(f"{self.kind} channels cannot live in {self.table.value}; use one of: {allowed}")
         if self.type is not None and (kind.is_digital or self.table.is_bits):
-            raise ValueError(f"type applies to analog channels in registers, not to {self.kind} channels")
+            raise _invalid(f"type applies to analog channels in registers, not to {self.kind} channels")
         if self.write_fc is not None:
             if not kind.is_output:
-                raise ValueError("write_fc applies to outputs (do, ao) only")
+                raise _invalid("write_fc applies to outputs (do, ao) only")
             expected = (5, 15) if self.table is Table.COILS else (6, 16)
             if self.write_fc not in expected:
-                raise ValueError(f"write_fc {self.write_fc} does not write {self.table.value}; use {expected[0]} or {expected[1]}")
+                raise _invalid(f"write_fc {self.write_fc} does not write {self.table.value}; use {expected[0]} or {expected[1]}")
             if self.write_fc == 6 and WORDS[self.dtype] == 2:
-                raise ValueError("32-bit values need write_fc 16 (two registers written at once)")
+                raise _invalid("32-bit values need write_fc 16 (two registers written at once)")
         if self.last_address > 0xFFFF:
-            raise ValueError(f"the group runs past address 65535 (ends at {self.last_address})")
+            raise _invalid(f"the group runs past address 65535 (ends at {self.last_address})")
         return self
 
     @property
@@ -107,15 +113,20 @@ class ModbusModuleConfig(ModuleConfig):
     max_read_bits: int = Field(MAX_READ_BITS, ge=1, le=MAX_READ_BITS, description="largest coalesced bit read")
     coalesce_gap: int = Field(0, ge=0, le=100, description="also read across holes of up to this many unused registers/bits")
 
+    @field_validator("model")
+    @classmethod
+    def _known_model(cls, model: str | None) -> str | None:
+        if model is not None and presets.find(model) is None:
+            raise _invalid(f"unknown model '{model}'; presets: {', '.join(presets.names())}; or leave model out and declare channels")
+        return model
+
     @model_validator(mode="after")
-    def _known_model(self) -> ModbusModuleConfig:
-        if self.model is not None and presets.find(self.model) is None:
-            raise ValueError(f"unknown model '{self.model}'; presets: {', '.join(presets.names())}; or leave model out and declare channels")
+    def _complete(self) -> ModbusModuleConfig:
         if self.model is None and not self.channels:
-            raise ValueError("a module needs a model preset or a channels list")
+            raise _invalid("a module needs a model preset or a channels list")
         for kind, n in self.counts.items():
             if n < 0:
-                raise ValueError(f"counts.{kind} must be 0 or more")
+                raise _invalid(f"counts.{kind} must be 0 or more")
         _check_output_overlap(self.groups())
         return self
 
@@ -143,7 +154,7 @@ def _check_output_overlap(groups: list[ChannelGroup]) -> None:
             continue
         for cell in _cells(g):
             if cell in owners and owners[cell] != i:
-                raise ValueError(f"output channels overlap in {g.table.value} at address {cell[1]}")
+                raise _invalid(f"output channels overlap in {g.table.value} at address {cell[1]}")
             owners[cell] = i
 
 

@@ -50,6 +50,7 @@ from .config import ModbusBackConfig, Point, Table
 
 log = logging.getLogger("fieldgate.modbus.simulator")
 
+MAX_ADU = 256
 FAULT_KINDS = ("no_answer", "crc", "exception", "delay", "garbage", "truncate", "wrong_address")
 
 _TABLE_OF = {1: Table.COILS, 2: Table.DISCRETE_INPUTS, 3: Table.HOLDING_REGISTERS, 4: Table.INPUT_REGISTERS,
@@ -180,8 +181,12 @@ class RtuResponder:
         while self.buffer:
             try:
                 length = request_length(self.buffer)
-            except ValueError:
-                self._drop()
+            except ValueError:  # a function we do not know: answer it once the frame is whole
+                if crc_ok(self.buffer):
+                    replies.extend(self._unknown_function(bytes(self.buffer)))
+                    self.buffer.clear()
+                elif len(self.buffer) > MAX_ADU:
+                    self._drop()
                 break
             if length is None or len(self.buffer) < length:
                 break
@@ -205,6 +210,11 @@ class RtuResponder:
     def _drop(self) -> None:
         self.buffer.clear()
         self.dropped += 1
+
+    def _unknown_function(self, adu: bytes) -> list[Reply]:
+        if adu[0] not in self.modules:
+            return []
+        return [Reply(exception_response(adu[0], adu[1], ExceptionCode.ILLEGAL_FUNCTION))]
 
     def _malformed(self, adu: bytes) -> Reply | None:
         module = self.modules.get(adu[0])
