@@ -211,6 +211,16 @@ class LssSlave:
         self._switch_at: float | None = None  # bit-rate switch pending at this time
         self._silent_until: float | None = None  # no transmission before this time
 
+    @classmethod
+    def starting(cls, address: LssAddress, node_id: int = UNCONFIGURED, bitrate: int | None = None,
+                 table: str = "cia", store: LssStore | None = None) -> LssSlave:
+        """The slave at power-on: what LSS stored overrides the configured node-ID and bit rate."""
+        stored = store.load() if store is not None else None
+        if stored is not None:
+            node_id = stored.node_id
+            bitrate = stored.bitrate if stored.bitrate is not None else bitrate
+        return cls(address, node_id=node_id, bitrate=bitrate, table=table, store=store)
+
     # -- node interface ------------------------------------------------------------------
 
     @property

@@ -372,3 +372,14 @@ def test_random_frames_never_raise():
         for can_id, payload in slave.on_frame(0x7E5, data, n * 0.001):
             assert can_id == 0x7E4 and len(payload) == 8
         slave.take_actions()
+
+
+def test_power_on_takes_node_id_and_bit_rate_from_the_store(tmp_path):
+    store = LssStore(tmp_path / "lss.json")
+    assert LssSlave.starting(ADDRESS, node_id=3, bitrate=125_000, store=store).active_node_id == 3
+    store.save(StoredLss(node_id=0x2A, bitrate=None))
+    slave = LssSlave.starting(ADDRESS, node_id=3, bitrate=125_000, store=store)
+    assert (slave.active_node_id, slave.bitrate) == (0x2A, 125_000)
+    store.save(StoredLss(node_id=0xFF, bitrate=1_000_000))
+    slave = LssSlave.starting(ADDRESS, node_id=3, bitrate=125_000, store=store)
+    assert (slave.configured, slave.bitrate) == (False, 1_000_000)
