@@ -1,0 +1,168 @@
+"""EMCY producer: 0x1001 error register, 0x1003 history, 0x1014 COB-ID, 0x1015 inhibit.
+
+API for every other part of the front (PDO engine, CiA 401, module health)::
+
+    node.emcy.raise_error(0x8210, 0x11, b"\\x09")   # one EMCY per *new* error
+    node.emcy.clear_error(0x8210)                  # error reset EMCY when the last clears
+
+An error is identified by its code and manufacturer bytes (two module failures with
+code 0xFF00 are two errors). Raising an active error again sends nothing. When an
+error clears and others remain, an EMCY 0x0000 carrying the remaining error register
+is sent; when the last clears, the all-zero reset. Every EMCY produced is recorded in
+0x1003 (newest at sub 1; the value is the code plus manufacturer bytes 3-4 in bits
+16-31, as the I-7232D stores it), including resets (value 0). Writing 0 to 0x1003:0
+clears the history, any other write aborts 0609 0030.
+
+0x1015 inhibit time is in units of 100 us (CiA 301): EMCYs produced within the
+inhibit time are queued (at most ``QUEUE_LIMIT``) and sent when it elapses. EMCYs are
+sent only in pre-operational and operational (CiA 301); 0x1014 bit 31 set disables
+them. Errors and history are kept in every state.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from canopen.objectdictionary import datatypes as dt
+
+from . import abort
+from .abort import SdoAbort
+from .frame import Frame
+from .service import ALL_STATES, COMMUNICATING, Service
+
+GENERIC = 0x01
+COMMUNICATION = 0x10
+MANUFACTURER = 0x80
+QUEUE_LIMIT = 16
+COB_ID_INVALID = 1 << 31
+COB_ID_EXTENDED = 1 << 29
+
+
+def history_value(code: int, manufacturer: bytes) -> int:
+    m = manufacturer.ljust(2, b"\x00")
+    return (code & 0xFFFF) | (m[0] << 16) | (m[1] << 24)
+
+
+class EmcyProducer(Service):
+    name = "emcy"
+    is_emcy_producer = True
+    active_states = ALL_STATES
+
+    def __init__(self, history_depth: int = 5):
+        super().__init__()
+        if history_depth < 1 or history_depth > 254:
+            raise ValueError("EMCY history depth must be 1..254")
+        self.depth = history_depth
+        self.active: dict[tuple[int, bytes], int] = {}  # (code, manufacturer) -> register bits
+        self.history: deque[int] = deque(maxlen=history_depth)
+        self._queue: deque[Frame] = deque()
+        self._last_sent: float | None = None
+
+    def attach(self, node) -> None:
+        super().attach(node)
+        od = node.od
+        od.add_variable(0x1001, "Error register", dt.UNSIGNED8, "ro", 0)
+        od.bind(0x1001, 0, getter=lambda: self.register)
+        od.add_array(0x1003, "Pre-defined error field", [(i, f"Standard error field {i}", dt.UNSIGNED32, "ro", 0) for i in range(1, self.depth + 1)])
+        od.variable(0x1003, 0).access_type = "rw"
+        od.bind(0x1003, 0, getter=lambda: len(self.history), setter=self._write_history_count)
+        od.add_validator(0x1003, self._check_history_write)
+        for sub in range(1, self.depth + 1):
+            od.bind(0x1003, sub, getter=lambda sub=sub: self._history_entry(sub))
+        od.add_variable(0x1014, "COB-ID EMCY", dt.UNSIGNED32, "rw", 0x80, relative=True)
+        od.add_validator(0x1014, self._check_cob_id)
+        od.add_variable(0x1015, "Inhibit time EMCY", dt.UNSIGNED16, "rw", 0)
+
+    # -- API ---------------------------------------------------------------------------
+    @property
+    def register(self) -> int:
+        bits = 0
+        for b in self.active.values():
+            bits |= b
+        return (bits | GENERIC) if self.active else 0
+
+    def raise_error(self, code: int, register_bits: int = GENERIC, manufacturer: bytes = b"", now: float | None = None) -> bool:
+        """Record a new error and send its EMCY. False (and no frame) if already active."""
+        manufacturer = bytes(manufacturer[:5])
+        key = (code & 0xFFFF, manufacturer)
+        if key in self.active:
+            self.counters["repeated"] += 1
+            return False
+        self.active[key] = register_bits & 0xFF
+        self._produce(code, manufacturer, now)
+        return True
+
+    def clear_error(self, code: int, manufacturer: bytes | None = None, now: float | None = None) -> bool:
+        """Clear an active error (every error with ``code`` if ``manufacturer`` is None)."""
+        keys = [k for k in self.active if k[0] == code and (manufacturer is None or k[1] == bytes(manufacturer[:5]))]
+        if not keys:
+            return False
+        for k in keys:
+            del self.active[k]
+        self._produce(0x0000, b"", now)
+        return True
+
+    def is_active(self, code: int) -> bool:
+        return any(k[0] == code for k in self.active)
+
+    # -- producing ------------------------------------------------------------------------
+    def _produce(self, code: int, manufacturer: bytes, now: float | None) -> None:
+        now = self.node.now if now is None else now
+        self.history.appendleft(history_value(code, manufacturer))
+        data = code.to_bytes(2, "little") + bytes([self.register]) + manufacturer.ljust(5, b"\x00")
+        cob = self.node.od.get(0x1014)
+        if cob & COB_ID_INVALID:
+            self.counters["disabled"] += 1
+            return
+        if self.node.state not in COMMUNICATING:
+            self.counters["suppressed_by_state"] += 1
+            return
+        if len(self._queue) >= QUEUE_LIMIT:
+            self._queue.popleft()
+            self.counters["queue_overflow"] += 1
+        self._queue.append(Frame(cob & 0x7FF, data))
+        self._flush(now)
+
+    def _inhibit(self) -> float:
+        return self.node.od.get(0x1015) * 100e-6
+
+    def _flush(self, now: float) -> None:
+        while self._queue and (self._last_sent is None or now >= self._last_sent + self._inhibit()):
+            self.node.send(self._queue.popleft())
+            self.counters["sent"] += 1
+            self._last_sent = now
+
+    def deadline(self) -> float | None:
+        if not self._queue or self._last_sent is None:
+            return None
+        return self._last_sent + self._inhibit()
+
+    def poll(self, now: float) -> None:
+        self._flush(now)
+
+    def on_nmt_state(self, old, new, now) -> None:
+        if new not in COMMUNICATING:
+            self._queue.clear()
+
+    # -- 0x1003 / 0x1014 -----------------------------------------------------------------
+    def _history_entry(self, sub: int) -> int:
+        if sub > len(self.history):
+            raise SdoAbort(abort.NO_DATA, "no error recorded at this sub-index")
+        return self.history[sub - 1]
+
+    def _check_history_write(self, sub: int, value) -> None:
+        if sub != 0 or value != 0:
+            raise SdoAbort(abort.VALUE_RANGE, "only 0 may be written to 0x1003:0")
+
+    def _write_history_count(self, value) -> None:
+        self.history.clear()
+
+    def _check_cob_id(self, sub: int, value: int) -> None:
+        if value & COB_ID_EXTENDED or value & 0x1FFFF800:
+            raise SdoAbort(abort.VALUE_RANGE, "only 11-bit EMCY COB-IDs are supported")
+        old = self.node.od.get(0x1014)
+        if not (old & COB_ID_INVALID) and not (value & COB_ID_INVALID) and (old & 0x7FF) != (value & 0x7FF):
+            raise SdoAbort(abort.VALUE_RANGE, "set bit 31 before changing the EMCY COB-ID")
+
+    def status(self) -> dict:
+        return {**self.counters, "error_register": self.register, "active": [f"{c:04X}:{m.hex()}" for c, m in self.active]}

@@ -1,0 +1,270 @@
+"""The sans-I/O CANopen slave engine: NMT state machine plus pluggable services.
+
+A :class:`Node` owns the object dictionary (:class:`~.od.Dictionary`), the NMT state
+and a list of :class:`~.service.Service` objects. It is fed frames and the time and
+returns the frames to send::
+
+    node = build_node(settings)            # see .slave: SDO, EMCY, SYNC, error control, store
+    out = node.boot(now)                   # [boot-up frame]
+    out = node.receive(frame, now)         # answers to one received frame
+    out = node.tick(now)                   # timers (heartbeat, life guarding, SDO timeout...)
+    when = node.next_deadline()            # call tick() again at this time (or None)
+
+Public hooks for other services and the front:
+
+* ``node.add_service(service)`` (see :mod:`.service` for the interface);
+* ``node.od`` the object dictionary; ``node.emcy`` the EMCY producer
+  (``raise_error(code, register_bits, manufacturer_bytes)`` / ``clear_error(code)``);
+* ``node.on_nmt(cb(old, new))``, ``node.on_master(cb(ok, reason))``,
+  ``node.on_bit_timing(cb(bitrate, delay_s))`` listeners;
+* ``node.set_node_id(new)`` (LSS: becomes active at the next reset communication),
+  ``node.reset_communication(now)``, ``node.reset_node(now)``,
+  ``node.request_bit_timing(bitrate, delay_s)`` (LSS activate bit timing);
+* a node created with ``node_id=None`` (or 0xFF) is *unconfigured*: it stays in
+  Initialisation, sends no boot-up and passes frames only to services whose
+  ``active_states`` include ``INITIALISING`` (LSS), until LSS sets a node-ID and
+  calls ``reset_communication``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from collections.abc import Callable
+
+from .frame import UNCONFIGURED_NODE_ID, Frame, NmtState
+from .od import Dictionary
+from .service import Service
+
+log = logging.getLogger("fieldgate.canopen")
+
+NMT_START = 0x01
+NMT_STOP = 0x02
+NMT_PRE_OPERATIONAL = 0x80
+NMT_RESET_NODE = 0x81
+NMT_RESET_COMMUNICATION = 0x82
+
+
+class Node:
+    def __init__(self, node_id: int | None, od: Dictionary | None = None, name: str = "canopen"):
+        node_id = UNCONFIGURED_NODE_ID if node_id is None else node_id
+        if not (1 <= node_id <= 127 or node_id == UNCONFIGURED_NODE_ID):
+            raise ValueError(f"node-ID {node_id} is not 1..127 (or unconfigured)")
+        self.name = name
+        self.node_id = node_id
+        self.pending_node_id = node_id
+        self.od = od if od is not None else Dictionary(node_id=node_id if node_id != UNCONFIGURED_NODE_ID else 0)
+        self.od.node_id = node_id if node_id != UNCONFIGURED_NODE_ID else 0
+        self.state = NmtState.INITIALISING
+        self.services: list[Service] = []
+        self.counters: Counter[str] = Counter()
+        self.emcy = None  # the EMCY producer, set when one is added (see .emcy)
+        self.now = 0.0  # time of the last boot()/receive()/tick(), for calls from outside
+        self._outbox: list[Frame] = []
+        self._nmt_listeners: list[Callable[[NmtState, NmtState], None]] = []
+        self._master_listeners: list[Callable[[bool, str], None]] = []
+        self._bit_timing_listeners: list[Callable[[int, float], None]] = []
+
+    # -- assembling ------------------------------------------------------------------
+    def add_service(self, service: Service) -> Service:
+        self.services.append(service)
+        service.attach(self)
+        if getattr(service, "is_emcy_producer", False):
+            self.emcy = service
+        return service
+
+    def service(self, name: str) -> Service:
+        for s in self.services:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+    def on_nmt(self, callback: Callable[[NmtState, NmtState], None]) -> None:
+        self._nmt_listeners.append(callback)
+
+    def on_master(self, callback: Callable[[bool, str], None]) -> None:
+        self._master_listeners.append(callback)
+
+    def on_bit_timing(self, callback: Callable[[int, float], None]) -> None:
+        self._bit_timing_listeners.append(callback)
+
+    @property
+    def configured(self) -> bool:
+        return self.node_id != UNCONFIGURED_NODE_ID
+
+    # -- I/O (sans-I/O) -----------------------------------------------------------------
+    def send(self, frame: Frame) -> None:
+        """Queue a frame; the caller of receive()/tick()/boot()/flush() gets it back."""
+        self._outbox.append(frame)
+
+    def flush(self) -> list[Frame]:
+        """Frames queued by calls from outside the engine (e.g. ``node.emcy.raise_error``)."""
+        return self._drain()
+
+    def _drain(self) -> list[Frame]:
+        out, self._outbox = self._outbox, []
+        return out
+
+    def boot(self, now: float) -> list[Frame]:
+        """Power-on: Initialisation, load everything, boot-up, Pre-operational."""
+        self.now = now
+        self._reset(now, application=True)
+        return self._drain()
+
+    def receive(self, frame: Frame, now: float) -> list[Frame]:
+        self.now = now
+        self.counters["rx"] += 1
+        if frame.can_id == 0 and not frame.rtr:
+            self._nmt_command(frame, now)
+        else:
+            for service in self.services:
+                if self.state not in service.active_states:
+                    continue
+                try:
+                    if service.on_frame(frame, now):
+                        break
+                except Exception:
+                    self._internal_error(service, "on_frame", frame)
+                    break
+            else:
+                self.counters["ignored"] += 1
+        self._run_due(now)
+        return self._drain()
+
+    def tick(self, now: float) -> list[Frame]:
+        self.now = max(self.now, now)
+        self._run_due(now)
+        return self._drain()
+
+    def next_deadline(self) -> float | None:
+        deadlines = [d for d in (self._safe_deadline(s) for s in self.services) if d is not None]
+        return min(deadlines) if deadlines else None
+
+    def _safe_deadline(self, service: Service) -> float | None:
+        try:
+            return service.deadline()
+        except Exception:
+            self._internal_error(service, "deadline")
+            return None
+
+    def _run_due(self, now: float) -> None:
+        for service in self.services:
+            deadline = self._safe_deadline(service)
+            if deadline is not None and deadline <= now:
+                try:
+                    service.poll(now)
+                except Exception:
+                    self._internal_error(service, "poll")
+
+    def _internal_error(self, service: Service, where: str, frame: Frame | None = None) -> None:
+        self.counters["internal_errors"] += 1
+        log.exception("%s: service %s failed in %s%s", self.name, service.name, where, f" on {frame}" if frame else "")
+
+    # -- NMT ----------------------------------------------------------------------------
+    def _nmt_command(self, frame: Frame, now: float) -> None:
+        if len(frame.data) < 2:
+            self.counters["nmt_malformed"] += 1
+            return
+        cs, target = frame.data[0], frame.data[1]
+        if not self.configured or target not in (0, self.node_id):
+            self.counters["nmt_other_node"] += 1
+            return
+        self.counters["nmt"] += 1
+        if cs == NMT_START:
+            self.set_state(NmtState.OPERATIONAL, now)
+        elif cs == NMT_STOP:
+            self.set_state(NmtState.STOPPED, now)
+        elif cs == NMT_PRE_OPERATIONAL:
+            self.set_state(NmtState.PRE_OPERATIONAL, now)
+        elif cs == NMT_RESET_NODE:
+            self.reset_node(now)
+        elif cs == NMT_RESET_COMMUNICATION:
+            self.reset_communication(now)
+        else:
+            self.counters["nmt_unknown_command"] += 1
+
+    def set_state(self, new: NmtState, now: float) -> None:
+        old = self.state
+        if old == new:
+            return
+        self.state = new
+        log.info("%s: NMT %s -> %s", self.name, old.label, new.label)
+        for service in self.services:
+            try:
+                service.on_nmt_state(old, new, now)
+            except Exception:
+                self._internal_error(service, "on_nmt_state")
+        for listener in list(self._nmt_listeners):
+            try:
+                listener(old, new)
+            except Exception:
+                log.exception("%s: NMT listener failed", self.name)
+
+    def reset_node(self, now: float) -> None:
+        """Reset application: reload the whole dictionary, then reset communication."""
+        self._reset(now, application=True)
+
+    def reset_communication(self, now: float) -> None:
+        """Reload the communication area, take a pending node-ID, boot-up, Pre-operational."""
+        self._reset(now, application=False)
+
+    def _reset(self, now: float, application: bool) -> None:
+        self.set_state(NmtState.INITIALISING, now)
+        self.node_id = self.pending_node_id
+        self.od.node_id = self.node_id if self.configured else 0
+        if application:
+            self.od.reload(communication=False, application=True)
+            self._each("on_reset_application", now)
+        self.od.reload(communication=True, application=False)
+        self._each("on_reset_communication", now)
+        if not self.configured:
+            return  # unconfigured: wait for LSS in Initialisation
+        self.send(Frame(0x700 + self.node_id, b"\x00"))
+        self.set_state(NmtState.PRE_OPERATIONAL, now)
+
+    def _each(self, method: str, now: float) -> None:
+        for service in self.services:
+            try:
+                getattr(service, method)(now)
+            except Exception:
+                self._internal_error(service, method)
+
+    # -- SYNC, master state, LSS hooks -------------------------------------------------
+    def sync(self, counter: int | None, now: float) -> None:
+        """A SYNC was consumed (or produced): tell every service in add order."""
+        for service in self.services:
+            if self.state in service.active_states:
+                try:
+                    service.on_sync(counter, now)
+                except Exception:
+                    self._internal_error(service, "on_sync")
+
+    def master_state(self, ok: bool, reason: str) -> None:
+        """Error control reports the master lost (guarding, heartbeat, bus-off) or back."""
+        for listener in list(self._master_listeners):
+            try:
+                listener(ok, reason)
+            except Exception:
+                log.exception("%s: master listener failed", self.name)
+
+    def set_node_id(self, node_id: int) -> None:
+        """LSS configure node-ID: pending until the next reset communication."""
+        if not (1 <= node_id <= 127 or node_id == UNCONFIGURED_NODE_ID):
+            raise ValueError(f"node-ID {node_id} is not 1..127 or 0xFF")
+        self.pending_node_id = node_id
+
+    def request_bit_timing(self, bitrate: int, delay_s: float) -> None:
+        """LSS activate bit timing: the adapter re-opens the bus at ``bitrate`` after ``delay_s``."""
+        for listener in list(self._bit_timing_listeners):
+            try:
+                listener(bitrate, delay_s)
+            except Exception:
+                log.exception("%s: bit-timing listener failed", self.name)
+
+    def status(self) -> dict:
+        return {
+            "node_id": self.node_id if self.configured else None,
+            "nmt_state": self.state.label,
+            "counters": dict(self.counters),
+            "services": {s.name: s.status() for s in self.services},
+        }

@@ -1,0 +1,88 @@
+"""The interface every CANopen service implements to plug into a :class:`Node`.
+
+How a service plugs in (PDO engine, CiA 401 objects, LSS, ... are written this way)::
+
+    class MyService(Service):
+        name = "pdo"
+
+        def attach(self, node):                  # called once by node.add_service(self)
+            super().attach(node)
+            node.od.add_record(0x1400, ...)      # add your objects
+            node.od.add_validator(0x1400, ...)   # veto bad writes with SdoAbort
+            node.od.on_write(0x1400, ...)        # react to accepted writes
+
+        def on_frame(self, frame, now) -> bool:  # every received frame, in add order,
+            if frame.can_id != self.cob_id:      # until one service returns True
+                return False
+            self.node.send(Frame(...))           # answers go to the node's outbox
+            return True
+
+        def on_nmt_state(self, old, new, now): ...   # NMT state changed
+        def on_sync(self, counter, now): ...         # a SYNC was consumed (counter or None)
+        def on_reset_communication(self, now): ...   # communication area reloaded, node-ID may be new
+        def on_reset_application(self, now): ...     # application area reloaded (reset node)
+        def deadline(self): return self._next        # next time poll() must run, or None
+        def poll(self, now): ...                     # called when now >= deadline()
+
+    node.add_service(MyService())
+
+Rules:
+* Everything is sans-I/O and runs on one thread (the event loop): no sleeping, no
+  blocking calls; use ``now`` (seconds, monotonic) and :meth:`deadline`.
+* A service never raises out of ``on_frame``/``poll``: the node counts and logs any
+  exception as an internal error and carries on, but a well-behaved service answers
+  bad input with its protocol error (SDO abort, EMCY) or counts a drop in
+  :attr:`counters` (shown in the front's ``status()``).
+* ``active_states``: the NMT states in which the node passes frames to ``on_frame``.
+  The default is pre-operational and operational (SDO, SYNC, EMCY per CiA 301); a PDO
+  service sets ``{NmtState.OPERATIONAL}``, error control and LSS set all states.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import TYPE_CHECKING, ClassVar
+
+from .frame import Frame, NmtState
+
+if TYPE_CHECKING:
+    from .node import Node
+
+ALL_STATES = frozenset(NmtState)
+COMMUNICATING = frozenset({NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL})
+
+
+class Service:
+    name: ClassVar[str] = "service"
+    active_states: ClassVar[frozenset[NmtState]] = COMMUNICATING
+
+    def __init__(self) -> None:
+        self.node: Node | None = None
+        self.counters: Counter[str] = Counter()
+
+    def attach(self, node: Node) -> None:
+        self.node = node
+
+    def on_frame(self, frame: Frame, now: float) -> bool:
+        return False
+
+    def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
+        pass
+
+    def on_sync(self, counter: int | None, now: float) -> None:
+        pass
+
+    def on_reset_communication(self, now: float) -> None:
+        pass
+
+    def on_reset_application(self, now: float) -> None:
+        pass
+
+    def deadline(self) -> float | None:
+        return None
+
+    def poll(self, now: float) -> None:
+        pass
+
+    def status(self) -> dict:
+        return dict(self.counters)
