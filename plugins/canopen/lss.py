@@ -14,6 +14,10 @@ Node-IDs: ``active_node_id`` is the one in use (0xFF = not configured); "configu
 node-ID" sets ``pending_node_id``, which becomes active at the next reset communication
 (:meth:`LssSlave.node_id_for_reset`). An unconfigured node that gets a node-ID and is
 switched back to the waiting state asks for that reset communication at once.
+
+:class:`LssService` plugs the engine into a :class:`~.node.Node`: the LSS address comes
+from the node's 0x1018, node-ID changes go through ``node.set_node_id`` and
+``node.reset_communication``, a bit-rate switch through ``node.request_bit_timing``.
 """
 
 from __future__ import annotations
@@ -25,6 +29,9 @@ from enum import IntEnum
 from pathlib import Path
 
 from fieldgate.persist import CorruptStore, read_json, write_json_atomic
+
+from .frame import Frame as CanFrame
+from .service import ALL_STATES, Service
 
 log = logging.getLogger("fieldgate.canopen.lss")
 
@@ -87,7 +94,7 @@ BIT_TIMING_TABLES: dict[str, dict[int, int]] = {
                6: 800_000, 7: 1_000_000},
 }
 
-Frame = tuple[int, bytes]
+RawFrame = tuple[int, bytes]
 
 
 @dataclass(frozen=True)
@@ -158,7 +165,7 @@ class LssStore:
                                       "bitrate": settings.bitrate})
 
 
-def _frame(cs: int, payload: bytes = b"") -> Frame:
+def _frame(cs: int, payload: bytes = b"") -> RawFrame:
     return (RESPONSE_ID, bytes([cs]) + payload + bytes(7 - len(payload)))
 
 
@@ -242,7 +249,7 @@ class LssSlave:
     def next_deadline(self) -> float | None:
         return self._switch_at if self._switch_at is not None else self._silent_until
 
-    def on_timer(self, now: float) -> list[Frame]:
+    def on_timer(self, now: float) -> list[RawFrame]:
         if self._switch_at is not None and now >= self._switch_at:
             self._switch_at = None
             if self.pending_bitrate is not None:
@@ -264,7 +271,7 @@ class LssSlave:
 
     # -- requests ------------------------------------------------------------------------
 
-    def on_frame(self, can_id: int, data: bytes, now: float, *, rtr: bool = False) -> list[Frame]:
+    def on_frame(self, can_id: int, data: bytes, now: float, *, rtr: bool = False) -> list[RawFrame]:
         """Handle one frame on 0x7E5; anything malformed is counted and dropped."""
         if can_id != REQUEST_ID:
             return []
@@ -279,7 +286,7 @@ class LssSlave:
         self.counters.answered += 1
         return [answer]
 
-    def _dispatch(self, data: bytes, now: float) -> Frame | None:
+    def _dispatch(self, data: bytes, now: float) -> RawFrame | None:
         cs = data[0]
         handler = self._ANY_STATE.get(cs)
         if handler is not None:
@@ -306,7 +313,7 @@ class LssSlave:
             self._actions.append(ResetCommunication(self.node_id_for_reset()))
         return None
 
-    def _switch_selective(self, data: bytes, now: float) -> Frame | None:
+    def _switch_selective(self, data: bytes, now: float) -> RawFrame | None:
         part = data[0] - Cs.SWITCH_SELECTIVE_VENDOR
         if self.state != LssState.WAITING:
             self._selective.step = 0
@@ -317,7 +324,7 @@ class LssSlave:
             return _frame(Cs.SWITCH_SELECTIVE_RESPONSE)
         return None
 
-    def _identify_remote(self, data: bytes, now: float) -> Frame | None:
+    def _identify_remote(self, data: bytes, now: float) -> RawFrame | None:
         step = data[0] - Cs.IDENTIFY_VENDOR
         value = _u32(data)
         if step < 2:
@@ -331,12 +338,12 @@ class LssSlave:
             return _frame(Cs.IDENTIFY_SLAVE)
         return None
 
-    def _identify_non_configured(self, data: bytes, now: float) -> Frame | None:
+    def _identify_non_configured(self, data: bytes, now: float) -> RawFrame | None:
         if self.active_node_id == UNCONFIGURED and self.pending_node_id == UNCONFIGURED:
             return _frame(Cs.IDENTIFY_NON_CONFIGURED_SLAVE)
         return None
 
-    def _fastscan(self, data: bytes, now: float) -> Frame | None:
+    def _fastscan(self, data: bytes, now: float) -> RawFrame | None:
         id_number, bit_check, sub, next_sub = struct.unpack_from("<IBBB", data, 1)
         if not (bit_check < 32 or bit_check == FASTSCAN_CONFIRM) or sub > 3 or next_sub > 3:
             self.counters.dropped_malformed += 1
@@ -359,14 +366,14 @@ class LssSlave:
             self.state = LssState.CONFIGURATION
         return _frame(Cs.IDENTIFY_SLAVE)
 
-    def _configure_node_id(self, data: bytes, now: float) -> Frame:
+    def _configure_node_id(self, data: bytes, now: float) -> RawFrame:
         node_id = data[1]
         if not (1 <= node_id <= 127 or node_id == UNCONFIGURED):
             return _frame(Cs.CONFIGURE_NODE_ID, bytes([NODE_ID_OUT_OF_RANGE]))
         self.pending_node_id = node_id
         return _frame(Cs.CONFIGURE_NODE_ID, bytes([OK]))
 
-    def _configure_bit_timing(self, data: bytes, now: float) -> Frame:
+    def _configure_bit_timing(self, data: bytes, now: float) -> RawFrame:
         selector, index = data[1], data[2]
         bitrate = BIT_TIMING_TABLES[self.table].get(index) if selector == 0 else None
         if bitrate is None:
@@ -382,7 +389,7 @@ class LssSlave:
         self.on_timer(now)
         return None
 
-    def _store_configuration(self, data: bytes, now: float) -> Frame:
+    def _store_configuration(self, data: bytes, now: float) -> RawFrame:
         if self.store is None:
             return _frame(Cs.STORE_CONFIGURATION, bytes([STORE_NOT_SUPPORTED]))
         bitrate = self.pending_bitrate if self.pending_bitrate is not None else self.bitrate
@@ -393,11 +400,11 @@ class LssSlave:
             return _frame(Cs.STORE_CONFIGURATION, bytes([STORE_ACCESS_ERROR]))
         return _frame(Cs.STORE_CONFIGURATION, bytes([OK]))
 
-    def _inquire_address(self, data: bytes, now: float) -> Frame:
+    def _inquire_address(self, data: bytes, now: float) -> RawFrame:
         value = self.address.part(data[0] - Cs.INQUIRE_VENDOR)
         return _frame(data[0], struct.pack("<I", value))
 
-    def _inquire_node_id(self, data: bytes, now: float) -> Frame:
+    def _inquire_node_id(self, data: bytes, now: float) -> RawFrame:
         return _frame(Cs.INQUIRE_NODE_ID, bytes([self.active_node_id]))
 
     _ANY_STATE = {
@@ -415,3 +422,74 @@ class LssSlave:
         **dict.fromkeys(range(Cs.INQUIRE_VENDOR, Cs.INQUIRE_SERIAL + 1), _inquire_address),
         Cs.INQUIRE_NODE_ID: _inquire_node_id,
     }
+
+
+class LssService(Service):
+    """The LSS slave as a node service (active in every NMT state, and while unconfigured).
+
+    ``store``: where "store configuration" writes (None: store answers "not supported").
+    A stored node-ID and bit rate win over the configured ones at power-on; the front reads
+    :attr:`bitrate` after ``add_service`` to open its bus.
+    """
+
+    name = "lss"
+    active_states = ALL_STATES
+
+    def __init__(self, *, bitrate: int | None = None, table: str = "cia", store: LssStore | None = None):
+        super().__init__()
+        self._options = {"bitrate": bitrate, "table": table, "store": store}
+        self.slave: LssSlave | None = None
+
+    @property
+    def bitrate(self) -> int | None:
+        return self.slave.bitrate if self.slave is not None else self._options["bitrate"]
+
+    def attach(self, node) -> None:
+        super().attach(node)
+        self.slave = LssSlave.starting(self._address(), node_id=node.pending_node_id, **self._options)
+        self._sync_pending_node_id()
+
+    def _address(self) -> LssAddress:
+        od = self.node.od
+        parts = [int(od.get(0x1018, sub)) if (0x1018, sub) in od else 0 for sub in (1, 2, 3, 4)]
+        return LssAddress(*parts)
+
+    def _sync_pending_node_id(self) -> None:
+        if self.slave.pending_node_id != self.node.pending_node_id:
+            self.node.set_node_id(self.slave.pending_node_id)
+
+    def on_frame(self, frame: CanFrame, now: float) -> bool:
+        if frame.can_id != REQUEST_ID:
+            return False
+        for can_id, data in self.slave.on_frame(frame.can_id, frame.data, now, rtr=frame.rtr):
+            self.node.send(CanFrame(can_id, data))
+        self._sync_pending_node_id()
+        self._run_actions(now)
+        return True
+
+    def _run_actions(self, now: float) -> None:
+        for action in self.slave.take_actions():
+            if isinstance(action, ResetCommunication):
+                self.node.reset_communication(now)
+            else:
+                self.node.request_bit_timing(action.bitrate, 0.0)
+
+    def on_reset_communication(self, now: float) -> None:
+        # The node took its pending node-ID; identity objects may have been reloaded.
+        self.slave.active_node_id = self.node.node_id
+        self.slave.pending_node_id = self.node.pending_node_id
+        self.slave.address = self._address()
+
+    def deadline(self) -> float | None:
+        return self.slave.next_deadline() if self.slave is not None else None
+
+    def poll(self, now: float) -> None:
+        self.slave.on_timer(now)
+        self._run_actions(now)
+
+    def transmit_allowed(self, now: float) -> bool:
+        """False during an activate-bit-timing switch: the node must not transmit (CiA 305)."""
+        return self.slave is None or self.slave.transmit_allowed(now)
+
+    def status(self) -> dict:
+        return self.slave.status() if self.slave is not None else {}
