@@ -277,7 +277,7 @@ class ModbusSimulator(Simulator):
         self._task: asyncio.Task | None = None
         self._timers: set[asyncio.TimerHandle] = set()
         self.output_listeners: list[Callable[[str, object], None]] = []
-        self._outputs_seen: dict[str, object] = {}
+        self._outputs_seen = {cid: m.get_point(p) for cid, (m, p) in self.channels.items() if p.kind.is_output}
 
     # -- life cycle -----------------------------------------------------------------
     async def start(self) -> None:

@@ -1,0 +1,120 @@
+"""End to end: a gateway with the modbus back on simulated modules, and the simulate CLI."""
+
+import asyncio
+import os
+import re
+import sys
+
+from modbus_line import I7232D_MODULES
+
+from fieldgate import Gateway, Quality
+from fieldgate.plugins.modbus.client import ModbusLink
+from fieldgate.plugins.modbus.cli import execute
+from fieldgate.plugins.modbus.config import ModbusBackConfig
+from fieldgate.plugins.modbus.simulator import ModbusSimulator
+
+
+async def wait_for(condition, timeout=5.0):
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not condition():
+        assert loop.time() < deadline, "condition not met in time"
+        await asyncio.sleep(0.01)
+
+
+def demo_topology():
+    modules = [dict(m) for m in I7232D_MODULES]
+    modules[1] |= {"error_modes": {"do0": {"value": 1}}, "shutdown_mode": {"value": 0}}
+    return {
+        "gateway": {"name": "demo"},
+        "fronts": [{"name": "plc", "type": "memory"}],
+        "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "baudrate": 115200, "poll_ms": 10, "timeout_ms": 50, "modules": modules}],
+    }
+
+
+async def test_the_demo_loop_runs_through_gateway_and_simulator(registry):
+    gateway = Gateway.load(demo_topology(), registry=registry, simulate=True, animate=True)
+    await gateway.start()
+    try:
+        sim = gateway.bench.simulator("rs485")
+        await wait_for(lambda: gateway.image["rs485/m1/di0"].quality is Quality.GOOD)
+        gateway.write("rs485/m3/do2", True)  # DO of the M-7055D, wired to the M-7052D's DI
+        await wait_for(lambda: gateway.read("rs485/m1/di2") is True)
+        assert sim.get_output("rs485/m3/do2") is True
+        gateway.write("rs485/m4/ao0", 0x3FFF)  # 5 V out of the M-7024 into the M-7017R
+        await wait_for(lambda: gateway.read("rs485/m5/ai0") == 0x3FFF)
+        gateway.component("plc").lose_master()  # do0 goes to its error value 1
+        await wait_for(lambda: sim.get_output("rs485/m3/do0") is True)
+        status = gateway.status()["backs"]["rs485"]
+        assert status["modbus"]["requests"]["fc2"] > 0 and status["cycles"] > 0
+        assert {m["address"]: m["online"] for m in status["modules"]} == {1: True, 3: True, 4: True, 5: True}
+    finally:
+        await gateway.stop()
+    assert sim.get_output("rs485/m3/do0") is False  # shutdown value written before the line closed
+
+
+async def test_a_dead_module_in_the_gateway_goes_comm_fault_and_comes_back(registry):
+    topology = demo_topology()
+    topology["backs"][0] |= {"offline_probe_ms": 100, "timeout_ms": 20}
+    gateway = Gateway.load(topology, registry=registry, simulate=True)
+    await gateway.start()
+    try:
+        sim = gateway.bench.simulator("rs485")
+        sim.set_input("rs485/m5/ai0", 77)
+        await wait_for(lambda: gateway.read("rs485/m5/ai0") == 77)
+        from fieldgate.plugins.modbus.simulator import Fault
+
+        sim.inject(5, Fault("no_answer"))
+        await wait_for(lambda: gateway.image["rs485/m5/ai0"].quality is Quality.COMM_FAULT)
+        assert not gateway.health.get("rs485", 5).online and gateway.health.get("rs485", 1).online
+        sim.clear_faults()
+        await wait_for(lambda: gateway.image["rs485/m5/ai0"].quality is Quality.GOOD)
+    finally:
+        await gateway.stop()
+
+
+def test_cli_commands():
+    config = ModbusBackConfig(name="rs485", port="unused", modules=I7232D_MODULES)
+    sim = ModbusSimulator(config, "unused")
+    assert execute(sim, "set rs485/m1/di3 on") == "rs485/m1/di3 = True"
+    assert execute(sim, "get rs485/m5/ai0") == "rs485/m5/ai0 = 0"
+    assert execute(sim, "fault 5 delay 2 delay=0.3") == "module 5: delay for 2 replies"
+    assert sim.modules[5].faults[0].delay == 0.3
+    assert execute(sim, "clear") == "faults cleared" and not sim.modules[5].faults
+    assert execute(sim, "set rs485/m3/do0 1").startswith("error: rs485/m3/do0 is an output")
+    assert execute(sim, "fault 9 crc").startswith("error: no simulated module at address 9")
+    assert "rs485/m4/ao0 = 0" in execute(sim, "show")
+    assert execute(sim, "help").startswith("commands:")
+    assert execute(sim, "quit") == "quit"
+
+
+async def test_fieldgate_simulate_modbus_serves_a_pty(tmp_path):
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "fieldgate", "simulate", "modbus", "--pty", "--module", "1:M-7052D", "--module", "3:M-7055D",
+        "--baudrate", "115200", "--set", "rs485/m1/di0=1", "--duration", "20",
+        stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    try:
+        banner = (await asyncio.wait_for(proc.stdout.readline(), 10)).decode()
+        match = re.search(r"point the gateway at (\S+)", banner)
+        assert match, banner
+        link = ModbusLink(match.group(1), baudrate=115200, timeout=0.5, inter_frame=0)
+        await link.open()
+        try:
+            assert (await link.read_bits(1, 2, 32, 8))[0] is True
+            await link.write(3, 5, 4, [True])
+            assert (await asyncio.wait_for(proc.stdout.readline(), 5)).decode().strip() == "output rs485/m3/do4 = True"
+            proc.stdin.write(b"set rs485/m1/di7 1\n")
+            await proc.stdin.drain()
+            assert (await asyncio.wait_for(proc.stdout.readline(), 5)).decode().strip() == "rs485/m1/di7 = True"
+            assert (await link.read_bits(1, 2, 32, 8))[7] is True
+        finally:
+            link.close()
+        proc.stdin.write(b"quit\n")
+        await proc.stdin.drain()
+        assert await asyncio.wait_for(proc.wait(), 10) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
