@@ -163,6 +163,7 @@ def test_configure_bit_timing_defaults_to_the_cia_table():
     slave = configuring(node_id=1)
     assert send(slave, "13 00 03 00 00 00 00 00") == [frame("13 00 00 00 00 00 00 00")]
     assert slave.pending_bitrate == 250_000
+    # The CiA 305 table is also the NA-9161's baud switch code table (seed-004 TV-27).
     assert [BIT_TIMING_TABLES["cia"][i] for i in range(9)] == [
         1_000_000, 800_000, 500_000, 250_000, 125_000, 100_000, 50_000, 20_000, 10_000]
 
