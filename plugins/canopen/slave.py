@@ -1,0 +1,86 @@
+"""Assemble a CANopen slave Node with the CiA 301 communication services.
+
+``build_node(settings)`` gives a :class:`~.node.Node` with identity objects, the SDO
+server, EMCY producer, error control, SYNC and store/restore. The front (and tests)
+add further services (LSS, PDO engine, CiA 401 objects) with ``node.add_service``,
+then call ``node.service("store").load()`` and ``node.boot(now)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from canopen.objectdictionary import datatypes as dt
+
+from .emcy import EmcyProducer
+from .errctl import ErrorControl
+from .node import Node
+from .sdo import SdoServer
+from .service import ALL_STATES, Service
+from .store import StoreService
+from .sync import SyncService
+
+
+@dataclass
+class Identity:
+    device_type: int = 0
+    vendor_id: int = 0
+    product_code: int = 0
+    revision: int = 0
+    serial: int = 0
+    device_name: str = "fieldgate"
+    hardware_version: str = ""
+    software_version: str = ""
+
+
+@dataclass
+class NodeSettings:
+    node_id: int | None = 1
+    identity: Identity = field(default_factory=Identity)
+    heartbeat_ms: int = 0
+    guard_time_ms: int = 0
+    life_time_factor: int = 0
+    heartbeat_consumers: int = 1
+    emcy_history: int = 5
+    sdo_timeout_s: float = 1.0
+    sdo_block_size: int = 127
+    sync_cob_id: int = 0x80
+    store_path: Path | None = None
+    fingerprint: str = ""
+
+
+class IdentityObjects(Service):
+    """0x1000, 0x1008/0x1009/0x100A and 0x1018 (all four sub-indices), read-only."""
+
+    name = "identity"
+    active_states = ALL_STATES
+
+    def __init__(self, identity: Identity):
+        super().__init__()
+        self.identity = identity
+
+    def attach(self, node) -> None:
+        super().attach(node)
+        ident, od = self.identity, node.od
+        od.add_variable(0x1000, "Device type", dt.UNSIGNED32, "ro", ident.device_type)
+        od.add_variable(0x1008, "Manufacturer device name", dt.VISIBLE_STRING, "const", ident.device_name)
+        od.add_variable(0x1009, "Manufacturer hardware version", dt.VISIBLE_STRING, "const", ident.hardware_version)
+        od.add_variable(0x100A, "Manufacturer software version", dt.VISIBLE_STRING, "const", ident.software_version)
+        od.add_record(0x1018, "Identity object", [
+            (1, "Vendor-ID", dt.UNSIGNED32, "ro", ident.vendor_id),
+            (2, "Product code", dt.UNSIGNED32, "ro", ident.product_code),
+            (3, "Revision number", dt.UNSIGNED32, "ro", ident.revision),
+            (4, "Serial number", dt.UNSIGNED32, "ro", ident.serial),
+        ])
+
+
+def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
+    node = Node(settings.node_id, name=name)
+    node.add_service(IdentityObjects(settings.identity))
+    node.add_service(EmcyProducer(settings.emcy_history))
+    node.add_service(ErrorControl(settings.guard_time_ms, settings.life_time_factor, settings.heartbeat_ms, settings.heartbeat_consumers))
+    node.add_service(SyncService(settings.sync_cob_id))
+    node.add_service(SdoServer(settings.sdo_timeout_s, settings.sdo_block_size))
+    node.add_service(StoreService(settings.store_path, settings.fingerprint))
+    return node

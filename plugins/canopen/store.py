@@ -1,0 +1,172 @@
+"""Store / restore parameters (0x1010 / 0x1011) persisted to one file.
+
+* 0x1010 sub 1 (all), 2 (communication 0x1000-0x1FFF), 3 (application): writing the
+  signature "save" (0x65766173, bytes ``73 61 76 65``) stores the current values of
+  every writable, unbound entry of that area; any other value aborts 0800 0020.
+  Reading gives 1 ("saves on command").
+* 0x1011 sub 1/2/3: "load" (0x64616F6C) forgets the stored values of that area, so the
+  defaults come back at the next reset node / reset communication (CiA 301); other
+  values abort 0800 0020.
+* The file (JSON) is written with :func:`fieldgate.persist.write_atomic`, so a crash
+  mid-write keeps the previous copy. It carries a fingerprint of the module set: a
+  store saved for another module set, or an unreadable one, is ignored (defaults),
+  logged once and reported with an EMCY once the node is pre-operational:
+  corrupt store ``00 50 81 02 ..`` (the I-7232D's EEPROM error), other module set
+  ``00 63 81 0C ..`` (0x6300 "data set"). A successful save clears them.
+* Other services persist their own small sections (LSS node-ID and bit rate) with
+  :meth:`put_section` / :meth:`section`.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import logging
+from pathlib import Path
+
+from canopen.objectdictionary import datatypes as dt
+
+from fieldgate.persist import CorruptStore, read_json, write_atomic
+
+from . import abort
+from .abort import SdoAbort
+from .frame import NmtState
+from .service import ALL_STATES, Service
+
+SAVE = 0x65766173
+LOAD = 0x64616F6C
+FORMAT = "fieldgate-canopen-store/1"
+CORRUPT_CODE, CORRUPT_MFR = 0x5000, b"\x02"
+OTHER_SET_CODE, OTHER_SET_MFR = 0x6300, b"\x0c"
+AREAS = {1: (True, True), 2: (True, False), 3: (False, True)}
+
+log = logging.getLogger("fieldgate.canopen.store")
+
+
+def _key(index: int, sub: int) -> str:
+    return f"{index:04X}.{sub:02X}"
+
+
+def _parse_key(text: str) -> tuple[int, int]:
+    index, sub = text.split(".")
+    return int(index, 16), int(sub, 16)
+
+
+def _to_json(value):
+    return {"b64": base64.b64encode(value).decode()} if isinstance(value, bytes) else value
+
+
+def _from_json(value):
+    return base64.b64decode(value["b64"]) if isinstance(value, dict) else value
+
+
+class StoreService(Service):
+    name = "store"
+    active_states = ALL_STATES
+
+    def __init__(self, path: str | Path | None, fingerprint: str = ""):
+        super().__init__()
+        self.path = Path(path) if path is not None else None
+        self.fingerprint = fingerprint
+        self.values: dict[tuple[int, int], object] = {}
+        self.sections: dict[str, object] = {}
+        self.problem: tuple[int, bytes] | None = None
+        self._reported = False
+
+    def attach(self, node) -> None:
+        super().attach(node)
+        od = node.od
+        for index, name, sig in ((0x1010, "Store parameters", SAVE), (0x1011, "Restore default parameters", LOAD)):
+            od.add_array(index, name, [(s, ("all", "communication", "application")[s - 1], dt.UNSIGNED32, "rw", 1) for s in AREAS])
+            od.add_validator(index, lambda sub, value, sig=sig: self._check_signature(sig, value))
+            for sub in AREAS:
+                od.bind(index, sub, getter=lambda: 1, setter=(lambda v, sub=sub: self.save(sub)) if sig == SAVE else (lambda v, sub=sub: self.restore(sub)))
+
+    @staticmethod
+    def _check_signature(expected: int, value: int) -> None:
+        if value != expected:
+            raise SdoAbort(abort.CANNOT_STORE, "wrong signature")
+
+    # -- file -------------------------------------------------------------------------------
+    def load(self) -> None:
+        """Read the file (before ``node.boot``): stored values become the reset values."""
+        if self.path is None:
+            return
+        try:
+            doc = read_json(self.path)
+            if doc is None:
+                return
+            if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+                raise CorruptStore(f"{self.path}: not a {FORMAT} file")
+            values = {_parse_key(k): _from_json(v) for k, v in doc.get("values", {}).items()}
+            sections = dict(doc.get("sections", {}))
+        except (CorruptStore, ValueError, TypeError, AttributeError, KeyError) as exc:
+            self._problem(CORRUPT_CODE, CORRUPT_MFR, f"stored parameters unreadable, using defaults: {exc}")
+            return
+        self.sections = sections
+        if doc.get("fingerprint") != self.fingerprint:
+            self._problem(OTHER_SET_CODE, OTHER_SET_MFR, f"{self.path}: stored for another module set, using defaults")
+            return
+        self.values = values
+        self.node.od.set_stored(values)
+
+    def _problem(self, code: int, mfr: bytes, text: str) -> None:
+        log.warning("%s: %s", self.node.name, text)
+        self.problem = (code, mfr)
+        self.counters["load_problems"] += 1
+
+    def _write(self) -> None:
+        if self.path is None:
+            raise SdoAbort(abort.CANNOT_STORE, "no store file configured")
+        doc = {"format": FORMAT, "fingerprint": self.fingerprint,
+               "values": {_key(*k): _to_json(v) for k, v in sorted(self.values.items())},
+               "sections": self.sections}
+        try:
+            write_atomic(self.path, json.dumps(doc, indent=1, sort_keys=True).encode())
+        except OSError as exc:
+            log.error("%s: cannot write %s: %s", self.node.name, self.path, exc)
+            raise SdoAbort(abort.HARDWARE_ERROR, str(exc)) from exc
+
+    # -- 0x1010 / 0x1011 ---------------------------------------------------------------------
+    def save(self, sub: int = 1) -> None:
+        communication, application = AREAS[sub]
+        od = self.node.od
+        keep = {k: v for k, v in self.values.items() if not _in_area(k[0], communication, application)}
+        changed = {k: v for k, v in od.snapshot(communication, application).items() if v != od.default(od.variable(*k))}
+        self.values = {**keep, **changed}
+        self._write()
+        od.set_stored(self.values)
+        self.counters["saves"] += 1
+        if self.problem is not None and self.node.emcy is not None:
+            self.node.emcy.clear_error(self.problem[0], self.problem[1])
+        self.problem = None
+
+    def restore(self, sub: int = 1) -> None:
+        communication, application = AREAS[sub]
+        self.values = {k: v for k, v in self.values.items() if not _in_area(k[0], communication, application)}
+        self._write()
+        self.node.od.set_stored(self.values)
+        self.counters["restores"] += 1
+
+    def section(self, name: str, default=None):
+        return self.sections.get(name, default)
+
+    def put_section(self, name: str, value) -> None:
+        """Persist a service's own data (e.g. LSS node-ID/bit rate); raises SdoAbort on I/O errors."""
+        self.sections[name] = value
+        self._write()
+
+    # -- reporting ------------------------------------------------------------------------------
+    def on_nmt_state(self, old, new, now) -> None:
+        if new is NmtState.PRE_OPERATIONAL and self.problem is not None and not self._reported and self.node.emcy is not None:
+            self._reported = True
+            self.node.emcy.raise_error(self.problem[0], 0x81, self.problem[1], now)
+
+    def status(self) -> dict:
+        return {**self.counters, "file": str(self.path) if self.path else None, "stored_values": len(self.values),
+                "problem": f"{self.problem[0]:04X}" if self.problem else None}
+
+
+def _in_area(index: int, communication: bool, application: bool) -> bool:
+    is_comm = 0x1000 <= index <= 0x1FFF
+    return (is_comm and communication) or (not is_comm and application)

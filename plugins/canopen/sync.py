@@ -1,0 +1,143 @@
+"""SYNC consumer and optional producer: 0x1005 COB-ID, 0x1006 period, 0x1019 counter.
+
+* Consumer: a frame on the 0x1005 COB-ID (DLC 0, or DLC 1 carrying the counter when
+  0x1019 > 1) calls ``node.sync(counter, now)``, which every service sees in
+  ``on_sync`` (the PDO engine uses it). Only in pre-operational and operational.
+* SYNC loss: with 0x1006 (communication cycle period, us) non-zero, a SYNC missing for
+  1.5 periods after the first one raises EMCY 0x8100 (register 0x11, manufacturer
+  byte 0x02, the NA-9161/Beckhoff "SYNC" bit); the next SYNC clears it. (CiA 301 does
+  not fix the tolerance; 1.5 periods is what CANopenNode uses.)
+* Producer (test benches): 0x1005 bit 30 set and 0x1006 non-zero sends SYNC every
+  period, with a counter 1..0x1019 when 0x1019 > 1; the node consumes its own SYNC.
+* 0x1019 may be written only while 0x1006 is 0 (else 0800 0022); values 1 and
+  241..255 abort 0609 0030. 0x1005 with bit 29 (29-bit) aborts 0609 0030; the producer
+  bit may be set only while 0x1006 is 0 or the producer is already on.
+"""
+
+from __future__ import annotations
+
+from canopen.objectdictionary import datatypes as dt
+
+from . import abort
+from .abort import SdoAbort
+from .frame import Frame
+from .service import COMMUNICATING, Service
+
+SYNC_LOSS_CODE = 0x8100
+PRODUCER_BIT = 1 << 30
+EXTENDED_BIT = 1 << 29
+LOSS_TOLERANCE = 1.5
+
+
+class SyncService(Service):
+    name = "sync"
+    active_states = COMMUNICATING
+
+    def __init__(self, cob_id: int = 0x80):
+        super().__init__()
+        self.default_cob_id = cob_id
+        self.loss_deadline: float | None = None
+        self.produce_due: float | None = None
+        self.counter = 0
+        self.lost = False
+
+    def attach(self, node) -> None:
+        super().attach(node)
+        od = node.od
+        od.add_variable(0x1005, "COB-ID SYNC message", dt.UNSIGNED32, "rw", self.default_cob_id)
+        od.add_variable(0x1006, "Communication cycle period", dt.UNSIGNED32, "rw", 0)
+        od.add_variable(0x1019, "Synchronous counter overflow value", dt.UNSIGNED8, "rw", 0)
+        od.add_validator(0x1005, self._check_cob_id)
+        od.add_validator(0x1019, self._check_overflow)
+        for index in (0x1005, 0x1006):
+            od.on_write(index, lambda *_: self._configure(node.now))
+
+    @property
+    def cob_id(self) -> int:
+        return self.node.od.get(0x1005) & 0x7FF
+
+    def _period_s(self) -> float:
+        return self.node.od.get(0x1006) / 1e6
+
+    def _producer(self) -> bool:
+        return bool(self.node.od.get(0x1005) & PRODUCER_BIT) and self.node.od.get(0x1006) > 0
+
+    def _configure(self, now: float) -> None:
+        self.loss_deadline = None
+        self.counter = 0
+        if self._producer() and self.node.state in COMMUNICATING:
+            self.produce_due = self.produce_due if self.produce_due is not None else now + self._period_s()
+        else:
+            self.produce_due = None
+
+    def on_reset_communication(self, now: float) -> None:
+        self.produce_due = None
+        self.lost = False
+
+    def on_nmt_state(self, old, new, now) -> None:
+        if new in COMMUNICATING:
+            self._configure(now)
+        else:
+            self.produce_due = None
+            self.loss_deadline = None
+
+    # -- consumer --------------------------------------------------------------------------
+    def on_frame(self, frame: Frame, now: float) -> bool:
+        if frame.can_id != self.cob_id or frame.rtr:
+            return False
+        overflow = self.node.od.get(0x1019)
+        if overflow > 1 and len(frame.data) != 1 or overflow <= 1 and len(frame.data) != 0:
+            self.counters["bad_length"] += 1
+            return True
+        self._consume(frame.data[0] if frame.data else None, now)
+        return True
+
+    def _consume(self, counter: int | None, now: float) -> None:
+        self.counters["received"] += 1
+        period = self._period_s()
+        self.loss_deadline = now + LOSS_TOLERANCE * period if period and not self._producer() else None
+        if self.lost:
+            self.lost = False
+            if self.node.emcy is not None:
+                self.node.emcy.clear_error(SYNC_LOSS_CODE, bytes([0x02]), now)
+        self.node.sync(counter, now)
+
+    # -- timers ------------------------------------------------------------------------------
+    def deadline(self) -> float | None:
+        times = [t for t in (self.loss_deadline, self.produce_due) if t is not None]
+        return min(times) if times else None
+
+    def poll(self, now: float) -> None:
+        if self.produce_due is not None and now >= self.produce_due:
+            period = self._period_s()
+            self.produce_due = max(self.produce_due + period, now)
+            overflow = self.node.od.get(0x1019)
+            if overflow > 1:
+                self.counter = self.counter % overflow + 1
+                data = bytes([self.counter])
+            else:
+                data = b""
+            self.node.send(Frame(self.cob_id, data))
+            self.counters["produced"] += 1
+            self.node.sync(data[0] if data else None, now)
+        if self.loss_deadline is not None and now >= self.loss_deadline:
+            self.loss_deadline = None
+            if not self.lost:
+                self.lost = True
+                self.counters["sync_loss"] += 1
+                if self.node.emcy is not None:
+                    self.node.emcy.raise_error(SYNC_LOSS_CODE, 0x11, bytes([0x02]), now)
+
+    # -- validators --------------------------------------------------------------------------
+    def _check_cob_id(self, sub: int, value: int) -> None:
+        if value & EXTENDED_BIT or value & 0x1FFFF800:
+            raise SdoAbort(abort.VALUE_RANGE, "only 11-bit SYNC COB-IDs are supported")
+
+    def _check_overflow(self, sub: int, value: int) -> None:
+        if self.node.od.get(0x1006):
+            raise SdoAbort(abort.DEVICE_STATE, "0x1019 can change only while 0x1006 is 0")
+        if value == 1 or value > 240:
+            raise SdoAbort(abort.VALUE_RANGE, "0x1019 must be 0 or 2..240")
+
+    def status(self) -> dict:
+        return {**self.counters, "sync_lost": self.lost, "producer": bool(self.produce_due)}
