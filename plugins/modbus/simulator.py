@@ -9,10 +9,11 @@ multi-drop line does, and fault injection needs control of every byte. The respo
   model presets); addresses outside them answer exception 2 (illegal data address).
 * ``set_input`` / ``get_output`` by channel id; ``inject`` faults per module: no answer,
   bad CRC, exception code, delay, garbage, truncated frame, reply from a wrong address.
-* ``animate=True`` makes unwired inputs move (DI count in binary, AI ramp up and down)
-  and wires outputs to inputs like the I-7232D demo bench: DO of a module with outputs to
-  the DI of an input-only module (M-7055D -> M-7052D), AO to an AI-only module
-  (M-7024 -> M-7017R), so a user sees the loop through the gateway.
+* ``animate=True`` makes inputs move (DI count in binary, AI ramp up and down) and wires
+  outputs to inputs like the I-7232D demo bench: DO of a module with outputs to the DI of
+  an input-only module (M-7055D -> M-7052D), AO to an AI-only module (M-7024 -> M-7017R).
+  A wired input moves on its own until the gateway first writes to the module that
+  drives it, then follows that output, so a user sees the loop through the gateway.
 """
 
 from __future__ import annotations
@@ -269,7 +270,8 @@ class ModbusSimulator(Simulator):
         gap = max(0.02, 3.5 * 11 / config.baudrate * 4)
         self.responder = RtuResponder(self.modules, gap)
         self.wiring = demo_wiring(config) if animate else []
-        self._wired_inputs = {dst for _, dst in self.wiring}
+        self._source_of = {dst: src for src, dst in self.wiring}
+        self._driven: set[int] = set()  # modules the gateway has written to
         for module in self.modules.values():
             module.on_write = self._propagate
         self._port: serial.SerialBase | None = None
@@ -370,8 +372,15 @@ class ModbusSimulator(Simulator):
         return self.responder.log
 
     # -- wiring and animation --------------------------------------------------------
-    def _propagate(self, _module: SimModule | None) -> None:
+    def _is_driven(self, output_channel: str) -> bool:
+        return self.channels[output_channel][0].address in self._driven
+
+    def _propagate(self, module: SimModule | None) -> None:
+        if module is not None:
+            self._driven.add(module.address)
         for src, dst in self.wiring:
+            if not self._is_driven(src):
+                continue  # until the gateway writes the outputs, their inputs animate
             value = self.get(src)
             _, dst_point = self._lookup(dst)
             if dst_point.dtype is not DataType.BOOL and dst_point.dtype is not DataType.FLOAT32:
@@ -391,7 +400,8 @@ class ModbusSimulator(Simulator):
             await asyncio.sleep(self.animate_period)
             tick += 1
             for cid, (module, p) in self.channels.items():
-                if p.kind.is_output or cid in self._wired_inputs:
+                source = self._source_of.get(cid)
+                if p.kind.is_output or (source is not None and self._is_driven(source)):
                     continue
                 module.set_point(p, _animated_value(p, tick))
 

@@ -1,5 +1,7 @@
 """The simulator's RTU responder (sans-I/O) and its module memory, wiring and animation."""
 
+import asyncio
+
 import pytest
 
 from fieldgate.plugins.modbus import codec
@@ -125,3 +127,24 @@ def test_set_input_and_get_output_by_channel_id():
         sim.get_output("rs485/m9/do0")
     with pytest.raises(ValueError, match="unknown fault"):
         Fault("smoke")
+
+
+async def test_animated_inputs_move_until_the_gateway_drives_them():
+    from fieldgate.serial_link import PtyPair
+
+    with PtyPair() as pair:
+        sim = ModbusSimulator(config(), pair.b, animate=True, animate_period=0.005)
+        await sim.start()
+        try:
+            seen = set()
+            for _ in range(100):
+                await asyncio.sleep(0.005)
+                seen.add(sim.get("rs485/m5/ai0"))
+            assert len(seen) > 3  # the AI ramps while the M-7024 has not been written
+            sim.responder.feed(Request(4, 6, 0, 1, (1000,)).encode(), now=0.0)
+            sim.responder.feed(Request(3, 5, 1, 1, (True,)).encode(), now=1.0)
+            await asyncio.sleep(0.05)
+            assert sim.get("rs485/m5/ai0") == 1000 and sim.get("rs485/m1/di1") is True
+            assert sim.get("rs485/m1/di0") is False  # wired to do0, which is off
+        finally:
+            await sim.stop()
