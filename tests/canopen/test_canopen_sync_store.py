@@ -1,0 +1,135 @@
+"""SYNC consumer/producer with loss detection; store/restore 0x1010/0x1011 and its file."""
+
+import json
+
+import pytest
+from canopen_rig import Rig, seed_node
+
+from fieldgate.plugins.canopen.service import Service
+
+
+class SyncRecorder(Service):
+    name = "sync_recorder"
+
+    def __init__(self):
+        super().__init__()
+        self.seen = []
+
+    def on_sync(self, counter, now):
+        self.seen.append((counter, round(now, 3)))
+
+
+@pytest.fixture
+def rig():
+    node = seed_node()
+    node.recorder = node.add_service(SyncRecorder())
+    return Rig(node)
+
+
+def test_sync_consumer_notifies_services(rig):
+    assert rig.send("080") == []
+    rig.send("000 02 01")
+    rig.send("080")  # not in stopped
+    rig.send("000 01 01")
+    rig.send("080")
+    assert rig.node.recorder.seen == [(None, 0.0), (None, 0.0)]
+
+
+def test_sync_loss_emcy_and_clear(rig):
+    assert rig.sdo("23 06 10 00 A0 86 01 00") == "60 06 10 00 00 00 00 00"  # 100 ms
+    assert rig.advance(1.0) == []  # supervision starts at the first SYNC
+    rig.send("080")
+    assert rig.advance(0.149) == []
+    assert rig.advance(0.002) == ["081 00 81 11 02 00 00 00 00"]
+    assert rig.send("080") == ["081 00 00 00 00 00 00 00 00"]
+
+
+def test_sync_counter_and_overflow_rules(rig):
+    assert rig.sdo("2F 19 10 00 01 00 00 00") == "80 19 10 00 30 00 09 06"
+    assert rig.sdo("2F 19 10 00 F1 00 00 00") == "80 19 10 00 30 00 09 06"
+    assert rig.sdo("2F 19 10 00 04 00 00 00") == "60 19 10 00 00 00 00 00"
+    rig.send("080 03")
+    rig.send("080")  # wrong length with a counter configured
+    assert rig.node.recorder.seen == [(3, 0.0)]
+    rig.sdo("23 06 10 00 A0 86 01 00")
+    assert rig.sdo("2F 19 10 00 00 00 00 00") == "80 19 10 00 22 00 00 08"
+
+
+def test_sync_producer(rig):
+    rig.sdo("2F 19 10 00 03 00 00 00")
+    rig.sdo("23 06 10 00 10 27 00 00")  # 10 ms
+    assert rig.sdo("23 05 10 00 80 00 00 40") == "60 05 10 00 00 00 00 00"
+    assert rig.advance(0.045) == ["080 01", "080 02", "080 03", "080 01"]
+    assert [c for c, _ in rig.node.recorder.seen] == [1, 2, 3, 1]
+
+
+def test_store_restart_restore(tmp_path):
+    path = tmp_path / "node.json"
+    r = Rig(seed_node(store_path=path, fingerprint="set-A"))
+    r.node.service("store").load()
+    r.sdo("2B 17 10 00 F4 01 00 00")  # heartbeat 500
+    r.sdo("2B 02 21 00 2A 00 00 00")  # application value 42
+    assert r.sdo("23 10 10 01 73 61 76 65") == "60 10 10 01 00 00 00 00"
+    assert r.sdo("40 10 10 01 00 00 00 00") == "43 10 10 01 01 00 00 00"
+    doc = json.loads(path.read_text())
+    assert doc["fingerprint"] == "set-A" and doc["values"] == {"1017.00": 500, "2102.00": 42}
+    # power cycle
+    node = seed_node(store_path=path, fingerprint="set-A")
+    node.service("store").load()
+    r2 = Rig(node)
+    assert node.od.get(0x1017) == 500 and node.od.get(0x2102) == 42
+    assert r2.advance(0.5) == ["701 7F"]
+    # "load": defaults come back at the next reset, not before
+    assert r2.sdo("23 11 10 01 6C 6F 61 64") == "60 11 10 01 00 00 00 00"
+    assert node.od.get(0x1017) == 500
+    r2.send("000 81 01")
+    assert node.od.get(0x1017) == 0 and node.od.get(0x2102) == 0
+    assert json.loads(path.read_text())["values"] == {}
+
+
+def test_store_communication_area_only(tmp_path):
+    path = tmp_path / "node.json"
+    r = Rig(seed_node(store_path=path))
+    r.sdo("2B 17 10 00 F4 01 00 00")
+    r.sdo("2B 02 21 00 2A 00 00 00")
+    r.sdo("23 10 10 02 73 61 76 65")
+    assert json.loads(path.read_text())["values"] == {"1017.00": 500}
+    assert r.sdo("23 11 10 01 6C 6F 61 65") == "80 11 10 01 20 00 00 08"
+
+
+@pytest.mark.parametrize("content, emcy", [
+    (b"{not json", "081 00 50 81 02 00 00 00 00"),
+    (json.dumps({"format": "fieldgate-canopen-store/1", "fingerprint": "set-B", "values": {"1017.00": 500}}).encode(), "081 00 63 81 0C 00 00 00 00"),
+])
+def test_bad_store_falls_back_to_defaults_with_emcy(tmp_path, caplog, content, emcy):
+    path = tmp_path / "node.json"
+    path.write_bytes(content)
+    node = seed_node(store_path=path, fingerprint="set-A")
+    node.service("store").load()
+    r = Rig(node)
+    assert r.boot == ["701 00", emcy]
+    assert node.od.get(0x1017) == 0
+    assert len([rec for rec in caplog.records if "store" in rec.name]) == 1
+    # a successful save clears the error
+    assert sorted(r.send("601 23 10 10 01 73 61 76 65")) == ["081 00 00 00 00 00 00 00 00", "581 60 10 10 01 00 00 00 00"]
+
+
+def test_store_without_file_aborts():
+    r = Rig(seed_node())
+    assert r.sdo("23 10 10 01 73 61 76 65") == "80 10 10 01 20 00 00 08"
+
+
+def test_store_write_failure_keeps_previous_copy(tmp_path, monkeypatch):
+    path = tmp_path / "node.json"
+    r = Rig(seed_node(store_path=path))
+    r.sdo("2B 17 10 00 F4 01 00 00")
+    r.sdo("23 10 10 01 73 61 76 65")
+    before = path.read_bytes()
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr("os.fsync", boom)
+    r.sdo("2B 17 10 00 64 00 00 00")
+    assert r.sdo("23 10 10 01 73 61 76 65") == "80 10 10 01 00 00 06 06"
+    assert path.read_bytes() == before
