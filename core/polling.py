@@ -69,6 +69,10 @@ class PolledModule(ABC):
     async def on_online(self) -> None:
         """Called after the first successful contact and after each recovery (configure watchdogs...)."""
 
+    def output_quality(self) -> Quality:
+        """Quality of this module's outputs after a good poll (WATCHDOG while the module ignores writes)."""
+        return Quality.GOOD
+
 
 @dataclass
 class LineJob:
@@ -154,6 +158,10 @@ class LineScheduler:
     # -- scheduling -----------------------------------------------------------
     def add_job(self, job: LineJob) -> None:
         self.jobs.append(job)
+        self._wake.set()
+
+    def wake(self) -> None:
+        """Re-evaluate what is due now (a job became enabled, a one-shot request was queued)."""
         self._wake.set()
 
     async def run(self) -> None:
@@ -268,7 +276,8 @@ class LineScheduler:
         if ok and readings:
             self._apply(readings)
         if ok and st.module.outputs:
-            self.image.set_quality([c for c in st.module.outputs if self.image[c].quality is not Quality.GOOD], Quality.GOOD)
+            quality = st.module.output_quality()
+            self.image.set_quality([c for c in st.module.outputs if self.image[c].quality is not quality], quality)
         st.due = started + (st.period if st.health.online else self.offline_probe_period)
         self._count_cycle(st)
 

@@ -58,6 +58,11 @@ class AsyncSerial:
             self._buffer += chunk
         self._data.set()
 
+    @property
+    def pending(self) -> int:
+        """Bytes received and not yet consumed (a truncated reply, after a timeout)."""
+        return len(self._buffer)
+
     def reset_input(self) -> None:
         """Drop whatever arrived unsolicited (late replies, line noise)."""
         self._buffer.clear()

@@ -1,0 +1,192 @@
+"""The ``dcon`` back: DCON modules on one RS-485 line, polled by core's line scheduler.
+
+Host watchdog
+-------------
+Modules whose ``watchdog`` is enabled get ``~AA3EVV`` each time they come online. While
+every front's master is healthy, a line job broadcasts ``~**`` (host OK) at
+``host_ok_period`` (default a third of the shortest timeout). When any front reports
+its master lost, the broadcast stops at once, so each module falls to its own safe
+values after its timeout, whatever happens to the gateway. A module in watchdog
+timeout ignores output writes (answers ``!``) until ``~AA1``: its outputs get quality
+``watchdog`` and its status says so. Recovery is explicit: :meth:`DconBack.clear_watchdog`
+(or :meth:`request_clear_watchdog` from synchronous code such as an SDO handler).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+from fieldgate.image import ChannelSpec
+from fieldgate.plugin import GatewayContext, PluginStartError
+from fieldgate.polling import CommError, LineJob, SerialBack
+from fieldgate.serial_link import AsyncSerial
+
+from .codec import HOST_OK
+from .config import DconBackConfig, DconModuleConfig
+from .link import DconLink
+from .module import DconModule
+
+log = logging.getLogger("fieldgate.dcon")
+
+Request = tuple[Callable[[], Awaitable[Any]], "asyncio.Future[Any]"]
+
+
+class DconBack(SerialBack):
+    config: DconBackConfig
+
+    def __init__(self, config: DconBackConfig, context: GatewayContext):
+        super().__init__(config, context)
+        self.modules: dict[int, DconModule] = {}
+        self.dcon: DconLink | None = None
+        self.host_ok_sent = 0
+        self._requests: list[Request] = []
+        self._host_ok_running = False
+        context.masters.subscribe(self._on_master)
+
+    # -- SerialBack -------------------------------------------------------------------
+    async def open_link(self) -> AsyncSerial:
+        cfg = self.config
+        serial = await AsyncSerial.open(cfg.port, cfg.baudrate, cfg.bytesize, cfg.parity, cfg.stopbits)
+        self.dcon = DconLink(serial, cfg.checksum, cfg.timeout_ms / 1000)
+        for module in self.modules.values():
+            module.link = self.dcon
+        return serial
+
+    async def close_link(self) -> None:
+        await self.link.close()
+        for _, future in self._requests:
+            if not future.done():
+                future.set_exception(PluginStartError("line closed"))
+        self._requests.clear()
+
+    def make_module(self, config: DconModuleConfig, specs: list[ChannelSpec]) -> DconModule:
+        assert self.dcon is not None
+        module = DconModule(config, specs, self.context.image, self.dcon, watch_status=not self.context.masters.all_ok)
+        old = self.modules.get(config.address)
+        if old is not None:  # a restart keeps what was learnt (identity, watchdog state)
+            module.name, module.firmware, module.in_watchdog, module.watchdog_events = old.name, old.firmware, old.in_watchdog, old.watchdog_events
+            module.watchdog_enabled, module.watchdog_timeout_ms = old.watchdog_enabled, old.watchdog_timeout_ms
+        self.modules[config.address] = module
+        return module
+
+    def line_jobs(self) -> list[LineJob]:
+        period = self.host_ok_period()
+        jobs = [LineJob("requests", 0.0, self._run_request, lambda: bool(self._requests))]
+        jobs.append(LineJob("host-ok", period or 1.0, self._host_ok, self._host_ok_wanted))
+        return jobs
+
+    # -- host OK ---------------------------------------------------------------------
+    def host_ok_period(self) -> float | None:
+        period = self.config.host_ok_period()
+        timeouts = [m.watchdog_timeout_ms for m in self.modules.values() if m.watchdog_enabled]
+        if timeouts:  # run-time changes (set_watchdog) may shorten it
+            period = min(period or 1e9, min(timeouts) / 3000)
+        return period
+
+    def _host_ok_wanted(self) -> bool:
+        wanted = any(m.watchdog_enabled for m in self.modules.values()) and self.context.masters.all_ok
+        if wanted != self._host_ok_running:
+            self._host_ok_running = wanted
+            if wanted:
+                log.info("%s: sending ~** every %.0f ms", self.name, (self.host_ok_period() or 0) * 1000)
+        return wanted
+
+    async def _host_ok(self) -> None:
+        assert self.dcon is not None
+        await self.dcon.broadcast(HOST_OK)
+        self.host_ok_sent += 1
+
+    def _on_master(self, front: str, ok: bool, reason: str) -> None:
+        all_ok = self.context.masters.all_ok
+        for module in self.modules.values():
+            module.watch_status = not all_ok  # read ~AA0 with the inputs while modules may time out
+        if not ok and any(m.watchdog_enabled for m in self.modules.values()):
+            log.warning("%s: front %s lost its master (%s): ~** stopped; modules go to their safe values after their watchdog timeouts", self.name, front, reason)
+        if self.scheduler is not None:
+            self.scheduler.wake()
+
+    # -- one-shot requests on the line (recovery, run-time watchdog settings) -------------------
+    def _submit(self, action: Callable[[], Awaitable[Any]]) -> asyncio.Future[Any]:
+        future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
+        if self.scheduler is None or self.dcon is None:
+            future.set_exception(PluginStartError(f"back {self.name} is not running"))
+            return future
+        self._requests.append((action, future))
+        self.scheduler.wake()
+        return future
+
+    async def _run_request(self) -> None:
+        action, future = self._requests.pop(0)
+        try:
+            result = await action()
+        except asyncio.CancelledError:
+            future.cancel()
+            raise
+        except Exception as exc:
+            if not future.done():
+                future.set_exception(exc)
+            future.exception()  # mark retrieved: fire-and-forget callers do not get asyncio warnings
+        else:
+            if not future.done():
+                future.set_result(result)
+
+    def module(self, address: int) -> DconModule:
+        try:
+            return self.modules[address]
+        except KeyError:
+            raise KeyError(f"back {self.name} has no module at address {address}") from None
+
+    async def clear_watchdog(self, address: int, timeout: float = 2.0) -> bool:
+        """Send ``~AA1`` to the module (the I-7231D's 0x2003 write). True when it cleared."""
+        try:
+            await asyncio.wait_for(self.request_clear_watchdog(address), timeout)
+        except (CommError, PluginStartError, TimeoutError) as exc:
+            log.warning("%s module %d: clearing the watchdog failed: %s", self.name, address, exc)
+            return False
+        return True
+
+    def request_clear_watchdog(self, address: int) -> asyncio.Future[Any]:
+        """Queue ``~AA1`` for the module; returns a future (callers may ignore it)."""
+        module = self.module(address)
+
+        async def clear() -> None:
+            await module.clear_watchdog()
+            if self.scheduler is not None:
+                self.scheduler.mark_all_outputs_dirty()  # bring the outputs back to what the image says
+
+        return self._submit(clear)
+
+    def set_watchdog(self, address: int, enabled: bool, timeout_ms: int | None = None) -> asyncio.Future[Any]:
+        """Change a module's host watchdog at run time (0x2001/0x2002): queues ``~AA3EVV``."""
+        module = self.module(address)
+        if timeout_ms is not None and not 100 <= timeout_ms <= 25_500:
+            raise ValueError(f"watchdog timeout {timeout_ms} ms outside 100..25500")
+        module.watchdog_enabled = enabled
+        if timeout_ms is not None:
+            module.watchdog_timeout_ms = timeout_ms
+        elif not module.watchdog_timeout_ms:
+            module.watchdog_timeout_ms = 2000
+        self._retime_host_ok()
+        return self._submit(module.configure_watchdog)
+
+    def _retime_host_ok(self) -> None:
+        if self.scheduler is None:
+            return
+        period = self.host_ok_period()
+        for job in self.scheduler.jobs:
+            if job.name == "host-ok" and period:
+                job.period = period
+                job.due = min(job.due, self.context.clock() + period)
+
+    def watchdog_status(self, address: int) -> bool:
+        """True while the module sits in host-watchdog timeout (0x2003 != 0)."""
+        return self.module(address).in_watchdog
+
+    def status(self) -> dict:
+        status = super().status()
+        status["host_ok"] = {"period_ms": None if self.host_ok_period() is None else round(self.host_ok_period() * 1000), "sending": self._host_ok_running, "sent": self.host_ok_sent}
+        status["dcon_modules"] = [m.status() for m in sorted(self.modules.values(), key=lambda m: m.address)]
+        return status

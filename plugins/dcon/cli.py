@@ -1,0 +1,114 @@
+"""``fieldgate scan dcon`` and ``fieldgate simulate dcon``."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+
+from fieldgate.plugin import PluginStartError
+from fieldgate.serial_link import AsyncSerial, PtyPair
+
+from .link import DconLink
+from .scan import parse_addresses, progress_bar, scan_line, topology_yaml
+from .simulator import DconSimulator
+
+
+# -- scan --------------------------------------------------------------------------------
+def configure_scan(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", required=True, help="serial device or pyserial URL")
+    parser.add_argument("--baud", default="9600", help="baud rate, or several separated by commas (e.g. 9600,19200,115200)")
+    parser.add_argument("--addresses", default="0-255", help="addresses to probe, e.g. 1-15 or 1,2,8 (default 0-255)")
+    parser.add_argument("--checksum", action="store_true", help="send and expect DCON checksums")
+    parser.add_argument("--timeout-ms", type=int, default=100, help="reply timeout per address (default 100)")
+    parser.add_argument("--name", default="rs485", help="back name in the printed topology")
+
+
+def run_scan(args: argparse.Namespace) -> int:
+    try:
+        addresses = parse_addresses(args.addresses)
+        bauds = [int(b) for b in args.baud.split(",")]
+    except ValueError as exc:
+        print(f"fieldgate scan dcon: {exc}", file=sys.stderr)
+        return 2
+    try:
+        found = asyncio.run(_scan(args, addresses, bauds))
+    except PluginStartError as exc:
+        print(f"fieldgate scan dcon: {exc}", file=sys.stderr)
+        return 2
+    sys.stdout.write(topology_yaml(found, args.port, args.checksum, args.name))
+    return 0 if found else 1
+
+
+async def _scan(args: argparse.Namespace, addresses: list[int], bauds: list[int]) -> list:
+    found = []
+    for baud in bauds:
+        print(f"scanning {args.port} at {baud} bit/s, checksum {'on' if args.checksum else 'off'}", file=sys.stderr)
+        serial = await AsyncSerial.open(args.port, baud)
+        try:
+            link = DconLink(serial, args.checksum, args.timeout_ms / 1000)
+            found += await scan_line(link, addresses, baud, progress_bar())
+        finally:
+            await serial.close()
+    return found
+
+
+# -- simulate ------------------------------------------------------------------------------
+def configure_simulate(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--port", help="serial device (or pty end) to serve")
+    where.add_argument("--pty", action="store_true", help="create a pseudo-terminal pair and print the end to connect to")
+    parser.add_argument("--module", action="append", default=[], metavar="ADDR:MODEL[:TYPE[:FORMAT]]", help="a simulated module, e.g. 1:I-7043 or 4:I-7012:0x08:hex (repeat)")
+    parser.add_argument("--checksum", action="store_true", help="modules expect and send checksums")
+    parser.add_argument("--baud", type=int, default=9600)
+    parser.add_argument("--animate", action="store_true", help="inputs change by themselves (walking DI bit, AI sine)")
+    parser.add_argument("--duration", type=float, default=0, help="stop after this many seconds (default: until Ctrl-C)")
+
+
+def parse_module(text: str) -> tuple:
+    parts = text.split(":")
+    if len(parts) < 2:
+        raise ValueError(f"--module expects ADDR:MODEL[:TYPE[:FORMAT]], got {text!r}")
+    entry: list = [int(parts[0], 0), parts[1]]
+    if len(parts) > 2:
+        entry.append(int(parts[2], 16) if not parts[2].lower().startswith("0x") else int(parts[2], 0))
+    if len(parts) > 3:
+        entry.append(parts[3])
+    return tuple(entry)
+
+
+def run_simulate(args: argparse.Namespace) -> int:
+    try:
+        modules = [parse_module(m) for m in args.module]
+        if not modules:
+            raise ValueError("give at least one --module")
+    except ValueError as exc:
+        print(f"fieldgate simulate dcon: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return asyncio.run(_simulate(args, modules))
+    except (ValueError, KeyError, PluginStartError) as exc:
+        print(f"fieldgate simulate dcon: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 0
+
+
+async def _simulate(args: argparse.Namespace, modules: list[tuple]) -> int:
+    pair = PtyPair() if args.pty else None
+    port = pair.b if pair else args.port
+    sim = DconSimulator.from_modules(port, modules, checksum=args.checksum, baudrate=args.baud, animate=args.animate)
+    await sim.start()
+    try:
+        for m in sim.bus.modules.values():
+            print(f"module {m.address:3d}: {m.profile.model} ({m.profile.description}), type 0x{m.type_code:02X}, {m.data_format.name.lower()}", flush=True)
+        print(f"serving on {pair.a if pair else port} (connect the gateway there)", flush=True)
+        if args.duration:
+            await asyncio.sleep(args.duration)
+        else:
+            await asyncio.Event().wait()
+    finally:
+        await sim.stop()
+        if pair:
+            pair.close()
+    return 0

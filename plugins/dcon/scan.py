@@ -1,0 +1,112 @@
+"""Finding DCON modules on a line: ``$AA2`` at every address, then ``$AAM``/``$AAF`` to identify."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+from fieldgate.health import ErrorKind
+from fieldgate.polling import CommError
+
+from . import codec
+from .formats import DataFormat
+from .link import DconLink
+from .profiles import Profile, find_profile
+from .tables import TABLES
+
+
+@dataclass(frozen=True)
+class Found:
+    address: int
+    baudrate: int
+    name: str
+    firmware: str
+    config: codec.ModuleConfigReply
+    profile: Profile | None
+
+    def describe_range(self) -> str:
+        p = self.profile
+        key = p and (p.ai_table or p.ao_table)
+        if not key:
+            return ""
+        rng = TABLES[key].get(self.config.type_code)
+        return rng.label if rng else "unknown type code"
+
+
+Progress = Callable[[int, int, int], None]  # (done, total, found)
+
+
+async def scan_line(link: DconLink, addresses: Iterable[int], baudrate: int, progress: Progress | None = None) -> list[Found]:
+    """Probe each address; modules that answer ``$AA2`` are identified. Silence = nobody there."""
+    addresses = list(addresses)
+    found: list[Found] = []
+    for done, address in enumerate(addresses, 1):
+        try:
+            config = codec.parse_config(await link.transact(codec.command("$", address, "2")), address)
+            name = codec.addressed(await link.transact(codec.command("$", address, "M")), address)
+            firmware = _optional(await _try(link, address, "F"))
+        except CommError as exc:
+            if exc.kind is not ErrorKind.TIMEOUT:
+                print(f"\naddress {address}: answered but {exc.kind}: {exc}", file=sys.stderr)
+        else:
+            found.append(Found(address, baudrate, name, firmware, config, find_profile(name)))
+        if progress is not None:
+            progress(done, len(addresses), len(found))
+    return found
+
+
+async def _try(link: DconLink, address: int, body: str) -> str | None:
+    try:
+        return codec.addressed(await link.transact(codec.command("$", address, body)), address)
+    except CommError:
+        return None
+
+
+def _optional(text: str | None) -> str:
+    return text or ""
+
+
+def progress_bar(stream=sys.stderr, width: int = 32) -> Progress:
+    def show(done: int, total: int, found: int) -> None:
+        filled = width * done // max(total, 1)
+        stream.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} addresses, {found} module(s) found")
+        if done == total:
+            stream.write("\n")
+        stream.flush()
+
+    return show
+
+
+def topology_yaml(found: list[Found], port: str, checksum: bool, name: str = "rs485") -> str:
+    """Ready-to-paste ``backs:`` entries, one per baud rate that had modules."""
+    lines = ["backs:"]
+    for baud in sorted({f.baudrate for f in found}):
+        modules = [f for f in found if f.baudrate == baud]
+        back = name if len({f.baudrate for f in found}) == 1 else f"{name}-{baud}"
+        lines += [f"  - name: {back}", "    type: dcon", f"    port: {port}", f"    baudrate: {baud}", f"    checksum: {'true' if checksum else 'false'}", "    modules:"]
+        for f in modules:
+            model = f.profile.model if f.profile else f"I-{f.name}"
+            note = f"  # $AAM {f.name}" + (f", firmware {f.firmware}" if f.firmware else "") + ("" if f.profile else ", NOT SUPPORTED")
+            lines.append(f"      - address: {f.address}")
+            lines.append(f"        model: {model}{note}")
+            if f.profile and (f.profile.ai or f.profile.ao):
+                lines.append(f"        type_code: 0x{f.config.type_code:02X}  # {f.describe_range()}")
+                lines.append(f"        data_format: {DataFormat(f.config.data_format).label}")
+            if f.config.checksum != checksum:
+                lines.append(f"        # module checksum is {'on' if f.config.checksum else 'off'}, the line's is {'on' if checksum else 'off'}")
+    if len(lines) == 1:
+        lines.append("  []  # no module answered")
+    return "\n".join(lines) + "\n"
+
+
+def parse_addresses(text: str) -> list[int]:
+    """'0-255', '1-15,32' -> addresses."""
+    result: list[int] = []
+    for part in text.split(","):
+        low, _, high = part.strip().partition("-")
+        start, end = int(low, 0), int(high or low, 0)
+        if not 0 <= start <= end <= 255:
+            raise ValueError(f"address range {part!r} outside 0..255")
+        result.extend(range(start, end + 1))
+    return sorted(set(result))

@@ -1,0 +1,182 @@
+"""The DCON module simulator on a serial port (a pty end in tests and demos).
+
+Python API::
+
+    sim = DconSimulator.from_modules("/dev/pts/5", [(1, "I-7043"), (2, "I-7053"), (4, "I-7012")])
+    await sim.start()
+    sim.set_input("rs485/m2/di0", True)      # or sim.bus.modules[2].di_bits = 0x0001
+    sim.get_output("rs485/m1/do3")
+    sim.inject("silence", address=2)         # faults: silence, bad-checksum, garbage, delay, truncate, wrong-address
+    sim.wire((1, "do", 0), (2, "di", 0), invert=True)
+    await sim.stop()
+
+``fieldgate simulate dcon`` serves the same from the command line.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import re
+
+import serial
+
+from fieldgate.plugin import PluginStartError, Simulator
+
+from .codec import BAUD_TO_CODE
+from .config import DconBackConfig
+from .formats import FORMAT_NAMES, DataFormat
+from .profiles import find_profile
+from .simulated import Fault, SimBus, SimModule, Wire
+
+log = logging.getLogger("fieldgate.dcon.sim")
+
+_CHANNEL = re.compile(r"(?:^|/)m(\d+)/(di|do|ai|ao)(\d+)$")
+TICK = 0.02
+
+
+class DconSimulator(Simulator):
+    def __init__(self, port: str, bus: SimBus, *, baudrate: int = 9600, animate: bool = False):
+        self.port_name = port
+        self.bus = bus
+        self.baudrate = baudrate
+        self.animate = animate
+        self._port: serial.SerialBase | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._ticker: asyncio.Task | None = None
+        self.replies = 0
+
+    # -- construction -------------------------------------------------------------------
+    @classmethod
+    def from_config(cls, config: DconBackConfig, port: str, animate: bool = False) -> DconSimulator:
+        """The modules a topology's ``dcon`` back declares, with its type codes and formats (hex by default)."""
+        bus = SimBus(checksum=config.checksum)
+        for m in config.modules:
+            fmt = DataFormat.HEX if m.data_format == "auto" else FORMAT_NAMES[m.data_format]
+            module = SimModule(m.profile, m.address, type_code=m.type_code, data_format=fmt, baud_code=BAUD_TO_CODE.get(config.baudrate, 0x06))
+            bus.add(module)
+        return cls(port, bus, baudrate=config.baudrate, animate=animate)
+
+    @classmethod
+    def from_modules(cls, port: str, modules: list[tuple], *, checksum: bool = False, baudrate: int = 9600, animate: bool = False) -> DconSimulator:
+        """``modules``: (address, model[, type_code[, format name]]) tuples."""
+        bus = SimBus(checksum=checksum)
+        for address, model, *rest in modules:
+            profile = find_profile(model)
+            if profile is None:
+                raise ValueError(f"unknown DCON module {model!r}")
+            type_code = rest[0] if rest else None
+            fmt = FORMAT_NAMES[rest[1]] if len(rest) > 1 else DataFormat.HEX
+            bus.add(SimModule(profile, address, type_code=type_code, data_format=fmt, baud_code=BAUD_TO_CODE.get(baudrate, 0x06)))
+        return cls(port, bus, baudrate=baudrate, animate=animate)
+
+    # -- life cycle ---------------------------------------------------------------------
+    async def start(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        try:
+            self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate, timeout=0)
+        except (serial.SerialException, ValueError) as exc:
+            raise PluginStartError(f"simulator cannot open {self.port_name}: {exc}") from None
+        now = self._loop.time()
+        for module in self.bus.modules.values():
+            module.power_cycle(now)
+        self._loop.add_reader(self._port.fileno(), self._readable)
+        self._ticker = asyncio.create_task(self._tick())
+
+    async def stop(self) -> None:
+        if self._ticker is not None:
+            self._ticker.cancel()
+            try:
+                await self._ticker
+            except asyncio.CancelledError:
+                pass
+            self._ticker = None
+        if self._port is not None and self._loop is not None:
+            try:
+                self._loop.remove_reader(self._port.fileno())
+            except (ValueError, OSError):
+                pass
+            self._port.close()
+            self._port = None
+
+    async def _tick(self) -> None:
+        assert self._loop is not None
+        while True:
+            now = self._loop.time()
+            for address in self.bus.tick(now):
+                log.info("simulated module %d: host-watchdog timeout, outputs at safe values", address)
+            if self.animate:
+                self.bus.animate(now)
+                self.bus.propagate()
+            await asyncio.sleep(TICK)
+
+    def _readable(self) -> None:
+        assert self._port is not None and self._loop is not None
+        try:
+            data = self._port.read(4096)
+        except (serial.SerialException, OSError):
+            return
+        for reply, delay in self.bus.feed(data, self._loop.time()):
+            if delay > 0:
+                self._loop.call_later(delay, self._send, reply)
+            else:
+                self._send(reply)
+
+    def _send(self, reply: bytes) -> None:
+        if self._port is not None:
+            try:
+                self._port.write(reply)
+                self.replies += 1
+            except (serial.SerialException, OSError):
+                pass
+
+    # -- the Simulator interface -------------------------------------------------------------
+    def _locate(self, channel_id: str) -> tuple[SimModule, str, int]:
+        match = _CHANNEL.search(channel_id)
+        if match is None:
+            raise KeyError(f"not a channel id: {channel_id!r}")
+        address, kind, index = int(match[1]), match[2], int(match[3])
+        module = self.bus.modules.get(address)
+        if module is None:
+            raise KeyError(f"no simulated module at address {address}")
+        limit = {"di": module.profile.di, "do": module.profile.do, "ai": module.profile.ai, "ao": module.profile.ao}[kind]
+        if index >= limit:
+            raise KeyError(f"{module.profile.model} at {address} has no {kind}{index}")
+        return module, kind, index
+
+    def set_input(self, channel_id: str, value: bool | int | float) -> None:
+        """DI: bool; AI: the raw 16-bit value in the module's hex scale (as the process image holds it)."""
+        module, kind, index = self._locate(channel_id)
+        if kind == "di":
+            module.di_bits = module.di_bits | 1 << index if value else module.di_bits & ~(1 << index)
+        elif kind == "ai":
+            module.ai_raw[index] = int(value)
+        else:
+            raise KeyError(f"{channel_id} is an output")
+
+    def get_output(self, channel_id: str) -> bool | int:
+        module, kind, index = self._locate(channel_id)
+        if kind == "do":
+            return bool(module.do_bits >> index & 1)
+        if kind == "ao":
+            return module.ao_raw[index]
+        raise KeyError(f"{channel_id} is an input")
+
+    def inject(self, kind: str, address: int | None = None, *, delay: float = 0.0, count: int | None = None) -> Fault:
+        fault = Fault(kind, address, delay, count)
+        self.bus.faults.append(fault)
+        return fault
+
+    def clear_faults(self) -> None:
+        self.bus.faults.clear()
+
+    def wire(self, source: tuple[int, str, int], target: tuple[int, str, int], invert: bool = False) -> None:
+        self.bus.wires.append(Wire(source, target, invert))
+        self.bus.propagate()
+
+    def module(self, address: int) -> SimModule:
+        return self.bus.modules[address]
+
+
+def simulator_factory(back_config: DconBackConfig, port: str, animate: bool = False) -> DconSimulator:
+    return DconSimulator.from_config(back_config, port, animate)
