@@ -32,7 +32,7 @@ class Clock:
 class Line:
     """Back-end modules + scheduler on one end of a pty pair, the simulator on the other."""
 
-    def __init__(self, modules: list[dict], *, timeout_ms: int = 40, **back):
+    def __init__(self, modules: list[dict], *, timeout_ms: int = 150, **back):
         self.config = ModbusBackConfig(name="rs485", port="unused", baudrate=115200, timeout_ms=timeout_ms, modules=modules, **back)
         self.clock = Clock()
         self.image = ProcessImage(self.clock)

@@ -55,7 +55,7 @@ async def test_the_demo_loop_runs_through_gateway_and_simulator(registry):
 
 async def test_a_dead_module_in_the_gateway_goes_comm_fault_and_comes_back(registry):
     topology = demo_topology()
-    topology["backs"][0] |= {"offline_probe_ms": 100, "timeout_ms": 20}
+    topology["backs"][0] |= {"offline_probe_ms": 100, "timeout_ms": 50}
     gateway = Gateway.load(topology, registry=registry, simulate=True)
     await gateway.start()
     try:
