@@ -1,0 +1,187 @@
+"""Object-dictionary entries of the I/O device layer, bound to live data.
+
+The PDO engine, the CiA 401 profile and the manufacturer objects each describe the
+objects they serve as :class:`ObjectDef` records whose :class:`Entry` items carry a
+getter and (when writable) a setter. A :class:`Directory` collects them, encodes and
+decodes values by CiA 301 data type, and answers the questions PDO mapping asks
+(does the entry exist, is it mappable, how many bits). The CANopen node binds the
+same entries into its SDO-served object dictionary, and the EDS writer prints them,
+so the dictionary that is served and the EDS that describes it come from one place.
+
+Setters validate and raise :class:`Abort` with a CiA 301 abort code; they never let
+another exception escape for bad input.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+
+from . import abort
+from .abort import SdoAbort
+
+# CiA 301 data type indices
+BOOLEAN, INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32 = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
+VISIBLE_STRING = 0x09
+
+_FORMATS = {BOOLEAN: "<?", INTEGER8: "<b", INTEGER16: "<h", INTEGER32: "<i", UNSIGNED8: "<B", UNSIGNED16: "<H", UNSIGNED32: "<I"}
+RANGES = {BOOLEAN: (0, 1), INTEGER8: (-0x80, 0x7F), INTEGER16: (-0x8000, 0x7FFF), INTEGER32: (-0x8000_0000, 0x7FFF_FFFF), UNSIGNED8: (0, 0xFF), UNSIGNED16: (0, 0xFFFF), UNSIGNED32: (0, 0xFFFF_FFFF)}
+
+# CiA 301 abort codes used here (the node's own table and exception, see .abort)
+OBJECT_DOES_NOT_EXIST = abort.NO_OBJECT
+SUB_DOES_NOT_EXIST = abort.NO_SUBINDEX
+READ_ONLY = abort.READ_ONLY
+WRITE_ONLY = abort.WRITE_ONLY
+NOT_MAPPABLE = abort.NOT_MAPPABLE
+PDO_LENGTH_EXCEEDED = abort.PDO_TOO_LONG
+LENGTH_TOO_HIGH = abort.LENGTH_TOO_HIGH
+LENGTH_TOO_LOW = abort.LENGTH_TOO_LOW
+VALUE_RANGE = abort.VALUE_RANGE
+VALUE_TOO_HIGH = abort.VALUE_TOO_HIGH
+VALUE_TOO_LOW = abort.VALUE_TOO_LOW
+DEVICE_STATE = abort.DEVICE_STATE
+
+Abort = SdoAbort  # an SDO or mapping request refused with a CiA 301 abort code
+
+
+def bits_of(dtype: int) -> int:
+    return 8 * struct.calcsize(_FORMATS[dtype]) if dtype in _FORMATS else 0
+
+
+def encode(dtype: int, value: int | str) -> bytes:
+    if dtype == VISIBLE_STRING:
+        return str(value).encode("latin-1", "replace")
+    return struct.pack(_FORMATS[dtype], value)
+
+
+def decode(dtype: int, data: bytes) -> int | str:
+    if dtype == VISIBLE_STRING:
+        return data.decode("latin-1")
+    size = struct.calcsize(_FORMATS[dtype])
+    if len(data) > size:
+        raise Abort(LENGTH_TOO_HIGH, "data too long")
+    if len(data) < size:
+        raise Abort(LENGTH_TOO_LOW, "data too short")
+    return int(struct.unpack(_FORMATS[dtype], data)[0])
+
+
+def check_range(dtype: int, value: int, low: int | None = None, high: int | None = None) -> int:
+    lo, hi = RANGES.get(dtype, (None, None))
+    low = lo if low is None else low
+    high = hi if high is None else high
+    if low is not None and value < low:
+        raise Abort(VALUE_TOO_LOW, f"{value} < {low}")
+    if high is not None and value > high:
+        raise Abort(VALUE_TOO_HIGH, f"{value} > {high}")
+    return value
+
+
+@dataclass
+class Entry:
+    """One sub-index. ``access``: ro, rw, wo or const (CiA 306 AccessType)."""
+
+    sub: int
+    name: str
+    dtype: int
+    access: str
+    get: Callable[[], int | str]
+    set: Callable[[int], None] | None = None
+    default: int | str | None = None  # EDS DefaultValue; None: the value at build time
+    default_expr: str | None = None  # e.g. "$NODEID+0x180"
+    mappable: bool = False
+    low: int | None = None
+    high: int | None = None
+
+    @property
+    def readable(self) -> bool:
+        return self.access in ("ro", "rw", "const")
+
+    @property
+    def writable(self) -> bool:
+        return self.access in ("rw", "wo")
+
+    @property
+    def bits(self) -> int:
+        return bits_of(self.dtype)
+
+    def write(self, value: int) -> None:
+        if not self.writable or self.set is None:
+            raise Abort(READ_ONLY, f"{self.name} is read-only")
+        check_range(self.dtype, value, self.low, self.high)
+        self.set(value)
+
+
+@dataclass
+class ObjectDef:
+    """An object: a VAR (one entry, sub 0), an ARRAY or a RECORD (sub 0 = highest sub)."""
+
+    index: int
+    name: str
+    kind: str  # "var", "array", "record"
+    entries: list[Entry] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.by_sub = {e.sub: e for e in self.entries}
+
+
+def const(value: int) -> Callable[[], int]:
+    return lambda: value
+
+
+def count_entry(n: int, name: str = "Highest sub-index supported") -> Entry:
+    return Entry(0, name, UNSIGNED8, "const", const(n), default=n)
+
+
+def array(index: int, name: str, items: Iterable[Entry]) -> ObjectDef:
+    items = list(items)
+    return ObjectDef(index, name, "array", [count_entry(len(items), "Number of entries")] + items)
+
+
+class Directory:
+    """All objects of one node's I/O layer, by index and sub-index."""
+
+    def __init__(self, objects: Iterable[ObjectDef] = ()):
+        self._objects: dict[int, ObjectDef] = {}
+        for obj in objects:
+            self.add(obj)
+
+    def add(self, obj: ObjectDef) -> None:
+        if obj.index in self._objects:
+            raise ValueError(f"object 0x{obj.index:04X} defined twice")
+        self._objects[obj.index] = obj
+
+    def __iter__(self) -> Iterator[ObjectDef]:
+        return iter(sorted(self._objects.values(), key=lambda o: o.index))
+
+    def __contains__(self, index: int) -> bool:
+        return index in self._objects
+
+    def object(self, index: int) -> ObjectDef:
+        try:
+            return self._objects[index]
+        except KeyError:
+            raise Abort(OBJECT_DOES_NOT_EXIST, f"no object 0x{index:04X}") from None
+
+    def entry(self, index: int, sub: int) -> Entry:
+        obj = self.object(index)
+        try:
+            return obj.by_sub[sub]
+        except KeyError:
+            raise Abort(SUB_DOES_NOT_EXIST, f"no sub-index {sub} in 0x{index:04X}") from None
+
+    def read(self, index: int, sub: int) -> bytes:
+        entry = self.entry(index, sub)
+        if not entry.readable:
+            raise Abort(WRITE_ONLY, f"0x{index:04X}:{sub} is write-only")
+        return encode(entry.dtype, entry.get())
+
+    def write(self, index: int, sub: int, data: bytes) -> None:
+        entry = self.entry(index, sub)
+        if not entry.writable:
+            raise Abort(READ_ONLY, f"0x{index:04X}:{sub} is read-only")
+        value = decode(entry.dtype, data)
+        entry.write(value)  # type: ignore[arg-type]
+
+    def value(self, index: int, sub: int) -> int | str:
+        return self.entry(index, sub).get()

@@ -1,0 +1,251 @@
+"""The CiA 401 I/O device as one Node service: PDO engine + profile objects + manufacturer objects.
+
+::
+
+    io = IoDevice(IoSettings(style="icpdas"), image, channels, origin="can", health=context.health,
+                  masters=context.masters, front="can")
+    settings.identity.device_type = io.device_type          # 0x1000
+    node = build_node(settings); node.add_service(io)
+
+What it does on the node:
+
+* adds 0x1400-/0x1600-/0x1800-/0x1A00- (:mod:`.pdo`), the CiA 401 objects
+  (:mod:`.profile401`) and the manufacturer objects (:mod:`.manufacturer`) to ``node.od``,
+  each entry bound to its getter/setter (the process image is the truth);
+* passes RPDOs and TPDO remote requests to the engine (Operational only), SYNC, NMT
+  state changes, timers, and process-image events;
+* RPDO too short: EMCY 0x8210 (register 0x11, manufacturer byte 09), cleared by the next
+  good RPDO; module offline: EMCY 0xFF00 ``0B <address>``;
+* master lost (``node.on_master``: life guarding, heartbeat consumer, bus-off) and, when
+  ``error_on_stopped`` (the NA-9161), NMT Stopped: ``masters.lost(front, reason, outputs)``
+  drives every output with an error mode to its error value; the master's return (or
+  leaving Stopped) reports ``masters.ok``. Outputs keep their error values until new
+  data is written (NA-9161 §9.7.3).
+
+Frames produced between node calls (a DI change from a back) are queued with
+``node.send`` and ``wakeup()`` is called so the adapter flushes the node.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from fieldgate.health import HealthRegistry
+from fieldgate.image import Channel, ProcessImage
+
+from .entries import BOOLEAN, Directory, ObjectDef
+from .frame import Frame, NmtState
+from .layouts import STYLE_PDO_COUNT, IoLayout, Style, build_layout, default_pdos
+from .manufacturer import ManufacturerObjects
+from .pdo import PdoEngine
+from .profile401 import Profile401
+from .service import Service
+
+LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES = 0x8210, 0x10, b"\x09"
+
+
+@dataclass
+class IoSettings:
+    style: Style = "icpdas"
+    pdo_count: int | None = None  # per direction; default 32 (icpdas) / 8 (na9161)
+    mapping_closed: bool = False  # icpdas: analog from PDO1 when a direction has no digital data
+    compressed: bool = True  # na9161: digital bits packed across modules
+    start_policy: Literal["async", "all", "none"] | None = None  # TPDOs sent on entering Operational
+    error_on_stopped: bool | None = None  # NMT Stopped is an output error event (na9161)
+    do_error_default: tuple[int, int] | None = None  # (0x6206, 0x6207) for outputs without a configured mode
+
+    @property
+    def count(self) -> int:
+        return self.pdo_count or STYLE_PDO_COUNT[self.style]
+
+    @property
+    def policy(self) -> str:
+        return self.start_policy or ("all" if self.style == "na9161" else "async")
+
+    @property
+    def stopped_is_error(self) -> bool:
+        return self.style == "na9161" if self.error_on_stopped is None else self.error_on_stopped
+
+
+class IoDevice(Service):
+    name = "io"
+    active_states = frozenset({NmtState.OPERATIONAL})
+
+    def __init__(
+        self,
+        settings: IoSettings,
+        image: ProcessImage,
+        channels: Sequence[Channel],
+        *,
+        origin: str = "canopen",
+        health: HealthRegistry | None = None,
+        masters: Any = None,
+        front: str | None = None,
+        backs: dict[str, Any] | None = None,
+        dcon_backs: set[str] | None = None,
+        models: dict[tuple[str, int], str] | None = None,
+    ):
+        super().__init__()
+        self.settings = settings
+        self.image = image
+        self.front = front or origin
+        self.masters = masters
+        self.layout: IoLayout = build_layout(channels, settings.style, compressed=settings.compressed, models=models)
+        self.defaults = default_pdos(self.layout, settings.style, count=settings.count, mapping_closed=settings.mapping_closed)
+        self.profile = Profile401(image, self.layout, origin)
+        self.manufacturer = ManufacturerObjects(self.layout, health or HealthRegistry(), style=settings.style, backs=backs, dcon_backs=dcon_backs)
+        self.directory = Directory(self.profile.objects() + self.manufacturer.objects())
+        self.engine: PdoEngine | None = None
+        self.wakeup: Callable[[], None] | None = None
+        self.master_lost = False
+
+    @property
+    def device_type(self) -> int:
+        return self.layout.device_type
+
+    def objects(self) -> list[ObjectDef]:
+        """Every object this service serves (PDO parameters need :meth:`attach` first)."""
+        pdo = self.engine.objects() if self.engine is not None else []
+        return sorted(pdo + list(self.directory), key=lambda o: o.index)
+
+    # -- Service ----------------------------------------------------------------------------
+    def attach(self, node) -> None:
+        super().attach(node)
+        self.engine = PdoEngine(
+            self.directory, self.defaults.tpdo, self.defaults.rpdo, node.node_id if node.configured else 0,
+            start_policy=self.settings.policy, rpdo_timing=self.settings.style == "na9161",
+            clock=lambda: node.now, length_error=self._length_error, wakeup=self._engine_wakeup,
+        )
+        for obj in self.objects():
+            bind_object(node.od, obj)
+        self.profile.attach(self.engine.object_changed)
+        emcy = node.emcy
+        if emcy is not None:
+            self.manufacturer.attach(
+                lambda code, reg, mfr: self._outside(lambda: emcy.raise_error(code, reg, mfr)),
+                lambda code, mfr: self._outside(lambda: emcy.clear_error(code, mfr)),
+            )
+        node.on_master(self._master_state)
+
+    def detach(self) -> None:
+        self.profile.detach()
+        self.manufacturer.detach()
+
+    def on_frame(self, frame: Frame, now: float) -> bool:
+        engine = self.engine
+        if engine is None or frame.can_id not in engine.listen_ids():
+            return False
+        self._send(engine.on_frame(frame.can_id, frame.data, now, rtr=frame.rtr))
+        return True
+
+    def on_sync(self, counter: int | None, now: float) -> None:
+        if self.engine is not None:
+            self._send(self.engine.on_sync(now, counter))
+
+    def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
+        if self.engine is None:
+            return
+        self._send(self.engine.set_operational(new == NmtState.OPERATIONAL, now))
+        if self.settings.stopped_is_error:
+            if new == NmtState.STOPPED:
+                self._lost("NMT Stopped")
+            elif old == NmtState.STOPPED:
+                self._ok("left NMT Stopped")
+
+    def on_reset_communication(self, now: float) -> None:
+        if self.engine is not None:
+            self.engine.reset(self.node.node_id if self.node.configured else 0)
+            self._lost_cleared_by_reset()
+
+    def deadline(self) -> float | None:
+        return self.engine.next_deadline() if self.engine is not None else None
+
+    def poll(self, now: float) -> None:
+        if self.engine is not None:
+            self._send(self.engine.on_timer(now))
+
+    def status(self) -> dict:
+        return {**dict(self.counters), **(self.engine.status() if self.engine else {}), "master_lost": self.master_lost}
+
+    # -- glue ---------------------------------------------------------------------------------
+    def _send(self, frames: list[tuple[int, bytes]]) -> None:
+        for can_id, data in frames:
+            self.node.send(Frame(can_id, data))
+
+    def _engine_wakeup(self) -> None:
+        """A process-image event outside any node call: the adapter should tick the node."""
+        if self.wakeup is not None:
+            self.wakeup()
+
+    def _outside(self, action: Callable[[], Any]) -> None:
+        action()
+        if self.wakeup is not None:
+            self.wakeup()
+
+    def _length_error(self, active: bool) -> None:
+        emcy = self.node.emcy
+        if emcy is None:
+            return
+        if active:
+            emcy.raise_error(LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES)
+        else:
+            emcy.clear_error(LENGTH_ERROR_CODE)
+
+    def _master_state(self, ok: bool, reason: str) -> None:
+        if ok:
+            self._ok(reason)
+        else:
+            self._lost(reason)
+
+    def _lost(self, reason: str) -> None:
+        self.master_lost = True
+        self.counters["master_lost"] += 1
+        if self.masters is not None:
+            self.masters.lost(self.front, reason, self.profile.output_ids())
+        else:
+            self.image.apply_error_modes(self.profile.output_ids(), origin=f"{self.front}:master-lost")
+
+    def _ok(self, reason: str) -> None:
+        if not self.master_lost:
+            return
+        self.master_lost = False
+        if self.masters is not None:
+            self.masters.ok(self.front, reason)
+
+    def _lost_cleared_by_reset(self) -> None:
+        if self.master_lost and self.node.state != NmtState.STOPPED:
+            self._ok("reset communication")
+
+
+def bind_object(od, obj: ObjectDef) -> None:
+    """Add one :class:`ObjectDef` to the node's dictionary with its getters and setters."""
+    if obj.kind == "var":
+        e = obj.entries[0]
+        od.add_variable(obj.index, obj.name, e.dtype, e.access, _model_default(e), minimum=e.low, maximum=e.high, mappable=e.mappable)
+    else:
+        members = [
+            (e.sub, e.name, e.dtype, e.access, _model_default(e), {"minimum": e.low, "maximum": e.high, "mappable": e.mappable, "relative": e.default_expr is not None})
+            for e in obj.entries if e.sub != 0
+        ]
+        od.add_record(obj.index, obj.name, members, array=obj.kind == "array")
+        sub0 = obj.by_sub.get(0)
+        if sub0 is not None and sub0.writable:
+            var = od.variable(obj.index, 0)
+            var.access_type = sub0.access
+            var.default = _model_default(sub0)
+    for e in obj.entries:
+        if e.sub == 0 and obj.kind != "var" and not e.writable:
+            continue  # the dictionary's own "highest sub-index" entry
+        od.bind(obj.index, e.sub, getter=e.get, setter=e.write if e.writable else None)
+
+
+def _model_default(e) -> int | str:
+    """The EDS default: relative COB-IDs keep their base (the dictionary adds the node-ID)."""
+    if e.default_expr is not None:
+        return int(e.default_expr.split("+", 1)[1], 0)
+    if e.default is not None:
+        return e.default
+    value = e.get()
+    return int(value) if e.dtype == BOOLEAN else value

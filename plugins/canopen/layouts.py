@@ -1,0 +1,179 @@
+"""How a front's channels become CiA 401 objects and default PDO mappings.
+
+Two styles, chosen per front with ``style:``:
+
+``icpdas`` (I-7232D / I-7231D, seed-000 §2.7 and §3.7, seed-001 §2.2 and §4.6)
+    Modules by ascending address, digital channels packed per module into whole bytes
+    (a module never shares a byte). PDO1 carries the digital bytes 1-8, PDO2/3/4 carry
+    analog channels 1-4 / 5-8 / 9-12. Digital bytes beyond 8 go to PDO5 and up (8 per
+    PDO), analog channels beyond 12 go to the PDOs after those (4 per PDO). PDO1-4 keep
+    their predefined COB-IDs even when empty; overflow PDOs start invalid
+    (0x80000000, as the seeds' tables print). Type 255, no inhibit time.
+    ``mapping_closed`` (the I-7232D utility's "Tx/RxPDO Mapping Closed"): when a
+    direction has no digital channels its analog channels fill PDO1, 2, 3, ... without
+    the gap at PDO1.
+
+``na9161`` (CREVIS NA-9161, seed-004 §2)
+    Digital bits packed across modules into one stream (``compressed``, the default) or
+    one fresh byte per module. PDO1 = digital bytes 1-8, PDO2 = analog channels 1-4, the
+    rest in later PDOs, digital before analog, a new PDO for each data type. PDO1/PDO2
+    are valid only when they carry data; PDO3 and up start invalid. Type 254, TPDO
+    inhibit time 5000 x 100 us (500 ms).
+
+The result is a :class:`IoLayout` (what 0x6000/0x6200/0x6401/0x6411 and 0x2000 hold)
+and a :class:`PdoDefaults` per direction (what 0x1400-/0x1600-/0x1800-/0x1A00- hold
+after a reset).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+from fieldgate.image import Channel, Kind
+from fieldgate.layout import of_kind, pack_bits
+
+Style = Literal["icpdas", "na9161"]
+
+DI_OBJECT, DO_OBJECT, AI_OBJECT, AO_OBJECT = 0x6000, 0x6200, 0x6401, 0x6411
+COB_INVALID = 0x8000_0000
+DIGITAL_PER_PDO = 8  # bytes
+ANALOG_PER_PDO = 4  # 16-bit channels
+TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
+RPDO_BASES = (0x200, 0x300, 0x400, 0x500)
+STYLE_PDO_COUNT = {"icpdas": 32, "na9161": 8}
+
+
+class LayoutError(ValueError):
+    """The channels do not fit the PDOs or objects of the style."""
+
+
+@dataclass(frozen=True)
+class ModuleRef:
+    """One module a front exposes, in 0x2000 sub-index order."""
+
+    back: str
+    address: int
+    model: str = ""
+    di: int = 0
+    do: int = 0
+    ai: int = 0
+    ao: int = 0
+
+
+@dataclass
+class IoLayout:
+    di_bytes: list[list[Channel | None]]
+    do_bytes: list[list[Channel | None]]
+    ai: list[Channel]
+    ao: list[Channel]
+    modules: list[ModuleRef]
+
+    @property
+    def device_type(self) -> int:
+        """0x1000: profile 401 plus the DI/DO/AI/AO bits of what exists."""
+        bits = [bool(self.di_bytes), bool(self.do_bytes), bool(self.ai), bool(self.ao)]
+        return 0x0191 | sum(1 << (16 + i) for i, present in enumerate(bits) if present)
+
+
+def build_layout(channels: Sequence[Channel], style: Style = "icpdas", *, compressed: bool = True, models: dict[tuple[str, int], str] | None = None) -> IoLayout:
+    """Place a front's channels (in the seeds' default order) into the CiA 401 objects."""
+    ordered = list(channels)  # the front's order: its expose list, or backs then ascending address
+    per_module = style == "icpdas" or not compressed
+    layout = IoLayout(
+        di_bytes=pack_bits(of_kind(ordered, Kind.DI), per_module=per_module),
+        do_bytes=pack_bits(of_kind(ordered, Kind.DO), per_module=per_module),
+        ai=of_kind(ordered, Kind.AI),
+        ao=of_kind(ordered, Kind.AO),
+        modules=_modules(ordered, models or {}),
+    )
+    for name, count, limit in (("DI bytes", len(layout.di_bytes), 254), ("DO bytes", len(layout.do_bytes), 254), ("AI channels", len(layout.ai), 254), ("AO channels", len(layout.ao), 254), ("modules", len(layout.modules), 254)):
+        if count > limit:
+            raise LayoutError(f"{count} {name} exceed the {limit} sub-indices of one object")
+    return layout
+
+
+def _modules(channels: Sequence[Channel], models: dict[tuple[str, int], str]) -> list[ModuleRef]:
+    counts: dict[tuple[str, int], dict[Kind, int]] = {}
+    for c in channels:
+        counts.setdefault((c.source.back, c.source.module), {k: 0 for k in Kind})[c.kind] += 1
+    return [
+        ModuleRef(back, address, models.get((back, address), ""), n[Kind.DI], n[Kind.DO], n[Kind.AI], n[Kind.AO])
+        for (back, address), n in counts.items()
+    ]
+
+
+# -- default PDOs ---------------------------------------------------------------------
+
+def mapping_entry(index: int, sub: int, bits: int) -> int:
+    return index << 16 | sub << 8 | bits
+
+
+@dataclass
+class PdoDefault:
+    """Communication and mapping defaults of one PDO. ``cob_id`` may hold ``node_id``."""
+
+    cob_base: int | None  # predefined COB-ID without node ID, None: none
+    valid: bool
+    trans_type: int
+    inhibit: int = 0
+    event_timer: int = 0
+    entries: list[int] = field(default_factory=list)
+
+    def cob_id(self, node_id: int) -> int:
+        if self.cob_base is None:
+            return COB_INVALID
+        return (self.cob_base + node_id) | (0 if self.valid else COB_INVALID)
+
+
+@dataclass
+class PdoDefaults:
+    tpdo: list[PdoDefault]
+    rpdo: list[PdoDefault]
+
+
+def _chunks(items: list[int], size: int) -> list[list[int]]:
+    return [items[i:i + size] for i in range(0, len(items), size)]
+
+
+def _plan(n_digital: int, n_analog: int, count: int, style: Style, closed: bool) -> list[list[tuple[str, int]]]:
+    """Which objects each PDO of one direction carries: lists of ("d", byte) / ("a", channel)."""
+    digital = [[("d", i) for i in chunk] for chunk in _chunks(list(range(1, n_digital + 1)), DIGITAL_PER_PDO)]
+    analog = [[("a", i) for i in chunk] for chunk in _chunks(list(range(1, n_analog + 1)), ANALOG_PER_PDO)]
+    slots: list[list[tuple[str, int]]] = []
+    if style == "icpdas":
+        if closed and not digital:
+            slots = analog
+        else:
+            slots = [digital[0] if digital else []] + analog[:3]
+            if len(analog) > 3 or len(digital) > 1:
+                slots += [[]] * (4 - len(slots)) + digital[1:] + analog[3:]
+    else:
+        slots = [digital[0] if digital else [], analog[0] if analog else []] + digital[1:] + analog[1:]
+    while slots and not slots[-1]:
+        slots.pop()
+    if len(slots) > count:
+        raise LayoutError(f"the default mapping needs {len(slots)} PDOs per direction, only {count} exist")
+    return slots
+
+
+def default_pdos(layout: IoLayout, style: Style = "icpdas", *, count: int | None = None, mapping_closed: bool = False) -> PdoDefaults:
+    count = count or STYLE_PDO_COUNT[style]
+    result = PdoDefaults([], [])
+    for direction, bases, digital, analog, d_obj, a_obj in (
+        ("t", TPDO_BASES, len(layout.di_bytes), len(layout.ai), DI_OBJECT, AI_OBJECT),
+        ("r", RPDO_BASES, len(layout.do_bytes), len(layout.ao), DO_OBJECT, AO_OBJECT),
+    ):
+        plan = _plan(digital, analog, count, style, mapping_closed)
+        pdos = result.tpdo if direction == "t" else result.rpdo
+        for n in range(count):
+            objects = plan[n] if n < len(plan) else []
+            entries = [mapping_entry(d_obj, i, 8) if kind == "d" else mapping_entry(a_obj, i, 16) for kind, i in objects]
+            base = bases[n] if n < len(bases) else None
+            if style == "icpdas":
+                pdo = PdoDefault(base, base is not None, 255, entries=entries)
+            else:
+                pdo = PdoDefault(base if n < 2 else None, n < 2 and bool(entries), 254, inhibit=5000 if direction == "t" else 0, entries=entries)
+            pdos.append(pdo)
+    return result

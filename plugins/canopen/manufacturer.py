@@ -1,0 +1,188 @@
+"""Manufacturer-specific objects of the gateway's modules (seed-000 §3.6, seed-001 §2.5-2.6, §4.7).
+
+One sub-index per module, modules in the front's order (the I-7232D's ascending
+address); sub 0 = number of modules.
+
+| Object | Type | Meaning |
+|---|---|---|
+| 0x2000 | U16 rw | error counter: +1 per failed access, wraps 65535 -> 0; write 0 to clear |
+| 0x2001 | U8 rw | DCON host watchdog enable (0/1); only with DCON modules |
+| 0x2002 | U8 rw | DCON host watchdog timeout, 0.1 s (1..255); only with DCON modules |
+| 0x2003 | U8 rw | DCON host watchdog expired (1); write 0 sends ``~AA1`` |
+| 0x2010 | U8 ro | module address |
+| 0x2011 | VISIBLE_STRING ro | module model |
+| 0x2012-0x2015 | U8 ro | number of DI / DO / AI / AO channels |
+| 0x2020:1 / 0x2220:1 | U16 ro | total DI / DO bits (``na9161`` style, as the NA-9161) |
+
+A module going offline (its consecutive failures exceed the back's ``fail_threshold``,
+3 by default: "more than three times") raises EMCY 0xFF00, register 0x81, manufacturer
+bytes ``0B <address> 00 00 00``; its return clears it (error reset EMCY when nothing
+else is active). Writing 0 to its 0x2000 counter acknowledges the error too (seed-001
+TV-E04 sends the error reset then); it is raised again at the module's next offline
+transition.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from fieldgate.health import HealthEvent, HealthRegistry, ModuleHealth
+
+from . import abort
+from .entries import UNSIGNED8, UNSIGNED16, VALUE_RANGE, VISIBLE_STRING, Abort, Entry, ObjectDef, array, count_entry
+from .layouts import IoLayout, ModuleRef
+
+log = logging.getLogger("fieldgate.canopen.manufacturer")
+
+ERROR_COUNTERS = 0x2000
+WATCHDOG_ENABLE, WATCHDOG_TIME, WATCHDOG_STATUS = 0x2001, 0x2002, 0x2003
+MODULE_ADDRESS, MODULE_MODEL = 0x2010, 0x2011
+MODULE_COUNTS = {0x2012: "di", 0x2013: "do", 0x2014: "ai", 0x2015: "ao"}
+DI_BITS, DO_BITS = 0x2020, 0x2220
+MODULE_EMCY_CODE, MODULE_EMCY_REGISTER, MODULE_EMCY_BYTE = 0xFF00, 0x80, 0x0B
+
+Raise = Callable[[int, int, bytes], Any]  # (code, register bits, manufacturer bytes)
+Clear = Callable[[int, bytes], Any]  # (code, manufacturer bytes)
+
+
+def module_emcy_bytes(address: int) -> bytes:
+    return bytes([MODULE_EMCY_BYTE, address & 0xFF])
+
+
+class ManufacturerObjects:
+    def __init__(self, layout: IoLayout, health: HealthRegistry, *, style: str = "icpdas", backs: dict[str, Any] | None = None, dcon_backs: set[str] | None = None):
+        self.layout = layout
+        self.health = health
+        self.style = style
+        self.backs = backs or {}
+        self.dcon_backs = dcon_backs or set()
+        self._raise: Raise | None = None
+        self._clear: Clear | None = None
+        self._keys = {(m.back, m.address) for m in layout.modules}
+        health.subscribe(self._health_event)
+
+    # -- module health -> EMCY ----------------------------------------------------------
+    def attach(self, raise_error: Raise, clear_error: Clear) -> None:
+        self._raise, self._clear = raise_error, clear_error
+        for m in self.layout.modules:  # modules already offline when the front starts
+            h = self._health(m)
+            if h is not None and not h.online:
+                raise_error(MODULE_EMCY_CODE, MODULE_EMCY_REGISTER, module_emcy_bytes(m.address))
+
+    def detach(self) -> None:
+        self._raise = self._clear = None
+
+    def _health_event(self, health: ModuleHealth, event: HealthEvent) -> None:
+        if health.key not in self._keys or self._raise is None or self._clear is None:
+            return
+        if event is HealthEvent.OFFLINE:
+            self._raise(MODULE_EMCY_CODE, MODULE_EMCY_REGISTER, module_emcy_bytes(health.address))
+        elif event in (HealthEvent.ONLINE, HealthEvent.COUNTER_CLEARED):
+            self._clear(MODULE_EMCY_CODE, module_emcy_bytes(health.address))
+
+    def _health(self, module: ModuleRef) -> ModuleHealth | None:
+        try:
+            return self.health.get(module.back, module.address)
+        except KeyError:
+            return None
+
+    # -- 0x2000 ---------------------------------------------------------------------------
+    def _counter(self, module: ModuleRef) -> int:
+        h = self._health(module)
+        return 0 if h is None else h.error_counter
+
+    def _write_counter(self, module: ModuleRef, value: int) -> None:
+        if value != 0:
+            raise Abort(VALUE_RANGE, "an error counter can only be cleared (write 0)")
+        h = self._health(module)
+        if h is not None:
+            h.clear_error_counter()
+
+    # -- DCON watchdog (0x2001-0x2003) -------------------------------------------------
+    def _dcon(self, module: ModuleRef) -> Any | None:
+        if module.back not in self.dcon_backs:
+            return None
+        return self.backs.get(module.back)
+
+    def _dcon_module(self, module: ModuleRef) -> Any | None:
+        back = self._dcon(module)
+        if back is None:
+            return None
+        try:
+            return back.module(module.address)
+        except (KeyError, AttributeError):
+            return None
+
+    def _dcon_call(self, module: ModuleRef, action: Callable[[Any], Any]) -> None:
+        back = self._dcon(module)
+        if back is None:
+            raise Abort(VALUE_RANGE, f"module {module.address} has no DCON host watchdog")
+        try:
+            action(back)
+        except ValueError as exc:
+            raise Abort(VALUE_RANGE, str(exc)) from None
+        except Exception as exc:  # back not running, module unknown
+            raise Abort(abort.HARDWARE_ERROR, str(exc)) from None
+
+    def _wd_enabled(self, module: ModuleRef) -> int:
+        m = self._dcon_module(module)
+        return int(bool(m is not None and m.watchdog_enabled))
+
+    def _wd_time(self, module: ModuleRef) -> int:
+        m = self._dcon_module(module)
+        return 0 if m is None else min(255, (m.watchdog_timeout_ms or 0) // 100)
+
+    def _wd_status(self, module: ModuleRef) -> int:
+        back = self._dcon(module)
+        try:
+            return int(bool(back is not None and back.watchdog_status(module.address)))
+        except KeyError:
+            return 0
+
+    def _write_wd_enabled(self, module: ModuleRef, value: int) -> None:
+        if value > 1:
+            raise Abort(VALUE_RANGE, "0 = off, 1 = on")
+        self._dcon_call(module, lambda back: back.set_watchdog(module.address, bool(value)))
+
+    def _write_wd_time(self, module: ModuleRef, value: int) -> None:
+        if value == 0:
+            raise Abort(VALUE_RANGE, "the watchdog time is 1..255 x 0.1 s")
+        self._dcon_call(module, lambda back: back.set_watchdog(module.address, bool(self._wd_enabled(module)), value * 100))
+
+    def _write_wd_status(self, module: ModuleRef, value: int) -> None:
+        if value != 0:
+            raise Abort(VALUE_RANGE, "write 0 to clear the watchdog status")
+        self._dcon_call(module, lambda back: back.request_clear_watchdog(module.address))
+
+    # -- objects ----------------------------------------------------------------------------
+    def objects(self) -> list[ObjectDef]:
+        mods = self.layout.modules
+        if not mods:
+            return []
+
+        def per_module(index: int, name: str, dtype: int, access: str, get: Callable[[ModuleRef], Any], put: Callable[[ModuleRef, int], None] | None = None) -> ObjectDef:
+            return array(index, name, (
+                Entry(k + 1, f"{name} {k + 1}", dtype, access, lambda m=m: get(m), (lambda v, m=m: put(m, v)) if put else None, default=get(m))
+                for k, m in enumerate(mods)
+            ))
+
+        objs = [per_module(ERROR_COUNTERS, "Module error counter", UNSIGNED16, "rw", self._counter, self._write_counter)]
+        if any(m.back in self.dcon_backs for m in mods):
+            objs += [
+                per_module(WATCHDOG_ENABLE, "Host watchdog enable", UNSIGNED8, "rw", self._wd_enabled, self._write_wd_enabled),
+                per_module(WATCHDOG_TIME, "Host watchdog time", UNSIGNED8, "rw", self._wd_time, self._write_wd_time),
+                per_module(WATCHDOG_STATUS, "Host watchdog status", UNSIGNED8, "rw", self._wd_status, self._write_wd_status),
+            ]
+        objs += [
+            per_module(MODULE_ADDRESS, "Module address", UNSIGNED8, "ro", lambda m: m.address & 0xFF),
+            per_module(MODULE_MODEL, "Module model", VISIBLE_STRING, "ro", lambda m: m.model or "-"),
+        ]
+        objs += [per_module(index, f"Module {kind.upper()} channels", UNSIGNED8, "ro", lambda m, kind=kind: min(255, getattr(m, kind))) for index, kind in MODULE_COUNTS.items()]
+        if self.style == "na9161":
+            di_bits = sum(1 for b in self.layout.di_bytes for c in b if c is not None)
+            do_bits = sum(1 for b in self.layout.do_bytes for c in b if c is not None)
+            for index, name, bits in ((DI_BITS, "Input information", di_bits), (DO_BITS, "Output information", do_bits)):
+                objs.append(ObjectDef(index, name, "record", [count_entry(1), Entry(1, "Digital bit size", UNSIGNED16, "ro", lambda b=bits: b, default=bits)]))
+        return objs

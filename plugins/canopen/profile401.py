@@ -1,0 +1,229 @@
+"""CiA 401 generic I/O objects bound to the process image.
+
+The process image is the one source of truth: 0x6000/0x6401 read input channels,
+0x6200/0x6411 write output channels, and the error-mode objects 0x6206/0x6207 (DO) and
+0x6443/0x6444 (AO) read and write each output channel's :class:`~fieldgate.image.ErrorMode`
+(``image.set_error_mode``), which ``context.masters.lost(...)`` applies.
+
+| Object | Meaning | Per |
+|---|---|---|
+| 0x6000 | read DI, 8 channels per byte (after 0x6002 polarity) | DI byte |
+| 0x6002 | DI polarity, 1 = inverted | DI byte |
+| 0x6200 | write DO, 8 channels per byte, only bits set in 0x6208 pass | DO byte |
+| 0x6206 / 0x6207 | DO error mode (1 = go to the error value) / error value | DO byte |
+| 0x6208 | DO filter mask (1 = the written bit is taken over) | DO byte |
+| 0x6401 | read AI, INTEGER16 | AI channel |
+| 0x6411 | write AO, INTEGER16 | AO channel |
+| 0x6421 | AI interrupt trigger (bit 0 above upper limit, 1 below lower limit, 2 delta) | AI channel |
+| 0x6422 | AI interrupt source, one bit per channel, cleared when read | 32 AI channels |
+| 0x6423 | AI global interrupt enable (default FALSE: analog changes fire no TPDO) | - |
+| 0x6424 / 0x6425 | AI upper / lower limit (INTEGER32) | AI channel |
+| 0x6426 | AI delta (UNSIGNED32) | AI channel |
+| 0x6443 / 0x6444 | AO error mode (1 = error value) / error value (INTEGER32) | AO channel |
+
+Events: a change of a DI value fires ``engine.object_changed(0x6000, byte)``; with 0x6423
+TRUE an AI change that meets its 0x6421 trigger fires ``(0x6401, channel)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from fieldgate.image import Change, Channel, DataType, ErrorMode, Kind, ProcessImage, Subscription
+from fieldgate.layout import byte_value
+
+from .entries import (
+    BOOLEAN, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED32, VALUE_RANGE, Abort, Entry, ObjectDef, array,
+)
+from .layouts import AI_OBJECT, AO_OBJECT, DI_OBJECT, DO_OBJECT, IoLayout
+
+DI_POLARITY, DO_ERROR_MODE, DO_ERROR_VALUE, DO_FILTER = 0x6002, 0x6206, 0x6207, 0x6208
+AI_TRIGGER, AI_SOURCE, AI_ENABLE, AI_UPPER, AI_LOWER, AI_DELTA = 0x6421, 0x6422, 0x6423, 0x6424, 0x6425, 0x6426
+AO_ERROR_MODE, AO_ERROR_VALUE = 0x6443, 0x6444
+TRIGGER_UPPER, TRIGGER_LOWER, TRIGGER_DELTA = 0x01, 0x02, 0x04
+
+
+def to_int16(channel: Channel, value: bool | int | float | None = None) -> int:
+    """A channel's value as the INTEGER16 CiA 401 shows (raw bits of a UINT16, clamped otherwise)."""
+    v = channel.value if value is None else value
+    if channel.spec.data_type is DataType.UINT16 and isinstance(v, int) and v > 0x7FFF:
+        return v - 0x10000
+    v = int(round(v))
+    return max(-0x8000, min(0x7FFF, v))
+
+
+def from_int16(channel: Channel, value: int) -> bool | int | float:
+    """An INTEGER16 written to an analog output, in the channel's own data type."""
+    dtype = channel.spec.data_type
+    if dtype is DataType.UINT16:
+        return value & 0xFFFF
+    if dtype is DataType.UINT32 and value < 0:
+        raise Abort(VALUE_RANGE, f"{channel.id} takes no negative values")
+    if dtype is DataType.FLOAT32:
+        return float(value)
+    if dtype is DataType.BOOL:
+        raise Abort(VALUE_RANGE, f"{channel.id} is boolean")
+    return value
+
+
+def _bits(slots: list[Channel | None], pick: Callable[[Channel], bool]) -> int:
+    return sum(1 << i for i, ch in enumerate(slots) if ch is not None and pick(ch))
+
+
+class Profile401:
+    """The CiA 401 objects of one front, over ``image``; ``origin`` labels its output writes."""
+
+    def __init__(self, image: ProcessImage, layout: IoLayout, origin: str, *, filter_default: int = 0xFF, trigger_default: int = 0x07):
+        self.image = image
+        self.layout = layout
+        self.origin = origin
+        n_di, n_do, n_ai = len(layout.di_bytes), len(layout.do_bytes), len(layout.ai)
+        self.polarity = [0] * n_di
+        self.filter = [filter_default] * n_do
+        self.trigger = [trigger_default] * n_ai
+        self.upper = [0] * n_ai
+        self.lower = [0] * n_ai
+        self.delta = [0] * n_ai
+        self.interrupt_enable = False
+        self.interrupt_source = [0] * ((n_ai + 31) // 32)
+        self._last_reported = [0] * n_ai
+        self._di_sub = {ch.id: n + 1 for n, slots in enumerate(layout.di_bytes) for ch in slots if ch is not None}
+        self._ai_number = {ch.id: n + 1 for n, ch in enumerate(layout.ai)}
+        self._subscriptions: list[Subscription] = []
+        self._event: Callable[[int, int, float], None] | None = None
+
+    # -- events ---------------------------------------------------------------------
+    def attach(self, event: Callable[[int, int, float], None]) -> None:
+        """Start reporting application events as ``event(index, sub, now)``."""
+        self.detach()
+        self._event = event
+        self._last_reported = [to_int16(ch) for ch in self.layout.ai]
+        if self._di_sub:
+            self._subscriptions.append(self.image.subscribe(self._di_changed, ids=self._di_sub))
+        if self._ai_number:
+            self._subscriptions.append(self.image.subscribe(self._ai_changed, ids=self._ai_number))
+
+    def detach(self) -> None:
+        for sub in self._subscriptions:
+            sub.cancel()
+        self._subscriptions = []
+        self._event = None
+
+    def _di_changed(self, change: Change) -> None:
+        if change.value_changed and self._event is not None:
+            self._event(DI_OBJECT, self._di_sub[change.channel.id], self.image.clock())
+
+    def _ai_changed(self, change: Change) -> None:
+        if not change.value_changed or self._event is None or not self.interrupt_enable:
+            return
+        n = self._ai_number[change.channel.id]
+        value = to_int16(change.channel)
+        trigger = self.trigger[n - 1]
+        fire = (
+            (trigger & TRIGGER_UPPER and value > self.upper[n - 1])
+            or (trigger & TRIGGER_LOWER and value < self.lower[n - 1])
+            or (trigger & TRIGGER_DELTA and abs(value - self._last_reported[n - 1]) > self.delta[n - 1])
+        )
+        if fire:
+            self._last_reported[n - 1] = value
+            self.interrupt_source[(n - 1) // 32] |= 1 << ((n - 1) % 32)
+            self._event(AI_OBJECT, n, self.image.clock())
+
+    # -- digital ----------------------------------------------------------------------
+    def read_di(self, n: int) -> int:
+        return byte_value(self.layout.di_bytes[n]) ^ self.polarity[n]
+
+    def read_do(self, n: int) -> int:
+        return byte_value(self.layout.do_bytes[n])
+
+    def write_do(self, n: int, value: int) -> None:
+        mask = self.filter[n]
+        for bit, ch in enumerate(self.layout.do_bytes[n]):
+            if ch is not None and mask >> bit & 1:
+                self.image.write_output(ch.id, bool(value >> bit & 1), self.origin)
+
+    def _write_do_error(self, n: int, value: int, *, mode: bool) -> None:
+        for bit, ch in enumerate(self.layout.do_bytes[n]):
+            if ch is None:
+                continue
+            current = ch.error_mode
+            flag = bool(value >> bit & 1)
+            new = ErrorMode(flag, current.value) if mode else ErrorMode(current.use_value, flag)
+            self.image.set_error_mode(ch.id, new)
+
+    # -- analog -----------------------------------------------------------------------
+    def write_ao(self, n: int, value: int) -> None:
+        ch = self.layout.ao[n]
+        self.image.write_output(ch.id, from_int16(ch, value), self.origin)
+
+    def _write_ao_mode(self, n: int, value: int) -> None:
+        if value > 1:
+            raise Abort(VALUE_RANGE, "0 = keep the value, 1 = go to the error value")
+        ch = self.layout.ao[n]
+        self.image.set_error_mode(ch.id, ErrorMode(bool(value), ch.error_mode.value))
+
+    def _write_ao_error_value(self, n: int, value: int) -> None:
+        ch = self.layout.ao[n]
+        converted = from_int16(ch, value) if ch.spec.data_type in (DataType.UINT16, DataType.FLOAT32) else value
+        try:
+            self.image.set_error_mode(ch.id, ErrorMode(ch.error_mode.use_value, converted))
+        except ValueError as exc:
+            raise Abort(VALUE_RANGE, str(exc)) from None
+
+    def _ao_error_value(self, n: int) -> int:
+        ch = self.layout.ao[n]
+        v = ch.error_mode.value
+        if ch.spec.data_type is DataType.UINT16:
+            return to_int16(ch, v)
+        return int(round(v))
+
+    def _set_enable(self, value: int) -> None:
+        if value and not self.interrupt_enable:
+            self._last_reported = [to_int16(ch) for ch in self.layout.ai]
+        self.interrupt_enable = bool(value)
+
+    def _read_source(self, bank: int) -> int:
+        value, self.interrupt_source[bank] = self.interrupt_source[bank], 0
+        return value
+
+    # -- objects ----------------------------------------------------------------------
+    def objects(self) -> list[ObjectDef]:
+        lay = self.layout
+        di, do, ai, ao = range(len(lay.di_bytes)), range(len(lay.do_bytes)), range(len(lay.ai)), range(len(lay.ao))
+
+        def setter(values: list[int], n: int) -> Callable[[int], None]:
+            return lambda v: values.__setitem__(n, v)
+
+        objs: list[ObjectDef] = []
+        if lay.di_bytes:
+            objs += [
+                array(DI_OBJECT, "Read input 8-bit", (Entry(n + 1, f"Read input 8-bit {n + 1}", UNSIGNED8, "ro", lambda n=n: self.read_di(n), default=0, mappable=True) for n in di)),
+                array(DI_POLARITY, "Polarity input 8-bit", (Entry(n + 1, f"Polarity input 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: self.polarity[n], setter(self.polarity, n), default=0) for n in di)),
+            ]
+        if lay.do_bytes:
+            objs += [
+                array(DO_OBJECT, "Write output 8-bit", (Entry(n + 1, f"Write output 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: self.read_do(n), lambda v, n=n: self.write_do(n, v), default=self.read_do(n), mappable=True) for n in do)),
+                array(DO_ERROR_MODE, "Error mode output 8-bit", (Entry(n + 1, f"Error mode output 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: _bits(lay.do_bytes[n], lambda c: c.error_mode.use_value), lambda v, n=n: self._write_do_error(n, v, mode=True), default=_bits(lay.do_bytes[n], lambda c: c.error_mode.use_value)) for n in do)),
+                array(DO_ERROR_VALUE, "Error value output 8-bit", (Entry(n + 1, f"Error value output 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: _bits(lay.do_bytes[n], lambda c: bool(c.error_mode.value)), lambda v, n=n: self._write_do_error(n, v, mode=False), default=_bits(lay.do_bytes[n], lambda c: bool(c.error_mode.value))) for n in do)),
+                array(DO_FILTER, "Filter mask output 8-bit", (Entry(n + 1, f"Filter mask output 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: self.filter[n], setter(self.filter, n), default=self.filter[n]) for n in do)),
+            ]
+        if lay.ai:
+            objs += [
+                array(AI_OBJECT, "Read analog input 16-bit", (Entry(n + 1, f"Read analog input {n + 1}", INTEGER16, "ro", lambda n=n: to_int16(lay.ai[n]), default=0, mappable=True) for n in ai)),
+                array(AI_TRIGGER, "Analog input interrupt trigger selection", (Entry(n + 1, f"Trigger selection {n + 1}", UNSIGNED8, "rw", lambda n=n: self.trigger[n], setter(self.trigger, n), default=self.trigger[n], high=0x07) for n in ai)),
+                array(AI_SOURCE, "Analog input interrupt source", (Entry(b + 1, f"Interrupt source bank {b + 1}", UNSIGNED32, "ro", lambda b=b: self._read_source(b), default=0) for b in range(len(self.interrupt_source)))),
+                ObjectDef(AI_ENABLE, "Analog input global interrupt enable", "var", [Entry(0, "Analog input global interrupt enable", BOOLEAN, "rw", lambda: int(self.interrupt_enable), self._set_enable, default=0)]),
+                array(AI_UPPER, "Analog input interrupt upper limit", (Entry(n + 1, f"Upper limit {n + 1}", INTEGER32, "rw", lambda n=n: self.upper[n], setter(self.upper, n), default=0) for n in ai)),
+                array(AI_LOWER, "Analog input interrupt lower limit", (Entry(n + 1, f"Lower limit {n + 1}", INTEGER32, "rw", lambda n=n: self.lower[n], setter(self.lower, n), default=0) for n in ai)),
+                array(AI_DELTA, "Analog input interrupt delta", (Entry(n + 1, f"Delta {n + 1}", UNSIGNED32, "rw", lambda n=n: self.delta[n], setter(self.delta, n), default=0) for n in ai)),
+            ]
+        if lay.ao:
+            objs += [
+                array(AO_OBJECT, "Write analog output 16-bit", (Entry(n + 1, f"Write analog output {n + 1}", INTEGER16, "rw", lambda n=n: to_int16(lay.ao[n]), lambda v, n=n: self.write_ao(n, v), default=to_int16(lay.ao[n]), mappable=True) for n in ao)),
+                array(AO_ERROR_MODE, "Analog output error mode", (Entry(n + 1, f"Error mode {n + 1}", UNSIGNED8, "rw", lambda n=n: int(lay.ao[n].error_mode.use_value), lambda v, n=n: self._write_ao_mode(n, v), default=int(lay.ao[n].error_mode.use_value)) for n in ao)),
+                array(AO_ERROR_VALUE, "Analog output error value", (Entry(n + 1, f"Error value {n + 1}", INTEGER32, "rw", lambda n=n: self._ao_error_value(n), lambda v, n=n: self._write_ao_error_value(n, v), default=self._ao_error_value(n)) for n in ao)),
+            ]
+        return objs
+
+    def output_ids(self) -> list[str]:
+        return [ch.id for slots in self.layout.do_bytes for ch in slots if ch is not None] + [ch.id for ch in self.layout.ao]
