@@ -6,7 +6,7 @@ pseudo-terminal pair and prints the end the gateway should open. While it runs, 
 reads commands from stdin::
 
     set rs485/m1/di0 1        drive an input      get rs485/m3/do0    read any channel
-    show                      every channel        fault 3 no_answer [COUNT] [code=N] [delay=S]
+    show                      every channel        fault 3 no_answer [COUNT] [code=N] [delay=S] [address=N]
     clear [ADDRESS]           remove faults        quit
 """
 
@@ -147,15 +147,17 @@ def execute(sim: ModbusSimulator, line: str) -> str:
         if cmd == "fault" and len(rest) >= 2:
             options = {k: v for k, _, v in (w.partition("=") for w in rest[2:] if "=" in w)}
             counts = [int(w) for w in rest[2:] if w.isdigit()]
-            fault = Fault(rest[1], count=counts[0] if counts else None, code=int(options.get("code", 4)), delay=float(options.get("delay", 0.5)))
+            address = int(options["address"]) if "address" in options else None
+            fault = Fault(rest[1], count=counts[0] if counts else None, code=int(options.get("code", 4)), delay=float(options.get("delay", 0.5)), address=address)
             sim.inject(int(rest[0]), fault)
-            return f"module {rest[0]}: {fault.kind}" + (f" for {fault.count} replies" if fault.count else " until cleared")
+            where = "" if address is None else f" on requests touching address {address}"
+            return f"module {rest[0]}: {fault.kind}{where}" + (f" for {fault.count} replies" if fault.count else " until cleared")
         if cmd == "clear":
             sim.clear_faults(int(rest[0]) if rest else None)
             return "faults cleared"
     except (KeyError, ValueError) as exc:
         return f"error: {exc.args[0] if exc.args else exc}"
-    return f"commands: set CH VALUE | get CH | show | fault ADDR {{{'|'.join(FAULT_KINDS)}}} [COUNT] [code=N] [delay=S] | clear [ADDR] | quit"
+    return f"commands: set CH VALUE | get CH | show | fault ADDR {{{'|'.join(FAULT_KINDS)}}} [COUNT] [code=N] [delay=S] [address=N] | clear [ADDR] | quit"
 
 
 def _number(text: str) -> bool | int | float:

@@ -1,15 +1,17 @@
 """End to end: a gateway with the modbus back on simulated modules, and the simulate CLI."""
 
+import argparse
 import asyncio
 import os
 import re
 import sys
 
+import pytest
 from modbus_line import I7232D_MODULES
 
 from fieldgate import Gateway, Quality
 from fieldgate.plugins.modbus.client import ModbusLink
-from fieldgate.plugins.modbus.cli import execute
+from fieldgate.plugins.modbus.cli import build_config, execute
 from fieldgate.plugins.modbus.config import ModbusBackConfig
 from fieldgate.plugins.modbus.simulator import ModbusSimulator
 
@@ -118,3 +120,27 @@ async def test_fieldgate_simulate_modbus_serves_a_pty(tmp_path):
         if proc.returncode is None:
             proc.kill()
             await proc.wait()
+
+
+def test_cli_fault_limited_to_an_address():
+    sim = ModbusSimulator(ModbusBackConfig(name="rs485", port="unused", modules=I7232D_MODULES), "unused")
+    assert execute(sim, "fault 5 exception code=2 address=0") == "module 5: exception on requests touching address 0 until cleared"
+    (fault,) = sim.modules[5].faults
+    assert (fault.code, fault.address, fault.count) == (2, 0, None)
+
+
+def test_cli_takes_the_modules_from_a_topology(tmp_path):
+    path = tmp_path / "plant.yaml"
+    path.write_text(
+        "gateway: {name: plant}\nfronts: [{name: plc, type: memory}]\nbacks:\n"
+        "  - {name: line2, type: modbus, port: /dev/ttyUSB0, baudrate: 19200, modules: [{address: 7, model: M-7060D}]}\n"
+    )
+    args = argparse.Namespace(port="/dev/pts/99", pty=False, topology=str(path), back=None, module=[], name="rs485", baudrate=None)
+    config = build_config(args)
+    assert (config.name, config.port, config.baudrate) == ("line2", "/dev/pts/99", 19200)
+    assert "line2/m7/do3" in {s.id for s in config.channel_specs()}
+    args.back = "nope"
+    with pytest.raises(ValueError, match="has no modbus back named nope"):
+        build_config(args)
+    with pytest.raises(ValueError, match="expects ADDRESS:MODEL"):
+        build_config(argparse.Namespace(port="x", pty=False, topology=None, back=None, module=["M-7060D"], name="rs485", baudrate=None))
