@@ -183,10 +183,24 @@ class ModbusBack(SerialBack):
 
     def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> ModbusModule:
         points = module_points(self.name, config)
-        return ModbusModule(config, specs, self.link, points, retry_period=self.config.offline_probe_ms / 1000, clock=self.context.clock)
+        module = ModbusModule(config, specs, self.link, points, retry_period=self.config.offline_probe_ms / 1000, clock=self.context.clock)
+        self.modules[config.address] = module
+        return module
+
+    def __init__(self, config: ModbusBackConfig, context) -> None:
+        super().__init__(config, context)
+        self.modules: dict[int, ModbusModule] = {}  # the current run's modules, by address
+
+    async def start(self) -> None:
+        self.modules.clear()
+        await super().start()
 
     def status(self) -> dict:
         status = super().status()
         if self.link is not None:
-            status["modbus"] = self.link.stats.as_dict()
+            status["modbus"] = {
+                **self.link.stats.as_dict(),
+                "refused_points": sorted(cid for m in self.modules.values() for cid in m.bad),
+                "single_writes_only": sorted(a for a, m in self.modules.items() if not m.allow_multiple_writes),
+            }
         return status

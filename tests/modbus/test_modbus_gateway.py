@@ -71,6 +71,10 @@ async def test_a_dead_module_in_the_gateway_goes_comm_fault_and_comes_back(regis
         assert not gateway.health.get("rs485", 5).online and gateway.health.get("rs485", 1).online
         sim.clear_faults()
         await wait_for(lambda: gateway.image["rs485/m5/ai0"].quality is Quality.GOOD)
+        sim.inject(1, Fault("exception", code=2, address=34))  # the M-7052D refuses DI2
+        await wait_for(lambda: gateway.image["rs485/m1/di2"].quality is Quality.CONFIG_ERROR)
+        assert gateway.status()["backs"]["rs485"]["modbus"]["refused_points"] == ["rs485/m1/di2"]
+        assert gateway.image["rs485/m1/di3"].quality is Quality.GOOD
     finally:
         await gateway.stop()
 
