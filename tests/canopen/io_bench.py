@@ -133,6 +133,7 @@ def demo_7231d(**options) -> Bench:
     """seed-001 demo: 0x01 I-7043 16 DO, 0x02 I-7053 16 DI (reads 1 when OFF), 0x03 I-7021 1 AO, 0x04 I-7012 1 DI 2 DO 1 AI."""
     image = make_image([(1, 0, 16, 0, 0), (2, 16, 0, 0, 0), (3, 0, 0, 0, 1), (4, 1, 2, 1, 0)])
     wire(image, 1, 2, invert=True)
+    wire(image, 3, 4, Kind.AO)
     image.update_input(channel_id(BACK, 4, Kind.DI, 0), True)  # I-7012 DI0 is OFF: reads 1
     return Bench(image, **options)
 
