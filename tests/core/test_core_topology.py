@@ -72,7 +72,7 @@ BROKEN = {
     "yaml-syntax": (VALID.replace('expose: ["io/m1/*", "io/m3/ao0"]', 'expose: ["io/m1/*", "io/m3/ao0"'), 7, "", "YAML syntax"),
     "unknown-top-level-key": (VALID.replace("fronts:", "frnts:"), 3, "frnts", "unknown field 'frnts'; did you mean 'fronts'?"),
     "unknown-front-field": (VALID.replace("expose:", "expse:"), 6, "fronts[0].expse", "did you mean 'expose'?"),
-    "unknown-field-no-suggestion": (VALID.replace("        digital: 10", "        digital: 10\n        colour: red"), 19, "backs[0].modules[1].colour", "expected one of: address, analog, digital"),
+    "unknown-field-no-suggestion": (VALID.replace("        digital: 10", "        digital: 10\n        colour: red"), 19, "backs[0].modules[1].colour", "expected one of: address, analog, digital, error_mode"),
     "missing-gateway-name": (VALID.replace("  name: bench\n", "  description: x\n"), 2, "gateway.name", "required field is missing"),
     "wrong-type": (VALID.replace("        digital: 10", "        digital: ten"), 18, "backs[0].modules[1].digital", "valid integer"),
     "out-of-range": (VALID.replace("        digital: 10", "        digital: 100"), 18, "backs[0].modules[1].digital", "less than or equal to 64"),
