@@ -323,10 +323,17 @@ class ModbusSimulator(Simulator):
             return
         for reply in self.responder.feed(data, self._loop.time()):
             if reply.delay:
-                timer = self._loop.call_later(reply.delay, self._send, reply.frame)
-                self._timers.add(timer)
+                self._send_later(reply.delay, reply.frame)
             else:
                 self._send(reply.frame)
+
+    def _send_later(self, delay: float, frame: bytes) -> None:
+        def fire() -> None:
+            self._timers.discard(timer)
+            self._send(frame)
+
+        timer = self._loop.call_later(delay, fire)
+        self._timers.add(timer)
 
     def _send(self, frame: bytes) -> None:
         if self._port is not None:
