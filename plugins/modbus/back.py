@@ -43,7 +43,6 @@ class ModbusModule(PolledModule):
         self.bad: dict[str, float] = {}  # channel -> when to try it again
         self.last: dict[str, object] = {}
         self.allow_multiple_writes = True
-        self._due: dict[int, float] = {}  # block id -> next read, for groups with their own poll_ms
         self._logged: set[tuple] = set()
         self.replan()
 
@@ -60,7 +59,7 @@ class ModbusModule(PolledModule):
         now = self.clock()
         for block in list(self.blocks):
             period = block.points[0].period
-            if period and self._due.get(id(block), 0) > now:
+            if period and block.due > now:
                 continue
             try:
                 data = await self._read(block)
@@ -69,7 +68,7 @@ class ModbusModule(PolledModule):
             else:
                 readings.update(decode_block(block, data))
             if period:
-                self._due[id(block)] = now + period
+                block.due = now + period
         readings.update(await self._retry_bad(now))
         if self._discard:
             return {}

@@ -25,6 +25,7 @@ class ReadBlock:
     address: int
     count: int
     points: list[Point] = field(default_factory=list)
+    due: float = 0.0  # next read, for groups with their own poll_ms
 
     @property
     def function(self) -> int:
