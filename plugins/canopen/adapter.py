@@ -1,0 +1,229 @@
+"""Binds a sans-I/O :class:`~.node.Node` to a python-can bus and the asyncio clock.
+
+* Any python-can interface works: ``interface``, ``channel``, ``bitrate`` and extra
+  options go to ``can.Bus`` unchanged (socketcan, virtual, pcan, kvaser, slcan, ...).
+* A :class:`can.Notifier` thread receives; each message hops to the event loop with
+  ``loop.call_soon_threadsafe`` and is fed to the node there (one thread, no locks).
+* Timers: after every call into the node, one ``loop.call_at`` is armed for the node's
+  next deadline. ``now`` is ``loop.time()`` (monotonic seconds).
+* Bus-off: SocketCAN error frames (``CAN_ERR_BUSOFF`` / ``CAN_ERR_RESTARTED``) and
+  interfaces that report ``bus.state == ERROR`` (checked once a second) are passed to
+  ``on_bus_state``. Send failures are counted, never raised.
+* Remote frames keep their DLC; 29-bit frames are counted and dropped (the node uses
+  11-bit identifiers only).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+import can
+
+from fieldgate.plugin import PluginStartError
+
+from .frame import Frame
+from .node import Node
+
+log = logging.getLogger("fieldgate.canopen.adapter")
+
+CAN_ERR_BUSOFF = 0x40
+CAN_ERR_RESTARTED = 0x100
+STATE_POLL_S = 1.0
+
+
+def open_bus(interface: str, channel: str | None, bitrate: int | None, options: dict[str, Any] | None = None) -> can.BusABC:
+    """``can.Bus(...)`` with a one-line :class:`PluginStartError` on failure."""
+    kwargs = dict(options or {})
+    if bitrate is not None:
+        kwargs["bitrate"] = bitrate
+    if interface not in can.VALID_INTERFACES:
+        raise PluginStartError(f"unknown CAN interface {interface!r} (python-can knows: {', '.join(sorted(can.VALID_INTERFACES))})")
+    try:
+        return can.Bus(interface=interface, channel=channel, **kwargs)
+    except can.CanInterfaceNotImplementedError as exc:
+        raise PluginStartError(f"CAN interface {interface!r} not available here: {_one_line(exc)}") from None
+    except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
+        raise PluginStartError(f"cannot open CAN {interface} channel {channel!r}: {_one_line(exc)}") from None
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def to_message(frame: Frame) -> can.Message:
+    if frame.rtr:
+        return can.Message(arbitration_id=frame.can_id, is_extended_id=False, is_remote_frame=True, dlc=frame.length)
+    return can.Message(arbitration_id=frame.can_id, is_extended_id=False, data=frame.data)
+
+
+def to_frame(msg: can.Message) -> Frame:
+    if msg.is_remote_frame:
+        return Frame(msg.arbitration_id, b"", rtr=True, dlc=msg.dlc)
+    return Frame(msg.arbitration_id, bytes(msg.data))
+
+
+class CanAdapter:
+    def __init__(self, node: Node, bus: can.BusABC, loop: asyncio.AbstractEventLoop, *,
+                 on_bus_state: Callable[[bool, float], None] | None = None,
+                 transmit_allowed: Callable[[float], bool] | None = None,
+                 reopen: Callable[[int], can.BusABC] | None = None):
+        self.node = node
+        self.bus = bus
+        self.loop = loop
+        self.on_bus_state = on_bus_state
+        self.transmit_allowed = transmit_allowed
+        self._reopen = reopen
+        self.counters: Counter[str] = Counter()
+        self._timer: asyncio.TimerHandle | None = None
+        self._state_timer: asyncio.TimerHandle | None = None
+        self._notifier: can.Notifier | None = None
+        self._bus_off = False
+        self._state_bus_off = False
+        self.closed = False
+
+    # -- life cycle ------------------------------------------------------------------
+    def start(self, boot: bool = True) -> None:
+        self._notifier = can.Notifier(self.bus, [self._from_thread], timeout=0.1)
+        if boot:
+            self.transmit(self.node.boot(self.now))
+        self._arm()
+        self._state_timer = self.loop.call_later(STATE_POLL_S, self._poll_bus_state)
+        self.node.on_bit_timing(self._bit_timing)
+
+    def close(self) -> None:
+        self.closed = True
+        for handle in (self._timer, self._state_timer):
+            if handle is not None:
+                handle.cancel()
+        if self._notifier is not None:
+            self._notifier.stop()
+            self._notifier = None
+        try:
+            self.bus.shutdown()
+        except Exception as exc:  # a broken driver must not stop the gateway's shutdown
+            log.warning("CAN bus shutdown failed: %s", _one_line(exc))
+
+    @property
+    def now(self) -> float:
+        return self.loop.time()
+
+    # -- receive -----------------------------------------------------------------------
+    def _from_thread(self, msg: can.Message) -> None:
+        """Notifier thread: hop to the event loop."""
+        if not self.closed:
+            try:
+                self.loop.call_soon_threadsafe(self._receive, msg)
+            except RuntimeError:  # loop closed during shutdown
+                pass
+
+    def _receive(self, msg: can.Message) -> None:
+        if self.closed:
+            return
+        if msg.is_error_frame:
+            self._error_frame(msg)
+        elif msg.is_extended_id:
+            self.counters["rx_extended_dropped"] += 1
+        elif msg.is_fd:
+            self.counters["rx_fd_dropped"] += 1
+        else:
+            self.counters["rx"] += 1
+            self.transmit(self.node.receive(to_frame(msg), self.now))
+        self._arm()
+
+    def _error_frame(self, msg: can.Message) -> None:
+        self.counters["rx_error_frames"] += 1
+        if msg.arbitration_id & CAN_ERR_BUSOFF:
+            self._set_bus_off(True)
+        elif msg.arbitration_id & CAN_ERR_RESTARTED:
+            self._set_bus_off(False)
+
+    def _poll_bus_state(self) -> None:
+        if self.closed:
+            return
+        try:
+            state = self.bus.state
+        except Exception:
+            state = None
+        if state is can.BusState.ERROR:
+            self._state_bus_off = True
+            self._set_bus_off(True)
+        elif state is not None and self._state_bus_off:
+            self._state_bus_off = False
+            self._set_bus_off(False)
+        self._state_timer = self.loop.call_later(STATE_POLL_S, self._poll_bus_state)
+
+    def _set_bus_off(self, bus_off: bool) -> None:
+        if bus_off == self._bus_off:
+            return
+        self._bus_off = bus_off
+        self.counters["bus_off_events" if bus_off else "bus_off_recoveries"] += 1
+        if self.on_bus_state is not None:
+            self.on_bus_state(bus_off, self.now)
+        self.transmit(self.node.flush())
+
+    # -- transmit and timers ---------------------------------------------------------------
+    def transmit(self, frames: list[Frame]) -> None:
+        now = self.now
+        for frame in frames:
+            if self.transmit_allowed is not None and not self.transmit_allowed(now):
+                self.counters["tx_suppressed"] += 1
+                continue
+            try:
+                self.bus.send(to_message(frame))
+                self.counters["tx"] += 1
+            except (can.CanError, OSError, ValueError) as exc:
+                self.counters["tx_errors"] += 1
+                if self.counters["tx_errors"] == 1 or self.counters["tx_errors"] % 1000 == 0:
+                    log.warning("CAN send failed (%d so far): %s", self.counters["tx_errors"], _one_line(exc))
+
+    def pump(self) -> None:
+        """Send frames queued by calls from outside the engine (EMCY API) and re-arm timers."""
+        self.transmit(self.node.flush())
+        self._arm()
+
+    def _arm(self) -> None:
+        if self.closed:
+            return
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        deadline = self.node.next_deadline()
+        if deadline is not None:
+            self._timer = self.loop.call_at(max(deadline, self.now), self._tick)
+
+    def _tick(self) -> None:
+        self._timer = None
+        if self.closed:
+            return
+        self.transmit(self.node.tick(self.now))
+        self._arm()
+
+    # -- LSS bit timing ---------------------------------------------------------------------
+    def _bit_timing(self, bitrate: int, delay_s: float) -> None:
+        if self._reopen is None:
+            self.counters["bit_timing_ignored"] += 1
+            return
+        self.loop.call_later(delay_s, self._switch_bitrate, bitrate)
+
+    def _switch_bitrate(self, bitrate: int) -> None:
+        if self.closed:
+            return
+        log.info("switching the CAN bit rate to %d bit/s", bitrate)
+        if self._notifier is not None:
+            self._notifier.stop()
+        try:
+            self.bus.shutdown()
+            self.bus = self._reopen(bitrate)
+        except PluginStartError as exc:
+            log.error("cannot reopen the CAN bus at %d bit/s: %s", bitrate, exc)
+            self.counters["bit_timing_failures"] += 1
+            return
+        self._notifier = can.Notifier(self.bus, [self._from_thread], timeout=0.1)
+        self.counters["bit_timing_switches"] += 1
+
+    def status(self) -> dict:
+        return {**self.counters, "bus_off": self._bus_off}

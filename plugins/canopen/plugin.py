@@ -1,0 +1,187 @@
+"""The ``canopen`` front: a CiA 301 slave on any python-can bus, serving the process image.
+
+Start-up order: build the node (identity, EMCY, error control, SYNC, SDO, store), add
+LSS, run the *node extensions* (the PDO engine and CiA 401 objects register one with
+:func:`add_node_extension`), load the store, open the bus, boot. Master loss (life
+guarding, heartbeat consumer, bus-off) goes to ``context.masters.lost`` with the
+outputs this front serves; module health (offline / back online) raises and clears
+the EMCY ``00 FF 81 0B <address> 00 00 00``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import Field
+
+from fieldgate import __version__
+from fieldgate.health import HealthEvent, ModuleHealth
+from fieldgate.image import Kind
+from fieldgate.plugin import Front, GatewayContext, PluginStartError, hookimpl
+from fieldgate.topology import FrontConfig
+from fieldgate.topology.model import StrictModel
+
+from .adapter import CanAdapter, open_bus
+from .lss import LssService, LssStore
+from .node import Node
+from .slave import Identity, NodeSettings, build_node
+
+MODULE_FAILURE_CODE = 0xFF00
+MODULE_FAILURE_REGISTER = 0x81
+DEVICE_PROFILE_401 = 0x0191
+
+NodeExtension = Callable[["CanopenFront", Node], None]
+_node_extensions: list[NodeExtension] = []
+
+
+def add_node_extension(extension: NodeExtension) -> None:
+    """Register ``extension(front, node)``, run for every canopen front before boot.
+
+    This is where the PDO engine and the CiA 401 objects add their services: the node's
+    dictionary then has their objects when the store is loaded and the node boots.
+    """
+    if extension not in _node_extensions:
+        _node_extensions.append(extension)
+
+
+class IdentitySettings(StrictModel):
+    device_type: int | None = Field(None, ge=0, le=0xFFFFFFFF, description="0x1000; default 0x0191 (CiA 401) with bits 16-19 set for DI/DO/AI/AO present")
+    vendor_id: int = Field(0, ge=0, le=0xFFFFFFFF, description="0x1018:1 (also the LSS address)")
+    product_code: int = Field(0, ge=0, le=0xFFFFFFFF, description="0x1018:2")
+    revision: int = Field(0, ge=0, le=0xFFFFFFFF, description="0x1018:3")
+    serial: int = Field(0, ge=0, le=0xFFFFFFFF, description="0x1018:4")
+    device_name: str = Field("fieldgate", max_length=255, description="0x1008 manufacturer device name")
+    hardware_version: str = Field("", max_length=255, description="0x1009")
+    software_version: str = Field(f"fieldgate {__version__}", max_length=255, description="0x100A")
+
+
+class CanopenFrontConfig(FrontConfig):
+    type: Literal["canopen"] = "canopen"
+    interface: str = Field("socketcan", description="python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...")
+    channel: str | None = Field("can0", description="python-can channel (can0, vcan0, PCAN_USBBUS1, a virtual channel name, ...)")
+    bitrate: int | None = Field(125_000, gt=0, description="CAN bit rate in bit/s (passed to can.Bus; LSS may change it)")
+    bus_options: dict[str, Any] = Field(default_factory=dict, description="extra keyword arguments for can.Bus")
+    node_id: int | None = Field(1, ge=1, le=127, description="node-ID 1..127; null = unconfigured, wait for LSS")
+    heartbeat_ms: int = Field(0, ge=0, le=65535, description="0x1017 producer heartbeat time (0 = off)")
+    guard_time_ms: int = Field(0, ge=0, le=32767, description="0x100C guard time default")
+    life_time_factor: int = Field(0, ge=0, le=255, description="0x100D life time factor default")
+    heartbeat_consumers: int = Field(1, ge=0, le=127, description="number of 0x1016 heartbeat consumer entries")
+    sync_cob_id: int = Field(0x80, ge=1, le=0x7FF, description="0x1005 default SYNC COB-ID")
+    emcy_history: int = Field(5, ge=5, le=254, description="depth of the 0x1003 pre-defined error field")
+    sdo_timeout_ms: int = Field(1000, ge=10, le=60_000, description="server-side SDO transfer timeout")
+    sdo_block_size: int = Field(127, ge=1, le=127, description="block size the SDO server offers")
+    store_file: str | None = Field(None, description="0x1010/0x1011 store file (relative to the state dir); default <front name>.canopen.json")
+    lss_table: Literal["cia", "i7232d"] = Field("cia", description="LSS bit-timing table: CiA 305, or the I-7232D's own")
+    lss_store_file: str | None = Field(None, description="LSS store file (relative to the state dir); default <front name>.lss.json")
+    module_emcy: bool = Field(True, description="send EMCY 00 FF 81 0B <address> when a served module goes offline")
+    identity: IdentitySettings = Field(default_factory=IdentitySettings)
+
+
+class CanopenFront(Front):
+    def __init__(self, config: CanopenFrontConfig, context: GatewayContext):
+        super().__init__(config, context)
+        self.node: Node | None = None
+        self.adapter: CanAdapter | None = None
+        self.outputs: list[str] = []
+        self._modules: set[tuple[str, int]] = set()
+        self._health_subscribed = False
+        self._failed: asyncio.Future | None = None
+
+    # -- assembling ---------------------------------------------------------------------
+    def _state_path(self, configured: str | None, default: str) -> Path:
+        path = Path(configured or default)
+        return path if path.is_absolute() else self.context.state_dir / path
+
+    def fingerprint(self, channels) -> str:
+        text = "\n".join(f"{c.id}:{c.kind.value}" for c in channels)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    def build(self) -> Node:
+        cfg = self.config
+        channels = self.context.front_channels(cfg)
+        kinds = {c.kind for c in channels}
+        device_type = cfg.identity.device_type
+        if device_type is None:
+            device_type = DEVICE_PROFILE_401 | sum(1 << (16 + i) for i, k in enumerate((Kind.DI, Kind.DO, Kind.AI, Kind.AO)) if k in kinds)
+        ident = cfg.identity
+        settings = NodeSettings(
+            node_id=cfg.node_id,
+            identity=Identity(device_type, ident.vendor_id, ident.product_code, ident.revision, ident.serial, ident.device_name, ident.hardware_version, ident.software_version),
+            heartbeat_ms=cfg.heartbeat_ms, guard_time_ms=cfg.guard_time_ms, life_time_factor=cfg.life_time_factor,
+            heartbeat_consumers=cfg.heartbeat_consumers, emcy_history=cfg.emcy_history,
+            sdo_timeout_s=cfg.sdo_timeout_ms / 1000.0, sdo_block_size=cfg.sdo_block_size, sync_cob_id=cfg.sync_cob_id,
+            store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),
+            fingerprint=self.fingerprint(channels),
+        )
+        node = build_node(settings, name=self.name)
+        node.add_service(LssService(bitrate=cfg.bitrate, table=cfg.lss_table, store=LssStore(self._state_path(cfg.lss_store_file, f"{self.name}.lss.json"))))
+        for extension in list(_node_extensions):
+            extension(self, node)
+        node.service("store").load()
+        self.outputs = [c.id for c in channels if c.kind.is_output]
+        self._modules = {(c.source.back, c.source.module) for c in channels}
+        node.on_master(self._master_state)
+        return node
+
+    # -- life cycle ---------------------------------------------------------------------
+    async def start(self) -> None:
+        cfg = self.config
+        loop = asyncio.get_running_loop()
+        self.node = self.build()
+        bitrate = self.node.service("lss").bitrate or cfg.bitrate
+        bus = open_bus(cfg.interface, cfg.channel, bitrate, cfg.bus_options)
+        lss = self.node.service("lss")
+        self.adapter = CanAdapter(
+            self.node, bus, loop,
+            on_bus_state=lambda off, now: self.node.service("error_control").bus_state(off, now),
+            transmit_allowed=lss.transmit_allowed,
+            reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
+        )
+        self.adapter.start()
+        if cfg.module_emcy and not self._health_subscribed:
+            self._health_subscribed = True
+            self.context.health.subscribe(self._module_health)
+        self.log.info("CANopen node %s on %s/%s at %s bit/s", self.node.node_id if self.node.configured else "unconfigured", cfg.interface, cfg.channel, bitrate)
+
+    async def run(self) -> None:
+        await asyncio.Event().wait()
+
+    async def stop(self) -> None:
+        if self.adapter is not None:
+            self.adapter.close()
+            self.adapter = None
+
+    # -- master state and module health ------------------------------------------------
+    def _master_state(self, ok: bool, reason: str) -> None:
+        if ok:
+            self.context.masters.ok(self.name, reason)
+        else:
+            self.context.masters.lost(self.name, reason, self.outputs)
+
+    def _module_health(self, health: ModuleHealth, event: HealthEvent) -> None:
+        if self.node is None or self.node.emcy is None or health.key not in self._modules or not 0 <= health.address <= 255:
+            return
+        manufacturer = bytes([0x0B, health.address])
+        if event is HealthEvent.OFFLINE:
+            self.node.emcy.raise_error(MODULE_FAILURE_CODE, MODULE_FAILURE_REGISTER, manufacturer)
+        elif event is HealthEvent.ONLINE:
+            self.node.emcy.clear_error(MODULE_FAILURE_CODE, manufacturer)
+        else:
+            return
+        if self.adapter is not None:
+            self.adapter.pump()
+
+    def status(self) -> dict:
+        if self.node is None:
+            return {}
+        return {**self.node.status(), "bus": self.adapter.status() if self.adapter else None,
+                "interface": self.config.interface, "channel": self.config.channel}
+
+
+@hookimpl
+def fieldgate_register(registry) -> None:
+    registry.add_front("canopen", CanopenFrontConfig, CanopenFront, "CANopen CiA 301 slave on any python-can bus")

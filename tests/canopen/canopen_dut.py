@@ -1,0 +1,125 @@
+"""The device under test for the CANopen integration tests, started through one fixture.
+
+The bus comes from ``FIELDGATE_TEST_CAN`` (``interface:channel``, e.g.
+``socketcan:vcan0`` inside User-Mode Linux). Unset: python-can's in-process
+``virtual`` interface with a unique channel, and the gateway runs in a thread of this
+process. Set: the gateway is started from the CLI as its own process
+(``fieldgate run topology.yaml --set fronts.plc.interface=... --set fronts.plc.channel=...``).
+The master side is always plain python-can / canopen, so the tests do not change.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import subprocess
+import sys
+import threading
+import uuid
+from pathlib import Path
+
+FRONT = "plc"
+
+
+def bus_under_test() -> tuple[str, str, bool]:
+    """(interface, channel, external) for this run."""
+    spec = os.environ.get("FIELDGATE_TEST_CAN", "")
+    if spec:
+        interface, _, channel = spec.partition(":")
+        return interface, channel, True
+    return "virtual", f"fieldgate-co-{uuid.uuid4().hex[:10]}", False
+
+
+def topology(state_dir: Path, node_id: int = 5, **front) -> dict:
+    return {
+        "gateway": {"name": "canopen-test", "state_dir": str(state_dir)},
+        "fronts": [{"name": FRONT, "type": "canopen", "interface": "virtual", "channel": "unused", "node_id": node_id,
+                    "identity": {"vendor_id": 0x0000ABCD, "product_code": 0x7232, "revision": 0x00010000, "serial": 42, "device_name": "fieldgate test node"},
+                    **front}],
+        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}]}],
+    }
+
+
+class InProcessDut:
+    """The gateway on its own event loop in a thread of the test process."""
+
+    def __init__(self, topo: dict, interface: str, channel: str):
+        self.topo = {**topo, "fronts": [{**topo["fronts"][0], "interface": interface, "channel": channel}]}
+        self.gateway = None
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    def start(self) -> None:
+        from fieldgate import Gateway, load_registry
+
+        ready, errors = threading.Event(), []
+        self._loop = asyncio.new_event_loop()
+
+        def run() -> None:
+            asyncio.set_event_loop(self._loop)
+            try:
+                self.gateway = Gateway.load(self.topo, registry=load_registry())
+                self._loop.run_until_complete(self.gateway.start())
+            except BaseException as exc:
+                errors.append(exc)
+                ready.set()
+                return
+            ready.set()
+            self._loop.run_forever()
+            self._loop.run_until_complete(self.gateway.stop())
+
+        self._thread = threading.Thread(target=run, name="dut", daemon=True)
+        self._thread.start()
+        ready.wait(10)
+        if errors:
+            raise errors[0]
+
+    def call(self, fn):
+        """Run ``fn()`` on the gateway's loop and return its result."""
+        fut = asyncio.run_coroutine_threadsafe(_call(fn), self._loop)
+        return fut.result(5)
+
+    def stop(self) -> None:
+        if self._thread is not None and self._thread.is_alive():
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join(10)
+        self._thread = None
+
+
+async def _call(fn):
+    return fn()
+
+
+class ProcessDut:
+    """``fieldgate run`` as its own process (real SocketCAN inside User-Mode Linux)."""
+
+    gateway = None
+
+    def __init__(self, topo: dict, interface: str, channel: str, workdir: Path):
+        self.path = workdir / "topology.yaml"
+        self.path.write_text(json.dumps(topo, indent=1))  # JSON is YAML
+        self.interface, self.channel = interface, channel
+        self.proc: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        cmd = [sys.executable, "-m", "fieldgate", "run", str(self.path),
+               "--set", f"fronts.{FRONT}.interface={self.interface}", "--set", f"fronts.{FRONT}.channel={self.channel}"]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+    def call(self, fn):
+        raise NotImplementedError("the gateway runs in another process")
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.proc = None
+
+
+def make_dut(topo: dict, interface: str, channel: str, external: bool, workdir: Path):
+    return ProcessDut(topo, interface, channel, workdir) if external else InProcessDut(topo, interface, channel)
