@@ -75,6 +75,17 @@ class ModbusModule(PolledModule):
         self.last.update({k: v for k, v in readings.items() if not isinstance(v, tuple)})
         return readings
 
+    async def probe(self) -> None:
+        """One read, due or not (an offline module must prove it answers); an exception is an answer."""
+        points = {p.channel: p for p in self._readable}
+        block = self.blocks[0] if self.blocks else next((ReadBlock(p.table, p.address, p.width, [p]) for p in points.values()), None)
+        if block is None:
+            return
+        try:
+            await self._read(block)
+        except ModbusExceptionError:
+            pass
+
     async def _read(self, block: ReadBlock) -> list:
         if block.table.is_bits:
             return await self.link.read_bits(self.unit, block.function, block.address, block.count)

@@ -6,10 +6,12 @@ transactions are real.
 
 import logging
 
+import pytest
 from modbus_line import I7232D_MODULES, PERIOD, PROBE
 
 from fieldgate import ErrorKind, Quality
 from fieldgate.plugins.modbus.simulator import Fault
+from fieldgate.polling import CommError
 
 
 async def test_the_i7232d_line_polls_inputs_into_the_image(make_line):
@@ -236,3 +238,31 @@ async def test_group_poll_periods(make_line):
     line.clock.t += 1.0
     await line.run_due()
     assert sorted(line.requests()) == [(2, 4, 0, 2), (2, 4, 2, 2)]
+
+
+async def test_a_probe_always_makes_a_transaction(make_line):
+    # an offline module must prove it answers, even when none of its groups is due
+    line = await make_line([{"address": 2, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}]}])
+    await line.run_due()
+    module = line.module(2)
+    line.requests()
+    assert await module.read_inputs() == {} and line.requests() == []  # not due: no transaction
+    await module.probe()
+    assert line.requests() == [(2, 4, 0, 1)]
+    line.sim.inject(2, Fault("no_answer", count=1))
+    with pytest.raises(CommError):
+        await module.probe()
+    line.sim.inject(2, Fault("exception", count=1, code=2))
+    await module.probe()  # an exception response is an answer
+
+
+async def test_a_slow_group_of_a_dead_module_fails_at_once_on_every_poll(make_line):
+    line = await make_line([{"address": 2, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}]}])
+    await line.run_due()
+    line.sim.inject(2, Fault("no_answer"))
+    line.clock.t += 60
+    await line.run_due()
+    assert line.health[2].consecutive_failures == 1
+    for _ in range(3):  # a failed read stays due: the next polls retry it
+        await line.cycle()
+    assert not line.health[2].online
