@@ -1,0 +1,135 @@
+"""The canopen front inside a Gateway: start errors, master lost, module EMCY, bus-off, status."""
+
+from __future__ import annotations
+
+import asyncio
+import uuid
+
+import can
+import pytest
+from canopen_dut import topology
+
+from fieldgate import Gateway, load_registry
+from fieldgate.health import ErrorKind, ModuleHealth
+from fieldgate.runtime import GatewayStartError
+
+NODE = 5
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return load_registry()
+
+
+class Peer:
+    """The test's side of the virtual bus."""
+
+    def __init__(self, channel: str):
+        self.bus = can.Bus(interface="virtual", channel=channel)
+
+    def send(self, can_id: int, data: bytes = b"", rtr: bool = False, error: bool = False) -> None:
+        self.bus.send(can.Message(arbitration_id=can_id, data=data, is_remote_frame=rtr, is_error_frame=error, is_extended_id=False, dlc=len(data) if not rtr else 1))
+
+    async def expect(self, can_id: int, timeout: float = 2.0) -> bytes:
+        loop = asyncio.get_running_loop()
+        end = loop.time() + timeout
+        while loop.time() < end:
+            msg = await asyncio.to_thread(self.bus.recv, 0.05)
+            if msg is not None and msg.arbitration_id == can_id:
+                return bytes(msg.data)
+        raise AssertionError(f"no frame {can_id:03X} within {timeout} s")
+
+    async def quiet(self, seconds: float) -> list:
+        loop = asyncio.get_running_loop()
+        end, got = loop.time() + seconds, []
+        while loop.time() < end:
+            msg = await asyncio.to_thread(self.bus.recv, 0.02)
+            if msg is not None:
+                got.append(msg)
+        return got
+
+
+@pytest.fixture
+async def gw(tmp_path, registry):
+    channel = f"front-{uuid.uuid4().hex[:8]}"
+    peer = Peer(channel)
+    topo = topology(tmp_path / "state", NODE)
+    topo["fronts"][0]["channel"] = channel
+    gateway = Gateway.load(topo, registry=registry)
+    await gateway.start()
+    assert await peer.expect(0x700 + NODE) == b"\x00"
+    yield gateway, peer
+    await gateway.stop()
+    peer.bus.shutdown()
+
+
+async def test_unknown_interface_is_a_one_line_start_error(tmp_path, registry):
+    topo = topology(tmp_path, NODE, interface="no-such-can")
+    gateway = Gateway.load(topo, registry=registry)
+    with pytest.raises(GatewayStartError) as err:
+        await gateway.start()
+    assert "unknown CAN interface 'no-such-can'" in str(err.value) and "\n" not in str(err.value)
+
+
+async def test_missing_channel_is_a_start_error(tmp_path, registry):
+    topo = topology(tmp_path, NODE, interface="socketcan", channel="fieldgate-missing0")
+    gateway = Gateway.load(topo, registry=registry)
+    with pytest.raises(GatewayStartError) as err:
+        await gateway.start()
+    assert "socketcan" in str(err.value) and "\n" not in str(err.value)
+
+
+async def test_life_guarding_loss_applies_output_error_modes(gw):
+    gateway, peer = gw
+    gateway.write("io/m3/do2", True)
+    peer.send(0x605, bytes.fromhex("2B0C100032000000"))  # guard time 50 ms
+    await peer.expect(0x585)
+    peer.send(0x605, bytes.fromhex("2F0D100002000000"))  # factor 2
+    await peer.expect(0x585)
+    peer.send(0x705, rtr=True)
+    assert await peer.expect(0x705) == b"\x7f"
+    assert await peer.expect(0x85, 1.0) == bytes.fromhex("3081110700000000")
+    assert gateway.masters.is_ok("plc") is False
+    assert gateway.read("io/m3/do2") is False  # error value 0
+    peer.send(0x705, rtr=True)
+    await peer.expect(0x705)
+    assert await peer.expect(0x85) == bytes(8)
+    assert gateway.masters.is_ok("plc") is True
+
+
+async def test_module_offline_and_back_emcy(gw):
+    gateway, peer = gw
+    try:
+        health = gateway.health.get("io", 3)
+    except KeyError:
+        health = gateway.health.add(ModuleHealth("io", 3))
+    for _ in range(4):
+        health.record_failure(ErrorKind.TIMEOUT, "no answer")
+    assert await peer.expect(0x85) == bytes.fromhex("00FF810B03000000")
+    health.record_failure(ErrorKind.TIMEOUT, "still no answer")
+    assert [m for m in await peer.quiet(0.1) if m.arbitration_id == 0x85] == []
+    health.record_success()
+    assert await peer.expect(0x85) == bytes(8)
+
+
+async def test_bus_off_error_frames(gw):
+    gateway, peer = gw
+    peer.send(0x40, bytes(8), error=True)
+    await asyncio.sleep(0.1)
+    assert gateway.masters.is_ok("plc") is False
+    peer.send(0x100, bytes(8), error=True)
+    assert await peer.expect(0x85) == bytes.fromhex("4081110800000000")
+    assert gateway.masters.is_ok("plc") is True
+
+
+async def test_status_shows_counters(gw):
+    gateway, peer = gw
+    peer.send(0x605, b"\x40\x00\x10")  # short SDO frame
+    peer.send(0x000, b"\x01")  # short NMT frame
+    peer.send(0x605, bytes.fromhex("4000100000000000"))
+    await peer.expect(0x585)
+    st = gateway.status()["fronts"]["plc"]
+    assert st["node_id"] == NODE and st["nmt_state"] == "PRE-OPERATIONAL"
+    assert st["services"]["sdo"]["bad_dlc_dropped"] == 1
+    assert st["counters"]["nmt_malformed"] == 1
+    assert st["bus"]["rx"] >= 3
