@@ -109,3 +109,13 @@ def test_inter_frame_gap_follows_the_serial_line_spec():
     assert inter_frame_gap(9600) == pytest.approx(3.5 * 11 / 9600)  # 4.01 ms
     assert inter_frame_gap(19200) == pytest.approx(3.5 * 11 / 19200)
     assert inter_frame_gap(115200) == 0.00175
+
+
+def test_the_link_takes_its_serial_settings_from_the_topology(registry):
+    from fieldgate.plugins.modbus.client import ModbusLink
+
+    topo = load_topology(topology([{"address": 1, "model": "M-7052D"}], baudrate=9600, parity="E", stopbits=1, timeout_ms=300), registry)
+    link = ModbusLink.from_config(topo.backs[0])
+    assert (link.timeout, link.gap, link._settings["parity"], link._settings["baudrate"]) == (0.3, inter_frame_gap(9600), "E", 9600)
+    topo = load_topology(topology([{"address": 1, "model": "M-7052D"}], inter_frame_ms=0), registry)
+    assert ModbusLink.from_config(topo.backs[0]).gap == 0
