@@ -1,0 +1,223 @@
+"""Helpers shared by the case modules: picking objects from the EDS, PDO set-up, EMCY triggers."""
+
+from __future__ import annotations
+
+import struct
+import time
+from dataclasses import dataclass
+
+from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
+
+from ..device import NMT_PREOP, NMT_START, Device, SdoAbort, abort_text
+from ..framework import Context, Fail, Skip
+
+EMCY_LENGTH_ERROR = 0x8210
+EMCY_LIFE_GUARD = 0x8130
+RESTRICTED = [(0x000, 0x000), (0x001, 0x07F), (0x101, 0x180), (0x581, 0x5FF), (0x601, 0x67F), (0x6E0, 0x6FF), (0x701, 0x77F), (0x780, 0x7FF)]
+
+
+def restricted(cob: int) -> bool:
+    return any(lo <= cob <= hi for lo, hi in RESTRICTED)
+
+
+def is_count(var: ODVariable) -> bool:
+    """Sub 0 of a record or array (the entry count)."""
+    return var.subindex == 0 and isinstance(var.parent, (ODRecord, ODArray))
+
+
+def signed(var: ODVariable) -> bool:
+    return var.data_type in datatypes.SIGNED_TYPES
+
+
+def int_default(var: ODVariable | None) -> int | None:
+    return var.default if var is not None and isinstance(var.default, int) and not isinstance(var.default, bool) else None
+
+
+def rw_ints(dev: Device, lo: int, hi: int, avoid: tuple[int, ...] = ()) -> list[ODVariable]:
+    """Writable integer entries with an EDS default in [lo, hi], not PDO parameters or listed indices."""
+    out = []
+    for var in dev.variables():
+        if not lo <= var.index <= hi or var.index in avoid or 0x1400 <= var.index <= 0x1BFF:
+            continue
+        if var.access_type not in ("rw", "rww", "rwr") or is_count(var):
+            continue
+        if int_default(var) is not None and var.fixed_size and len(var) <= 32 and var.data_type not in (0x0001, 0x0008):
+            out.append(var)
+    return out
+
+
+def other_value(var: ODVariable) -> int:
+    """A value different from the default that stays inside the declared range."""
+    default = int_default(var) or 0
+    candidate = default + 1
+    top = var.max if var.max is not None else (1 << (len(var) - (1 if signed(var) else 0))) - 1
+    if candidate > top:
+        candidate = default - 1
+    return candidate
+
+
+def emcy_cob(dev: Device) -> int:
+    return dev.od_default(0x1014, 0, 0x80 + dev.node_id) & 0x7FF
+
+
+def emcy_code(frame) -> int:
+    return struct.unpack_from("<H", frame.data.ljust(2, b"\0"))[0]
+
+
+def expect_emcy(ctx: Context, code: int | None, timeout: float | None = None):
+    dev = ctx.device
+    cob = emcy_cob(dev)
+    frame = dev.link.expect(lambda f: f.cob == cob and not f.rtr and (code is None or emcy_code(f) == code), timeout or ctx.timing.response)
+    return frame
+
+
+# -- PDOs --------------------------------------------------------------------------
+@dataclass
+class Pdo:
+    n: int  # 0-based
+    tx: bool
+    cob: int
+    entries: list[int]
+
+    @property
+    def comm(self) -> int:
+        return (0x1800 if self.tx else 0x1400) + self.n
+
+    @property
+    def mapping(self) -> int:
+        return (0x1A00 if self.tx else 0x1600) + self.n
+
+    @property
+    def length(self) -> int:
+        return sum(e & 0xFF for e in self.entries) // 8
+
+    @property
+    def name(self) -> str:
+        return f"{'T' if self.tx else 'R'}PDO{self.n + 1}"
+
+
+def pdos(dev: Device, tx: bool) -> list[Pdo]:
+    base_c, base_m = (0x1800, 0x1A00) if tx else (0x1400, 0x1600)
+    out = []
+    for n in range(512):
+        if not (dev.has(base_c + n) and dev.has(base_m + n)):
+            continue
+        cob = int_default(dev.var(base_c + n, 1))
+        count = int_default(dev.var(base_m + n, 0)) or 0
+        entries = [int_default(dev.var(base_m + n, s)) or 0 for s in range(1, count + 1)]
+        out.append(Pdo(n, tx, cob if cob is not None else 0x80000000, entries))
+    return out
+
+
+def live_pdo(dev: Device, pdo: Pdo) -> Pdo:
+    """The PDO as the device serves it now."""
+    cob = dev.read(pdo.comm, 1)
+    count = dev.read(pdo.mapping, 0)
+    entries = [dev.read(pdo.mapping, s) for s in range(1, count + 1)]
+    return Pdo(pdo.n, pdo.tx, cob, entries)
+
+
+def active_pdo(dev: Device, tx: bool, rtr: bool = False, n: int | None = None) -> Pdo:
+    kind = "TPDO" if tx else "RPDO"
+    for p in pdos(dev, tx):
+        if n is not None and p.n != n:
+            continue
+        if p.cob & 0x80000000 or not p.entries:
+            continue
+        live = live_pdo(dev, p)
+        if live.cob & 0x80000000 or not live.entries or live.length == 0:
+            continue
+        if rtr and live.cob & 0x40000000:
+            continue
+        return live
+    which = f"{kind}{n + 1}" if n is not None else f"any {kind}"
+    raise Skip(f"EDS lists no valid, mapped {which}" + (" that allows RTR" if rtr else ""))
+
+
+def set_pdo_type(ctx: Context, pdo: Pdo, ttype: int) -> None:
+    ctx.device.patch(ctx, pdo.comm, 2, ttype)
+
+
+def set_pdo_sub(ctx: Context, pdo: Pdo, sub: int, value: int, what: str) -> None:
+    if not ctx.device.has(pdo.comm, sub):
+        raise Skip(f"EDS lists no 0x{pdo.comm:04X}:{sub} ({what})")
+    ctx.device.patch(ctx, pdo.comm, sub, value)
+
+
+def invalidate(ctx: Context, pdo: Pdo) -> None:
+    """Set the PDO's COB-ID invalid; the original COB-ID comes back at the end of the case."""
+    dev = ctx.device
+    old = dev.read(pdo.comm, 1)
+    dev.write(pdo.comm, 1, old | 0x80000000)
+
+    def restore():
+        dev.write(pdo.comm, 1, dev.read(pdo.comm, 1) | 0x80000000)
+        dev.write(pdo.comm, 1, old)
+
+    ctx.cleanup(restore)
+
+
+def remap(ctx: Context, pdo: Pdo, entries: list[int]) -> None:
+    """CiA 301 mapping procedure: invalid, sub 0 = 0, entries, sub 0 = n; restored afterwards."""
+    dev = ctx.device
+    invalidate(ctx, pdo)
+    old = [dev.read(pdo.mapping, s) for s in range(1, dev.read(pdo.mapping, 0) + 1)]
+
+    def restore():
+        dev.write(pdo.mapping, 0, 0)
+        for s, e in enumerate(old, 1):
+            dev.write(pdo.mapping, s, e)
+        dev.write(pdo.mapping, 0, len(old))
+
+    ctx.cleanup(restore)
+    dev.write(pdo.mapping, 0, 0)
+    for s, e in enumerate(entries, 1):
+        dev.write(pdo.mapping, s, e)
+    dev.write(pdo.mapping, 0, len(entries))
+
+
+def mapped_values(dev: Device, pdo: Pdo) -> bytes:
+    """The bytes an RPDO must carry to write back what its mapped objects hold now."""
+    out = bytearray()
+    for e in pdo.entries:
+        raw = dev.upload(e >> 16, (e >> 8) & 0xFF)
+        out += raw[: (e & 0xFF) // 8].ljust((e & 0xFF) // 8, b"\0")
+    return bytes(out)
+
+
+def operational(ctx: Context) -> None:
+    ctx.device.nmt(NMT_START)
+    time.sleep(0.02)
+
+
+def preop(ctx: Context) -> None:
+    ctx.device.nmt(NMT_PREOP)
+    time.sleep(0.02)
+
+
+# -- EMCY triggers ---------------------------------------------------------------------
+class LengthError:
+    """Provoke EMCY 0x8210 with a too-short RPDO, and clear it with a correct one."""
+
+    def __init__(self, ctx: Context):
+        self.ctx = ctx
+        dev = ctx.device
+        dev.require(0x1014, why="EMCY producer")
+        self.rpdo = active_pdo(dev, tx=False)
+        self.good = mapped_values(dev, self.rpdo)
+        operational(ctx)
+
+    def raise_error(self):
+        self.ctx.device.link.flush()
+        self.ctx.device.link.send(self.rpdo.cob & 0x7FF, self.good[: self.rpdo.length - 1])
+        return expect_emcy(self.ctx, EMCY_LENGTH_ERROR)
+
+    def clear(self):
+        self.ctx.device.link.flush()
+        self.ctx.device.link.send(self.rpdo.cob & 0x7FF, self.good)
+        return expect_emcy(self.ctx, 0x0000)
+
+
+def require_abort(exc: SdoAbort, codes: tuple[int, ...], what: str) -> None:
+    if exc.code not in codes:
+        raise Fail(f"{what}: wrong abort code", expected=" or ".join(abort_text(c) for c in codes), seen=abort_text(exc.code))

@@ -1,0 +1,130 @@
+"""NMT: boot-up, every state and transition, services gated per state, reset node vs reset communication."""
+
+from __future__ import annotations
+
+import time
+
+from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_RESET_NODE, NMT_START, NMT_STOP, StateProbe, mux
+from ..framework import Context, Fail, Skip, case
+from .common import int_default, other_value, rw_ints
+
+PREOP, OPERATIONAL, STOPPED = 0x7F, 0x05, 0x04
+
+
+def expect_bootup(ctx: Context, cs: int, what: str):
+    frame = ctx.device.reset(cs)
+    if frame is None:
+        raise Fail(f"no boot-up message after {what}", expected=f"{0x700 + ctx.device.node_id:03X} [1] 00", seen="nothing")
+    if len(frame.data) != 1:
+        raise Fail(f"boot-up message after {what} with DLC {len(frame.data)}", expected=f"{0x700 + ctx.device.node_id:03X} [1] 00", seen=str(frame))
+    return frame
+
+
+@case("nmt", "bootup_reset_node", "reset node ends in a boot-up message (DLC 1, 00)")
+def bootup_reset_node(ctx: Context) -> None:
+    expect_bootup(ctx, NMT_RESET_NODE, "reset node")
+
+
+@case("nmt", "bootup_reset_comm", "reset communication ends in a boot-up message (DLC 1, 00)")
+def bootup_reset_comm(ctx: Context) -> None:
+    expect_bootup(ctx, NMT_RESET_COMM, "reset communication")
+
+
+@case("nmt", "preop_after_bootup", "after boot-up the node is Pre-operational by itself")
+def preop_after_bootup(ctx: Context) -> None:
+    expect_bootup(ctx, NMT_RESET_COMM, "reset communication")
+    probe = StateProbe(ctx)
+    probe.expect(PREOP, "boot-up")
+
+
+@case("nmt", "transitions", "every NMT transition between Pre-operational, Operational and Stopped")
+def transitions(ctx: Context) -> None:
+    dev = ctx.device
+    probe = StateProbe(ctx)
+    dev.nmt(NMT_PREOP)
+    probe.expect(PREOP, "enter pre-operational")
+    for cs, state, name in (
+        (NMT_START, OPERATIONAL, "start (pre-op → operational)"),
+        (NMT_STOP, STOPPED, "stop (operational → stopped)"),
+        (NMT_PREOP, PREOP, "enter pre-op (stopped → pre-op)"),
+        (NMT_STOP, STOPPED, "stop (pre-op → stopped)"),
+        (NMT_START, OPERATIONAL, "start (stopped → operational)"),
+        (NMT_PREOP, PREOP, "enter pre-op (operational → pre-op)"),
+        (NMT_PREOP, PREOP, "enter pre-op again (no change)"),
+    ):
+        dev.nmt(cs)
+        probe.expect(state, name)
+
+
+@case("nmt", "broadcast", "NMT commands to node 0 reach every node")
+def broadcast(ctx: Context) -> None:
+    dev = ctx.device
+    probe = StateProbe(ctx)
+    dev.nmt(NMT_START, node=0)
+    probe.expect(OPERATIONAL, "start to all nodes")
+    dev.nmt(NMT_PREOP, node=0)
+    probe.expect(PREOP, "enter pre-op to all nodes")
+
+
+@case("nmt", "other_node_ignored", "NMT commands for another node-ID are ignored")
+def other_node_ignored(ctx: Context) -> None:
+    dev = ctx.device
+    probe = StateProbe(ctx)
+    dev.nmt(NMT_START, node=dev.node_id % 127 + 1)
+    probe.expect(PREOP, "start addressed to another node")
+
+
+@case("nmt", "unknown_command", "an unknown NMT command specifier is ignored")
+def unknown_command(ctx: Context) -> None:
+    dev = ctx.device
+    probe = StateProbe(ctx)
+    dev.nmt(0x55)
+    dev.link.send(0x000, bytes([NMT_START]))  # DLC 1: malformed, must be ignored
+    probe.expect(PREOP, "NMT cs 0x55 and a 1-byte NMT frame")
+    dev.upload(0x1000, 0)
+
+
+@case("nmt", "sdo_gated", "SDO is served in Pre-operational and Operational, not in Stopped")
+def sdo_gated(ctx: Context) -> None:
+    dev = ctx.device
+    dev.require(0x1000)
+    dev.upload(0x1000, 0)
+    dev.nmt(NMT_START)
+    time.sleep(0.02)
+    dev.upload(0x1000, 0)
+    dev.nmt(NMT_STOP)
+    time.sleep(0.02)
+    answer = dev.sdo_request(bytes([0x40]) + mux(0x1000, 0), timeout=ctx.timing.silence)
+    if answer is not None:
+        raise Fail("SDO answered in Stopped", expected="no answer (CiA 301: no SDO in Stopped)", seen=str(answer))
+    dev.nmt(NMT_PREOP)
+    time.sleep(0.02)
+    dev.upload(0x1000, 0)
+
+
+def _comm_and_app_params(ctx: Context):
+    dev = ctx.device
+    comm = [v for v in rw_ints(dev, 0x1000, 0x1FFF, avoid=(0x1005, 0x1010, 0x1011, 0x1014, 0x1016, 0x1017, 0x1200)) if int_default(v) is not None]
+    app = [v for v in rw_ints(dev, 0x2000, 0x9FFF) if int_default(v) is not None and not v.pdo_mappable]
+    app = app or [v for v in rw_ints(dev, 0x2000, 0x9FFF) if int_default(v) is not None]
+    if not comm or not app:
+        raise Skip("EDS lists no writable communication entry and application entry with defaults")
+    return comm[0], app[0]
+
+
+@case("nmt", "reset_comm_vs_node", "reset communication restores 0x1000-0x1FFF only; reset node restores the application area too")
+def reset_comm_vs_node(ctx: Context) -> None:
+    dev = ctx.device
+    comm, app = _comm_and_app_params(ctx)
+    for var in (comm, app):
+        ctx.cleanup(lambda v=var: dev.write(v.index, v.subindex, v.default))
+        dev.write(var.index, var.subindex, other_value(var))
+    expect_bootup(ctx, NMT_RESET_COMM, "reset communication")
+    for var, want, what in ((comm, comm.default, "reset to its default"), (app, other_value(app), "kept")):
+        seen = dev.read(var.index, var.subindex)
+        if seen != want:
+            raise Fail(f"after reset communication 0x{var.index:04X}:{var.subindex} should be {what}", expected=str(want), seen=str(seen))
+    expect_bootup(ctx, NMT_RESET_NODE, "reset node")
+    seen = dev.read(app.index, app.subindex)
+    if seen != app.default:
+        raise Fail(f"after reset node 0x{app.index:04X}:{app.subindex} should be back to its default", expected=str(app.default), seen=str(seen))

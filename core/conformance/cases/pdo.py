@@ -1,0 +1,357 @@
+"""SYNC and PDO: COB-ID rules, transmission types, mapping rules and their aborts, inhibit,
+event timer, RTR, RPDO length errors, NMT gating."""
+
+from __future__ import annotations
+
+import time
+
+from ..device import NMT_PREOP, NMT_STOP, SdoAbort, abort_text
+from ..framework import Context, Fail, Skip, case
+from .common import (
+    EMCY_LENGTH_ERROR,
+    Pdo,
+    active_pdo,
+    emcy_cob,
+    expect_emcy,
+    invalidate,
+    live_pdo,
+    mapped_values,
+    operational,
+    pdos,
+    restricted,
+    set_pdo_sub,
+    set_pdo_type,
+)
+
+MAPPING_ABORTS = (0x06040041, 0x06040042, 0x06040043, 0x06020000, 0x06090011, 0x06090030, 0x08000000, 0x08000022, 0x06010000)
+COBID_ABORTS = (0x06090030, 0x06040043, 0x08000000, 0x08000022)
+
+
+def sync(ctx: Context) -> None:
+    ctx.device.link.send(ctx.device.od_default(0x1005, 0, 0x80) & 0x7FF, b"")
+
+
+def tpdo_frames(ctx: Context, pdo: Pdo, duration: float):
+    return ctx.device.link.collect(lambda f, cob=pdo.cob & 0x7FF: f.cob == cob and not f.rtr, duration)
+
+
+def rtr(ctx: Context, pdo: Pdo, timeout: float | None = None):
+    dev = ctx.device
+    dev.link.flush()
+    dev.link.send(pdo.cob & 0x7FF, rtr=True, dlc=pdo.length)
+    return dev.link.expect(pdo.cob & 0x7FF, ctx.timing.response if timeout is None else timeout)
+
+
+def check_len(frame, pdo: Pdo) -> None:
+    if len(frame.data) != pdo.length:
+        raise Fail(f"{pdo.name} DLC", expected=f"{pdo.length} (mapped length)", seen=str(frame))
+
+
+@case("sync-pdo", "sync_cobid", "0x1005 holds the SYNC COB-ID 0x80 (consumer)")
+def sync_cobid(ctx: Context) -> None:
+    dev = ctx.device
+    dev.require(0x1005, why="SYNC")
+    value = dev.read(0x1005, 0)
+    if value & 0x7FF != 0x80 or value & 0x20000000:
+        raise Fail("SYNC COB-ID", expected="0x00000080 (bit 30 may be set by a producer)", seen=f"0x{value:08X}")
+
+
+@case("sync-pdo", "comm_params", "every PDO communication record: COB-ID valid bit, no restricted CAN-ID, legal transmission type")
+def comm_params(ctx: Context) -> None:
+    dev = ctx.device
+    problems = []
+    found = False
+    for tx in (False, True):
+        for p in pdos(dev, tx):
+            found = True
+            cob = dev.read(p.comm, 1)
+            ttype = dev.read(p.comm, 2)
+            if not cob & 0x80000000 and restricted(cob & 0x7FF):
+                problems.append(f"{p.name}: restricted CAN-ID 0x{cob & 0x7FF:03X}")
+            if cob & 0x20000000:
+                problems.append(f"{p.name}: 29-bit frame bit set (0x{cob:08X})")
+            legal = set(range(0, 241)) | {254, 255} | ({252, 253} if tx else set())
+            if ttype not in legal:
+                problems.append(f"{p.name}: transmission type {ttype}")
+    if not found:
+        raise Skip("EDS lists no PDO")
+    if problems:
+        raise Fail("; ".join(problems))
+
+
+@case("sync-pdo", "mapping_params", "every PDO mapping: entries exist, are mappable, bit length matches, total ≤ 64 bits")
+def mapping_params(ctx: Context) -> None:
+    dev = ctx.device
+    problems = []
+    found = False
+    for tx in (False, True):
+        for p in pdos(dev, tx):
+            found = True
+            live = live_pdo(dev, p)
+            for e in live.entries:
+                index, sub, bits = e >> 16, (e >> 8) & 0xFF, e & 0xFF
+                var = dev.var(index, sub)
+                if var is None:
+                    if index >= 0x1000 or bits not in (8, 16, 32, 64):  # dummy entries use 0x0001-0x0007
+                        problems.append(f"{p.name}: maps 0x{index:04X}:{sub}, not in the EDS")
+                    continue
+                if not var.pdo_mappable:
+                    problems.append(f"{p.name}: 0x{index:04X}:{sub} is not PDO-mappable in the EDS")
+                if var.fixed_size and len(var) != bits:
+                    problems.append(f"{p.name}: 0x{index:04X}:{sub} mapped with {bits} bits, the type has {len(var)}")
+            if sum(e & 0xFF for e in live.entries) > 64:
+                problems.append(f"{p.name}: {sum(e & 0xFF for e in live.entries)} bits mapped")
+    if not found:
+        raise Skip("EDS lists no PDO")
+    if problems:
+        raise Fail("; ".join(problems[:8]))
+
+
+@case("sync-pdo", "cobid_change_while_valid", "a valid PDO's CAN-ID cannot change; invalid first, then a new ID is taken")
+def cobid_change_while_valid(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = active_pdo(dev, tx=True) if pdos(dev, True) else active_pdo(dev, tx=False)
+    new = (0x180 if pdo.tx else 0x200) + (ctx.options.lss_spare_node_id or dev.node_id % 127 + 1)
+    dev.expect_write_abort(pdo.comm, 1, (new | (pdo.cob & 0x40000000)).to_bytes(4, "little"), COBID_ABORTS, f"{pdo.name} COB-ID changed while valid")
+    invalidate(ctx, pdo)
+    dev.write(pdo.comm, 1, new | (pdo.cob & 0x40000000))
+    back = dev.read(pdo.comm, 1)
+    if back & 0x7FF != new or back & 0x80000000:
+        raise Fail(f"{pdo.name} COB-ID after invalid → new ID", expected=f"0x{new:03X}, valid", seen=f"0x{back:08X}")
+
+
+@case("sync-pdo", "restricted_cobid", "restricted CAN-IDs (0x000, 0x601, 0x701, 0x7E5) are refused for a PDO")
+def restricted_cobid(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = active_pdo(dev, tx=True) if pdos(dev, True) else active_pdo(dev, tx=False)
+    invalidate(ctx, pdo)
+    for cob in (0x000, 0x601, 0x701, 0x7E5):
+        dev.expect_write_abort(pdo.comm, 1, cob.to_bytes(4, "little"), (0x06090030, 0x06040043, 0x08000000), f"{pdo.name} COB-ID 0x{cob:03X}")
+
+
+def _mapping_target(ctx: Context) -> Pdo:
+    dev = ctx.device
+    pdo = active_pdo(dev, tx=True)
+    invalidate(ctx, pdo)
+    count = dev.read(pdo.mapping, 0)
+    entries = [dev.read(pdo.mapping, s) for s in range(1, count + 1)]
+
+    def restore():
+        dev.write(pdo.mapping, 0, 0)
+        for s, e in enumerate(entries, 1):
+            dev.write(pdo.mapping, s, e)
+        dev.write(pdo.mapping, 0, len(entries))
+
+    ctx.cleanup(restore)
+    return pdo
+
+
+@case("sync-pdo", "mapping_sub0_rule", "mapping entries are refused while sub 0 ≠ 0, accepted after sub 0 = 0")
+def mapping_sub0_rule(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = _mapping_target(ctx)
+    first = pdo.entries[0]
+    dev.expect_write_abort(pdo.mapping, 1, first.to_bytes(4, "little"), MAPPING_ABORTS, f"{pdo.name} mapping entry while sub 0 = {len(pdo.entries)}")
+    dev.write(pdo.mapping, 0, 0)
+    dev.write(pdo.mapping, 1, first)
+    dev.write(pdo.mapping, 0, 1)
+    if dev.read(pdo.mapping, 0) != 1 or dev.read(pdo.mapping, 1) != first:
+        raise Fail("mapping does not read back", expected=f"sub 0 = 1, sub 1 = 0x{first:08X}")
+
+
+@case("sync-pdo", "mapping_not_mappable", "mapping a non-mappable object (0x1000) is refused with 0604 0041")
+def mapping_not_mappable(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = _mapping_target(ctx)
+    dev.write(pdo.mapping, 0, 0)
+    dev.expect_write_abort(pdo.mapping, 1, (0x10000020).to_bytes(4, "little"), (0x06040041,), "map 0x1000:0")
+
+
+@case("sync-pdo", "mapping_missing_object", "mapping an object that does not exist is refused (0602 0000 or 0604 0041)")
+def mapping_missing_object(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = _mapping_target(ctx)
+    dev.write(pdo.mapping, 0, 0)
+    missing = next(i for i in (0x5FFF, 0x5FFE, 0x3FFF) if not dev.has(i))
+    dev.expect_write_abort(pdo.mapping, 1, (missing << 16 | 8).to_bytes(4, "little"), (0x06020000, 0x06040041), f"map 0x{missing:04X}:0")
+
+
+@case("sync-pdo", "mapping_too_long", "activating a mapping longer than 64 bits is refused with 0604 0042")
+def mapping_too_long(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = _mapping_target(ctx)
+    top = max(dev.od[pdo.mapping].subindices)
+    entry = max(pdo.entries, key=lambda e: e & 0xFF)
+    bits = entry & 0xFF
+    need = 64 // bits + 1
+    if need > top:
+        raise Skip(f"{pdo.name} has {top} mapping entries of at most {bits} bits: cannot exceed 64 bits")
+    dev.write(pdo.mapping, 0, 0)
+    for s in range(1, need + 1):
+        try:
+            dev.write(pdo.mapping, s, entry)
+        except SdoAbort as exc:
+            if exc.code not in (0x06040042,):
+                raise Fail(f"entry {s} refused with the wrong code", expected=abort_text(0x06040042), seen=abort_text(exc.code)) from None
+            return
+    dev.expect_write_abort(pdo.mapping, 0, bytes([need]), (0x06040042,), f"sub 0 = {need} ({need * bits} bits)")
+
+
+@case("sync-pdo", "tpdo_rtr", "RTR on a TPDO in Operational is answered with the mapped length")
+def tpdo_rtr(ctx: Context) -> None:
+    pdo = active_pdo(ctx.device, tx=True, rtr=True)
+    operational(ctx)
+    frame = rtr(ctx, pdo)
+    if frame is None:
+        raise Fail(f"no answer to RTR on {pdo.name}", expected=f"{pdo.cob & 0x7FF:03X} [{pdo.length}]", seen="nothing")
+    check_len(frame, pdo)
+
+
+@case("sync-pdo", "nmt_gating", "no TPDO on RTR or SYNC in Pre-operational or Stopped; RPDOs ignored there")
+def nmt_gating(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = active_pdo(dev, tx=True)
+    set_pdo_type(ctx, pdo, 1)
+    for cs, name in ((NMT_PREOP, "Pre-operational"), (NMT_STOP, "Stopped")):
+        dev.nmt(cs)
+        time.sleep(0.02)
+        dev.link.flush()
+        sync(ctx)
+        if not pdo.cob & 0x40000000:
+            dev.link.send(pdo.cob & 0x7FF, rtr=True, dlc=pdo.length)
+        frames = tpdo_frames(ctx, pdo, ctx.timing.silence)
+        if frames:
+            raise Fail(f"{pdo.name} sent in {name}", expected="nothing", seen=str(frames[0]))
+
+
+@case("sync-pdo", "sync_type1", "transmission type 1: one TPDO after every SYNC")
+def sync_type1(ctx: Context) -> None:
+    pdo = active_pdo(ctx.device, tx=True)
+    set_pdo_type(ctx, pdo, 1)
+    operational(ctx)
+    for i in range(3):
+        ctx.device.link.flush()
+        sync(ctx)
+        frames = tpdo_frames(ctx, pdo, ctx.timing.response)
+        if len(frames) != 1:
+            raise Fail(f"after SYNC {i + 1}", expected=f"one {pdo.name}", seen=f"{len(frames)} frames")
+        check_len(frames[0], pdo)
+
+
+@case("sync-pdo", "sync_type_n", "transmission type 3: one TPDO every third SYNC")
+def sync_type_n(ctx: Context) -> None:
+    pdo = active_pdo(ctx.device, tx=True)
+    set_pdo_type(ctx, pdo, 3)
+    operational(ctx)
+    hits = []
+    for i in range(6):
+        ctx.device.link.flush()
+        sync(ctx)
+        if tpdo_frames(ctx, pdo, min(ctx.timing.silence, 0.1)):
+            hits.append(i)
+    if len(hits) != 2 or hits[1] - hits[0] != 3:
+        raise Fail(f"{pdo.name} with type 3 over 6 SYNCs", expected="2 frames, 3 SYNCs apart", seen=f"after SYNCs {[h + 1 for h in hits]}")
+
+
+@case("sync-pdo", "sync_acyclic", "transmission type 0: no TPDO on SYNC while the data do not change")
+def sync_acyclic(ctx: Context) -> None:
+    pdo = active_pdo(ctx.device, tx=True)
+    set_pdo_type(ctx, pdo, 0)
+    operational(ctx)
+    sync(ctx)
+    tpdo_frames(ctx, pdo, 0.05)
+    sent = 0
+    for _ in range(3):
+        sync(ctx)
+        sent += len(tpdo_frames(ctx, pdo, min(ctx.timing.silence, 0.1)))
+    if sent:
+        raise Fail(f"{pdo.name} with type 0 sent on SYNC without a change", expected="nothing", seen=f"{sent} frames")
+
+
+def _rtr_only(ctx: Context, ttype: int) -> None:
+    pdo = active_pdo(ctx.device, tx=True, rtr=True)
+    set_pdo_type(ctx, pdo, ttype)
+    operational(ctx)
+    ctx.device.link.flush()
+    sync(ctx)
+    frames = tpdo_frames(ctx, pdo, ctx.timing.silence)
+    if frames:
+        raise Fail(f"{pdo.name} with type {ttype} sent without RTR", expected="nothing", seen=str(frames[0]))
+    frame = rtr(ctx, pdo)
+    if frame is None:
+        raise Fail(f"no answer to RTR on {pdo.name} with type {ttype}", expected=f"{pdo.cob & 0x7FF:03X} [{pdo.length}]", seen="nothing")
+    check_len(frame, pdo)
+
+
+@case("sync-pdo", "type252", "transmission type 252: nothing on SYNC, answered on RTR")
+def type252(ctx: Context) -> None:
+    _rtr_only(ctx, 252)
+
+
+@case("sync-pdo", "type253", "transmission type 253: nothing on SYNC, answered on RTR")
+def type253(ctx: Context) -> None:
+    _rtr_only(ctx, 253)
+
+
+@case("sync-pdo", "event_timer", "event timer (sub 5) sends a type-254 TPDO periodically; 0 stops it")
+def event_timer(ctx: Context) -> None:
+    pdo = active_pdo(ctx.device, tx=True)
+    period = ctx.timing.heartbeat_ms / 1000
+    set_pdo_type(ctx, pdo, 254)
+    set_pdo_sub(ctx, pdo, 5, ctx.timing.heartbeat_ms, "event timer")
+    operational(ctx)
+    ctx.device.link.expect(pdo.cob & 0x7FF, period + ctx.timing.response)
+    frames = tpdo_frames(ctx, pdo, 4.5 * period)
+    if len(frames) < 3:
+        raise Fail(f"{pdo.name} with event timer {ctx.timing.heartbeat_ms} ms", expected=f"4 frames in {4.5 * period:.2f} s", seen=f"{len(frames)}")
+    gaps = [b.timestamp - a.timestamp for a, b in zip(frames, frames[1:])]
+    if any(not ctx.timing.within(g, period) for g in gaps):
+        raise Fail("event timer period", expected=f"{period * 1000:.0f} ms ± {ctx.timing.slack(period) * 1000:.0f}", seen=", ".join(f"{g * 1000:.0f}" for g in gaps) + " ms")
+    ctx.device.write(pdo.comm, 5, 0)
+    time.sleep(0.01)
+    ctx.device.link.flush()
+    late = tpdo_frames(ctx, pdo, 2.5 * period)
+    if late:
+        raise Fail("TPDO still sent after the event timer was set to 0", expected="nothing", seen=str(late[0]))
+
+
+@case("sync-pdo", "inhibit_time", "inhibit time (sub 3, ×100 µs) spaces event-timer TPDOs")
+def inhibit_time(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = active_pdo(dev, tx=True)
+    inhibit_s = 2 * ctx.timing.heartbeat_ms / 1000
+    set_pdo_type(ctx, pdo, 254)
+    invalidate(ctx, pdo)  # CiA 301: the inhibit time may only change while the PDO is invalid
+    set_pdo_sub(ctx, pdo, 3, int(inhibit_s * 10000), "inhibit time")
+    set_pdo_sub(ctx, pdo, 5, max(1, ctx.timing.heartbeat_ms // 5), "event timer")
+    dev.write(pdo.comm, 1, pdo.cob)
+    ctx.cleanup(lambda: dev.write(pdo.comm, 1, pdo.cob | 0x80000000))  # runs first: restore sub 3/5 while invalid
+    operational(ctx)
+    frames = tpdo_frames(ctx, pdo, 3.5 * inhibit_s)
+    if len(frames) < 2:
+        raise Fail(f"{pdo.name} with event timer and inhibit time", expected=f"≥ 2 frames in {3.5 * inhibit_s:.2f} s", seen=f"{len(frames)}")
+    gaps = [b.timestamp - a.timestamp for a, b in zip(frames, frames[1:])]
+    if min(gaps) < inhibit_s - ctx.timing.slack(inhibit_s):
+        raise Fail("inhibit time not respected", expected=f"≥ {inhibit_s * 1000:.0f} ms between frames", seen=", ".join(f"{g * 1000:.0f}" for g in gaps) + " ms")
+
+
+@case("sync-pdo", "rpdo_length", "an RPDO shorter than its mapping raises EMCY 0x8210; a longer one is accepted silently")
+def rpdo_length(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = active_pdo(dev, tx=False)
+    good = mapped_values(dev, pdo)
+    operational(ctx)
+    dev.link.flush()
+    dev.link.send(pdo.cob & 0x7FF, good + b"\0" * (8 - len(good)))
+    if dev.has(0x1014):
+        extra = expect_emcy(ctx, None, ctx.timing.silence)
+        if extra is not None:
+            raise Fail(f"EMCY for an {pdo.name} longer than its mapping", expected="no EMCY (extra bytes are ignored)", seen=str(extra))
+    else:
+        raise Skip("EDS lists no 0x1014: length errors cannot be observed")
+    dev.link.send(pdo.cob & 0x7FF, good[:-1])
+    frame = expect_emcy(ctx, EMCY_LENGTH_ERROR)
+    dev.link.send(pdo.cob & 0x7FF, good)
+    expect_emcy(ctx, 0)
+    if frame is None:
+        raise Fail(f"no EMCY for an {pdo.name} of {len(good) - 1} bytes (mapped {len(good)})", expected=f"{emcy_cob(dev):03X} [8] 10 82 ..", seen="nothing")

@@ -1,0 +1,91 @@
+"""``fieldgate conformance`` and ``python -m fieldgate.conformance``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..plugin import hookimpl
+from .framework import PROFILES, Options, Timing, Verdict
+from .report import line, details, summary, write_junit
+from .runner import SuiteConfig, run_suite
+
+HELP = "run the CANopen conformance suite against a device (black box: bus + EDS)"
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--interface", default="socketcan", help="python-can interface (socketcan, virtual, pcan, slcan, ...); default socketcan")
+    p.add_argument("--channel", default="vcan0", help="python-can channel; default vcan0")
+    p.add_argument("--bitrate", type=int, default=None, help="bit rate for adapters that set it")
+    p.add_argument("--node-id", type=int, required=True, help="node-ID of the device under test (1..127)")
+    p.add_argument("--eds", required=True, metavar="FILE", help="the device's EDS (or DCF)")
+    p.add_argument("--profile", action="append", choices=PROFILES, default=[], help=f"run only these profiles (repeatable): {', '.join(PROFILES)}")
+    p.add_argument("-k", dest="patterns", action="append", default=[], metavar="PATTERN", help="run only cases whose id contains PATTERN (or matches a glob); repeatable")
+    p.add_argument("--list", action="store_true", help="list the selected cases and exit")
+    p.add_argument("--junit", metavar="FILE", help="also write a JUnit XML report")
+    p.add_argument("--loopback", action="store_true", help="the device's outputs are wired to its inputs (DO n → DI n, AO n → AI n): enables the I/O cases")
+    p.add_argument("--lss-spare-node-id", type=int, default=None, metavar="ID", help="a free node-ID the LSS cases may configure temporarily (default: node-ID + 1)")
+    t = Timing()
+    g = p.add_argument_group("timing")
+    g.add_argument("--timeout", type=float, default=t.response, metavar="S", help=f"wait for an answer that must come (default {t.response})")
+    g.add_argument("--silence", type=float, default=t.silence, metavar="S", help=f"watch for a frame that must not come (default {t.silence})")
+    g.add_argument("--tolerance-ms", type=float, default=t.tolerance_ms, help=f"absolute slack on periods and delays (default {t.tolerance_ms})")
+    g.add_argument("--tolerance-pct", type=float, default=t.tolerance_pct, help=f"relative slack on periods and delays (default {t.tolerance_pct})")
+    g.add_argument("--heartbeat-ms", type=int, default=t.heartbeat_ms, help=f"producer time used by heartbeat cases (default {t.heartbeat_ms})")
+    g.add_argument("--bootup-timeout", type=float, default=t.bootup, metavar="S", help=f"a reset must end in a boot-up within this (default {t.bootup})")
+    g.add_argument("--sdo-server-timeout", type=float, default=t.sdo_server_timeout, metavar="S", help=f"a stalled SDO transfer must be aborted within this (default {t.sdo_server_timeout})")
+
+
+def config_from_args(args: argparse.Namespace) -> SuiteConfig:
+    timing = Timing(
+        response=args.timeout,
+        silence=args.silence,
+        tolerance_ms=args.tolerance_ms,
+        tolerance_pct=args.tolerance_pct,
+        heartbeat_ms=args.heartbeat_ms,
+        bootup=args.bootup_timeout,
+        sdo_server_timeout=args.sdo_server_timeout,
+    )
+    options = Options(loopback=args.loopback, lss_spare_node_id=args.lss_spare_node_id)
+    return SuiteConfig(args.node_id, args.eds, args.profile, args.patterns, timing, options)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .framework import select
+
+    if not 1 <= args.node_id <= 127:
+        print("conformance: --node-id must be 1..127", file=sys.stderr)
+        return 2
+    if args.list:
+        for c in select(args.profile, args.patterns):
+            print(f"{c.id:<34} {c.title}")
+        return 0
+    config = config_from_args(args)
+    print(f"fieldgate conformance: node {args.node_id} on {args.interface}:{args.channel}, EDS {args.eds}", flush=True)
+
+    def progress(result):
+        print(line(result), flush=True)
+        if result.verdict is Verdict.FAIL:
+            print("\n".join(details(result)), flush=True)
+
+    try:
+        results = run_suite(config, interface=args.interface, channel=args.channel, bitrate=args.bitrate, progress=progress)
+    except (OSError, ValueError) as exc:
+        print(f"conformance: cannot start: {exc}", file=sys.stderr)
+        return 2
+    print()
+    print(summary(results))
+    if args.junit:
+        write_junit(results, args.junit)
+    return 1 if any(r.verdict is Verdict.FAIL for r in results) else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m fieldgate.conformance", description=HELP)
+    configure(parser)
+    return run(parser.parse_args(argv))
+
+
+@hookimpl
+def fieldgate_register(registry) -> None:
+    registry.add_command(("conformance",), HELP, configure, run)

@@ -1,0 +1,337 @@
+"""The device under test as the tester sees it: its EDS, raw SDO, NMT and state probes.
+
+Nothing here knows how the device is built; it only speaks CANopen on the bus.
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+from typing import TYPE_CHECKING
+
+import canopen
+from canopen.objectdictionary import ODArray, ODRecord, ODVariable
+
+from .framework import Fail, Skip, Timing
+from .link import Frame, Link
+
+if TYPE_CHECKING:
+    from .framework import Context
+
+NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+STATE_NAMES = {0x00: "boot-up", 0x04: "Stopped", 0x05: "Operational", 0x7F: "Pre-operational"}
+
+ABORT_NAMES = {
+    0x05030000: "toggle bit not alternated",
+    0x05040000: "SDO protocol timed out",
+    0x05040001: "command specifier not valid",
+    0x05040002: "invalid block size",
+    0x05040003: "invalid sequence number",
+    0x05040004: "CRC error",
+    0x06010000: "unsupported access",
+    0x06010001: "read of a write-only object",
+    0x06010002: "write of a read-only object",
+    0x06020000: "object does not exist",
+    0x06040041: "object cannot be mapped",
+    0x06040042: "mapping exceeds PDO length",
+    0x06040043: "general parameter incompatibility",
+    0x06070010: "data type / length mismatch",
+    0x06070012: "length too high",
+    0x06070013: "length too low",
+    0x06090011: "sub-index does not exist",
+    0x06090030: "value range exceeded",
+    0x06090031: "value too high",
+    0x06090032: "value too low",
+    0x08000000: "general error",
+    0x08000020: "cannot store or transfer",
+    0x08000021: "cannot transfer: local control",
+    0x08000022: "cannot transfer: device state",
+}
+
+
+def abort_text(code: int) -> str:
+    return f"abort 0x{code:08X} ({ABORT_NAMES.get(code, 'unknown code')})"
+
+
+class SdoAbort(Exception):
+    def __init__(self, code: int, frame: Frame):
+        super().__init__(abort_text(code))
+        self.code = code
+        self.frame = frame
+
+
+def mux(index: int, sub: int) -> bytes:
+    return struct.pack("<HB", index, sub)
+
+
+class Device:
+    def __init__(self, link: Link, node_id: int, od: canopen.ObjectDictionary, timing: Timing):
+        self.link = link
+        self.node_id = node_id
+        self.od = od
+        self.timing = timing
+        self.sdo_rx, self.sdo_tx = self.sdo_cobs()
+
+    @classmethod
+    def from_eds(cls, link: Link, node_id: int, eds: str, timing: Timing) -> Device:
+        return cls(link, node_id, canopen.import_od(eds, node_id), timing)
+
+    # -- EDS -----------------------------------------------------------------
+    def has(self, index: int, sub: int | None = None) -> bool:
+        if index not in self.od:
+            return False
+        return sub is None or self.var(index, sub) is not None
+
+    def var(self, index: int, sub: int = 0) -> ODVariable | None:
+        if index not in self.od:
+            return None
+        obj = self.od[index]
+        if isinstance(obj, ODVariable):
+            return obj if sub == 0 else None
+        if isinstance(obj, ODRecord):
+            return obj.get(sub) if sub in obj else None
+        if isinstance(obj, ODArray):
+            if sub in obj.subindices:
+                return obj.subindices[sub]
+            top = obj.subindices.get(0)
+            limit = top.default if top is not None and isinstance(top.default, int) else 0
+            return obj[sub] if 0 < sub <= limit else None
+        return None
+
+    def variables(self) -> list[ODVariable]:
+        out = []
+        for index in sorted(i for i in self.od.indices if isinstance(i, int)):
+            obj = self.od[index]
+            if isinstance(obj, ODVariable):
+                out.append(obj)
+            else:
+                out.extend(obj.subindices[s] for s in sorted(obj.subindices))
+        return out
+
+    def require(self, index: int, sub: int | None = None, why: str = "") -> ODVariable | None:
+        if not self.has(index, sub):
+            what = f"0x{index:04X}" + (f":{sub}" if sub is not None else "")
+            raise Skip(f"EDS lists no {what}" + (f" ({why})" if why else ""))
+        return self.var(index, sub) if sub is not None else None
+
+    def sdo_cobs(self) -> tuple[int, int]:
+        rx = self.od_default(0x1200, 1, 0x600 + self.node_id)
+        tx = self.od_default(0x1200, 2, 0x580 + self.node_id)
+        return rx & 0x7FF, tx & 0x7FF
+
+    def od_default(self, index: int, sub: int, fallback: int) -> int:
+        var = self.var(index, sub)
+        return var.default if var is not None and isinstance(var.default, int) else fallback
+
+    # -- raw SDO ---------------------------------------------------------------
+    def sdo_request(self, data: bytes | list[int], timeout: float | None = None) -> Frame | None:
+        self.link.flush()
+        self.link.send(self.sdo_rx, bytes(data).ljust(8, b"\0"))
+        return self.link.expect(self.sdo_tx, self.timing.response if timeout is None else timeout)
+
+    def sdo(self, data: bytes | list[int], what: str = "SDO response") -> Frame:
+        """An answer that must come; an abort raises :class:`SdoAbort`."""
+        frame = self.sdo_request(data)
+        if frame is None:
+            raise Fail(f"no {what} from the device", expected=f"a frame on 0x{self.sdo_tx:03X}", seen="nothing")
+        if len(frame.data) < 8:
+            raise Fail(f"SDO response with DLC {len(frame.data)}", expected="DLC 8", seen=str(frame))
+        if frame.data[0] == 0x80:
+            raise SdoAbort(struct.unpack_from("<I", frame.data, 4)[0], frame)
+        return frame
+
+    def upload(self, index: int, sub: int) -> bytes:
+        """Expedited or segmented upload over raw frames, checking every protocol field."""
+        frame = self.sdo(bytes([0x40]) + mux(index, sub))
+        b0 = frame.data[0]
+        expect_cs(frame, 2, "initiate upload response (scs 2)")
+        expect_mux(frame, index, sub)
+        if b0 & 0x02:
+            n = (b0 >> 2) & 3 if b0 & 0x01 else 0
+            return frame.data[4 : 8 - n]
+        size = struct.unpack_from("<I", frame.data, 4)[0] if b0 & 0x01 else None
+        data = bytearray()
+        toggle = 0
+        while True:
+            seg = self.sdo(bytes([0x60 | toggle << 4]), "upload segment")
+            expect_cs(seg, 0, "upload segment response (scs 0)")
+            if (seg.data[0] >> 4) & 1 != toggle:
+                raise Fail("upload segment with the wrong toggle bit", expected=f"t={toggle}", seen=str(seg))
+            n = (seg.data[0] >> 1) & 7
+            data += seg.data[1 : 8 - n]
+            if seg.data[0] & 0x01:
+                break
+            toggle ^= 1
+            if len(data) > 1 << 20:
+                raise Fail("segmented upload never ends")
+        if size is not None and size != len(data):
+            raise Fail(f"segmented upload of 0x{index:04X}:{sub} delivered {len(data)} bytes", expected=f"{size} bytes as announced", seen=f"{len(data)} bytes")
+        return bytes(data)
+
+    def download(self, index: int, sub: int, data: bytes, segmented: bool = False) -> None:
+        if len(data) <= 4 and not segmented:
+            frame = self.sdo(bytes([0x23 | (4 - len(data)) << 2]) + mux(index, sub) + data.ljust(4, b"\0"))
+            expect_cs(frame, 3, "download response (scs 3)")
+            expect_mux(frame, index, sub)
+            return
+        frame = self.sdo(bytes([0x21]) + mux(index, sub) + struct.pack("<I", len(data)))
+        expect_cs(frame, 3, "download response (scs 3)")
+        expect_mux(frame, index, sub)
+        toggle = 0
+        for pos in range(0, len(data), 7):
+            chunk = data[pos : pos + 7]
+            last = pos + 7 >= len(data)
+            seg = self.sdo(bytes([toggle << 4 | (7 - len(chunk)) << 1 | int(last)]) + chunk.ljust(7, b"\0"), "download segment response")
+            if seg.data[0] != 0x20 | toggle << 4:
+                raise Fail("wrong download segment response", expected=f"{0x20 | toggle << 4:02X} (scs 1, t={toggle})", seen=str(seg))
+            toggle ^= 1
+
+    def expect_abort(self, request: bytes, codes: tuple[int, ...], what: str) -> int:
+        try:
+            frame = self.sdo(request)
+        except SdoAbort as exc:
+            if exc.code not in codes:
+                raise Fail(f"{what}: wrong abort code", expected=" or ".join(abort_text(c) for c in codes), seen=abort_text(exc.code)) from None
+            if bytes(exc.frame.data[1:4]) != bytes(request[1:4]) and request[0] >> 5 in (1, 2):
+                raise Fail(f"{what}: abort does not echo the multiplexer", expected=bytes(request[1:4]).hex(" "), seen=str(exc.frame))
+            return exc.code
+        raise Fail(f"{what}: accepted", expected=" or ".join(abort_text(c) for c in codes), seen=str(frame))
+
+    def expect_write_abort(self, index: int, sub: int, data: bytes, codes: tuple[int, ...], what: str) -> int:
+        request = bytes([0x23 | (4 - len(data)) << 2]) + mux(index, sub) + data.ljust(4, b"\0") if len(data) <= 4 else None
+        if request is None:
+            try:
+                self.download(index, sub, data)
+            except SdoAbort as exc:
+                if exc.code in codes:
+                    return exc.code
+                raise Fail(f"{what}: wrong abort code", expected=" or ".join(abort_text(c) for c in codes), seen=abort_text(exc.code)) from None
+            raise Fail(f"{what}: accepted", expected=" or ".join(abort_text(c) for c in codes))
+        return self.expect_abort(request, codes, what)
+
+    # -- typed access through the EDS --------------------------------------------
+    def read(self, index: int, sub: int = 0):
+        raw = self.upload(index, sub)
+        var = self.var(index, sub)
+        if var is None:
+            return int.from_bytes(raw, "little")
+        try:
+            return var.decode_raw(raw)
+        except Exception as exc:
+            raise Fail(f"0x{index:04X}:{sub} value {raw.hex(' ')} does not decode as {type_name(var)}: {exc}") from None
+
+    def write(self, index: int, sub: int, value) -> None:
+        var = self.var(index, sub)
+        if isinstance(value, (bytes, bytearray)):
+            data = bytes(value)
+        elif var is not None:
+            data = var.encode_raw(value)
+        else:
+            data = struct.pack("<I", value)
+        self.download(index, sub, data)
+
+    def patch(self, ctx: Context, index: int, sub: int, value) -> object:
+        """Write ``value`` and restore the previous value when the case ends."""
+        old = self.read(index, sub)
+        self.write(index, sub, value)
+        ctx.cleanup(lambda: self.write(index, sub, old))
+        return old
+
+    # -- canopen's client, for block transfers ---------------------------------------
+    def block_client(self) -> canopen.sdo.SdoClient:
+        client = canopen.sdo.SdoClient(self.sdo_rx, self.sdo_tx, self.od)
+        client.network = self.link.network
+        client.RESPONSE_TIMEOUT = self.timing.response
+        self.link.network.subscribe(self.sdo_tx, client.on_response)
+        return client
+
+    def drop_client(self, client: canopen.sdo.SdoClient) -> None:
+        self.link.network.unsubscribe(self.sdo_tx, client.on_response)
+
+    # -- NMT and states -------------------------------------------------------------
+    def nmt(self, cs: int, node: int | None = None, dlc: int = 2) -> None:
+        self.link.send(0x000, bytes([cs, self.node_id if node is None else node]).ljust(dlc, b"\0"))
+
+    def reset(self, cs: int = NMT_RESET_COMM) -> Frame | None:
+        """Reset node or communication; the boot-up frame, or None if none came."""
+        self.link.flush()
+        self.nmt(cs)
+        return self.wait_bootup()
+
+    def wait_bootup(self, node_id: int | None = None) -> Frame | None:
+        cob = 0x700 + (node_id or self.node_id)
+        return self.link.expect(lambda f: f.cob == cob and not f.rtr and f.data[:1] == b"\0", self.timing.bootup)
+
+    def settle(self) -> None:
+        """Back to Pre-operational between cases; pending frames are dropped."""
+        self.nmt(NMT_PREOP)
+        time.sleep(0.01)
+        self.link.flush()
+
+    def guard(self) -> Frame | None:
+        self.link.flush()
+        self.link.send(0x700 + self.node_id, rtr=True, dlc=1)
+        return self.link.expect(0x700 + self.node_id, self.timing.response)
+
+
+class StateProbe:
+    """Reads the NMT state from heartbeats (0x1017) or, failing that, node guarding (0x100C)."""
+
+    def __init__(self, ctx: Context):
+        self.ctx = ctx
+        self.dev = ctx.device
+        if self.dev.has(0x1017):
+            self.method = "heartbeat"
+            self.arm()
+            ctx.cleanup(self._disarm)
+        elif self.dev.has(0x100C):
+            self.method = "guarding"
+        else:
+            raise Skip("the EDS lists neither 0x1017 (heartbeat) nor 0x100C (guarding): NMT state cannot be observed")
+
+    def arm(self) -> None:
+        if self.method == "heartbeat":
+            self.dev.write(0x1017, 0, self.ctx.timing.heartbeat_ms)
+
+    def _disarm(self) -> None:
+        self.dev.write(0x1017, 0, self.dev.od_default(0x1017, 0, 0))
+
+    def state(self) -> int | None:
+        dev = self.dev
+        if self.method == "guarding":
+            frame = dev.guard()
+        else:
+            dev.link.flush()
+            wait = 2 * self.ctx.timing.heartbeat_ms / 1000 + self.ctx.timing.response
+            frame = dev.link.expect(lambda f: f.cob == 0x700 + dev.node_id and not f.rtr and f.data[:1] != b"\0", wait)
+        if frame is None or not frame.data:
+            return None
+        return frame.data[0] & 0x7F
+
+    def expect(self, state: int, after: str) -> None:
+        seen = self.state()
+        if seen != state:
+            raise Fail(
+                f"after {after} the {self.method} reports the wrong state",
+                expected=f"{state:#04x} {STATE_NAMES.get(state, '')}",
+                seen="no frame" if seen is None else f"{seen:#04x} {STATE_NAMES.get(seen, '')}",
+            )
+
+
+def expect_cs(frame: Frame, cs: int, what: str) -> None:
+    if frame.data[0] >> 5 != cs:
+        raise Fail(f"unexpected SDO command specifier", expected=what, seen=str(frame))
+
+
+def expect_mux(frame: Frame, index: int, sub: int) -> None:
+    if bytes(frame.data[1:4]) != mux(index, sub):
+        raise Fail("SDO response does not echo the multiplexer", expected=mux(index, sub).hex(" ").upper(), seen=str(frame))
+
+
+def type_name(var: ODVariable) -> str:
+    from canopen.objectdictionary import datatypes
+
+    for name in dir(datatypes):
+        if name.isupper() and getattr(datatypes, name) == var.data_type:
+            return name
+    return f"type 0x{var.data_type:04X}"

@@ -1,0 +1,179 @@
+"""Cases, profiles, outcomes and the runner.
+
+A case is a function ``fn(ctx)`` registered with :func:`case`. It passes by returning,
+fails by raising :class:`Fail` (say what was expected and what was seen), and skips by
+raising :class:`Skip` (say why: "EDS lists no 0x1016"). The runner gives every case a
+fresh frame log, runs its clean-ups, and puts the device back in Pre-operational.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import time
+import traceback
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import TYPE_CHECKING, Callable
+
+if TYPE_CHECKING:
+    from .device import Device
+
+PROFILES = ("od", "sdo", "nmt", "errctl", "emcy", "sync-pdo", "lss", "store", "cia401", "seed")
+
+
+class Fail(Exception):
+    def __init__(self, message: str, expected: str | None = None, seen: str | None = None):
+        super().__init__(message)
+        self.message = message
+        self.expected = expected
+        self.seen = seen
+
+
+class Skip(Exception):
+    pass
+
+
+class Verdict(str, Enum):
+    PASS = "PASS"
+    FAIL = "FAIL"
+    SKIP = "SKIP"
+
+
+@dataclass(frozen=True)
+class Case:
+    id: str
+    profile: str
+    title: str
+    fn: Callable[["Context"], None]
+
+
+CASES: dict[str, Case] = {}
+
+
+def case(profile: str, name: str, title: str):
+    """Register ``fn`` as case ``<profile>.<name>``; the docstring explains the check."""
+    if profile not in PROFILES:
+        raise ValueError(f"unknown profile {profile!r}")
+
+    def register(fn):
+        cid = f"{profile}.{name}"
+        if cid in CASES:
+            raise ValueError(f"duplicate case {cid}")
+        CASES[cid] = Case(cid, profile, title, fn)
+        return fn
+
+    return register
+
+
+@dataclass
+class Timing:
+    """Timing knobs; every one has a command-line option."""
+
+    response: float = 0.5  # how long to wait for an answer that must come
+    silence: float = 0.3  # how long to watch for a frame that must not come
+    tolerance_ms: float = 25.0  # absolute slack on measured periods and delays
+    tolerance_pct: float = 15.0  # relative slack on measured periods and delays
+    heartbeat_ms: int = 100  # producer time used by the heartbeat cases
+    bootup: float = 2.0  # how long a reset may take until the boot-up message
+    sdo_server_timeout: float = 2.0  # how long the server may take to abort a stalled transfer
+
+    def slack(self, nominal_s: float) -> float:
+        return self.tolerance_ms / 1000 + nominal_s * self.tolerance_pct / 100
+
+    def within(self, measured_s: float, nominal_s: float) -> bool:
+        return abs(measured_s - nominal_s) <= self.slack(nominal_s)
+
+
+@dataclass
+class Options:
+    loopback: bool = False  # the device's outputs are wired to its inputs (DO n → DI n, AO n → AI n)
+    lss_spare_node_id: int | None = None  # node-ID the LSS cases may configure temporarily
+
+
+@dataclass
+class CaseResult:
+    case: Case
+    verdict: Verdict
+    reason: str = ""
+    expected: str | None = None
+    seen: str | None = None
+    frames: list[str] = field(default_factory=list)
+    duration: float = 0.0
+
+
+class Context:
+    """What a case gets: the device, the timing knobs, options, and clean-up registration."""
+
+    def __init__(self, device: Device, timing: Timing, options: Options):
+        self.device = device
+        self.timing = timing
+        self.options = options
+        self._cleanups: list[Callable[[], None]] = []
+
+    def cleanup(self, fn: Callable[[], None]) -> None:
+        self._cleanups.append(fn)
+
+    def run_cleanups(self) -> list[str]:
+        errors = []
+        while self._cleanups:
+            fn = self._cleanups.pop()
+            try:
+                fn()
+            except Exception as exc:  # clean-up must not hide the verdict
+                errors.append(f"clean-up failed: {exc}")
+        return errors
+
+
+def select(profiles: list[str] | None = None, patterns: list[str] | None = None) -> list[Case]:
+    """Cases of the given profiles (all when empty) whose id matches any -k pattern."""
+    from . import cases  # noqa: F401  (registers every case)
+
+    chosen = []
+    for c in CASES.values():
+        if profiles and c.profile not in profiles:
+            continue
+        if patterns and not any(_matches(c.id, p) for p in patterns):
+            continue
+        chosen.append(c)
+    return sorted(chosen, key=lambda c: PROFILES.index(c.profile))
+
+
+def _matches(case_id: str, pattern: str) -> bool:
+    if any(ch in pattern for ch in "*?["):
+        return fnmatch.fnmatchcase(case_id, pattern)
+    return pattern in case_id
+
+
+def run_cases(selected: list[Case], ctx: Context, progress: Callable[[CaseResult], None] | None = None) -> list[CaseResult]:
+    results = []
+    for c in selected:
+        result = run_case(c, ctx)
+        results.append(result)
+        if progress:
+            progress(result)
+    return results
+
+
+def run_case(c: Case, ctx: Context) -> CaseResult:
+    link = ctx.device.link
+    link.flush()
+    link.start_log()
+    t0 = time.monotonic()
+    try:
+        c.fn(ctx)
+        result = CaseResult(c, Verdict.PASS)
+    except Skip as exc:
+        result = CaseResult(c, Verdict.SKIP, str(exc))
+    except Fail as exc:
+        result = CaseResult(c, Verdict.FAIL, exc.message, exc.expected, exc.seen)
+    except Exception as exc:  # a case error is reported as a FAIL of that case, with the trace
+        tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        result = CaseResult(c, Verdict.FAIL, f"tester error: {tb}")
+    ctx.device.settle()
+    errors = ctx.run_cleanups()
+    result.duration = time.monotonic() - t0
+    if result.verdict is Verdict.FAIL:
+        result.frames = link.log_lines()
+    if errors and result.verdict is Verdict.PASS:
+        result = CaseResult(c, Verdict.FAIL, "; ".join(errors), frames=link.log_lines(), duration=result.duration)
+    return result

@@ -1,0 +1,72 @@
+"""Human-readable report and JUnit XML."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from collections import Counter
+from pathlib import Path
+
+from .framework import CaseResult, Verdict
+
+
+def line(result: CaseResult) -> str:
+    text = f"{result.verdict.value}  {result.case.id:<34} {result.duration:6.3f}s  {result.case.title}"
+    if result.verdict is Verdict.SKIP:
+        text += f"\n      why: {result.reason}"
+    return text
+
+
+def details(result: CaseResult) -> list[str]:
+    out = [f"      why:      {result.reason}"]
+    if result.expected is not None:
+        out.append(f"      expected: {result.expected}")
+    if result.seen is not None:
+        out.append(f"      seen:     {result.seen}")
+    if result.frames:
+        out.append("      frames (→ sent by the tester, ← seen on the bus):")
+        out.extend(f"        {f}" for f in result.frames)
+    return out
+
+
+def summary(results: list[CaseResult]) -> str:
+    counts = Counter(r.verdict for r in results)
+    return f"{len(results)} cases: {counts[Verdict.PASS]} passed, {counts[Verdict.FAIL]} failed, {counts[Verdict.SKIP]} skipped"
+
+
+def text_report(results: list[CaseResult], header: str = "") -> str:
+    out = [header] if header else []
+    for r in results:
+        out.append(line(r))
+        if r.verdict is Verdict.FAIL:
+            out.extend(details(r))
+    out.append("")
+    out.append(summary(results))
+    return "\n".join(out) + "\n"
+
+
+def junit_xml(results: list[CaseResult], suite_name: str = "fieldgate-conformance") -> ET.ElementTree:
+    counts = Counter(r.verdict for r in results)
+    suites = ET.Element("testsuites")
+    suite = ET.SubElement(
+        suites,
+        "testsuite",
+        name=suite_name,
+        tests=str(len(results)),
+        failures=str(counts[Verdict.FAIL]),
+        skipped=str(counts[Verdict.SKIP]),
+        errors="0",
+        time=f"{sum(r.duration for r in results):.3f}",
+    )
+    for r in results:
+        tc = ET.SubElement(suite, "testcase", classname=f"conformance.{r.case.profile}", name=r.case.id, time=f"{r.duration:.3f}")
+        if r.verdict is Verdict.FAIL:
+            failure = ET.SubElement(tc, "failure", message=r.reason)
+            failure.text = "\n".join(details(r))
+        elif r.verdict is Verdict.SKIP:
+            ET.SubElement(tc, "skipped", message=r.reason)
+    ET.indent(suites)
+    return ET.ElementTree(suites)
+
+
+def write_junit(results: list[CaseResult], path: str | Path) -> None:
+    junit_xml(results).write(path, encoding="utf-8", xml_declaration=True)

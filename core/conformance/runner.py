@@ -1,0 +1,38 @@
+"""One call that runs a selection of cases against a device: the API behind the CLI and the tests."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import can
+
+from .device import NMT_PREOP, Device
+from .framework import CaseResult, Context, Options, Timing, Verdict, run_cases, select
+from .link import Link
+
+
+@dataclass
+class SuiteConfig:
+    node_id: int
+    eds: str
+    profiles: list[str] = field(default_factory=list)
+    patterns: list[str] = field(default_factory=list)
+    timing: Timing = field(default_factory=Timing)
+    options: Options = field(default_factory=Options)
+
+
+def run_suite(config: SuiteConfig, bus: can.BusABC | None = None, *, interface: str = "virtual", channel: str = "vcan0", bitrate: int | None = None, progress: Callable[[CaseResult], None] | None = None) -> list[CaseResult]:
+    """Run the selected cases. Pass ``bus`` to reuse an open python-can bus (left open afterwards)."""
+    link = Link(bus) if bus is not None else Link.open(interface, channel, bitrate)
+    try:
+        device = Device.from_eds(link, config.node_id, config.eds, config.timing)
+        ctx = Context(device, config.timing, config.options)
+        device.nmt(NMT_PREOP)
+        return run_cases(select(config.profiles, config.patterns), ctx, progress)
+    finally:
+        link.close()
+
+
+def failed(results: list[CaseResult]) -> list[str]:
+    return [r.case.id for r in results if r.verdict is Verdict.FAIL]
