@@ -52,6 +52,7 @@ class GatewayContext:
         self.image = image
         self.health = health
         self.masters = masters
+        self.backs: dict[str, Component] = {}  # running back instances by name (a front's manufacturer objects reach them)
 
     @property
     def clock(self) -> Callable[[], float]:

@@ -71,6 +71,7 @@ class Gateway:
         try:
             for cfg in self.topology.backs:
                 self.backs.append(self._create("back", cfg))
+                self.context.backs[cfg.name] = self.backs[-1]
             for cfg in self.topology.fronts:
                 self.masters.register(cfg.name)
                 self.fronts.append(self._create("front", cfg))

@@ -86,6 +86,8 @@ class IoDevice(Service):
         backs: dict[str, Any] | None = None,
         dcon_backs: set[str] | None = None,
         models: dict[tuple[str, int], str] | None = None,
+        master_events: bool = True,
+        module_emcy: bool = True,
     ):
         super().__init__()
         self.settings = settings
@@ -95,7 +97,8 @@ class IoDevice(Service):
         self.layout: IoLayout = build_layout(channels, settings.style, compressed=settings.compressed, models=models)
         self.defaults = default_pdos(self.layout, settings.style, count=settings.count, mapping_closed=settings.mapping_closed)
         self.profile = Profile401(image, self.layout, origin)
-        self.manufacturer = ManufacturerObjects(self.layout, health or HealthRegistry(), style=settings.style, backs=backs, dcon_backs=dcon_backs)
+        self.manufacturer = ManufacturerObjects(self.layout, health or HealthRegistry(), style=settings.style, backs=backs, dcon_backs=dcon_backs, module_emcy=module_emcy)
+        self.master_events = master_events  # False: the front reports node.on_master to the masters itself
         self.directory = Directory(self.profile.objects() + self.manufacturer.objects())
         self.engine: PdoEngine | None = None
         self.wakeup: Callable[[], None] | None = None
@@ -127,7 +130,8 @@ class IoDevice(Service):
                 lambda code, reg, mfr: self._outside(lambda: emcy.raise_error(code, reg, mfr)),
                 lambda code, mfr: self._outside(lambda: emcy.clear_error(code, mfr)),
             )
-        node.on_master(self._master_state)
+        if self.master_events:
+            node.on_master(self._master_state)
 
     def detach(self) -> None:
         self.profile.detach()

@@ -52,8 +52,9 @@ def module_emcy_bytes(address: int) -> bytes:
 
 
 class ManufacturerObjects:
-    def __init__(self, layout: IoLayout, health: HealthRegistry, *, style: str = "icpdas", backs: dict[str, Any] | None = None, dcon_backs: set[str] | None = None):
+    def __init__(self, layout: IoLayout, health: HealthRegistry, *, style: str = "icpdas", backs: dict[str, Any] | None = None, dcon_backs: set[str] | None = None, module_emcy: bool = True):
         self.layout = layout
+        self.module_emcy = module_emcy  # False: the front raises/clears the offline EMCY itself
         self.health = health
         self.style = style
         self.backs = backs or {}
@@ -66,7 +67,7 @@ class ManufacturerObjects:
     # -- module health -> EMCY ----------------------------------------------------------
     def attach(self, raise_error: Raise, clear_error: Clear) -> None:
         self._raise, self._clear = raise_error, clear_error
-        for m in self.layout.modules:  # modules already offline when the front starts
+        for m in self.layout.modules if self.module_emcy else ():  # modules already offline at start
             h = self._health(m)
             if h is not None and not h.online:
                 raise_error(MODULE_EMCY_CODE, MODULE_EMCY_REGISTER, module_emcy_bytes(m.address))
@@ -77,9 +78,9 @@ class ManufacturerObjects:
     def _health_event(self, health: ModuleHealth, event: HealthEvent) -> None:
         if health.key not in self._keys or self._raise is None or self._clear is None:
             return
-        if event is HealthEvent.OFFLINE:
+        if event is HealthEvent.OFFLINE and self.module_emcy:
             self._raise(MODULE_EMCY_CODE, MODULE_EMCY_REGISTER, module_emcy_bytes(health.address))
-        elif event in (HealthEvent.ONLINE, HealthEvent.COUNTER_CLEARED):
+        elif (event is HealthEvent.ONLINE and self.module_emcy) or event is HealthEvent.COUNTER_CLEARED:
             self._clear(MODULE_EMCY_CODE, module_emcy_bytes(health.address))
 
     def _health(self, module: ModuleRef) -> ModuleHealth | None:

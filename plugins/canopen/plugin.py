@@ -26,6 +26,9 @@ from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
 from .adapter import CanAdapter, open_bus
+from .eds import register_command as register_eds_command
+from .front401 import IoFrontOptions
+from .front401 import install as install_io_device
 from .lss import LssService, LssStore
 from .node import Node
 from .slave import Identity, NodeSettings, build_node
@@ -59,7 +62,7 @@ class IdentitySettings(StrictModel):
     software_version: str = Field(f"fieldgate {__version__}", max_length=255, description="0x100A")
 
 
-class CanopenFrontConfig(FrontConfig):
+class CanopenFrontConfig(FrontConfig, IoFrontOptions):
     type: Literal["canopen"] = "canopen"
     interface: str = Field("socketcan", description="python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...")
     channel: str | None = Field("can0", description="python-can channel (can0, vcan0, PCAN_USBBUS1, a virtual channel name, ...)")
@@ -185,3 +188,7 @@ class CanopenFront(Front):
 @hookimpl
 def fieldgate_register(registry) -> None:
     registry.add_front("canopen", CanopenFrontConfig, CanopenFront, "CANopen CiA 301 slave on any python-can bus")
+    register_eds_command(registry)
+
+
+add_node_extension(install_io_device)  # CiA 401 I/O device: PDOs, 0x6000-, 0x2000- (see .front401)

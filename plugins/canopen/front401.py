@@ -1,0 +1,74 @@
+"""Wiring the CiA 401 I/O device into the ``canopen`` front.
+
+The front's configuration gains the :class:`IoFrontOptions` fields; :func:`install` is
+the node extension that adds an :class:`~.iodevice.IoDevice` to every canopen front's
+node before it boots. The front itself reports master loss (``node.on_master``) and
+the module-offline EMCY, so the I/O device only adds what is its own: the PDO engine,
+the CiA 401 and manufacturer objects, NMT Stopped as an error event (``na9161``) and
+the acknowledgement of a module error by clearing its 0x2000 counter.
+
+YAML::
+
+    fronts:
+      - name: can
+        type: canopen
+        node_id: 5
+        style: na9161          # or icpdas (default)
+        compressed: true       # na9161: digital bits packed across modules
+        pdo_count: 8           # PDOs per direction (default 32 icpdas / 8 na9161)
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field
+
+from fieldgate.topology.model import StrictModel
+
+from .iodevice import IoDevice, IoSettings
+
+
+class IoFrontOptions(StrictModel):
+    style: Literal["icpdas", "na9161"] = Field("icpdas", description="object and default PDO layout: icpdas (I-7232D/I-7231D) or na9161 (CREVIS NA-9161)")
+    pdo_count: int | None = Field(None, ge=1, le=512, description="RPDOs and TPDOs each; default 32 (icpdas) or 8 (na9161)")
+    mapping_closed: bool = Field(False, description="icpdas: analog data from PDO1 when a direction has no digital channels (the I-7232D utility's 'Mapping Closed')")
+    compressed: bool = Field(True, description="na9161: digital channels packed across modules (0x4500:2 = 1); false: each module starts a byte")
+    tpdo_on_start: Literal["async", "all", "none"] | None = Field(None, description="TPDOs sent once on entering Operational; default async (icpdas) / all (na9161)")
+    error_on_stopped: bool | None = Field(None, description="NMT Stopped drives outputs to their error values; default false (icpdas) / true (na9161)")
+
+
+def io_settings(options: Any) -> IoSettings:
+    return IoSettings(
+        style=options.style, pdo_count=options.pdo_count, mapping_closed=options.mapping_closed, compressed=options.compressed,
+        start_policy=options.tpdo_on_start, error_on_stopped=options.error_on_stopped,
+    )
+
+
+def io_device(front: Any) -> IoDevice:
+    """The I/O device of a canopen front (``front.config``, ``front.context``)."""
+    cfg, ctx = front.config, front.context
+    topology = ctx.topology
+    models = {(b.name, m.address): m.model or "" for b in topology.backs for m in b.modules}
+    dcon = {b.name for b in topology.backs if b.type == "dcon"}
+    return IoDevice(
+        io_settings(cfg), ctx.image, ctx.front_channels(cfg), origin=front.name, health=ctx.health, masters=ctx.masters,
+        front=front.name, backs=getattr(ctx, "backs", {}), dcon_backs=dcon, models=models, master_events=False, module_emcy=False,
+    )
+
+
+def install(front: Any, node: Any) -> None:
+    """Node extension: add the I/O device (replacing the one of a previous start)."""
+    previous = getattr(front, "io", None)
+    if previous is not None:
+        previous.detach()
+    io = io_device(front)
+
+    def wakeup() -> None:
+        adapter = getattr(front, "adapter", None)
+        if adapter is not None:
+            adapter.pump()
+
+    io.wakeup = wakeup
+    node.add_service(io)
+    front.io = io
