@@ -11,7 +11,7 @@ from fieldgate.polling import CommError, PolledModule
 
 from . import codec
 from .config import DconModuleConfig
-from .formats import DataFormat, raw_to_text, split_values, text_to_raw
+from .formats import DataFormat, ao_text_to_raw, raw_to_text, split_values, text_to_raw
 from .link import DconLink
 from .profiles import AIDIO, AO_SINGLE, DIO, find_profile
 from .tables import TABLES, TypeRange
@@ -212,7 +212,11 @@ class DconModule(PolledModule):
                 self._outputs_configured = True
 
     async def _configure_output_values(self) -> None:
-        """Safe and power-on values: ``~AA5PPSS`` (I-7011 family), else latch the value written first."""
+        """Safe and power-on values: ``~AA5PPSS`` (I-7011 family), else latch a value written first.
+
+        Latching drives the outputs through the stored value for one transaction; what the
+        module output before is read back first and restored right after.
+        """
         cfg, p = self.config, self.profile
         if cfg.safe_value is None and cfg.power_on_value is None:
             return
@@ -222,21 +226,36 @@ class DconModule(PolledModule):
             ss = cfg.safe_value if cfg.safe_value is not None else codec.hex_field(current[2:4], "safe value")
             await self._ask(f"5{pp:02X}{ss:02X}", "~")
         elif p.do:
-            for letter, value in (("S", cfg.safe_value), ("P", cfg.power_on_value)):
-                if value is None or codec.hex_field((await self._ask(f"4{letter}", "~"))[:8], "DO value") == value:
-                    continue  # already stored: no need to drive the outputs through it
-                await self._write(codec.command("@", self.address, p.encode_do(value)))
-                await self._ask(f"5{letter}", "~")
+            await self._latch_digital()
         else:
-            for value, latch in ((cfg.safe_value, "~5"), (cfg.power_on_value, "$4")):
-                if value is None:
-                    continue
-                values = value if isinstance(value, list) else [value] * p.ao
-                for index, raw in enumerate(values):
-                    await self._write_analog(index, raw)
-                    await self._ask(latch[1:] + ("" if p.ao_style == AO_SINGLE else str(index)), latch[0])
+            await self._latch_analog()
         log.info("%s module %d (%s): safe/power-on values stored", self.link_name, self.address, p.model)
-        # the outputs now hold the latched values: the scheduler rewrites the current ones after on_online
+
+    async def _latch_digital(self) -> None:
+        cfg, p = self.config, self.profile
+        before, _ = p.decode_dio(codec.data(await self.link.transact(codec.command("@", self.address)), self.address))
+        for letter, value in (("S", cfg.safe_value), ("P", cfg.power_on_value)):
+            if value is None or codec.hex_field((await self._ask(f"4{letter}", "~"))[:8], "DO value") == value:
+                continue  # already stored: no need to drive the outputs through it
+            await self._write(codec.command("@", self.address, p.encode_do(value)))
+            await self._ask(f"5{letter}", "~")
+        await self._write(codec.command("@", self.address, p.encode_do(before)))
+
+    async def _latch_analog(self) -> None:
+        cfg, p = self.config, self.profile
+        if self.range is None or self.data_format is None or self.config_error:
+            return
+        channels = [""] if p.ao_style == AO_SINGLE else [str(i) for i in range(p.ao)]
+        before = [ao_text_to_raw(await self._ask(f"6{ch}"), self.data_format, self.range)[0] for ch in channels]
+        for value, (lead, body) in ((cfg.safe_value, ("~", "5")), (cfg.power_on_value, ("$", "4"))):
+            if value is None:
+                continue
+            values = value if isinstance(value, list) else [value] * p.ao
+            for index, raw in enumerate(values):
+                await self._write_analog(index, raw)
+                await self._ask(body + channels[index], lead)
+        for index, raw in enumerate(before):
+            await self._write_analog(index, raw)
 
     def status(self) -> dict:
         return {

@@ -107,6 +107,9 @@ class SimModule:
             return "!" + p.encode_dio(self.do_bits, self.di_bits) + "00"
         if body == "6" and p.ai:
             return self._ok(f"{_mask(p.ai):02X}")
+        if p.ao and body[:1] == "6" and self.range is not None:  # $AA6 / $AA6N: last output value
+            (ch,) = self._ao_channels(body[1:])
+            return self._ok(raw_to_text(self.ao_raw[ch], self.data_format, self.range, hex_width=p.ao_hex_width, signed_text=p.ao_signed_text))
         if p.ao and body[:1] == "4":  # $AA4 / $AA4N: current output becomes the power-on value
             for ch in self._ao_channels(body[1:]):
                 self.power_on_ao[ch] = self.ao_raw[ch]
