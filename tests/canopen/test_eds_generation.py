@@ -1,0 +1,103 @@
+"""`fieldgate eds`: the EDS imports with canopen, passes Lely's dcfchk, and matches the served dictionary."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import canopen
+import pytest
+
+from fieldgate import Gateway, load_registry
+from fieldgate.cli import main as cli_main
+from fieldgate.plugins.canopen.od import decode
+
+DCFCHK = shutil.which("dcfchk") or str(Path(sys.executable).with_name("dcfchk"))
+
+
+def topology(tmp_path: Path, **front) -> dict:
+    return {
+        "gateway": {"name": "eds-test", "state_dir": str(tmp_path / "state")},
+        "fronts": [{"name": "plc", "type": "canopen", "interface": "virtual", "channel": f"eds-{uuid.uuid4().hex[:8]}", "node_id": 5,
+                    "identity": {"vendor_id": 0xABCD, "product_code": 0x7232, "device_name": "fieldgate I-7232D"}, **front}],
+        "backs": [{"name": "io", "type": "loopback", "modules": [
+            {"address": 1, "digital": 8, "analog": 2, "error_mode": {"value": 0}},
+            {"address": 3, "digital": 12},
+        ]}],
+    }
+
+
+def write_topology(tmp_path: Path, **front) -> Path:
+    from ruamel.yaml import YAML
+    path = tmp_path / "topo.yaml"
+    with path.open("w") as f:
+        YAML().dump(topology(tmp_path, **front), f)
+    return path
+
+
+def generate(tmp_path: Path, **front) -> Path:
+    topo = write_topology(tmp_path, **front)
+    out = tmp_path / "plc.eds"
+    assert cli_main(["eds", str(topo), "--front", "plc", "-o", str(out)]) == 0
+    return out
+
+
+def dcfchk(path: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([DCFCHK, "-n", "5", str(path)], capture_output=True, text=True, timeout=60)
+
+
+@pytest.mark.parametrize("style", ["icpdas", "na9161"])
+def test_eds_imports_with_canopen_and_describes_the_layout(tmp_path, style):
+    od = canopen.import_od(str(generate(tmp_path, style=style)), node_id=5)
+    assert od[0x1000].default == 0x000F0191
+    assert od[0x6000][0].default == 3 and od[0x6200][0].default == 3  # 1 byte + 2 bytes (12 DO of module 3)
+    assert od[0x6401][0].default == 2 and od[0x6411][0].default == 2
+    assert od[0x1800][1].default == 0x185 and od[0x1800][1].relative
+    assert od[0x1A00][1].default == 0x60000108 and od[0x6200][1].access_type == "rw" and od[0x6200][1].pdo_mappable
+    assert od[0x6401][1].data_type == canopen.objectdictionary.INTEGER16 and not od[0x6000][1].access_type.startswith("w")
+    assert od[0x2000][0].default == 2 and od[0x2010][2].default == 3
+    count = 32 if style == "icpdas" else 8
+    assert od.device_information.nr_of_TXPDO == count and (0x1800 + count - 1) in od and (0x1800 + count) not in od
+    assert od[0x1800][2].default == (255 if style == "icpdas" else 254)
+
+
+def test_eds_passes_lely_dcfchk(tmp_path):
+    assert Path(DCFCHK).exists(), "dcf-tools is in the test extra"
+    path = generate(tmp_path, style="icpdas", pdo_count=64)
+    result = dcfchk(path)
+    assert result.returncode == 0 and "Warning" not in result.stderr and "rror" not in result.stderr, result.stderr
+    # the check can fail: a default outside its limits is reported
+    broken = tmp_path / "broken.eds"
+    broken.write_text(path.read_text().replace("[1A00sub1]\n", "[1A00sub1]\nLowLimit=0x0\nHighLimit=0x1\n", 1))
+    assert dcfchk(broken).returncode != 0
+
+
+def test_cli_with_an_unknown_front_fails_with_a_message(tmp_path, capsys):
+    path = write_topology(tmp_path)
+    assert cli_main(["eds", str(path), "--front", "nosuch"]) == 1
+    assert "no canopen front named 'nosuch'" in capsys.readouterr().err
+    assert not (tmp_path / "plc.eds").exists()
+
+
+@pytest.mark.parametrize("style", ["icpdas", "na9161"])
+async def test_every_eds_object_is_served_with_its_default_and_access(tmp_path, style):
+    eds = canopen.import_od(str(generate(tmp_path, style=style)), node_id=5)
+    gw = Gateway.load(topology(tmp_path, style=style), registry=load_registry())
+    await gw.start()
+    try:
+        node = gw.component("plc").node
+        in_eds = set()
+        for obj in eds.values():
+            for var in [obj] if isinstance(obj, canopen.objectdictionary.ODVariable) else obj.subindices.values():
+                in_eds.add((var.index, var.subindex))
+                served = node.od.variable(var.index, var.subindex)
+                assert (served.access_type, served.data_type) == (var.access_type, var.data_type), f"0x{var.index:04X}:{var.subindex}"
+                if var.index == 0x1003 and var.subindex:
+                    continue  # empty error history answers 0800 0024
+                assert decode(served, node.od.read(var.index, var.subindex)) == var.default, f"0x{var.index:04X}:{var.subindex}"
+        assert {(v.index, v.subindex) for v in node.od.variables()} == in_eds
+    finally:
+        await gw.stop()
