@@ -22,6 +22,7 @@ validators, listeners and bindings.
 
 from __future__ import annotations
 
+import re
 import struct
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -144,10 +145,12 @@ class Dictionary:
                     yield obj.subindices[sub]
 
     def default(self, var: cod.ODVariable) -> Value:
-        value = var.default if var.default is not None else _zero(var)
-        if var.relative and isinstance(value, int) and 1 <= self.node_id <= 127:
-            value += self.node_id
-        return value
+        """The default for the current node-ID (``$NODEID+base`` for relative entries)."""
+        raw = getattr(var, "default_raw", None)
+        if var.relative and isinstance(raw, str) and "$NODEID" in raw:
+            base = int(re.sub(r"\+?\$NODEID\+?", "", raw) or "0", 0)
+            return base + (self.node_id if 1 <= self.node_id <= 127 else 0)
+        return var.default if var.default is not None else _zero(var)
 
     # -- hooks ---------------------------------------------------------------------
     def bind(self, index: int, subindex: int, getter: Getter | None = None, setter: Setter | None = None) -> None:
@@ -324,6 +327,8 @@ def _make_var(name: str, index: int, sub: int, data_type: int, access: str, defa
     var.min = minimum
     var.max = maximum
     var.relative = relative
+    if relative:
+        var.default_raw = f"$NODEID+0x{int(default):X}"  # as canopen's EDS import/export writes it
     var.pdo_mappable = mappable
     if max_size is not None:
         var.max_size = max_size

@@ -100,7 +100,7 @@ class StoreService(Service):
                 raise CorruptStore(f"{self.path}: not a {FORMAT} file")
             values = {_parse_key(k): _from_json(v) for k, v in doc.get("values", {}).items()}
             sections = dict(doc.get("sections", {}))
-        except (CorruptStore, ValueError, TypeError, AttributeError, KeyError) as exc:
+        except (CorruptStore, OSError, ValueError, TypeError, AttributeError, KeyError) as exc:
             self._problem(CORRUPT_CODE, CORRUPT_MFR, f"stored parameters unreadable, using defaults: {exc}")
             return
         self.sections = sections

@@ -133,3 +133,11 @@ def test_store_write_failure_keeps_previous_copy(tmp_path, monkeypatch):
     r.sdo("2B 17 10 00 64 00 00 00")
     assert r.sdo("23 10 10 01 73 61 76 65") == "80 10 10 01 00 00 06 06"
     assert path.read_bytes() == before
+
+
+def test_store_path_that_cannot_be_read_falls_back(tmp_path):
+    (tmp_path / "blocker").write_text("a file, not a directory")
+    node = seed_node(store_path=tmp_path / "blocker" / "node.json")
+    node.service("store").load()
+    r = Rig(node)
+    assert r.boot == ["701 00", "081 00 50 81 02 00 00 00 00"]

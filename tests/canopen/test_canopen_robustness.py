@@ -1,0 +1,47 @@
+"""Bad input never escapes: random frames into the node; the dictionary exports as EDS."""
+
+import random
+
+import canopen
+from canopen_rig import Rig, seed_node
+
+from fieldgate.plugins.canopen.frame import Frame
+
+IDS = [0x000, 0x080, 0x081, 0x100, 0x201, 0x601, 0x602, 0x701, 0x77F, 0x7E5, 0x7FF]
+
+
+def test_random_frames_never_raise_and_answers_are_well_formed():
+    rng = random.Random(20261122)
+    rig = Rig(seed_node(heartbeat_consumers=2))
+    rig.sdo("23 16 10 01 20 00 7F 00")
+    for i in range(20_000):
+        can_id = rng.choice(IDS) if rng.random() < 0.9 else rng.randrange(0x800)
+        if can_id == 0x601 and rng.random() < 0.7:  # mostly plausible SDO requests
+            data = bytes([rng.choice([0x20, 0x23, 0x2B, 0x2F, 0x40, 0x60, 0x70, 0x00, 0x10, 0x80, 0xA0, 0xA3, 0xA2, 0xA1, 0xC0, 0xC6, 0x81, 0x01])]) + rng.choice([b"\x00\x10", b"\x08\x10", b"\x03\x10", b"\x01\x21", b"\x00\x14", b"\x16\x10"]) + bytes(rng.randrange(256) for _ in range(5))
+        elif can_id == 0x000 and rng.random() < 0.3:
+            data = bytes([rng.choice([0x01, 0x02, 0x80]), rng.choice([0, 1])])  # never a reset: keep state
+        else:
+            data = bytes(rng.randrange(256) for _ in range(rng.randrange(9)))
+        rtr = rng.random() < 0.05
+        out = rig.node.receive(Frame(can_id, b"" if rtr else data, rtr=rtr, dlc=len(data)), rig.now)
+        if i % 50 == 0:
+            out += rig.node.tick(rig.now + 0.01)
+            rig.now += 0.01
+        for f in out:
+            assert 0 <= f.can_id <= 0x7FF and len(f.data) <= 8
+    assert rig.node.counters["internal_errors"] == 0
+    assert rig.node.service("sdo").counters["aborts"] > 100
+    # still serving
+    rig.send("000 80 01")
+    assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"
+
+
+def test_dictionary_exports_as_eds_and_reimports(tmp_path):
+    node = seed_node()
+    path = tmp_path / "node.eds"
+    canopen.export_od(node.od.model, str(path))
+    od = canopen.import_od(str(path), node_id=1)
+    assert od[0x1018][1].default == 0x1234
+    assert od[0x1014].default == 0x81
+    assert od[0x1003][5].access_type == "ro"
+    assert od[0x1200][1].default == 0x601
