@@ -149,12 +149,12 @@ class Node:
 
     def _run_due(self, now: float) -> None:
         for service in self.services:
-            deadline = self._safe_deadline(service)
-            if deadline is not None and deadline <= now:
-                try:
+            try:
+                deadline = service.deadline()
+                if deadline is not None and deadline <= now:
                     service.poll(now)
-                except Exception:
-                    self._internal_error(service, "poll")
+            except Exception:
+                self._internal_error(service, "poll")
 
     def _internal_error(self, service: Service, where: str, frame: Frame | None = None) -> None:
         self.counters["internal_errors"] += 1

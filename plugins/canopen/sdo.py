@@ -74,14 +74,12 @@ class SdoServer(Service):
             (1, "COB-ID client to server", dt.UNSIGNED32, "ro", 0x600, {"relative": True}),
             (2, "COB-ID server to client", dt.UNSIGNED32, "ro", 0x580, {"relative": True}),
         ])
+        self._load_cob_ids()
 
-    @property
-    def rx_cob(self) -> int:
-        return self.node.od.get(0x1200, 1) & 0x7FF
-
-    @property
-    def tx_cob(self) -> int:
-        return self.node.od.get(0x1200, 2) & 0x7FF
+    def _load_cob_ids(self) -> None:
+        """0x1200 is read-only: its COB-IDs change only with the node-ID (reset communication)."""
+        self.rx_cob = self.node.od.get(0x1200, 1) & 0x7FF
+        self.tx_cob = self.node.od.get(0x1200, 2) & 0x7FF
 
     # -- state ---------------------------------------------------------------------------
     def _idle(self) -> None:
@@ -113,6 +111,7 @@ class SdoServer(Service):
 
     def on_reset_communication(self, now) -> None:
         self._idle()
+        self._load_cob_ids()
 
     # -- frames ---------------------------------------------------------------------------
     def on_frame(self, frame: Frame, now: float) -> bool:
@@ -165,9 +164,9 @@ class SdoServer(Service):
     def _begin(self, d: bytes, phase: Phase) -> None:
         if self.phase is not Phase.IDLE:
             self.counters["superseded"] += 1
-        deadline = self.last_deadline
-        self._idle()
-        self.last_deadline = deadline
+            deadline = self.last_deadline
+            self._idle()
+            self.last_deadline = deadline
         self.index = d[1] | (d[2] << 8)
         self.subindex = d[3]
         self.phase = phase
