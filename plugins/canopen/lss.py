@@ -142,7 +142,7 @@ class LssStore:
         """The stored settings; None when there are none or they are unusable (one log line)."""
         try:
             obj = read_json(self.path)
-        except CorruptStore as exc:
+        except (CorruptStore, OSError) as exc:
             log.warning("LSS store ignored, using the topology's settings: %s", exc)
             return None
         if obj is None:

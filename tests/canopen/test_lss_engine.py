@@ -243,6 +243,13 @@ def test_unusable_store_is_ignored_with_one_log_line(tmp_path, caplog, content):
     assert len([r for r in caplog.records if "LSS store" in r.getMessage()]) == 1
 
 
+def test_unreadable_store_path_is_ignored_with_one_log_line(tmp_path, caplog):
+    (tmp_path / "file").write_text("x")
+    assert LssStore(tmp_path / "file" / "lss.json").load() is None  # parent is a file
+    assert LssStore(tmp_path).load() is None  # a directory
+    assert len([r for r in caplog.records if "LSS store" in r.getMessage()]) == 2
+
+
 def test_missing_store_is_simply_empty(tmp_path):
     assert LssStore(tmp_path / "none.json").load() is None
 

@@ -1,66 +1,27 @@
-"""LSS slave against canopen's LssMaster on an in-process virtual CAN bus.
+"""The gateway's LSS slave against canopen's LssMaster, over a real bus.
 
-The device is a black box on the bus: the tests only use LssMaster and watch frames.
+The device under test is the gateway's CANopen front, started through canopen_dut (in
+process on a virtual bus; as a ``fieldgate run`` process over vcan0 inside User-Mode
+Linux). The tests only use LssMaster, watch frames, and read the LSS store file.
 """
 
 from __future__ import annotations
 
+import json
 import queue
-import threading
 import time
 import types
 
-import can
 import canopen
 import canopen.lss
 import pytest
 from canopen.lss import LssError
+from canopen_dut import FRONT, bus_under_test, make_dut, topology
 
-from fieldgate.plugins.canopen.lss import (
-    REQUEST_ID, LssAddress, LssSlave, LssStore, ResetCommunication, SwitchBitRate)
+from fieldgate.plugins.canopen.lss import LssAddress
 
 # Few 1 bits: fastscan pays one response timeout per 1 bit.
 IDENTITY = LssAddress(vendor=0x00000001, product=0x00000232, revision=0x00010000, serial=0x00000010)
-
-
-class LssDevice:
-    """The LSS engine on a virtual bus, with a node's boot-up (until the front runs here)."""
-
-    def __init__(self, channel, node_id=0xFF, bitrate=None, store_path=None):
-        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        store = LssStore(store_path) if store_path is not None else None
-        self.slave = LssSlave.starting(IDENTITY, node_id=node_id, bitrate=bitrate, store=store)
-        self.bitrate_changes: queue.Queue[int] = queue.Queue()
-        self._running = True
-        self._thread = threading.Thread(target=self._loop, daemon=True)
-        if self.slave.configured:
-            self._boot_up(self.slave.active_node_id)
-        self._thread.start()
-
-    def _boot_up(self, node_id):
-        self.bus.send(can.Message(arbitration_id=0x700 + node_id, data=b"\x00", is_extended_id=False))
-
-    def _loop(self):
-        while self._running:
-            msg = self.bus.recv(0.005)
-            now = time.monotonic()
-            frames = self.slave.on_timer(now)
-            if msg is not None and msg.arbitration_id == REQUEST_ID:
-                frames += self.slave.on_frame(msg.arbitration_id, bytes(msg.data), now,
-                                              rtr=msg.is_remote_frame)
-            for can_id, data in frames:
-                self.bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
-            for action in self.slave.take_actions():
-                if isinstance(action, ResetCommunication):
-                    self._boot_up(action.node_id)
-                elif isinstance(action, SwitchBitRate):
-                    self.bitrate_changes.put(action.bitrate)
-
-    def stop(self):
-        if self._running:
-            self._running = False
-            self._thread.join()
-            self.bus.shutdown()
 
 
 @pytest.fixture
@@ -70,15 +31,16 @@ def fast_master(monkeypatch):
 
 
 @pytest.fixture
-def bus_channel(request):
-    return f"lss-{request.node.name}"
+def bus():
+    return bus_under_test()
 
 
 @pytest.fixture
-def network(bus_channel, fast_master):
+def network(bus, fast_master):
+    interface, channel, _ = bus
     net = canopen.Network()
     net.NOTIFIER_CYCLE = 0.05  # quick shutdown
-    net.connect(interface="virtual", channel=bus_channel, receive_own_messages=False)
+    net.connect(interface=interface, channel=channel)
     yield net
     net.disconnect()
 
@@ -92,18 +54,54 @@ def boot_ups(network):
 
 
 @pytest.fixture
-def device(bus_channel, tmp_path):
-    devices = []
+def state_dir(tmp_path):
+    return tmp_path / "state"
 
-    def start(node_id: int = 0xFF, **kw) -> LssDevice:
-        kw.setdefault("store_path", tmp_path / "lss.json")
-        dev = LssDevice(bus_channel, node_id=node_id, **kw)
-        devices.append(dev)
-        return dev
+
+def wait_unconfigured_ready(lss, timeout=10.0) -> None:
+    """An unconfigured node sends nothing by itself: ask until it answers 0x4C with 0x50."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        lss.send_identify_non_configured_remote_slave()
+        try:
+            if lss.responses.get(timeout=0.2)[0] == 0x50:
+                return
+        except queue.Empty:
+            pass
+    raise AssertionError("the unconfigured node never answered identify non-configured")
+
+
+@pytest.fixture
+def device(bus, network, boot_ups, state_dir, tmp_path):
+    """``device(node_id=..., **front)`` starts the gateway and waits until it is on the bus.
+
+    A configured node is ready at its boot-up (returned); an unconfigured one when it
+    answers "identify non-configured remote slave". Start again after ``stop()``: power cycle.
+    """
+    interface, channel, external = bus
+    running = []
+
+    def start(node_id=None, expect_boot_up=None, **front):
+        identity = {"vendor_id": IDENTITY.vendor, "product_code": IDENTITY.product,
+                    "revision": IDENTITY.revision, "serial": IDENTITY.serial}
+        topo = topology(state_dir, node_id, identity=identity, **front)
+        dut = make_dut(topo, interface, channel, external, tmp_path)
+        dut.start()
+        running.append(dut)
+        expected = expect_boot_up or node_id
+        if expected is None:
+            wait_unconfigured_ready(network.lss)
+        else:
+            assert boot_ups.get(timeout=10) == (0x700 + expected, b"\x00")
+        return dut
 
     yield start
-    for dev in devices:
-        dev.stop()
+    for dut in running:
+        dut.stop()
+
+
+def lss_store(state_dir) -> dict:
+    return json.loads((state_dir / f"{FRONT}.lss.json").read_text())
 
 
 def test_inquire_identity_and_node_id(network, device):
@@ -136,7 +134,6 @@ def test_switch_state_selective_matches_only_the_exact_address(network, device):
 
 def test_configure_node_id_with_error_for_invalid_ids(network, device, boot_ups):
     device(node_id=4)
-    assert boot_ups.get(timeout=2) == (0x704, b"\x00")
     lss = network.lss
     lss.send_switch_state_global(lss.CONFIGURATION_STATE)
     for bad in (0, 128, 0xFE):
@@ -147,10 +144,13 @@ def test_configure_node_id_with_error_for_invalid_ids(network, device, boot_ups)
     lss.send_switch_state_global(lss.WAITING_STATE)
     with pytest.raises(queue.Empty):
         boot_ups.get(timeout=0.3)  # a configured node does not reboot on its own
+    network.send_message(0x000, bytes([0x82, 4]))  # NMT reset communication
+    assert boot_ups.get(timeout=2) == (0x70A, b"\x00")
 
 
 def test_unconfigured_node_is_silent_until_given_an_id_then_boots_up(network, device, boot_ups):
     device()  # no node-ID
+    network.send_message(0x000, bytes([0x81, 0]))  # NMT reset all nodes: not for it
     with pytest.raises(queue.Empty):
         boot_ups.get(timeout=0.3)
     lss = network.lss
@@ -163,9 +163,8 @@ def test_unconfigured_node_is_silent_until_given_an_id_then_boots_up(network, de
     assert lss.inquire_node_id() == 0x05
 
 
-def test_bit_timing_store_and_power_cycle(network, device, boot_ups):
-    dev = device(node_id=4, bitrate=500_000)
-    assert boot_ups.get(timeout=2) == (0x704, b"\x00")
+def test_bit_timing_store_and_power_cycle(network, device, state_dir):
+    dut = device(node_id=4, bitrate=500_000)
     lss = network.lss
     lss.send_switch_state_global(lss.CONFIGURATION_STATE)
     with pytest.raises(LssError, match="LSS Error: 1"):
@@ -173,21 +172,25 @@ def test_bit_timing_store_and_power_cycle(network, device, boot_ups):
     lss.configure_bit_timing(4)  # CiA table: 125 kbit/s
     lss.configure_node_id(0x30)
     lss.store_configuration()
+    assert lss_store(state_dir) == {"format": "fieldgate-lss/1", "node_id": 0x30, "bitrate": 125_000}
     lss.activate_bit_timing(20)
-    assert dev.bitrate_changes.get(timeout=2) == 125_000
-    dev.stop()
-    device(node_id=4, bitrate=500_000)  # power cycle: the stored settings win
-    assert boot_ups.get(timeout=2) == (0x730, b"\x00")
+    time.sleep(0.3)  # silent 20 ms, switch, silent 20 ms
+    assert lss.inquire_node_id() == 4  # still on the bus after the switch
+    dut.stop()
+    device(node_id=4, bitrate=500_000, expect_boot_up=0x30)  # power cycle: the stored settings win
     lss.send_switch_state_global(lss.CONFIGURATION_STATE)
     assert lss.inquire_node_id() == 0x30
 
 
-def test_store_is_refused_without_a_store_file(network, device):
-    device(node_id=4, store_path=None)
+def test_store_that_cannot_be_written_answers_error_2(network, device, state_dir):
+    state_dir.mkdir(parents=True)
+    (state_dir / "blocker").write_text("a file where a directory should be")
+    device(node_id=4, lss_store_file="blocker/lss.json")
     lss = network.lss
     lss.send_switch_state_global(lss.CONFIGURATION_STATE)
-    with pytest.raises(LssError, match="LSS Error: 1"):
+    with pytest.raises(LssError, match="LSS Error: 2"):
         lss.store_configuration()
+    assert lss.inquire_node_id() == 4
 
 
 def _identify_answer(lss, timeout=0.3):
@@ -209,10 +212,15 @@ def test_identify_remote_slave_by_ranges(network, device):
 
 
 def test_identify_non_configured_remote_slave(network, device):
-    device()
+    device(node_id=4)
     lss = network.lss
     lss.send_identify_non_configured_remote_slave()
-    assert _identify_answer(lss, 2) == bytes.fromhex("50 00 00 00 00 00 00 00")
+    assert _identify_answer(lss) is None  # configured: not for it
+    lss.send_switch_state_global(lss.CONFIGURATION_STATE)
+    lss.configure_node_id(0xFF)
+    network.send_message(0x000, bytes([0x82, 4]))  # reset communication: now unconfigured
+    lss.send_switch_state_global(lss.WAITING_STATE)
+    wait_unconfigured_ready(lss, timeout=2)
 
 
 def test_fastscan_finds_the_unconfigured_node_and_configures_it(network, device, boot_ups):

@@ -2,8 +2,9 @@
 
 The UML stage creates vcan0 and sets FIELDGATE_TEST_CAN=socketcan:vcan0. These tests prove
 that python-can's socketcan interface really carries frames between processes, then run
-the CANopen integration tests over vcan0 with the gateway started from the CLI as its own
-process (the canopen test fixture reads FIELDGATE_TEST_CAN).
+the CANopen integration tests (every tests/canopen module that starts its device through
+canopen_dut, which reads FIELDGATE_TEST_CAN) over vcan0, with the gateway started from
+the CLI as its own process.
 """
 
 from __future__ import annotations
@@ -107,9 +108,9 @@ CANOPEN_TESTS = REPO / "tests" / "canopen"
 
 def test_canopen_integration_suite_passes_over_vcan0_with_gateway_as_a_process():
     """The same integration tests as in-process, over vcan0, the gateway run from the CLI."""
-    selected = sorted(str(p) for p in CANOPEN_TESTS.glob("test_canopen_*.py"))
-    if not selected:
-        pytest.skip(f"no CANopen integration tests in {CANOPEN_TESTS} yet")
+    # Every test module that starts its device through the shared DUT fixture.
+    selected = sorted(str(p) for p in CANOPEN_TESTS.glob("test_*.py") if "canopen_dut" in p.read_text())
+    assert len(selected) >= 2, f"the CANopen integration tests in {CANOPEN_TESTS} are missing"
     env = dict(os.environ, FIELDGATE_TEST_CAN=f"socketcan:{CHANNEL}")
     proc = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", "not uml", *selected],
