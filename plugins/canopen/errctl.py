@@ -15,6 +15,10 @@
   a node starts at its first heartbeat; a timeout is a master-lost event with EMCY
   0x8130 (register 0x11, manufacturer bytes ``07 <node-ID>``); its next heartbeat
   clears it. Two entries with the same node-ID and non-zero times abort 0604 0043.
+* 0x1029:1 (error behaviour, communication error): on a master-lost event an
+  operational node goes to pre-operational (0, the CiA 301 default value), stays as
+  it is (1) or stops (2). The front's default is 1 (the I-7232D keeps its state);
+  the NA-9161 behaviour is 0.
 * Bus-off (reported by the adapter via :meth:`bus_state`) is a master-lost event;
   the recovery sends EMCY 0x8140 (register 0x11, manufacturer byte 08, as the I-7232D),
   cleared when the master is heard again.
@@ -32,15 +36,17 @@ from .service import ALL_STATES, Service
 LIFE_GUARD_CODE = 0x8130
 BUS_OFF_RECOVERED_CODE = 0x8140
 COMM_REGISTER = 0x11  # generic + communication, as the I-7232D
+ERROR_PRE_OPERATIONAL, ERROR_NO_CHANGE, ERROR_STOPPED = 0, 1, 2
 
 
 class ErrorControl(Service):
     name = "error_control"
     active_states = ALL_STATES
 
-    def __init__(self, guard_time_ms: int = 0, life_time_factor: int = 0, heartbeat_ms: int = 0, consumers: int = 1):
+    def __init__(self, guard_time_ms: int = 0, life_time_factor: int = 0, heartbeat_ms: int = 0, consumers: int = 1, error_behaviour: int = ERROR_NO_CHANGE):
         super().__init__()
         self.defaults = (guard_time_ms, life_time_factor, heartbeat_ms)
+        self.error_behaviour = error_behaviour
         self.consumers = consumers
         self.toggle = 0
         self.life_deadline: float | None = None
@@ -57,6 +63,7 @@ class ErrorControl(Service):
         od.add_variable(0x100C, "Guard time", dt.UNSIGNED16, "rw", guard, maximum=32767)
         od.add_variable(0x100D, "Life time factor", dt.UNSIGNED8, "rw", factor)
         od.add_variable(0x1017, "Producer heartbeat time", dt.UNSIGNED16, "rw", heartbeat)
+        od.add_array(0x1029, "Error behaviour", [(1, "Communication error", dt.UNSIGNED8, "rw", self.error_behaviour, {"maximum": ERROR_STOPPED})])
         if self.consumers:
             od.add_array(0x1016, "Consumer heartbeat time", [(i, f"Consumer heartbeat time {i}", dt.UNSIGNED32, "rw", 0, {"maximum": 0x00FFFFFF}) for i in range(1, self.consumers + 1)])
             od.add_validator(0x1016, self._check_consumer)
@@ -192,7 +199,7 @@ class ErrorControl(Service):
         if bus_off and not self.bus_off:
             self.bus_off = True
             self.counters["bus_off"] += 1
-            self.node.master_state(False, "CAN bus-off")
+            self._master_lost_without_emcy("CAN bus-off", now)
         elif not bus_off and self.bus_off:
             self.bus_off = False
             if self.node.emcy is not None:
@@ -202,7 +209,15 @@ class ErrorControl(Service):
     def _master_lost(self, code: int, manufacturer: bytes, reason: str, now: float) -> None:
         if self.node.emcy is not None:
             self.node.emcy.raise_error(code, COMM_REGISTER, manufacturer, now)
+        self._master_lost_without_emcy(reason, now)
+
+    def _master_lost_without_emcy(self, reason: str, now: float) -> None:
         self.node.master_state(False, reason)
+        behaviour = self.node.od.get(0x1029, 1)
+        if behaviour == ERROR_PRE_OPERATIONAL and self.node.state is NmtState.OPERATIONAL:
+            self.node.set_state(NmtState.PRE_OPERATIONAL, now)
+        elif behaviour == ERROR_STOPPED:
+            self.node.set_state(NmtState.STOPPED, now)
 
     def _master_seen(self, code: int, manufacturer: bytes, reason: str) -> None:
         if self.node.emcy is not None:

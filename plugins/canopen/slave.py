@@ -42,6 +42,7 @@ class NodeSettings:
     guard_time_ms: int = 0
     life_time_factor: int = 0
     heartbeat_consumers: int = 1
+    error_behaviour: int = 1  # 0x1029:1: 0 pre-operational, 1 no change, 2 stopped
     emcy_history: int = 5
     sdo_timeout_s: float = 1.0
     sdo_block_size: int = 127
@@ -79,7 +80,7 @@ def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
     node = Node(settings.node_id, name=name)
     node.add_service(IdentityObjects(settings.identity))
     node.add_service(EmcyProducer(settings.emcy_history))
-    node.add_service(ErrorControl(settings.guard_time_ms, settings.life_time_factor, settings.heartbeat_ms, settings.heartbeat_consumers))
+    node.add_service(ErrorControl(settings.guard_time_ms, settings.life_time_factor, settings.heartbeat_ms, settings.heartbeat_consumers, settings.error_behaviour))
     node.add_service(SyncService(settings.sync_cob_id))
     node.add_service(SdoServer(settings.sdo_timeout_s, settings.sdo_block_size))
     node.add_service(StoreService(settings.store_path, settings.fingerprint))

@@ -155,3 +155,19 @@ def test_new_node_id_moves_every_cob_id(rig):
 
 def test_frame_helper_round_trip():
     assert frame("701 RTR").rtr and frame("601 40 00").data == b"\x40\x00"
+
+
+@pytest.mark.parametrize("behaviour, state", [(0, NmtState.PRE_OPERATIONAL), (1, NmtState.OPERATIONAL), (2, NmtState.STOPPED)])
+def test_error_behaviour_1029_on_life_guarding(behaviour, state):
+    r = Rig(seed_node(guard_time_ms=100, life_time_factor=2))
+    assert r.sdo(f"2F 29 10 01 {behaviour:02X} 00 00 00") == "60 29 10 01 00 00 00 00"
+    r.send("000 01 01")
+    r.send("701 RTR")
+    r.advance(0.25)
+    assert r.node.state is state
+
+
+def test_error_behaviour_range():
+    r = Rig(seed_node(error_behaviour=0))
+    assert r.sdo("40 29 10 01 00 00 00 00") == "4F 29 10 01 00 00 00 00"
+    assert r.sdo("2F 29 10 01 03 00 00 00") == "80 29 10 01 31 00 09 06"
