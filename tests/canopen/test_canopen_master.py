@@ -174,3 +174,22 @@ def test_store_restart_restore(rig, bus, tmp_path):
     master.node.nmt.send_command(0x81)
     time.sleep(0.2)
     assert sdo.upload(0x100C, 0) == b"\0\0"
+
+
+def test_heartbeat_consumer_watches_the_master(rig):
+    """A Delta AS300-style master: heartbeat only, 0x1016 configured by SDO in pre-operational."""
+    master, dut = rig
+    beat = master.network.send_periodic(0x77F, b"\x05", 0.05)
+    try:
+        master.node.sdo.download(0x1016, 1, struct.pack("<I", (0x7F << 16) | 200))
+        master.node.nmt.send_command(0x01)
+        time.sleep(0.4)
+        assert master.frames.get(0x80 + NODE, []) == []
+    finally:
+        beat.stop()
+    assert master.wait_frame(0x80 + NODE, 1, 1.0)[0] == bytes.fromhex("308111077F000000")
+    beat = master.network.send_periodic(0x77F, b"\x05", 0.05)
+    try:
+        assert master.wait_frame(0x80 + NODE, 2, 1.0)[1] == bytes(8)
+    finally:
+        beat.stop()
