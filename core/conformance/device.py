@@ -46,6 +46,7 @@ ABORT_NAMES = {
     0x08000020: "cannot store or transfer",
     0x08000021: "cannot transfer: local control",
     0x08000022: "cannot transfer: device state",
+    0x08000024: "no data available",
 }
 
 

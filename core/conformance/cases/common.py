@@ -65,9 +65,15 @@ def emcy_code(frame) -> int:
 
 
 def expect_emcy(ctx: Context, code: int | None, timeout: float | None = None):
+    """The next EMCY with ``code`` (None: any, -1: any but an error reset 0x0000)."""
     dev = ctx.device
     cob = emcy_cob(dev)
-    frame = dev.link.expect(lambda f: f.cob == cob and not f.rtr and (code is None or emcy_code(f) == code), timeout or ctx.timing.response)
+    def wanted(f) -> bool:
+        if f.cob != cob or f.rtr:
+            return False
+        return code is None or emcy_code(f) == code or code == -1 and emcy_code(f) != 0
+
+    frame = dev.link.expect(wanted, timeout or ctx.timing.response)
     return frame
 
 

@@ -9,6 +9,16 @@ from ..framework import Context, Fail, Skip, case
 from .common import EMCY_LIFE_GUARD, emcy_code, expect_emcy
 
 
+ERROR = -1  # expect_emcy: any EMCY except an error reset
+
+
+def resume(ctx: Context, poke) -> None:
+    """Let a lost master or producer come back so that the device can clear the error it raised."""
+    poke()
+    time.sleep(0.02)
+    ctx.device.link.flush()
+
+
 def heartbeats(ctx: Context, duration: float):
     dev = ctx.device
     return dev.link.collect(lambda f: f.cob == 0x700 + dev.node_id and not f.rtr, duration)
@@ -67,6 +77,7 @@ def heartbeat_consumer(ctx: Context) -> None:
     dev.write(0x1016, 1, other << 16 | consumer_ms)
     ctx.cleanup(lambda: dev.reset(NMT_RESET_COMM))
     ctx.cleanup(lambda: dev.write(0x1016, 1, 0))
+    ctx.cleanup(lambda: resume(ctx, lambda: dev.link.send(0x700 + other, b"\x05")))  # the producer comes back first
     deadline = time.monotonic() + 4 * period
     while time.monotonic() < deadline:
         dev.link.send(0x700 + other, b"\x05")
@@ -74,7 +85,7 @@ def heartbeat_consumer(ctx: Context) -> None:
         if early is not None:
             raise Fail("EMCY while the monitored node still sends heartbeats", expected="none", seen=str(early))
     t0 = time.time()
-    frame = expect_emcy(ctx, None, consumer_ms / 1000 + ctx.timing.slack(consumer_ms / 1000) + ctx.timing.response)
+    frame = expect_emcy(ctx, ERROR, consumer_ms / 1000 + ctx.timing.slack(consumer_ms / 1000) + ctx.timing.response)
     if frame is None or emcy_code(frame) != EMCY_LIFE_GUARD:
         raise Fail("no heartbeat-consumer EMCY", expected=f"EMCY 0x8130 about {consumer_ms} ms after the last heartbeat", seen=str(frame) if frame else "nothing")
     if frame.timestamp - t0 < consumer_ms / 1000 - period - ctx.timing.slack(consumer_ms / 1000):
@@ -131,13 +142,14 @@ def life_guard(ctx: Context, guard_ms: int, factor: int):
     ctx.cleanup(lambda: dev.reset(NMT_RESET_COMM))
     ctx.cleanup(lambda: dev.write(0x100D, 0, 0))
     ctx.cleanup(lambda: dev.write(0x100C, 0, 0))
+    ctx.cleanup(lambda: resume(ctx, dev.guard))  # the master comes back first
     dev.write(0x100C, 0, guard_ms)
     dev.write(0x100D, 0, factor)
     if dev.guard() is None:
         raise Fail("no node guarding reply", seen="nothing")
     t0 = time.time()
     life = guard_ms * factor / 1000
-    frame = expect_emcy(ctx, None, life + ctx.timing.slack(life) + ctx.timing.response)
+    frame = expect_emcy(ctx, ERROR, life + ctx.timing.slack(life) + ctx.timing.response)
     return frame, (frame.timestamp - t0 if frame else None), life
 
 

@@ -13,7 +13,7 @@ WAITING, CONFIGURATION = 0, 1
 
 
 def require_lss(ctx: Context) -> None:
-    if not getattr(ctx.device.od.device_information, "lss_supported", False):
+    if not getattr(ctx.device.od.device_information, "LSS_supported", False):
         raise Skip("EDS [DeviceInfo] does not set LSS_Supported=1")
     ctx.device.require(0x1018, 4, why="LSS address = 0x1018:1..4")
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_RESET_NODE, NMT_START, NMT_STOP, StateProbe, mux
+from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_RESET_NODE, NMT_START, NMT_STOP, SdoAbort, StateProbe, mux
 from ..framework import Context, Fail, Skip, case
 from .common import int_default, other_value, rw_ints
 
@@ -102,23 +102,26 @@ def sdo_gated(ctx: Context) -> None:
     dev.upload(0x1000, 0)
 
 
-def _comm_and_app_params(ctx: Context):
+def _write_other(ctx: Context, candidates, what: str):
+    """Give the first candidate that accepts it a value other than its default; restored at the end."""
     dev = ctx.device
-    comm = [v for v in rw_ints(dev, 0x1000, 0x1FFF, avoid=(0x1005, 0x1010, 0x1011, 0x1014, 0x1016, 0x1017, 0x1200)) if int_default(v) is not None]
-    app = [v for v in rw_ints(dev, 0x2000, 0x9FFF) if int_default(v) is not None and not v.pdo_mappable]
-    app = app or [v for v in rw_ints(dev, 0x2000, 0x9FFF) if int_default(v) is not None]
-    if not comm or not app:
-        raise Skip("EDS lists no writable communication entry and application entry with defaults")
-    return comm[0], app[0]
+    for var in candidates:
+        try:
+            dev.write(var.index, var.subindex, other_value(var))
+        except SdoAbort:
+            continue
+        ctx.cleanup(lambda v=var: dev.write(v.index, v.subindex, v.default))
+        return var
+    raise Skip(f"EDS lists no writable {what} entry with a default that takes another value")
 
 
 @case("nmt", "reset_comm_vs_node", "reset communication restores 0x1000-0x1FFF only; reset node restores the application area too")
 def reset_comm_vs_node(ctx: Context) -> None:
     dev = ctx.device
-    comm, app = _comm_and_app_params(ctx)
-    for var in (comm, app):
-        ctx.cleanup(lambda v=var: dev.write(v.index, v.subindex, v.default))
-        dev.write(var.index, var.subindex, other_value(var))
+    avoid = (0x1005, 0x1010, 0x1011, 0x1014, 0x1016, 0x1017, 0x1200)
+    comm = _write_other(ctx, [v for v in rw_ints(dev, 0x1000, 0x1FFF, avoid) if int_default(v) is not None], "communication")
+    apps = [v for v in rw_ints(dev, 0x2000, 0x9FFF) if int_default(v) is not None]
+    app = _write_other(ctx, sorted(apps, key=lambda v: v.pdo_mappable), "application")
     expect_bootup(ctx, NMT_RESET_COMM, "reset communication")
     for var, want, what in ((comm, comm.default, "reset to its default"), (app, other_value(app), "kept")):
         seen = dev.read(var.index, var.subindex)

@@ -181,7 +181,9 @@ def mapping_too_long(ctx: Context) -> None:
     dev = ctx.device
     pdo = _mapping_target(ctx)
     top = max(dev.od[pdo.mapping].subindices)
-    entry = max(pdo.entries, key=lambda e: e & 0xFF)
+    mappable = [v for v in dev.variables() if v.pdo_mappable and v.readable and v.fixed_size and len(v) <= 64 and v.index >= 0x2000]
+    widest = max(mappable, key=len, default=None)
+    entry = widest.index << 16 | widest.subindex << 8 | len(widest) if widest is not None else max(pdo.entries, key=lambda e: e & 0xFF)
     bits = entry & 0xFF
     need = 64 // bits + 1
     if need > top:

@@ -1,0 +1,82 @@
+"""fieldgate's canopen front as a device under test: a gateway on its own event loop in a
+thread, a loopback back behind it (DO n → DI n, AO n → AI n), and its EDS from ``fieldgate eds``."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+NODE_ID = 5
+
+
+def topology(state_dir: Path, channel: str) -> dict:
+    return {
+        "gateway": {"name": "conformance", "state_dir": str(state_dir)},
+        "fronts": [{
+            "name": "plc", "type": "canopen", "interface": "virtual", "channel": channel, "node_id": NODE_ID,
+            "identity": {"vendor_id": 0x0000ABCD, "product_code": 0x7232, "revision": 0x00010000, "serial": 42, "device_name": "fieldgate conformance"},
+        }],
+        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}]}],
+    }
+
+
+def front_unavailable() -> str | None:
+    """Why the gateway cannot be tested yet, or None."""
+    from fieldgate import load_registry
+
+    registry = load_registry()
+    if registry.lookup("front", "canopen") is None:
+        return "fieldgate's canopen front is not registered yet"
+    if ("eds",) not in {c.path for c in registry.commands}:
+        return "the `fieldgate eds` command does not exist yet"
+    return None
+
+
+def write_eds(topo: dict, workdir: Path) -> Path:
+    source = workdir / "topology.yaml"
+    source.write_text(json.dumps(topo))  # JSON is YAML
+    eds = workdir / "gateway.eds"
+    done = subprocess.run([sys.executable, "-m", "fieldgate", "eds", str(source), "-o", str(eds)], capture_output=True, text=True, timeout=60)
+    if done.returncode != 0:
+        raise RuntimeError(f"fieldgate eds failed: {done.stderr.strip()}")
+    return eds
+
+
+class GatewayThread:
+    def __init__(self, topo: dict):
+        self.topo = topo
+        self.gateway = None
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._run, name="gateway-under-test", daemon=True)
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+
+    def _run(self) -> None:
+        from fieldgate import Gateway
+
+        asyncio.set_event_loop(self._loop)
+        try:
+            self.gateway = Gateway.load(self.topo)
+            self._loop.run_until_complete(self.gateway.start())
+        except BaseException as exc:  # reported by __enter__
+            self._error = exc
+            self._ready.set()
+            return
+        self._ready.set()
+        self._loop.run_forever()
+        self._loop.run_until_complete(self.gateway.stop())
+
+    def __enter__(self) -> GatewayThread:
+        self._thread.start()
+        self._ready.wait(20)
+        if self._error is not None:
+            raise self._error
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(20)
