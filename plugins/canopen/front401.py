@@ -20,6 +20,7 @@ YAML::
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any, Literal
 
 from pydantic import Field
@@ -63,11 +64,24 @@ def install(front: Any, node: Any) -> None:
     if previous is not None:
         previous.detach()
     io = io_device(front)
+    scheduled = False
+
+    def flush() -> None:
+        """One loop turn after a process-image event: run the engine, send, re-arm timers."""
+        nonlocal scheduled
+        scheduled = False
+        adapter = getattr(front, "adapter", None)
+        if adapter is not None and getattr(front, "node", None) is node:
+            adapter.transmit(node.tick(adapter.now))
+            adapter.pump()
 
     def wakeup() -> None:
-        adapter = getattr(front, "adapter", None)
-        if adapter is not None:
-            adapter.pump()
+        # Coalesce the events of one loop turn (a back updating a module's channels), but
+        # never postpone them past the next turn, however fast the inputs keep changing.
+        nonlocal scheduled
+        if not scheduled:
+            scheduled = True
+            asyncio.get_running_loop().call_soon(flush)
 
     io.wakeup = wakeup
     node.add_service(io)
