@@ -189,16 +189,8 @@ class Node:
             return
         self.state = new
         log.info("%s: NMT %s -> %s", self.name, old.label, new.label)
-        for service in self.services:
-            try:
-                service.on_nmt_state(old, new, now)
-            except Exception:
-                self._internal_error(service, "on_nmt_state")
-        for listener in list(self._nmt_listeners):
-            try:
-                listener(old, new)
-            except Exception:
-                log.exception("%s: NMT listener failed", self.name)
+        self._each("on_nmt_state", old, new, now)
+        self._notify(self._nmt_listeners, "NMT", old, new)
 
     def reset_node(self, now: float) -> None:
         """Reset application: reload the whole dictionary, then reset communication."""
@@ -222,12 +214,19 @@ class Node:
         self.send(Frame(0x700 + self.node_id, b"\x00"))
         self.set_state(NmtState.PRE_OPERATIONAL, now)
 
-    def _each(self, method: str, now: float) -> None:
+    def _each(self, method: str, *args) -> None:
         for service in self.services:
             try:
-                getattr(service, method)(now)
+                getattr(service, method)(*args)
             except Exception:
                 self._internal_error(service, method)
+
+    def _notify(self, listeners: list[Callable], what: str, *args) -> None:
+        for listener in list(listeners):
+            try:
+                listener(*args)
+            except Exception:
+                log.exception("%s: %s listener failed", self.name, what)
 
     # -- SYNC, master state, LSS hooks -------------------------------------------------
     def sync(self, counter: int | None, now: float) -> None:
@@ -241,11 +240,7 @@ class Node:
 
     def master_state(self, ok: bool, reason: str) -> None:
         """Error control reports the master lost (guarding, heartbeat, bus-off) or back."""
-        for listener in list(self._master_listeners):
-            try:
-                listener(ok, reason)
-            except Exception:
-                log.exception("%s: master listener failed", self.name)
+        self._notify(self._master_listeners, "master", ok, reason)
 
     def set_node_id(self, node_id: int) -> None:
         """LSS configure node-ID: pending until the next reset communication."""
@@ -255,11 +250,7 @@ class Node:
 
     def request_bit_timing(self, bitrate: int, delay_s: float) -> None:
         """LSS activate bit timing: the adapter re-opens the bus at ``bitrate`` after ``delay_s``."""
-        for listener in list(self._bit_timing_listeners):
-            try:
-                listener(bitrate, delay_s)
-            except Exception:
-                log.exception("%s: bit-timing listener failed", self.name)
+        self._notify(self._bit_timing_listeners, "bit-timing", bitrate, delay_s)
 
     def status(self) -> dict:
         return {
