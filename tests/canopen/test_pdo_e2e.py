@@ -122,3 +122,36 @@ async def test_modbus_simulated_modules_end_to_end(tmp_path):
     finally:
         master.shutdown()
         await gw.stop()
+
+
+async def test_fast_changing_input_is_never_starved(tmp_path):
+    """An input changing on every loop turn still gives one TPDO per change (no endless coalescing)."""
+    ch = channel()
+    topology = {
+        "gateway": {"name": "e2e", "state_dir": str(tmp_path)},
+        "fronts": [{"name": "can", "type": "canopen", "interface": "virtual", "channel": ch, "node_id": 2}],
+        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 1, "digital": 8}]}],
+    }
+    gw = Gateway.load(topology, registry=load_registry())
+    await gw.start()
+    master = can.Bus(interface="virtual", channel=ch)
+    try:
+        send(master, 0x000, b"\x01\x02")
+        await wait_for(master, lambda m: m.arbitration_id == 0x182)
+        for k in range(50):
+            gw.image.update_input("io/m1/di0", not k & 1)
+            gw.image.update_input("io/m1/di1", not k & 1)  # two bits in the same turn: one TPDO
+            await asyncio.sleep(0)
+        seen: list[bytes] = []
+        loop = asyncio.get_running_loop()
+        end = loop.time() + 1
+        while loop.time() < end and len(seen) < 50:
+            msg = master.recv(timeout=0)
+            if msg is None:
+                await asyncio.sleep(0.005)
+            elif msg.arbitration_id == 0x182:
+                seen.append(msg.data)
+        assert seen == [b"\x03", b"\x00"] * 25
+    finally:
+        master.shutdown()
+        await gw.stop()
