@@ -126,9 +126,11 @@ async def test_status_shows_counters(gw):
     gateway, peer = gw
     peer.send(0x605, b"\x40\x00\x10")  # short SDO frame
     peer.send(0x000, b"\x01")  # short NMT frame
+    peer.bus.send(can.Message(arbitration_id=0x605, data=bytes(8), is_extended_id=True))
     peer.send(0x605, bytes.fromhex("4000100000000000"))
     await peer.expect(0x585)
     st = gateway.status()["fronts"]["plc"]
+    assert st["bus"]["rx_extended_dropped"] == 1
     assert st["node_id"] == NODE and st["nmt_state"] == "PRE-OPERATIONAL"
     assert st["services"]["sdo"]["bad_dlc_dropped"] == 1
     assert st["counters"]["nmt_malformed"] == 1

@@ -45,3 +45,28 @@ def test_dictionary_exports_as_eds_and_reimports(tmp_path):
     assert od[0x1014].default == 0x81
     assert od[0x1003][5].access_type == "ro"
     assert od[0x1200][1].default == 0x601
+
+
+def test_a_failing_service_is_counted_not_raised(caplog):
+    from fieldgate.plugins.canopen.service import Service
+
+    class Broken(Service):
+        name = "broken"
+
+        def on_frame(self, frame, now):
+            if frame.can_id == 0x123:
+                raise RuntimeError("bug")
+            return False
+
+        def deadline(self):
+            return 0.0
+
+        def poll(self, now):
+            raise ValueError("bug in a timer")
+
+    rig = Rig(seed_node())
+    rig.node.add_service(Broken())
+    assert rig.send("123 01") == []
+    assert rig.node.counters["internal_errors"] == 2  # on_frame, then its overdue poll
+    assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"
+    assert any("broken" in r.getMessage() for r in caplog.records)
