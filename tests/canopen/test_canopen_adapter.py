@@ -1,0 +1,78 @@
+"""The python-can adapter on its own: timers on the loop, bit-rate switch, bus state polling."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import uuid
+
+import can
+import pytest
+from canopen_rig import seed_node
+
+from fieldgate.plugin import PluginStartError
+from fieldgate.plugins.canopen import adapter as adapter_mod
+from fieldgate.plugins.canopen.adapter import CanAdapter, open_bus
+
+
+async def _recv(bus: can.BusABC, can_id: int, timeout: float = 2.0) -> can.Message:
+    loop = asyncio.get_running_loop()
+    end = loop.time() + timeout
+    while loop.time() < end:
+        msg = await asyncio.to_thread(bus.recv, 0.05)
+        if msg is not None and msg.arbitration_id == can_id:
+            return msg
+    raise AssertionError(f"no {can_id:03X}")
+
+
+@pytest.fixture
+async def setup():
+    channel = f"adapter-{uuid.uuid4().hex[:8]}"
+    peer = can.Bus(interface="virtual", channel=channel)
+    node = seed_node(heartbeat_ms=20)
+    lost = []
+    adapter = CanAdapter(node, open_bus("virtual", channel, 125000), asyncio.get_running_loop(),
+                         on_bus_state=lambda off, now: (lost.append(off), node.service("error_control").bus_state(off, now)),
+                         reopen=lambda rate: open_bus("virtual", channel, rate))
+    adapter.start()
+    yield adapter, peer, lost
+    adapter.close()
+    peer.shutdown()
+
+
+async def test_heartbeat_runs_on_loop_timers(setup):
+    adapter, peer, _ = setup
+    assert bytes((await _recv(peer, 0x701)).data) == b"\x00"
+    beats = [bytes((await _recv(peer, 0x701)).data) for _ in range(3)]
+    assert beats == [b"\x7f"] * 3
+
+
+async def test_bit_rate_switch_reopens_the_bus(setup):
+    adapter, peer, _ = setup
+    old = adapter.bus
+    adapter.node.request_bit_timing(250000, 0.0)
+    await asyncio.sleep(0.05)
+    assert adapter.bus is not old and adapter.counters["bit_timing_switches"] == 1
+    peer.send(can.Message(arbitration_id=0x601, data=bytes.fromhex("4000140000000000"), is_extended_id=False))
+    assert bytes((await _recv(peer, 0x581)).data) == bytes.fromhex("4F00140002000000")
+
+
+async def test_bus_state_error_is_bus_off(setup, monkeypatch):
+    adapter, peer, lost = setup
+    monkeypatch.setattr(adapter_mod, "STATE_POLL_S", 0.01)
+    monkeypatch.setattr(type(adapter.bus), "state", property(lambda self: can.BusState.ERROR), raising=False)
+    adapter._poll_bus_state()
+    assert lost == [True]
+    monkeypatch.setattr(type(adapter.bus), "state", property(lambda self: can.BusState.ACTIVE), raising=False)
+    adapter._poll_bus_state()
+    assert lost == [True, False]
+    assert bytes((await _recv(peer, 0x81)).data) == bytes.fromhex("4081110800000000")
+    json.dumps(adapter.status())
+
+
+def test_open_bus_errors_are_one_line():
+    with pytest.raises(PluginStartError, match="unknown CAN interface 'nope'"):
+        open_bus("nope", "x", 125000)
+    with pytest.raises(PluginStartError) as err:
+        open_bus("socketcan", "fieldgate-nope0", 125000)
+    assert "\n" not in str(err.value)
