@@ -26,6 +26,7 @@ Choices where CiA 301 leaves one (see docs/canopen.md):
 from __future__ import annotations
 
 import binascii
+import logging
 import struct
 from enum import Enum, auto
 
@@ -34,6 +35,8 @@ from .abort import SdoAbort
 from .frame import Frame
 from .od import size_of
 from .service import Service
+
+log = logging.getLogger("fieldgate.canopen.sdo")
 
 DEFAULT_TIMEOUT_S = 1.0
 MAX_BLOCK_SIZE = 127
@@ -130,6 +133,10 @@ class SdoServer(Service):
         except SdoAbort as exc:
             self.counters["aborts"] += 1
             self._abort(exc.code)
+        except Exception:  # a bug behind the dictionary (getter, setter, listener): answer, log, go on
+            self.counters["internal_errors"] += 1
+            log.exception("%s: SDO request %s failed", self.node.name, frame)
+            self._abort(abort.GENERAL)
         return True
 
     def _dispatch(self, d: bytes) -> None:

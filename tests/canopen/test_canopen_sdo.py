@@ -226,3 +226,13 @@ def test_no_sdo_in_stopped(rig):
     assert rig.send("601 40 00 14 00 00 00 00 00") == []
     rig.send("000 80 00")
     assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"
+
+
+def test_a_failing_listener_gets_a_general_error_abort(rig):
+    def broken(index, sub, value):
+        raise NameError("bug")
+
+    rig.node.od.on_write(0x2102, broken)
+    assert abort_of(rig.sdo("2B 02 21 00 01 00 00 00")) == 0x08000000
+    assert rig.node.service("sdo").counters["internal_errors"] == 1
+    assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"
