@@ -37,6 +37,7 @@ from fieldgate.image import Channel, ProcessImage
 
 from .entries import BOOLEAN, Directory, ObjectDef
 from .frame import Frame, NmtState
+from .iostore import IoStore
 from .layouts import STYLE_PDO_COUNT, IoLayout, Style, build_layout, default_pdos
 from .manufacturer import ManufacturerObjects
 from .pdo import PdoEngine
@@ -101,6 +102,7 @@ class IoDevice(Service):
         self.master_events = master_events  # False: the front reports node.on_master to the masters itself
         self.directory = Directory(self.profile.objects() + self.manufacturer.objects())
         self.engine: PdoEngine | None = None
+        self.store = IoStore(self)
         self.wakeup: Callable[[], None] | None = None
         self.master_lost = False
 
@@ -123,6 +125,7 @@ class IoDevice(Service):
         )
         for obj in self.objects():
             bind_object(node.od, obj)
+        self.store.attach(node)
         self.profile.attach(self.engine.object_changed)
         emcy = node.emcy
         if emcy is not None:
@@ -161,7 +164,12 @@ class IoDevice(Service):
     def on_reset_communication(self, now: float) -> None:
         if self.engine is not None:
             self.engine.reset(self.node.node_id if self.node.configured else 0)
+            self.store.load_communication()
             self._lost_cleared_by_reset()
+
+    def on_reset_application(self, now: float) -> None:
+        if self.engine is not None:
+            self.store.load_application()
 
     def deadline(self) -> float | None:
         return self.engine.next_deadline() if self.engine is not None else None

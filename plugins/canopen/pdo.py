@@ -526,6 +526,39 @@ class PdoEngine:
             ))
         return ObjectDef(pdo.map_index, f"{kind} PDO {pdo.number} mapping parameter", "record", entries)
 
+    # -- persistence (0x1010 store) ------------------------------------------------------
+    def parameters(self) -> list[list]:
+        """The parameters of every PDO that differs from its default, as plain data."""
+        records = []
+        for pdo in self.tpdos + self.rpdos:
+            record = [pdo.transmit, pdo.number, pdo.cob_id, pdo.trans_type, pdo.inhibit, pdo.event_timer, pdo.sync_start, pdo.map_count, list(pdo.map_entries)]
+            d = pdo.default
+            default = [pdo.transmit, pdo.number, d.cob_id(self.node_id), d.trans_type, d.inhibit, d.event_timer, 0, len(d.entries), (list(d.entries) + [0] * MAX_ENTRIES)[:MAX_ENTRIES]]
+            if record != default:
+                records.append(record)
+        return records
+
+    def load_parameters(self, records: list) -> int:
+        """Apply stored records (after a reset); a record that no longer fits is skipped. Returns how many applied."""
+        applied = 0
+        by_key = {(p.transmit, p.number): p for p in self.tpdos + self.rpdos}
+        for record in records:
+            try:
+                transmit, number, cob_id, trans_type, inhibit, event_timer, sync_start, count, entries = record
+                pdo = by_key[(bool(transmit), int(number))]
+                entries = [int(e) for e in entries][:MAX_ENTRIES]
+                slots = self._compile(pdo, entries[:count])
+            except (Abort, KeyError, TypeError, ValueError):
+                log.warning("stored PDO parameters %r do not fit this device; defaults kept", record)
+                continue
+            pdo.cob_id, pdo.trans_type, pdo.inhibit, pdo.event_timer, pdo.sync_start = int(cob_id), int(trans_type), int(inhibit), int(event_timer), int(sync_start)
+            pdo.map_entries = entries + [0] * (MAX_ENTRIES - len(entries))
+            pdo.map_count, pdo.slots, pdo.sample = int(count), slots, None
+            pdo.clear_runtime()
+            applied += 1
+        self._reindex()
+        return applied
+
     def status(self) -> dict:
         return {
             "operational": self.operational,

@@ -56,16 +56,17 @@ def wire(image: ProcessImage, out_address: int, in_address: int, kind: Kind = Ki
 class Bench:
     """A booted node (node-ID 1 by default) with the I/O device, driven frame by frame."""
 
-    def __init__(self, image: ProcessImage, settings: IoSettings | None = None, *, node_id: int = 1, health: HealthRegistry | None = None, guard: tuple[int, int] = (0, 0), **io_options):
+    def __init__(self, image: ProcessImage, settings: IoSettings | None = None, *, node_id: int = 1, health: HealthRegistry | None = None, guard: tuple[int, int] = (0, 0), store_path=None, **io_options):
         self.clock = image.clock if isinstance(image.clock, Clock) else Clock()
         self.image = image
         self.health = health or HealthRegistry()
         self.masters = MasterMonitor(image)
         self.masters.register("can")
         self.io = IoDevice(settings or IoSettings(), image, default_order(image), origin="can", health=self.health, masters=self.masters, front="can", **io_options)
-        node_settings = NodeSettings(node_id=node_id, identity=Identity(device_type=self.io.device_type), guard_time_ms=guard[0], life_time_factor=guard[1])
+        node_settings = NodeSettings(node_id=node_id, identity=Identity(device_type=self.io.device_type), guard_time_ms=guard[0], life_time_factor=guard[1], store_path=store_path)
         self.node = build_node(node_settings)
         self.node.add_service(self.io)
+        self.node.service("store").load()
         self.out: list[Frame] = self.node.boot(self.clock.t)
 
     # -- driving --------------------------------------------------------------------------

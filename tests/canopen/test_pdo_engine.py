@@ -166,3 +166,36 @@ def test_start_policy_na9161_sends_every_mapped_tpdo_once():
     assert b.start() == ["185 [1] 00", "285 [4] 00 00 00 00"]
     b2 = Bench(make_image([(1, 8, 0, 0, 0)]), IoSettings(start_policy="none"))
     assert b2.start() == []
+
+
+def test_store_keeps_pdo_and_401_parameters_across_resets(tmp_path):
+    from io_bench import make_image as mk
+
+    def bench():
+        image = mk([(1, 8, 0, 0, 0), (3, 0, 8, 0, 0)])
+        wire(image, 3, 1)
+        return Bench(image, store_path=tmp_path / "node.json")
+
+    b = bench()
+    b.write(0x1800, 2, 1, 1)
+    b.write(0x1A00, 0, 0, 1)
+    b.write(0x6206, 1, 0x0F, 1)
+    assert b.write(0x1010, 1, 0x65766173, 4) == ok(0x1010, 1)  # "save"
+    b.write(0x1800, 2, 3, 1)
+    b.nmt(0x81)  # reset node: the stored values come back
+    assert b.value(0x1800, 2) == 1 and b.value(0x1A00, 0) == 0 and b.value(0x6206, 1) == 0x0F
+    b2 = bench()  # power cycle
+    assert b2.value(0x1800, 2) == 1 and b2.value(0x6206, 1) == 0x0F
+    assert b2.write(0x1011, 1, 0x64616F6C, 4) == ok(0x1011, 1)  # "load": defaults at the next reset
+    b2.nmt(0x81)
+    assert b2.value(0x1800, 2) == 255 and b2.value(0x1A00, 0) == 1 and b2.value(0x6206, 1) == 0
+
+
+def test_stored_parameters_of_another_module_set_are_ignored(tmp_path):
+    b = Bench(make_image([(1, 8, 0, 0, 0)]), store_path=tmp_path / "node.json")
+    b.write(0x1800, 2, 7, 1)
+    b.write(0x1010, 2, 0x65766173, 4)
+    other = Bench(make_image([(1, 16, 0, 0, 0)]), store_path=tmp_path / "node.json")
+    assert other.value(0x1800, 2) == 255
+    same = Bench(make_image([(1, 8, 0, 0, 0)]), store_path=tmp_path / "node.json")
+    assert same.value(0x1800, 2) == 7
