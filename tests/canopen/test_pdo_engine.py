@@ -199,3 +199,15 @@ def test_stored_parameters_of_another_module_set_are_ignored(tmp_path):
     assert other.value(0x1800, 2) == 255
     same = Bench(make_image([(1, 8, 0, 0, 0)]), store_path=tmp_path / "node.json")
     assert same.value(0x1800, 2) == 7
+
+
+def test_512_pdos_per_direction():
+    from fieldgate.plugins.canopen.iodevice import IoSettings
+    b = Bench(make_image([(1, 8, 8, 0, 0)]), IoSettings(pdo_count=512))
+    assert 0x15FF in b.node.od and 0x1BFF in b.node.od and 0x1C00 not in b.node.od
+    assert b.write(0x19FF, 1, 0x1F0, 4) == ok(0x19FF, 1)
+    assert b.write(0x1BFF, 1, 0x60000108, 4) == ok(0x1BFF, 1)
+    assert b.write(0x1BFF, 0, 1, 1) == ok(0x1BFF, 0)
+    b.start()
+    b.image.update_input("bus/m1/di3", True)
+    assert b.flush() == ["181 [1] 08", "1F0 [1] 08"]
