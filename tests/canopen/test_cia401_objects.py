@@ -122,3 +122,15 @@ def test_analog_interrupts_fire_tpdos_only_when_enabled():
     assert b.read(0x6422, 1) == "43 22 64 01 00 00 00 00"  # cleared by reading
     b.write(0x6423, 0, 0, 1)
     assert b.rx(0x301, "00 10 00 10") == []
+
+
+def test_bus_off_applies_error_values_and_recovery_reports_the_master_back():
+    b = demo_7232d()
+    b.write(0x6206, 1, 0x31, 1)
+    b.write(0x6207, 1, 0xF8, 1)
+    b.start()
+    b.rx(0x201, "FF")
+    b.node.service("error_control").bus_state(True, b.clock.t)
+    assert b.value(0x6200, 1) == 0xFE and not b.masters.is_ok("can")
+    b.node.service("error_control").bus_state(False, b.clock.t)
+    assert b.masters.is_ok("can") and b.value(0x6200, 1) == 0xFE
