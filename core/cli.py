@@ -110,8 +110,27 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
 async def _print_status(gateway: Gateway, period: float) -> None:
     while True:
         await asyncio.sleep(period)
-        parts = [f"{c['id']}={c['value']}({c['quality']})" for c in gateway.image.snapshot()]
-        print(" ".join(parts), flush=True)
+        print(format_image(gateway.image), flush=True)
+
+
+def format_image(image) -> str:
+    """One line: per module and kind, digital channels as bits (channel 0 first), analog as values.
+
+    A group whose channels are not all good shows the worst quality, e.g. ``rs485/m5 ai=[0]!comm-fault``.
+    """
+    groups: dict[tuple, list] = {}
+    for ch in image:
+        groups.setdefault((ch.source.back, ch.source.module, ch.kind), []).append(ch)
+    parts = []
+    for (back, module, kind), channels in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2].value)):
+        channels.sort(key=lambda c: c.source.index)
+        if kind.is_digital:
+            text = "".join("1" if c.value else "0" for c in channels)
+        else:
+            text = "[" + ",".join(str(c.value) for c in channels) + "]"
+        bad = sorted({c.quality.value for c in channels if c.quality.value != "good"})
+        parts.append(f"{back}/m{module} {kind.value}={text}" + ("!" + "/".join(bad) if bad else ""))
+    return " | ".join(parts)
 
 
 def build_parser(registry: Registry) -> argparse.ArgumentParser:

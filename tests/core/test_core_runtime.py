@@ -135,3 +135,19 @@ def test_cli_validate_prints_a_summary(tmp_path):
     assert result.returncode == 0
     assert "gateway cli: 1 front(s), 1 back(s), 1 module(s), 2 channel(s)" in result.stdout
     assert "1 DI, 1 DO, 0 AI, 0 AO" in result.stdout
+
+
+def test_status_line_groups_modules_and_flags_bad_quality():
+    from fieldgate import ChannelSpec, Kind, ProcessImage, Quality, Source
+    from fieldgate.cli import format_image
+
+    image = ProcessImage()
+    for i in range(3):
+        image.add(ChannelSpec(f"b/m1/di{i}", Kind.DI, Source("b", 1, i)))
+    image.add(ChannelSpec("b/m2/ai0", Kind.AI, Source("b", 2, 0)))
+    image.update_input("b/m1/di0", True)
+    image.update_input("b/m1/di1", False)
+    image.update_input("b/m1/di2", True)
+    image.update_input("b/m2/ai0", -5)
+    image.set_quality(["b/m2/ai0"], Quality.COMM_FAULT)
+    assert format_image(image) == "b/m1 di=101 | b/m2 ai=[-5]!comm-fault"
