@@ -96,10 +96,11 @@ def test_failure_reports_say_what_was_expected_and_seen(broken):
 
 
 @pytest.mark.parametrize("fault", sorted(FAULTS))
-def test_each_fault_alone_fails_only_its_cases(eds, fault):
-    profiles = sorted({cid.split(".")[0] for cid in FAULTS[fault]})
-    results = run_against(eds, {fault}, profiles=profiles)
+def test_each_fault_alone_fails_its_cases(eds, fault, healthy):
+    results = run_against(eds, {fault}, patterns=sorted(FAULTS[fault]))
+    assert {r.case.id for r in results} == FAULTS[fault]
     assert set(failed(results)) == FAULTS[fault]
+    assert all(healthy[cid].verdict is Verdict.PASS for cid in FAULTS[fault])
 
 
 def test_cli_exit_code_junit_and_selection(eds, tmp_path, capsys):

@@ -17,7 +17,6 @@ from fieldgate.conformance.report import text_report
 
 # case id -> what the front does wrong (reported to the front's authors)
 KNOWN_FINDINGS = {
-    "nmt.reset_comm_vs_node": "reset node keeps written application entries (e.g. 0x6002:1) instead of power-on values",
     "sync-pdo.mapping_not_mappable": "mapping 0x1000 is refused with 0602 0000 instead of 0604 0041",
 }
 # case id -> why it cannot apply to this gateway
@@ -35,7 +34,7 @@ def results(tmp_path_factory):
     work = tmp_path_factory.mktemp("gateway")
     topo = topology(work / "state", channel)
     eds = write_eds(topo, work)
-    timing = Timing(response=0.3, silence=0.15, heartbeat_ms=50, bootup=1.0, sdo_server_timeout=1.5)
+    timing = Timing(response=0.3, silence=0.1, heartbeat_ms=50, bootup=1.0, sdo_server_timeout=1.5)
     with GatewayThread(topo):
         bus = can.Bus(interface="virtual", channel=channel)
         try:
@@ -66,5 +65,5 @@ def test_known_findings_fail_for_their_stated_reason(results, cid):
     result = next(r for r in results if r.case.id == cid)
     if result.verdict is Verdict.PASS:
         pytest.fail(f"{cid} passes now: remove it from KNOWN_FINDINGS and docs/conformance.md")
-    expected = {"nmt.reset_comm_vs_node": "after reset node", "sync-pdo.mapping_not_mappable": "0x06020000"}[cid]
+    expected = {"sync-pdo.mapping_not_mappable": "0x06020000"}[cid]
     assert expected in f"{result.reason} {result.seen}"

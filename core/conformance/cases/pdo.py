@@ -234,7 +234,8 @@ def sync_type1(ctx: Context) -> None:
     for i in range(3):
         ctx.device.link.flush()
         sync(ctx)
-        frames = tpdo_frames(ctx, pdo, ctx.timing.response)
+        first = ctx.device.link.expect(pdo.cob & 0x7FF, ctx.timing.response)
+        frames = ([first] if first else []) + tpdo_frames(ctx, pdo, min(ctx.timing.silence, 0.05))
         if len(frames) != 1:
             raise Fail(f"after SYNC {i + 1}", expected=f"one {pdo.name}", seen=f"{len(frames)} frames")
         check_len(frames[0], pdo)
