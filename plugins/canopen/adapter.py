@@ -2,8 +2,10 @@
 
 * Any python-can interface works: ``interface``, ``channel``, ``bitrate`` and extra
   options go to ``can.Bus`` unchanged (socketcan, virtual, pcan, kvaser, slcan, ...).
-* A :class:`can.Notifier` thread receives; each message hops to the event loop with
-  ``loop.call_soon_threadsafe`` and is fed to the node there (one thread, no locks).
+* Received messages reach the node on the event loop (one thread, no locks) through
+  :func:`~.busrx.start_receiver`: pushed straight from the sender on the virtual bus,
+  ``add_reader`` on SocketCAN, a :class:`can.Notifier` thread hopping with
+  ``loop.call_soon_threadsafe`` on other interfaces.
 * Timers: after every call into the node, one ``loop.call_at`` is armed for the node's
   next deadline. ``now`` is ``loop.time()`` (monotonic seconds).
 * Bus-off: SocketCAN error frames (``CAN_ERR_BUSOFF`` / ``CAN_ERR_RESTARTED``) and
@@ -25,6 +27,7 @@ import can
 
 from fieldgate.plugin import PluginStartError
 
+from .busrx import start_receiver
 from .frame import Frame
 from .node import Node
 
@@ -87,7 +90,7 @@ class CanAdapter:
 
     # -- life cycle ------------------------------------------------------------------
     def start(self, boot: bool = True) -> None:
-        self._notifier = can.Notifier(self.bus, [self._from_thread], timeout=0.1)
+        self._notifier = start_receiver(self.bus, self.loop, self._receive)
         if boot:
             self.transmit(self.node.boot(self.now))
         self._arm()
@@ -222,7 +225,7 @@ class CanAdapter:
             log.error("cannot reopen the CAN bus at %d bit/s: %s", bitrate, exc)
             self.counters["bit_timing_failures"] += 1
             return
-        self._notifier = can.Notifier(self.bus, [self._from_thread], timeout=0.1)
+        self._notifier = start_receiver(self.bus, self.loop, self._receive)
         self.counters["bit_timing_switches"] += 1
 
     def status(self) -> dict:

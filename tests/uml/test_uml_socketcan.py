@@ -103,6 +103,33 @@ def test_kernel_filters_apply_on_vcan0():
         assert rx.recv(0.2) is None
 
 
+async def test_socketcan_is_read_by_the_event_loop_without_a_thread():
+    """The CANopen front's receive path on SocketCAN: loop.add_reader on the raw socket."""
+    import asyncio
+    import threading
+
+    from fieldgate.plugins.canopen.busrx import start_receiver
+
+    got, done = [], asyncio.Event()
+
+    def on_message(msg):
+        got.append((msg.arbitration_id, bytes(msg.data), threading.get_ident()))
+        if len(got) == 50:
+            done.set()
+
+    with can.Bus(interface="socketcan", channel=CHANNEL) as rx, can.Bus(interface="socketcan", channel=CHANNEL) as tx:
+        threads_before = threading.active_count()
+        receiver = start_receiver(rx, asyncio.get_running_loop(), on_message)
+        assert receiver.mode == "add-reader"
+        assert threading.active_count() == threads_before
+        for n in range(50):
+            tx.send(can.Message(arbitration_id=0x180 + n, data=bytes([n]), is_extended_id=False))
+        await asyncio.wait_for(done.wait(), 5)
+        receiver.stop()
+    assert [(i, d) for i, d, _ in got] == [(0x180 + n, bytes([n])) for n in range(50)]
+    assert {t for _, _, t in got} == {threading.get_ident()}
+
+
 CANOPEN_TESTS = REPO / "tests" / "canopen"
 
 

@@ -1,0 +1,219 @@
+"""CANopen SDO server: expedited upload round trip and requests/s, ours against canopen's LocalNode.
+
+Run:  .venv/bin/python bench/canopen_sdo.py [--requests N] [--rounds R]   (about 15 s)
+
+Both servers run in this process on python-can's in-process ``virtual`` bus, each on its
+own channel, measured in the same run with the same client, alternating in rounds so that
+machine noise hits both alike:
+
+* ours: the gateway's CANopen front, started like ``fieldgate run`` does (Gateway with a
+  loopback back), on its own asyncio event loop in a thread; every request goes through
+  the python-can Notifier thread, the hop to the event loop, the node's full validation
+  (NMT state, COB-ID, DLC, object, access, size) and back out;
+* peer: ``canopen.LocalNode`` (canopen 2.4) with an equivalent object dictionary, served
+  from its Network's Notifier thread.
+
+Clients (one request in flight, as SDO allows):
+
+1. raw frames: ``40 00 10 00 ...`` to 0x600+ID, wait for 0x580+ID, on a plain python-can bus;
+2. canopen's ``RemoteNode.sdo.upload(0x1000, 0)`` (adds the client library's own cost).
+
+Printed: p50 and p99 round trip, requests/s (requests / total time), and the ratios
+peer/ours for the round trip (> 1: ours is faster) and ours/peer for requests/s. Target:
+ours at least as fast as LocalNode.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import statistics
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout too
+
+import can  # noqa: E402
+import canopen  # noqa: E402
+from canopen.objectdictionary import ObjectDictionary, ODVariable  # noqa: E402
+from canopen.objectdictionary import datatypes as dt  # noqa: E402
+
+from fieldgate import Gateway, load_registry  # noqa: E402
+
+NODE_ID = 5
+DEVICE_TYPE = 0x000F0191
+REQUEST = bytes([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])  # expedited upload 0x1000:00
+ANSWER = bytes([0x43, 0x00, 0x10, 0x00]) + DEVICE_TYPE.to_bytes(4, "little")
+
+
+class OurServer:
+    """The gateway's CANopen front on its own event loop in a thread."""
+
+    label = "fieldgate front"
+
+    def __init__(self, channel: str, state_dir: Path):
+        self.topology = {
+            "gateway": {"name": "bench", "state_dir": str(state_dir)},
+            "fronts": [{"name": "plc", "type": "canopen", "interface": "virtual", "channel": channel,
+                        "node_id": NODE_ID, "identity": {"device_type": DEVICE_TYPE}}],
+            "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 1, "digital": 8, "analog": 2}]}],
+        }
+        self.loop = asyncio.new_event_loop()
+        self.gateway: Gateway | None = None
+        self.thread = threading.Thread(target=self._run, name="gateway", daemon=True)
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self.loop)
+        self.loop.run_forever()
+
+    def start(self) -> None:
+        self.thread.start()
+        self.gateway = Gateway.load(self.topology, registry=load_registry())
+        asyncio.run_coroutine_threadsafe(self.gateway.start(), self.loop).result(10)
+
+    def stop(self) -> None:
+        asyncio.run_coroutine_threadsafe(self.gateway.stop(), self.loop).result(10)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(5)
+
+
+class LocalNodeServer:
+    """canopen's LocalNode with the same object."""
+
+    label = "canopen LocalNode"
+
+    def __init__(self, channel: str):
+        od = ObjectDictionary()
+        var = ODVariable("Device type", 0x1000)
+        var.data_type, var.access_type, var.default = dt.UNSIGNED32, "ro", DEVICE_TYPE
+        od.add_object(var)
+        self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.05
+        self.channel = channel
+        self.node = canopen.LocalNode(NODE_ID, od)
+
+    def start(self) -> None:
+        self.network.connect(interface="virtual", channel=self.channel)
+        self.network.add_node(self.node)
+
+    def stop(self) -> None:
+        self.network.disconnect()
+
+
+class RawClient:
+    label = "raw frames"
+
+    def __init__(self, channel: str):
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.request = can.Message(arbitration_id=0x600 + NODE_ID, data=REQUEST, is_extended_id=False)
+
+    def upload(self) -> None:
+        self.bus.send(self.request)
+        while True:
+            msg = self.bus.recv(1.0)
+            if msg is None:
+                raise TimeoutError("no SDO answer within 1 s")
+            if msg.arbitration_id == 0x580 + NODE_ID:
+                if bytes(msg.data) != ANSWER:
+                    raise AssertionError(f"unexpected answer {bytes(msg.data).hex(' ')}")
+                return
+
+    def close(self) -> None:
+        self.bus.shutdown()
+
+
+class CanopenClient:
+    label = "canopen RemoteNode"
+
+    def __init__(self, channel: str):
+        self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = 0.05
+        self.network.connect(interface="virtual", channel=channel)
+        self.node = self.network.add_node(canopen.RemoteNode(NODE_ID, ObjectDictionary()))
+
+    def upload(self) -> None:
+        value = self.node.sdo.upload(0x1000, 0)
+        if value != ANSWER[4:]:
+            raise AssertionError(f"unexpected value {value.hex(' ')}")
+
+    def close(self) -> None:
+        self.network.disconnect()
+
+
+def measure(call: Callable[[], None], n: int) -> list[float]:
+    times = []
+    for _ in range(n):
+        started = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - started)
+    return times
+
+
+def summary(times: list[float]) -> dict[str, float]:
+    ordered = sorted(times)
+    return {
+        "p50": statistics.median(ordered) * 1e6,
+        "p99": ordered[min(len(ordered) - 1, int(len(ordered) * 0.99))] * 1e6,
+        "rps": len(ordered) / sum(ordered),
+    }
+
+
+def run(requests: int, rounds: int) -> int:
+    ours_channel, peer_channel = (f"bench-{name}-{uuid.uuid4().hex[:8]}" for name in ("ours", "peer"))
+    with tempfile.TemporaryDirectory() as state:
+        servers = {"ours": OurServer(ours_channel, Path(state)), "peer": LocalNodeServer(peer_channel)}
+        for server in servers.values():
+            server.start()
+        try:
+            results = {}
+            for client_type in (RawClient, CanopenClient):
+                clients = {"ours": client_type(ours_channel), "peer": client_type(peer_channel)}
+                try:
+                    for client in clients.values():
+                        measure(client.upload, 200)  # warm up
+                    times = {"ours": [], "peer": []}
+                    for _ in range(rounds):
+                        for side in ("ours", "peer"):
+                            times[side] += measure(clients[side].upload, requests // rounds)
+                finally:
+                    for client in clients.values():
+                        client.close()
+                results[client_type.label] = {side: summary(t) for side, t in times.items()}
+        finally:
+            for server in servers.values():
+                server.stop()
+    return report(results, servers)
+
+
+def report(results: dict, servers: dict) -> int:
+    print(f"SDO expedited upload of 0x1000:00, one request in flight, python-can virtual bus")
+    print(f"{'client':<20} {'server':<20} {'p50 us':>8} {'p99 us':>8} {'req/s':>8}")
+    worst = float("inf")
+    for client, by_side in results.items():
+        for side in ("ours", "peer"):
+            r = by_side[side]
+            print(f"{client:<20} {servers[side].label:<20} {r['p50']:8.1f} {r['p99']:8.1f} {r['rps']:8.0f}")
+        ours, peer = by_side["ours"], by_side["peer"]
+        rtt_ratio, rps_ratio = peer["p50"] / ours["p50"], ours["rps"] / peer["rps"]
+        worst = min(worst, rps_ratio)
+        print(f"{client:<20} ratio: LocalNode p50 / ours p50 = {rtt_ratio:.2f}, "
+              f"ours req/s / LocalNode req/s = {rps_ratio:.2f}  (>= 1: ours at least as fast)")
+    print("target met" if worst >= 1.0 else "target NOT met: slower than LocalNode")
+    return 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--requests", type=int, default=4000, help="requests per server and client (default 4000)")
+    parser.add_argument("--rounds", type=int, default=8, help="alternations between the servers (default 8)")
+    args = parser.parse_args()
+    return run(args.requests, args.rounds)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,186 @@
+"""Receive paths onto the event loop: virtual push, add_reader on a descriptor, Notifier thread."""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import socket
+import threading
+import uuid
+
+import can
+import pytest
+
+from fieldgate.plugins.canopen.busrx import start_receiver
+
+
+def channel() -> str:
+    return f"busrx-{uuid.uuid4().hex[:10]}"
+
+
+def message(n: int) -> can.Message:
+    return can.Message(arbitration_id=0x600 + (n % 100), data=n.to_bytes(4, "little"), is_extended_id=False)
+
+
+async def collect(receiver_bus, send, count, timeout=5.0):
+    loop = asyncio.get_running_loop()
+    got, threads, done = [], set(), asyncio.Event()
+
+    def on_message(msg):
+        got.append(int.from_bytes(msg.data, "little"))
+        threads.add(threading.get_ident())
+        if len(got) == count:
+            done.set()
+
+    receiver = start_receiver(receiver_bus, loop, on_message)
+    sender = threading.Thread(target=send)
+    sender.start()
+    await asyncio.wait_for(done.wait(), timeout)
+    sender.join()
+    return receiver, got, threads
+
+
+async def test_virtual_bus_pushes_messages_to_the_loop_in_order_without_a_thread():
+    ch = channel()
+    rx = can.Bus(interface="virtual", channel=ch)
+    tx = can.Bus(interface="virtual", channel=ch)
+    threads_before = threading.active_count()
+    tx.send(message(0))  # received before the receiver takes over: still delivered first
+
+    def send():
+        for n in range(1, 500):
+            tx.send(message(n))
+
+    receiver, got, threads = await collect(rx, send, 500)
+    assert receiver.mode == "virtual-push"
+    assert got == list(range(500))
+    assert threads == {threading.get_ident()}
+    assert threading.active_count() == threads_before  # no receive thread was started
+    receiver.stop()
+    tx.send(message(999))
+    await asyncio.sleep(0.05)
+    assert got[-1] == 499  # nothing after stop
+    rx.shutdown()
+    tx.send(message(1000))  # the channel no longer holds the stand-in
+    tx.shutdown()
+
+
+async def test_virtual_bus_still_sends_and_other_receivers_still_receive():
+    ch = channel()
+    rx = can.Bus(interface="virtual", channel=ch)
+    peer = can.Bus(interface="virtual", channel=ch)
+    receiver = start_receiver(rx, asyncio.get_running_loop(), lambda msg: None)
+    rx.send(message(7))
+    assert int.from_bytes(peer.recv(1.0).data, "little") == 7
+    with pytest.raises(can.CanOperationError):
+        rx.recv(0)  # this bus now delivers to the loop only
+    receiver.stop()
+    rx.shutdown()
+    peer.shutdown()
+
+
+class SocketBus(can.BusABC):
+    """A bus with a file descriptor, like SocketCAN: one byte on the socket per message."""
+
+    def __init__(self, fail_next: bool = False, **kw):
+        self._rx, self.wire = socket.socketpair()
+        self._rx.setblocking(False)
+        self.pending = collections.deque()
+        self.lock = threading.Lock()
+        self.fail_next = fail_next
+        super().__init__(channel="fake", **kw)
+
+    def inject(self, msg):
+        with self.lock:
+            self.pending.append(msg)
+        self.wire.send(b"x")
+
+    def fileno(self):
+        return self._rx.fileno()
+
+    def _recv_internal(self, timeout):
+        if self.fail_next:
+            self.fail_next = False
+            self._rx.recv(1)
+            with self.lock:
+                self.pending.popleft()  # that message is lost
+            raise can.CanOperationError("socket error")
+        try:
+            self._rx.recv(1)
+        except BlockingIOError:
+            return None, False
+        with self.lock:
+            return self.pending.popleft(), False
+
+    def send(self, msg, timeout=None):
+        pass
+
+    def shutdown(self):
+        super().shutdown()
+        self._rx.close()
+        self.wire.close()
+
+
+async def test_bus_with_a_descriptor_is_read_by_the_loop():
+    bus = SocketBus()
+    threads_before = threading.active_count()
+
+    def send():
+        for n in range(300):
+            bus.inject(message(n))
+
+    receiver, got, threads = await collect(bus, send, 300)
+    assert receiver.mode == "add-reader"
+    assert got == list(range(300)) and threads == {threading.get_ident()}
+    assert threading.active_count() == threads_before
+    receiver.stop()
+    bus.shutdown()
+
+
+async def test_receive_errors_on_a_descriptor_are_counted_not_raised():
+    bus = SocketBus(fail_next=True)
+
+    def send():
+        for n in range(3):
+            bus.inject(message(n))
+
+    receiver, got, _ = await collect(bus, send, 2)
+    assert receiver.errors == 1
+    assert got == [1, 2]
+    receiver.stop()
+    bus.shutdown()
+
+
+class ThreadOnlyBus(can.BusABC):
+    """Neither virtual nor a descriptor: wraps a virtual bus."""
+
+    def __init__(self, ch):
+        self.inner = can.Bus(interface="virtual", channel=ch)
+        super().__init__(channel=ch)
+
+    def _recv_internal(self, timeout):
+        return self.inner.recv(timeout), False
+
+    def send(self, msg, timeout=None):
+        self.inner.send(msg)
+
+    def shutdown(self):
+        super().shutdown()
+        self.inner.shutdown()
+
+
+async def test_other_buses_use_a_notifier_thread_and_hop_to_the_loop():
+    ch = channel()
+    bus = ThreadOnlyBus(ch)
+    tx = can.Bus(interface="virtual", channel=ch)
+
+    def send():
+        for n in range(200):
+            tx.send(message(n))
+
+    receiver, got, threads = await collect(bus, send, 200)
+    assert receiver.mode == "thread"
+    assert got == list(range(200)) and threads == {threading.get_ident()}
+    receiver.stop()
+    bus.shutdown()
+    tx.shutdown()
