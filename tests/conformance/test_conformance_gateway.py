@@ -10,20 +10,10 @@ import uuid
 
 import can
 import pytest
-from conformance_gateway import NODE_ID, GatewayThread, front_unavailable, topology, write_eds
+from conformance_gateway import DOCUMENTED_SKIPS, KNOWN_FINDINGS, NODE_ID, GatewayThread, front_unavailable, topology, write_eds
 
 from fieldgate.conformance import Options, SuiteConfig, Timing, Verdict, run_suite
 from fieldgate.conformance.report import text_report
-
-# case id -> what the front does wrong (reported to the front's authors)
-KNOWN_FINDINGS = {
-    "sync-pdo.mapping_not_mappable": "mapping 0x1000 is refused with 0602 0000 instead of 0604 0041",
-}
-# case id -> why it cannot apply to this gateway
-DOCUMENTED_SKIPS = {
-    "od.read_write_only": "no write-only entry",
-}
-
 
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):

@@ -1,0 +1,39 @@
+"""`fieldgate conformance` is registered through the plugin registry and behaves as a CLI."""
+
+import subprocess
+import sys
+
+from conformance_slave import eds_text
+
+from fieldgate import load_registry
+from fieldgate.conformance import PROFILES, select
+from fieldgate.conformance.cli import main
+
+
+def test_command_is_registered_through_the_registry():
+    registry = load_registry()
+    assert ("conformance",) in {c.path for c in registry.commands}
+
+
+def test_list_through_the_fieldgate_cli(tmp_path):
+    eds = tmp_path / "dev.eds"
+    eds.write_text(eds_text())
+    out = subprocess.run([sys.executable, "-m", "fieldgate", "conformance", "--node-id", "5", "--eds", str(eds), "--profile", "lss", "--list"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    listed = [line.split()[0] for line in out.stdout.splitlines()]
+    assert listed == [c.id for c in select(["lss"])] and len(listed) >= 9
+
+
+def test_every_profile_has_cases_and_selection_keeps_profile_order():
+    chosen = select()
+    assert {c.profile for c in chosen} == set(PROFILES)
+    order = [PROFILES.index(c.profile) for c in chosen]
+    assert order == sorted(order)
+    assert [c.id for c in select(patterns=["sdo.block_*"])] == ["sdo.block_upload", "sdo.block_upload_crc", "sdo.block_download", "sdo.block_download_crc", "sdo.block_bad_blksize", "sdo.block_bad_seqno", "sdo.block_crc_error"]
+
+
+def test_bad_arguments_exit_2(tmp_path, capsys):
+    assert main(["--node-id", "200", "--eds", "x.eds", "--interface", "virtual"]) == 2
+    assert main(["--node-id", "5", "--eds", str(tmp_path / "missing.eds"), "--interface", "virtual", "--channel", "cli-missing-eds"]) == 2
+    assert "cannot start" in capsys.readouterr().err
