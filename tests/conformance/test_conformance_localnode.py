@@ -31,6 +31,7 @@ PROBE_GAPS = {
     "sync-pdo.event_timer": "nothing scheduled from 0x1800",
     "sync-pdo.tpdo_rtr": "no RTR answer on the TPDO",
     "sync-pdo.rpdo_length": "no EMCY for a short RPDO",
+    "sync-pdo.rpdo_gated": "RPDO data never reach the object dictionary",
 }
 PROBE_WORKS = {
     "sdo.expedited_upload", "sdo.expedited_download", "sdo.segmented_upload", "sdo.segmented_download",

@@ -18,6 +18,7 @@ from .common import (
     mapped_values,
     operational,
     pdos,
+    preop,
     restricted,
     set_pdo_sub,
     set_pdo_type,
@@ -209,7 +210,7 @@ def tpdo_rtr(ctx: Context) -> None:
     check_len(frame, pdo)
 
 
-@case("sync-pdo", "nmt_gating", "no TPDO on RTR or SYNC in Pre-operational or Stopped; RPDOs ignored there")
+@case("sync-pdo", "nmt_gating", "no TPDO on RTR or SYNC in Pre-operational or Stopped")
 def nmt_gating(ctx: Context) -> None:
     dev = ctx.device
     pdo = active_pdo(dev, tx=True)
@@ -358,3 +359,54 @@ def rpdo_length(ctx: Context) -> None:
     expect_emcy(ctx, 0)
     if frame is None:
         raise Fail(f"no EMCY for an {pdo.name} of {len(good) - 1} bytes (mapped {len(good)})", expected=f"{emcy_cob(dev):03X} [8] 10 82 ..", seen="nothing")
+
+
+@case("sync-pdo", "rpdo_gated", "an RPDO changes its mapped objects in Operational only, not in Pre-operational or Stopped")
+def rpdo_gated(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = active_pdo(dev, tx=False)
+    good = mapped_values(dev, pdo)
+    ctx.cleanup(lambda: [dev.download(e >> 16, (e >> 8) & 0xFF, part) for e, part in _split(pdo, good)])
+    changed = bytes(b ^ 0x01 for b in good)
+    for cs, name in ((NMT_PREOP, "Pre-operational"), (NMT_STOP, "Stopped")):
+        dev.nmt(cs)
+        time.sleep(0.02)
+        dev.link.send(pdo.cob & 0x7FF, changed)
+        time.sleep(0.05)
+        dev.nmt(NMT_PREOP)
+        time.sleep(0.02)
+        if mapped_values(dev, pdo) != good:
+            raise Fail(f"{pdo.name} applied in {name}", expected=f"mapped objects still {good.hex(' ')}", seen=mapped_values(dev, pdo).hex(" "))
+    operational(ctx)
+    dev.link.send(pdo.cob & 0x7FF, changed)
+    time.sleep(0.05)
+    if mapped_values(dev, pdo) != changed:
+        raise Fail(f"{pdo.name} not applied to its mapped objects in Operational", expected=changed.hex(" "), seen=mapped_values(dev, pdo).hex(" "))
+
+
+def _split(pdo: Pdo, data: bytes):
+    pos = 0
+    for e in pdo.entries:
+        size = (e & 0xFF) // 8
+        yield e, data[pos : pos + size]
+        pos += size
+
+
+@case("sync-pdo", "rtr_not_allowed", "with COB-ID bit 30 set a TPDO ignores RTR")
+def rtr_not_allowed(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = active_pdo(dev, tx=True, rtr=True)
+    operational(ctx)
+    if rtr(ctx, pdo) is None:
+        raise Skip(f"{pdo.name} does not answer RTR even with bit 30 clear (see sync-pdo.tpdo_rtr)")
+    preop(ctx)
+    invalidate(ctx, pdo)
+    try:
+        dev.write(pdo.comm, 1, (pdo.cob | 0x40000000) & ~0x80000000)
+    except SdoAbort as exc:
+        raise Skip(f"the device refuses COB-ID bit 30 ({abort_text(exc.code)})") from None
+    ctx.cleanup(lambda: dev.write(pdo.comm, 1, pdo.cob | 0xC0000000))  # first: back to invalid
+    operational(ctx)
+    frame = rtr(ctx, pdo, ctx.timing.silence)
+    if frame is not None:
+        raise Fail(f"{pdo.name} answered RTR with bit 30 set", expected="nothing", seen=str(frame))
