@@ -26,7 +26,7 @@ def topology(state_dir: Path, channel: str) -> dict:
     return {
         "gateway": {"name": "conformance", "state_dir": str(state_dir)},
         "fronts": [{
-            "name": "plc", "type": "canopen", "interface": "virtual", "channel": channel, "node_id": NODE_ID,
+            "name": "plc", "type": "canopen", "interface": "virtual", "channel": channel, "node_id": NODE_ID, "sdo_timeout_ms": 300,
             "identity": {"vendor_id": 0x0000ABCD, "product_code": 0x7232, "revision": 0x00010000, "serial": 42, "device_name": "fieldgate conformance"},
         }],
         "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}]}],

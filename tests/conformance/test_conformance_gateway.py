@@ -24,7 +24,7 @@ def results(tmp_path_factory):
     work = tmp_path_factory.mktemp("gateway")
     topo = topology(work / "state", channel)
     eds = write_eds(topo, work)
-    timing = Timing(response=0.3, silence=0.1, heartbeat_ms=50, bootup=1.0, sdo_server_timeout=1.5)
+    timing = Timing(response=0.3, silence=0.1, heartbeat_ms=50, bootup=1.0, sdo_server_timeout=1.0)
     with GatewayThread(topo):
         bus = can.Bus(interface="virtual", channel=channel)
         try:
