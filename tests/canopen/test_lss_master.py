@@ -234,3 +234,14 @@ def test_fastscan_finds_the_unconfigured_node_and_configures_it(network, device,
     lss.send_switch_state_global(lss.WAITING_STATE)
     assert boot_ups.get(timeout=2) == (0x711, b"\x00")
     assert lss.fast_scan() == (False, None)  # configured nodes stay out of fastscan
+
+
+def test_i7232d_bit_timing_table_is_selectable(network, device, state_dir):
+    device(node_id=4, lss_table="i7232d")
+    lss = network.lss
+    lss.send_switch_state_global(lss.CONFIGURATION_STATE)
+    lss.configure_bit_timing(3)  # seed-000 TV-21: index 3 of the I-7232D table = 125 kbit/s
+    with pytest.raises(LssError, match="LSS Error: 1"):
+        lss.configure_bit_timing(8)  # the I-7232D table stops at 7 (1 Mbit/s)
+    lss.store_configuration()
+    assert lss_store(state_dir)["bitrate"] == 125_000
