@@ -44,7 +44,7 @@ PRESETS: dict[str, Preset] = {
         Preset("M-7017R", "8 AI (differential)", (_ai(8),), "ICP DAS, I-7017R-A5/M-7017R-A5 Quick Start: 30001~30008 AI channels 0-7"),
         Preset("M-7017R-A5", "8 AI", (_ai(8),), "ICP DAS, I-7017R-A5/M-7017R-A5 Quick Start: 30001~30008 AI channels 0-7"),
         Preset("M-7024", "4 AO", (_ao(4),), "ICP DAS, I-7021/22/24 M-7022/24/28 User Manual §3 (03/06/16 address output channels from 0)"),
-        Preset("M-7050D", "8 DI, 7 DO", (_di(8), _do(7)), f"{_MAPPING}: DO from 00001, DI from 10033"),
+        Preset("M-7050D", "7 DI, 8 DO", (_di(7), _do(8)), f"{_MAPPING}: DO from 00001, DI from 10033"),
         Preset("M-7052D", "8 DI", (_di(8),), f"{_MAPPING}: DI from 10033"),
         Preset("M-7055D", "8 DI, 8 DO", (_di(8), _do(8)), f"{_MAPPING}: DO from 00001, DI from 10033"),
         Preset("M-7060D", "4 DI, 4 relay DO", (_di(4), _do(4)), f"{_MAPPING}: DO from 00001, DI from 10033"),

@@ -33,7 +33,7 @@ def test_a_model_preset_is_enough(registry):
 
 
 def test_every_requested_preset_exists_with_its_channel_counts():
-    expected = {"M-7017R": {"ai": 8}, "M-7024": {"ao": 4}, "M-7050D": {"di": 8, "do": 7}, "M-7052D": {"di": 8}, "M-7055D": {"di": 8, "do": 8}, "M-7060D": {"di": 4, "do": 4}}
+    expected = {"M-7017R": {"ai": 8}, "M-7024": {"ao": 4}, "M-7050D": {"di": 7, "do": 8}, "M-7052D": {"di": 8}, "M-7055D": {"di": 8, "do": 8}, "M-7060D": {"di": 4, "do": 4}}
     for model, counts in expected.items():
         preset = presets.find(model.lower())
         assert preset is not None and preset.source
