@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 
 from ..framework import Context, Fail, Skip, case
-from .common import active_pdo, operational
+from .common import Pdo, active_pdo, operational
 from .errctl import life_guard
 
 IO = {0x6000: ("DI", 16), 0x6200: ("DO", 17), 0x6401: ("AI", 18), 0x6411: ("AO", 19)}
@@ -27,6 +27,19 @@ def require_401(ctx: Context) -> int:
 def require_loopback(ctx: Context) -> None:
     if not ctx.options.loopback:
         raise Skip("needs --loopback (outputs wired to inputs)")
+
+
+def io_pdos(ctx: Context) -> tuple[Pdo, Pdo]:
+    """RPDO1 (0x6200 DO bytes) and TPDO1 (0x6000 DI bytes) of a loopback bench; DO bytes restored afterwards."""
+    require_loopback(ctx)
+    dev = ctx.device
+    rpdo = active_pdo(dev, tx=False, n=0)
+    tpdo = active_pdo(dev, tx=True, n=0)
+    if rpdo.entries[0] >> 16 != 0x6200 or tpdo.entries[0] >> 16 != 0x6000:
+        raise Skip("RPDO1/TPDO1 do not map 0x6200/0x6000")
+    old = bytes(dev.upload(0x6200, s + 1)[0] for s in range(len(rpdo.entries)))
+    ctx.cleanup(lambda: [dev.write(0x6200, s + 1, old[s]) for s in range(len(old))])
+    return rpdo, tpdo
 
 
 def wait_value(ctx: Context, index: int, sub: int, want: int, what: str) -> None:
@@ -105,12 +118,7 @@ def rpdo_to_tpdo(ctx: Context) -> None:
     require_401(ctx)
     require_loopback(ctx)
     dev = ctx.device
-    rpdo = active_pdo(dev, tx=False, n=0)
-    tpdo = active_pdo(dev, tx=True, n=0)
-    if rpdo.entries[0] >> 16 != 0x6200 or tpdo.entries[0] >> 16 != 0x6000:
-        raise Skip("RPDO1/TPDO1 do not map 0x6200/0x6000")
-    old = bytes(dev.upload(0x6200, s + 1)[0] for s in range(rpdo.length))
-    ctx.cleanup(lambda: [dev.write(0x6200, s + 1, old[s]) for s in range(len(old))])
+    rpdo, tpdo = io_pdos(ctx)
     operational(ctx)
     pattern = bytes((0x3C + 17 * i) & 0xFF for i in range(rpdo.length))
     dev.link.flush()

@@ -163,23 +163,37 @@ def invalidate(ctx: Context, pdo: Pdo) -> None:
     ctx.cleanup(restore)
 
 
+def keep_mapping(ctx: Context, pdo: Pdo) -> list[int]:
+    """The PDO's current mapping entries; they are written back when the case ends."""
+    dev = ctx.device
+    entries = [dev.read(pdo.mapping, s) for s in range(1, dev.read(pdo.mapping, 0) + 1)]
+
+    def restore():
+        dev.write(pdo.mapping, 0, 0)
+        for s, e in enumerate(entries, 1):
+            dev.write(pdo.mapping, s, e)
+        dev.write(pdo.mapping, 0, len(entries))
+
+    ctx.cleanup(restore)
+    return entries
+
+
 def remap(ctx: Context, pdo: Pdo, entries: list[int]) -> None:
     """CiA 301 mapping procedure: invalid, sub 0 = 0, entries, sub 0 = n; restored afterwards."""
     dev = ctx.device
     invalidate(ctx, pdo)
-    old = [dev.read(pdo.mapping, s) for s in range(1, dev.read(pdo.mapping, 0) + 1)]
-
-    def restore():
-        dev.write(pdo.mapping, 0, 0)
-        for s, e in enumerate(old, 1):
-            dev.write(pdo.mapping, s, e)
-        dev.write(pdo.mapping, 0, len(old))
-
-    ctx.cleanup(restore)
+    keep_mapping(ctx, pdo)
     dev.write(pdo.mapping, 0, 0)
     for s, e in enumerate(entries, 1):
         dev.write(pdo.mapping, s, e)
     dev.write(pdo.mapping, 0, len(entries))
+
+
+def all_pdos(dev: Device) -> list[Pdo]:
+    found = pdos(dev, False) + pdos(dev, True)
+    if not found:
+        raise Skip("EDS lists no PDO")
+    return found
 
 
 def mapped_values(dev: Device, pdo: Pdo) -> bytes:

@@ -11,9 +11,11 @@ from .common import (
     EMCY_LENGTH_ERROR,
     Pdo,
     active_pdo,
+    all_pdos,
     emcy_cob,
     expect_emcy,
     invalidate,
+    keep_mapping,
     live_pdo,
     mapped_values,
     operational,
@@ -61,21 +63,16 @@ def sync_cobid(ctx: Context) -> None:
 def comm_params(ctx: Context) -> None:
     dev = ctx.device
     problems = []
-    found = False
-    for tx in (False, True):
-        for p in pdos(dev, tx):
-            found = True
-            cob = dev.read(p.comm, 1)
-            ttype = dev.read(p.comm, 2)
-            if not cob & 0x80000000 and restricted(cob & 0x7FF):
-                problems.append(f"{p.name}: restricted CAN-ID 0x{cob & 0x7FF:03X}")
-            if cob & 0x20000000:
-                problems.append(f"{p.name}: 29-bit frame bit set (0x{cob:08X})")
-            legal = set(range(0, 241)) | {254, 255} | ({252, 253} if tx else set())
-            if ttype not in legal:
-                problems.append(f"{p.name}: transmission type {ttype}")
-    if not found:
-        raise Skip("EDS lists no PDO")
+    for p in all_pdos(dev):
+        cob = dev.read(p.comm, 1)
+        ttype = dev.read(p.comm, 2)
+        if not cob & 0x80000000 and restricted(cob & 0x7FF):
+            problems.append(f"{p.name}: restricted CAN-ID 0x{cob & 0x7FF:03X}")
+        if cob & 0x20000000:
+            problems.append(f"{p.name}: 29-bit frame bit set (0x{cob:08X})")
+        legal = set(range(0, 241)) | {254, 255} | ({252, 253} if p.tx else set())
+        if ttype not in legal:
+            problems.append(f"{p.name}: transmission type {ttype}")
     if problems:
         raise Fail("; ".join(problems))
 
@@ -84,26 +81,21 @@ def comm_params(ctx: Context) -> None:
 def mapping_params(ctx: Context) -> None:
     dev = ctx.device
     problems = []
-    found = False
-    for tx in (False, True):
-        for p in pdos(dev, tx):
-            found = True
-            live = live_pdo(dev, p)
-            for e in live.entries:
-                index, sub, bits = e >> 16, (e >> 8) & 0xFF, e & 0xFF
-                var = dev.var(index, sub)
-                if var is None:
-                    if index >= 0x1000 or bits not in (8, 16, 32, 64):  # dummy entries use 0x0001-0x0007
-                        problems.append(f"{p.name}: maps 0x{index:04X}:{sub}, not in the EDS")
-                    continue
-                if not var.pdo_mappable:
-                    problems.append(f"{p.name}: 0x{index:04X}:{sub} is not PDO-mappable in the EDS")
-                if var.fixed_size and len(var) != bits:
-                    problems.append(f"{p.name}: 0x{index:04X}:{sub} mapped with {bits} bits, the type has {len(var)}")
-            if sum(e & 0xFF for e in live.entries) > 64:
-                problems.append(f"{p.name}: {sum(e & 0xFF for e in live.entries)} bits mapped")
-    if not found:
-        raise Skip("EDS lists no PDO")
+    for p in all_pdos(dev):
+        live = live_pdo(dev, p)
+        for e in live.entries:
+            index, sub, bits = e >> 16, (e >> 8) & 0xFF, e & 0xFF
+            var = dev.var(index, sub)
+            if var is None:
+                if index >= 0x1000 or bits not in (8, 16, 32, 64):  # dummy entries use 0x0001-0x0007
+                    problems.append(f"{p.name}: maps 0x{index:04X}:{sub}, not in the EDS")
+                continue
+            if not var.pdo_mappable:
+                problems.append(f"{p.name}: 0x{index:04X}:{sub} is not PDO-mappable in the EDS")
+            if var.fixed_size and len(var) != bits:
+                problems.append(f"{p.name}: 0x{index:04X}:{sub} mapped with {bits} bits, the type has {len(var)}")
+        if live.length * 8 > 64:
+            problems.append(f"{p.name}: {live.length * 8} bits mapped")
     if problems:
         raise Fail("; ".join(problems[:8]))
 
@@ -131,19 +123,9 @@ def restricted_cobid(ctx: Context) -> None:
 
 
 def _mapping_target(ctx: Context) -> Pdo:
-    dev = ctx.device
-    pdo = active_pdo(dev, tx=True)
+    pdo = active_pdo(ctx.device, tx=True)
     invalidate(ctx, pdo)
-    count = dev.read(pdo.mapping, 0)
-    entries = [dev.read(pdo.mapping, s) for s in range(1, count + 1)]
-
-    def restore():
-        dev.write(pdo.mapping, 0, 0)
-        for s, e in enumerate(entries, 1):
-            dev.write(pdo.mapping, s, e)
-        dev.write(pdo.mapping, 0, len(entries))
-
-    ctx.cleanup(restore)
+    keep_mapping(ctx, pdo)
     return pdo
 
 

@@ -15,8 +15,8 @@ import time
 
 from ..device import NMT_START, StateProbe
 from ..framework import Context, Fail, Skip, case
-from .cia401 import _error_mode, require_loopback, wait_value
-from .common import Pdo, active_pdo, invalidate, live_pdo, operational, remap
+from .cia401 import _error_mode, io_pdos, require_loopback, wait_value
+from .common import Pdo, active_pdo, live_pdo, operational, remap
 from .errctl import life_guard
 from .sdo import require_block
 from .lss import CONFIGURATION, WAITING, identity, lss, must, require_lss
@@ -177,18 +177,6 @@ def tv07(ctx: Context) -> None:
     probe.expect(0x05, "NMT start with DLC 8")
 
 
-def _io_pdos(ctx: Context) -> tuple[Pdo, Pdo]:
-    require_loopback(ctx)
-    dev = ctx.device
-    rpdo = active_pdo(dev, tx=False, n=0)
-    tpdo = active_pdo(dev, tx=True, n=0)
-    if rpdo.entries[0] >> 16 != 0x6200 or tpdo.entries[0] >> 16 != 0x6000:
-        raise Skip("RPDO1/TPDO1 do not map 0x6200/0x6000 (the seed layout)")
-    old = bytes(dev.upload(0x6200, s + 1)[0] for s in range(len(rpdo.entries)))
-    ctx.cleanup(lambda: [dev.write(0x6200, s + 1, old[s]) for s in range(len(old))])
-    return rpdo, tpdo
-
-
 def _hex(data: bytes) -> str:
     return " ".join(f"{b:02X}" for b in data)
 
@@ -207,7 +195,7 @@ def _tpdo_line(tpdo: Pdo, data: bytes) -> str:
 
 @case("seed", "tv08_rpdo_to_tpdo", "TV-08 / TV-P01: RxPDO1 [8] writes DO, the DI change sends TxPDO1 with the mapped length")
 def tv08(ctx: Context) -> None:
-    rpdo, tpdo = _io_pdos(ctx)
+    rpdo, tpdo = io_pdos(ctx)
     operational(ctx)
     x = _pattern(rpdo, 0x34)
     replay(ctx, _rpdo_line(rpdo, x) + "\n" + _tpdo_line(tpdo, x))
@@ -241,47 +229,42 @@ def tv11(ctx: Context) -> None:
         raise Fail("TxPDO2 still sent after event timer 0", expected="nothing", seen=str(late[0]))
 
 
-def _set_type(ctx: Context, index: int, ttype: int) -> None:
+def _typed(ctx: Context, tx: bool, ttype: int) -> tuple[Pdo, Pdo, int]:
+    """The I/O PDO pair with the RPDO1 (tx False) or TPDO1 (tx True) type set by the vector's SDO frame,
+    the node Operational; returns (rpdo, tpdo, TPDO1 COB-ID)."""
+    rpdo, tpdo = io_pdos(ctx)
+    index = tpdo.comm if tx else rpdo.comm
     restore_later(ctx, index, 2)
     replay(ctx, f"-> 600+ 2F {index & 0xFF:02X} {index >> 8:02X} 02 {ttype:02X} 00 00 00\n<- 580+ 60 {index & 0xFF:02X} {index >> 8:02X} 02 ?? ?? ?? ??")
+    operational(ctx)
+    return rpdo, tpdo, tpdo.cob & 0x7FF
 
 
 @case("seed", "tv12_rpdo_type0", "TV-12 / TV-P04: RxPDO1 type 0 is applied only at the next SYNC")
 def tv12(ctx: Context) -> None:
-    rpdo, tpdo = _io_pdos(ctx)
-    _set_type(ctx, rpdo.comm, 0)
-    operational(ctx)
+    rpdo, tpdo, t = _typed(ctx, False, 0)
     x = _pattern(rpdo, 0x78)
-    replay(ctx, _rpdo_line(rpdo, x) + f"\n-- {tpdo.cob & 0x7FF:03X}\nsync\n" + _tpdo_line(tpdo, x))
+    replay(ctx, _rpdo_line(rpdo, x) + f"\n-- {t:03X}\nsync\n" + _tpdo_line(tpdo, x))
 
 
 @case("seed", "tv13_tpdo_type0", "TV-13 / TV-P05: TxPDO1 type 0 is sent at SYNC only if the DI changed")
 def tv13(ctx: Context) -> None:
-    rpdo, tpdo = _io_pdos(ctx)
-    _set_type(ctx, tpdo.comm, 0)
-    operational(ctx)
+    rpdo, tpdo, t = _typed(ctx, True, 0)
     x = _pattern(rpdo, 0xAB)
-    t = tpdo.cob & 0x7FF
     replay(ctx, _rpdo_line(rpdo, x) + f"\n-- {t:03X}\nsync\n" + _tpdo_line(tpdo, x) + f"\nsync\n-- {t:03X}")
 
 
 @case("seed", "tv14_tpdo_type3", "TV-14 / TV-P06: TxPDO1 type 3 is sent at the third SYNC")
 def tv14(ctx: Context) -> None:
-    rpdo, tpdo = _io_pdos(ctx)
-    _set_type(ctx, tpdo.comm, 3)
-    operational(ctx)
+    rpdo, tpdo, t = _typed(ctx, True, 3)
     x = _pattern(rpdo, 0xEF)
-    t = tpdo.cob & 0x7FF
     replay(ctx, _rpdo_line(rpdo, x) + f"\n-- {t:03X}\nsync\n-- {t:03X}\nsync\n-- {t:03X}\nsync\n" + _tpdo_line(tpdo, x))
 
 
 @case("seed", "tv15_tpdo_type252", "TV-15 / TV-P07: TxPDO1 type 252 answers RTR with the value sampled at the last SYNC")
 def tv15(ctx: Context) -> None:
-    rpdo, tpdo = _io_pdos(ctx)
-    _set_type(ctx, tpdo.comm, 252)
-    operational(ctx)
+    rpdo, tpdo, t = _typed(ctx, True, 252)
     old, new = _pattern(rpdo, 0x10), _pattern(rpdo, 0x34)
-    t = tpdo.cob & 0x7FF
     replay(ctx, _rpdo_line(rpdo, old))
     time.sleep(0.1)
     replay(ctx, f"sync\n-- {t:03X}\n" + _rpdo_line(rpdo, new))
@@ -291,11 +274,8 @@ def tv15(ctx: Context) -> None:
 
 @case("seed", "tv16_tpdo_type253", "TV-16 / TV-P08: TxPDO1 type 253 is sent only on RTR, with the current value")
 def tv16(ctx: Context) -> None:
-    rpdo, tpdo = _io_pdos(ctx)
-    _set_type(ctx, tpdo.comm, 253)
-    operational(ctx)
+    rpdo, tpdo, t = _typed(ctx, True, 253)
     x = _pattern(rpdo, 0x78)
-    t = tpdo.cob & 0x7FF
     replay(ctx, _rpdo_line(rpdo, x) + f"\n-- {t:03X}")
     replay(ctx, f"-> {t:03X} RTR {tpdo.length}\n" + _tpdo_line(tpdo, x))
 
@@ -312,7 +292,7 @@ def tv17(ctx: Context) -> None:
     require_loopback(ctx)
     dev = ctx.device
     pdo6 = _pdo6(ctx, tx=True)
-    rpdo, _ = _io_pdos(ctx)
+    rpdo, _ = io_pdos(ctx)
     cob = 0x180 + (ctx.options.lss_spare_node_id or dev.node_id % 127 + 1)
     remap(ctx, pdo6, [0x60000108, 0x64010110])
     dev.write(0x1805, 1, cob)
@@ -329,7 +309,7 @@ def tv18(ctx: Context) -> None:
     require_loopback(ctx)
     dev = ctx.device
     pdo6 = _pdo6(ctx, tx=False)
-    _, tpdo = _io_pdos(ctx)
+    _, tpdo = io_pdos(ctx)
     restore_later(ctx, 0x6411, 1)
     cob = 0x200 + (ctx.options.lss_spare_node_id or dev.node_id % 127 + 1)
     remap(ctx, pdo6, [0x62000108, 0x64110110])
