@@ -10,8 +10,8 @@
 * Producer (test benches): 0x1005 bit 30 set and 0x1006 non-zero sends SYNC every
   period, with a counter 1..0x1019 when 0x1019 > 1; the node consumes its own SYNC.
 * 0x1019 may be written only while 0x1006 is 0 (else 0800 0022); values 1 and
-  241..255 abort 0609 0030. 0x1005 with bit 29 (29-bit) aborts 0609 0030; the producer
-  bit may be set only while 0x1006 is 0 or the producer is already on.
+  241..255 abort 0609 0030. 0x1005 with bit 29 (29-bit) aborts 0609 0030, and so does
+  a new identifier while the producer bit stays set (clear bit 30 first, CiA 301).
 """
 
 from __future__ import annotations
@@ -132,6 +132,9 @@ class SyncService(Service):
     def _check_cob_id(self, sub: int, value: int) -> None:
         if value & EXTENDED_BIT or value & 0x1FFFF800:
             raise SdoAbort(abort.VALUE_RANGE, "only 11-bit SYNC COB-IDs are supported")
+        old = self.node.od.get(0x1005)
+        if old & value & PRODUCER_BIT and (old & 0x7FF) != (value & 0x7FF):
+            raise SdoAbort(abort.VALUE_RANGE, "clear bit 30 before changing the SYNC COB-ID")
 
     def _check_overflow(self, sub: int, value: int) -> None:
         if self.node.od.get(0x1006):

@@ -141,3 +141,13 @@ def test_store_path_that_cannot_be_read_falls_back(tmp_path):
     node.service("store").load()
     r = Rig(node)
     assert r.boot == ["701 00", "081 00 50 81 02 00 00 00 00"]
+
+
+def test_sync_cob_id_rules(rig):
+    assert rig.sdo("23 05 10 00 80 00 00 20") == "80 05 10 00 30 00 09 06"  # 29-bit
+    assert rig.sdo("23 05 10 00 80 00 00 40") == "60 05 10 00 00 00 00 00"  # producer on
+    assert rig.sdo("23 05 10 00 81 00 00 40") == "80 05 10 00 30 00 09 06"  # id change while producing
+    assert rig.sdo("23 05 10 00 80 00 00 00") == "60 05 10 00 00 00 00 00"
+    assert rig.sdo("23 05 10 00 90 00 00 00") == "60 05 10 00 00 00 00 00"
+    rig.send("090")
+    assert len(rig.node.recorder.seen) == 1
