@@ -115,14 +115,6 @@ class CanAdapter:
         return self.loop.time()
 
     # -- receive -----------------------------------------------------------------------
-    def _from_thread(self, msg: can.Message) -> None:
-        """Notifier thread: hop to the event loop."""
-        if not self.closed:
-            try:
-                self.loop.call_soon_threadsafe(self._receive, msg)
-            except RuntimeError:  # loop closed during shutdown
-                pass
-
     def _receive(self, msg: can.Message) -> None:
         if self.closed:
             return
