@@ -34,6 +34,10 @@ log = logging.getLogger("fieldgate.polling")
 
 Reading = Any  # a value, or (value, Quality) for module-reported quality
 
+NOTHING_DUE: dict = {}
+"""Returned by ``read_inputs`` when it made no transaction (none of its groups was due):
+the scheduler then records neither a success nor a request. Compared by identity."""
+
 
 class CommError(Exception):
     """A transaction failed. ``kind`` says how; the text is for logs and status."""
@@ -55,7 +59,8 @@ class PolledModule(ABC):
 
     @abstractmethod
     async def read_inputs(self) -> dict[str, Reading]:
-        """Read every input channel; returns {channel id: value or (value, Quality)}."""
+        """Read the input channels that are due; returns {channel id: value or (value, Quality)},
+        or :data:`NOTHING_DUE` when no transaction was made."""
 
     async def write_outputs(self, values: dict[str, Any]) -> None:
         """Write the given output channels (current process-image values)."""
@@ -226,6 +231,9 @@ class LineScheduler:
                 log.debug("line %s module %d: unexpected error", self.name, st.module.address, exc_info=True)
                 self._failed(st, ErrorKind.IO, f"{type(exc).__name__}: {exc}")
             else:
+                if result is NOTHING_DUE:
+                    self.stats.requests -= 1
+                    return True, result
                 came_back = st.health.record_success(self.clock() - started, self.clock())
                 if st.burst_logged:
                     log.info("line %s module %d answers again", self.name, st.module.address)

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from itertools import groupby
 
 from fieldgate.image import ChannelSpec, Quality
-from fieldgate.polling import PolledModule, SerialBack
+from fieldgate.polling import NOTHING_DUE, PolledModule, SerialBack
 from fieldgate.topology import ModuleConfig
 
 from . import values as regvalues
@@ -33,6 +33,7 @@ class ModbusModule(PolledModule):
         self.unit = config.address
         self.clock = clock
         self.retry_period = retry_period
+        self.reads = 0  # read transactions made, so a poll with nothing due can say so
         self.outputs_by_id = {p.channel: p for p in points if p.kind.is_output}
         inputs = [p for p in points if not p.kind.is_output]
         # A module with outputs only is read back, so that a dead module is noticed.
@@ -57,6 +58,7 @@ class ModbusModule(PolledModule):
     async def read_inputs(self) -> dict[str, object]:
         readings: dict[str, object] = {}
         now = self.clock()
+        reads_before = self.reads
         for block in list(self.blocks):
             period = block.points[0].period
             if period and block.due > now:
@@ -70,6 +72,8 @@ class ModbusModule(PolledModule):
             if period:
                 block.due = now + period
         readings.update(await self._retry_bad(now))
+        if self.reads == reads_before:
+            return NOTHING_DUE
         if self._discard:
             return {}
         self.last.update({k: v for k, v in readings.items() if not isinstance(v, tuple)})
@@ -87,6 +91,7 @@ class ModbusModule(PolledModule):
             pass
 
     async def _read(self, block: ReadBlock) -> list:
+        self.reads += 1
         if block.table.is_bits:
             return await self.link.read_bits(self.unit, block.function, block.address, block.count)
         return await self.link.read_registers(self.unit, block.function, block.address, block.count)

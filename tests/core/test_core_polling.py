@@ -216,3 +216,22 @@ async def test_outputs_set_while_offline_are_written_on_recovery_and_untouched_o
     writes = [e for e in log if e[0] == "write"]
     assert writes[-1] == ("write", 1, {"line/m1/do1": True})
     assert all("line/m1/do0" not in w[2] for w in writes)
+
+
+async def test_a_poll_with_nothing_due_is_neither_a_success_nor_a_request():
+    from fieldgate.polling import NOTHING_DUE
+
+    line, modules, image, health, clock, log = make_line(n_modules=1)
+    await drain(line)
+    assert health[1].requests == 1 and line.stats.requests == 1
+
+    async def idle():
+        return NOTHING_DUE
+
+    modules[0].read_inputs = idle
+    modules[0].failures = []
+    health[1].consecutive_failures = 2
+    clock.t = TICK
+    await drain(line)
+    assert health[1].requests == 1 and line.stats.requests == 1
+    assert health[1].consecutive_failures == 2  # not reset by a poll that asked nothing

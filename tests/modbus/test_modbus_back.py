@@ -240,6 +240,16 @@ async def test_group_poll_periods(make_line):
     assert sorted(line.requests()) == [(2, 4, 0, 2), (2, 4, 2, 2)]
 
 
+async def test_a_poll_with_no_group_due_records_no_request(make_line):
+    line = await make_line([{"address": 2, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}]}])
+    await line.run_due()
+    assert line.requests() == [(2, 4, 0, 1)]
+    requests = line.health[2].requests
+    for _ in range(3):
+        await line.cycle()
+    assert line.requests() == [] and line.health[2].requests == requests
+
+
 async def test_a_probe_always_makes_a_transaction(make_line):
     # an offline module must prove it answers, even when none of its groups is due
     line = await make_line([{"address": 2, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}]}])
