@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import uuid
 
 import can
@@ -135,3 +136,4 @@ async def test_status_shows_counters(gw):
     assert st["services"]["sdo"]["bad_dlc_dropped"] == 1
     assert st["counters"]["nmt_malformed"] == 1
     assert st["bus"]["rx"] >= 3
+    json.loads(json.dumps(gateway.status()))  # the CLI and embedding code serialise it
