@@ -30,6 +30,8 @@ import logging
 import struct
 from enum import Enum, auto
 
+from canopen.objectdictionary.datatypes import UNSIGNED_TYPES
+
 from . import abort
 from .abort import SdoAbort
 from .frame import Frame
@@ -61,12 +63,13 @@ class Phase(Enum):
 class SdoServer(Service):
     name = "sdo"
 
-    def __init__(self, timeout_s: float = DEFAULT_TIMEOUT_S, block_size: int = MAX_BLOCK_SIZE):
+    def __init__(self, timeout_s: float = DEFAULT_TIMEOUT_S, block_size: int = MAX_BLOCK_SIZE, zero_extend: bool = False):
         super().__init__()
         if not 1 <= block_size <= MAX_BLOCK_SIZE:
             raise ValueError("SDO block size must be 1..127")
         self.timeout_s = timeout_s
         self.block_size = block_size
+        self.zero_extend = zero_extend  # accept short expedited writes to unsigned objects (NA-9161 masters)
         self._idle()
 
     def attach(self, node) -> None:
@@ -200,6 +203,8 @@ class SdoServer(Service):
         if expedited:
             if sized:
                 data = d[4:8 - ((d[0] >> 2) & 0x03)]
+                if self.zero_extend:
+                    data = self._zero_extended(data)
             else:  # size not indicated: the object's own size (CiA 301 allows it)
                 var = od.check_download(self.index, self.subindex)
                 data = d[4:4 + min(4, size_of(var) or 4)]
@@ -211,6 +216,14 @@ class SdoServer(Service):
         od.check_download(self.index, self.subindex, self.size)
         self.phase = Phase.DOWNLOAD
         self._send(b"\x60" + self._mux())
+
+    def _zero_extended(self, data: bytes) -> bytes:
+        var = self.node.od.check_download(self.index, self.subindex)
+        size = size_of(var)
+        if size is not None and len(data) < size and var.data_type in UNSIGNED_TYPES:
+            self.counters["zero_extended_writes"] += 1
+            return data.ljust(size, b"\x00")
+        return data
 
     def _download_segment(self, d: bytes) -> None:
         toggle = (d[0] >> 4) & 1

@@ -46,6 +46,7 @@ class NodeSettings:
     emcy_history: int = 5
     sdo_timeout_s: float = 1.0
     sdo_block_size: int = 127
+    sdo_zero_extend: bool = False
     sync_cob_id: int = 0x80
     store_path: Path | None = None
     fingerprint: str = ""
@@ -82,6 +83,6 @@ def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
     node.add_service(EmcyProducer(settings.emcy_history))
     node.add_service(ErrorControl(settings.guard_time_ms, settings.life_time_factor, settings.heartbeat_ms, settings.heartbeat_consumers, settings.error_behaviour))
     node.add_service(SyncService(settings.sync_cob_id))
-    node.add_service(SdoServer(settings.sdo_timeout_s, settings.sdo_block_size))
+    node.add_service(SdoServer(settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend))
     node.add_service(StoreService(settings.store_path, settings.fingerprint))
     return node

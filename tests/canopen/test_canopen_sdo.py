@@ -236,3 +236,12 @@ def test_a_failing_listener_gets_a_general_error_abort(rig):
     assert abort_of(rig.sdo("2B 02 21 00 01 00 00 00")) == 0x08000000
     assert rig.node.service("sdo").counters["internal_errors"] == 1
     assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"
+
+
+def test_short_expedited_write_zero_extended_only_when_enabled():
+    strict = Rig(seed_node())
+    assert abort_of(strict.sdo("2B 16 10 01 C8 00 00 00")) == 0x06070013
+    lenient = Rig(seed_node(sdo_zero_extend=True))
+    assert lenient.sdo("2B 16 10 01 C8 00 00 00") == "60 16 10 01 00 00 00 00"
+    assert lenient.node.od.get(0x1016, 1) == 200
+    assert abort_of(lenient.sdo("2F 02 21 00 05 00 00 00")) == 0x06070013  # signed: not extended
