@@ -122,6 +122,7 @@ class IoDevice(Service):
             self.directory, self.defaults.tpdo, self.defaults.rpdo, node.node_id if node.configured else 0,
             start_policy=self.settings.policy, rpdo_timing=self.settings.style == "na9161",
             clock=lambda: node.now, length_error=self._length_error, wakeup=self._engine_wakeup,
+            exists=lambda index, sub: (index, sub) in node.od,
         )
         for obj in self.objects():
             bind_object(node.od, obj)

@@ -158,6 +158,7 @@ class PdoEngine:
         clock: Callable[[], float] = time.monotonic,
         length_error: Callable[[bool], None] | None = None,
         wakeup: Callable[[], None] | None = None,
+        exists: Callable[[int, int], bool] | None = None,
     ):
         if not 1 <= len(tpdo_defaults) <= MAX_PDOS or not 1 <= len(rpdo_defaults) <= MAX_PDOS:
             raise ValueError(f"1 to {MAX_PDOS} PDOs per direction")
@@ -168,6 +169,7 @@ class PdoEngine:
         self.clock = clock
         self.length_error = length_error
         self.wakeup = wakeup
+        self.exists = exists  # other objects of the node: mapping them is 0604 0041, not 0602 0000
         self.tpdos = [Pdo(n + 1, True, d) for n, d in enumerate(tpdo_defaults)]
         self.rpdos = [Pdo(n + 1, False, d) for n, d in enumerate(rpdo_defaults)]
         self.operational = False
@@ -405,7 +407,12 @@ class PdoEngine:
     # -- mapping ----------------------------------------------------------------------
     def _check_entry(self, pdo: Pdo, value: int) -> _Slot:
         index, sub, bits = value >> 16, value >> 8 & 0xFF, value & 0xFF
-        entry = self.directory.entry(index, sub)  # 0602 0000 / 0609 0011 when missing
+        try:
+            entry = self.directory.entry(index, sub)  # 0602 0000 / 0609 0011 when missing
+        except Abort:
+            if self.exists is not None and self.exists(index, sub):
+                raise Abort(NOT_MAPPABLE, f"0x{index:04X}:{sub} cannot be mapped") from None
+            raise
         usable = entry.readable if pdo.transmit else entry.writable
         if not entry.mappable or not usable:
             raise Abort(NOT_MAPPABLE, f"0x{index:04X}:{sub} cannot be mapped into a {'T' if pdo.transmit else 'R'}PDO")

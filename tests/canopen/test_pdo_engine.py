@@ -58,6 +58,7 @@ def test_mapping_rules_and_abort_codes():
     assert b.write(0x1A05, 1, 0x60020108, 4) == abort(0x1A05, 1, 0x06040041)  # polarity: not mappable
     assert b.write(0x1A05, 1, 0x60000110, 4) == abort(0x1A05, 1, 0x06040041)  # wrong length
     assert b.write(0x1A05, 1, 0x70000108, 4) == abort(0x1A05, 1, 0x06020000)  # no such object
+    assert b.write(0x1A05, 1, 0x10000020, 4) == abort(0x1A05, 1, 0x06040041)  # device type: exists, not mappable
     assert b.write(0x1A05, 1, 0x60000908, 4) == abort(0x1A05, 1, 0x06090011)  # no such sub-index
     assert b.write(0x1605, 1, 0x64010110, 4) == abort(0x1605, 1, 0x06040041)  # AI is read-only: no RPDO
     for sub in range(1, 6):
