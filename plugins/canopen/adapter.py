@@ -11,6 +11,9 @@
 * Bus-off: SocketCAN error frames (``CAN_ERR_BUSOFF`` / ``CAN_ERR_RESTARTED``) and
   interfaces that report ``bus.state == ERROR`` (checked once a second) are passed to
   ``on_bus_state``. Send failures are counted, never raised.
+* Receiving that has died (the Notifier thread ended on a driver exception, or the
+  reader failed ``RX_ERRORS_FATAL`` times within one poll) sets :attr:`CanAdapter.failed`;
+  the front's ``run()`` raises and the runtime restarts the front with back-off.
 * Remote frames keep their DLC; 29-bit frames are counted and dropped (the node uses
   11-bit identifiers only).
 """
@@ -36,6 +39,7 @@ log = logging.getLogger("fieldgate.canopen.adapter")
 CAN_ERR_BUSOFF = 0x40
 CAN_ERR_RESTARTED = 0x100
 STATE_POLL_S = 1.0
+RX_ERRORS_FATAL = 100  # receive errors within one state poll that count as a dead bus
 
 
 def open_bus(interface: str, channel: str | None, bitrate: int | None, options: dict[str, Any] | None = None) -> can.BusABC:
@@ -86,7 +90,9 @@ class CanAdapter:
         self._notifier: can.Notifier | None = None
         self._bus_off = False
         self._state_bus_off = False
+        self._rx_errors_seen = 0
         self.closed = False
+        self.failed: asyncio.Future = loop.create_future()  # set when receiving is dead: run() raises
 
     # -- life cycle ------------------------------------------------------------------
     def start(self, boot: bool = True) -> None:
@@ -149,7 +155,26 @@ class CanAdapter:
         elif state is not None and self._state_bus_off:
             self._state_bus_off = False
             self._set_bus_off(False)
+        self._check_receiver()
         self._state_timer = self.loop.call_later(STATE_POLL_S, self._poll_bus_state)
+
+    def _check_receiver(self) -> None:
+        """A dead Notifier thread, or a reader failing on every call, fails the adapter."""
+        receiver = self._notifier
+        notifier = getattr(receiver, "_notifier", None)
+        exc = getattr(notifier, "exception", None)
+        errors = getattr(receiver, "errors", 0)
+        if exc is None and isinstance(errors, int) and errors - self._rx_errors_seen >= RX_ERRORS_FATAL:
+            exc = can.CanOperationError(f"{errors - self._rx_errors_seen} receive errors in {STATE_POLL_S:g} s")
+        self._rx_errors_seen = errors if isinstance(errors, int) else 0
+        if exc is not None:
+            self._receive_failed(exc)
+
+    def _receive_failed(self, exc: BaseException) -> None:
+        self.counters["rx_failures"] += 1
+        if not self.failed.done():
+            log.error("CAN receive failed: %s", _one_line(exc))
+            self.failed.set_exception(RuntimeError(f"CAN receive failed: {_one_line(exc)}"))
 
     def _set_bus_off(self, bus_off: bool) -> None:
         if bus_off == self._bus_off:

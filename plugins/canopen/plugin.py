@@ -154,7 +154,8 @@ class CanopenFront(Front):
         self.log.info("CANopen node %s on %s/%s at %s bit/s", self.node.node_id if self.node.configured else "unconfigured", cfg.interface, cfg.channel, bitrate)
 
     async def run(self) -> None:
-        await asyncio.Event().wait()
+        """Everything is callback-driven; raises only when receiving from the bus has died."""
+        await self.adapter.failed
 
     async def stop(self) -> None:
         if self.adapter is not None:

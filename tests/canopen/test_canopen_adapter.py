@@ -76,3 +76,35 @@ def test_open_bus_errors_are_one_line():
     with pytest.raises(PluginStartError) as err:
         open_bus("socketcan", "fieldgate-nope0", 125000)
     assert "\n" not in str(err.value)
+
+
+
+async def test_dead_receiver_fails_the_adapter(setup):
+    adapter, peer, _ = setup
+
+    class DeadThread:
+        exception = can.CanOperationError("interface went down")
+
+    class FailingReader:
+        errors = 0
+        _notifier = None
+
+    real = adapter._notifier
+    try:
+        adapter._notifier = FailingReader()
+        adapter._check_receiver()
+        FailingReader.errors = 5
+        adapter._check_receiver()
+        assert not adapter.failed.done()  # a few errors are survivable
+        FailingReader.errors = 5 + adapter_mod.RX_ERRORS_FATAL
+        adapter._check_receiver()
+        assert adapter.failed.done()
+        with pytest.raises(RuntimeError, match="CAN receive failed: 100 receive errors"):
+            adapter.failed.result()
+        adapter.failed = asyncio.get_running_loop().create_future()
+        adapter._notifier = type("Threaded", (), {"_notifier": DeadThread()})()
+        adapter._check_receiver()
+        with pytest.raises(RuntimeError, match="interface went down"):
+            adapter.failed.result()
+    finally:
+        adapter._notifier = real
