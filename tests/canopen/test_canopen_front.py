@@ -137,3 +137,23 @@ async def test_status_shows_counters(gw):
     assert st["counters"]["nmt_malformed"] == 1
     assert st["bus"]["rx"] >= 3
     json.loads(json.dumps(gateway.status()))  # the CLI and embedding code serialise it
+
+
+async def test_dead_bus_restarts_the_front(tmp_path, registry):
+    channel = f"front-{uuid.uuid4().hex[:8]}"
+    peer = Peer(channel)
+    topo = topology(tmp_path / "state", NODE, channel=channel, restart_backoff_s=0.05)
+    gateway = Gateway.load(topo, registry=registry)
+    await gateway.start()
+    try:
+        assert await peer.expect(0x700 + NODE) == b"\x00"
+        front = gateway.component("plc")
+        front.adapter._receive_failed(can.CanOperationError("interface went down"))
+        assert await peer.expect(0x700 + NODE, 3.0) == b"\x00"  # booted again
+        assert gateway.status()["fronts"]["plc"]["restarts"] == 1
+        peer.send(0x605, bytes.fromhex("4000100000000000"))
+        answer = await peer.expect(0x585)
+        assert answer[:4] == bytes.fromhex("43001000")  # the new node answers SDO
+    finally:
+        await gateway.stop()
+        peer.bus.shutdown()
