@@ -70,3 +70,16 @@ def test_a_failing_service_is_counted_not_raised(caplog):
     assert rig.node.counters["internal_errors"] == 2  # on_frame, then its overdue poll
     assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"
     assert any("broken" in r.getMessage() for r in caplog.records)
+
+
+def test_dictionary_serves_an_imported_eds(tmp_path):
+    from fieldgate.plugins.canopen.od import Dictionary
+
+    path = tmp_path / "node.eds"
+    canopen.export_od(seed_node().od.model, str(path))
+    served = Dictionary(canopen.import_od(str(path), node_id=7), node_id=7)
+    assert served.get(0x1014) == 0x87 and served.get(0x1200, 2) == 0x587
+    assert served.read(0x1008, 0) == b"CPS_DCON\x00"
+    served.node_id = 9
+    served.reload()
+    assert served.get(0x1014) == 0x89
