@@ -21,7 +21,7 @@ from pydantic import Field
 from fieldgate import __version__
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.image import Kind
-from fieldgate.plugin import Front, GatewayContext, PluginStartError, hookimpl
+from fieldgate.plugin import Front, GatewayContext, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
