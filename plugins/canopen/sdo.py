@@ -30,6 +30,7 @@ import logging
 import struct
 from enum import Enum, auto
 
+from canopen.objectdictionary import datatypes as dt
 from canopen.objectdictionary.datatypes import UNSIGNED_TYPES
 
 from . import abort
@@ -74,8 +75,6 @@ class SdoServer(Service):
 
     def attach(self, node) -> None:
         super().attach(node)
-        from canopen.objectdictionary import datatypes as dt
-
         node.od.add_record(0x1200, "SDO server parameter", [
             (1, "COB-ID client to server", dt.UNSIGNED32, "ro", 0x600, {"relative": True}),
             (2, "COB-ID server to client", dt.UNSIGNED32, "ro", 0x580, {"relative": True}),
