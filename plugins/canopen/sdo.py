@@ -110,7 +110,7 @@ class SdoServer(Service):
             self._abort(abort.TIMEOUT)
 
     def on_nmt_state(self, old, new, now) -> None:
-        if self.phase is not Phase.IDLE:
+        if new not in self.active_states and self.phase is not Phase.IDLE:  # Stopped, reset
             self.counters["dropped_by_state"] += 1
             self._idle()
 

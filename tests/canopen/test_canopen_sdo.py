@@ -245,3 +245,12 @@ def test_short_expedited_write_zero_extended_only_when_enabled():
     assert lenient.sdo("2B 16 10 01 C8 00 00 00") == "60 16 10 01 00 00 00 00"
     assert lenient.node.od.get(0x1016, 1) == 200
     assert abort_of(lenient.sdo("2F 02 21 00 05 00 00 00")) == 0x06070013  # signed: not extended
+
+
+def test_transfer_survives_start_but_not_stop(rig):
+    rig.sdo("40 08 10 00 00 00 00 00")
+    rig.send("000 01 01")  # pre-operational -> operational: the transfer goes on
+    assert rig.sdo("60 00 00 00 00 00 00 00") == "00 43 50 53 5F 44 43 4F"
+    rig.send("000 02 01")  # stopped: the transfer is dropped
+    rig.send("000 01 01")
+    assert abort_of(rig.sdo("70 00 00 00 00 00 00 00")) == 0x05040001
