@@ -180,7 +180,8 @@ class LineScheduler:
                 if delay > 0:
                     self._wake.clear()
                     try:
-                        await asyncio.wait_for(self._wake.wait(), delay)
+                        async with asyncio.timeout(delay):  # not wait_for: see AsyncSerial._wait
+                            await self._wake.wait()
                     except TimeoutError:
                         pass
         finally:

@@ -101,7 +101,10 @@ class AsyncSerial:
         if remaining <= 0:
             raise TimeoutError
         self._data.clear()
-        await asyncio.wait_for(self._data.wait(), remaining)
+        # asyncio.timeout, not wait_for: on Python 3.11 wait_for can swallow a cancellation
+        # that arrives together with the data, and the poller then never stops
+        async with asyncio.timeout(remaining):
+            await self._data.wait()
 
     async def close(self) -> None:
         if not self.closed:

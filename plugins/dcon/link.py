@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+
 from fieldgate.health import ErrorKind
 from fieldgate.polling import CommError
 
@@ -20,14 +22,24 @@ class DconLink:
         self.use_checksum = use_checksum
         self.timeout = timeout
         self.transactions = 0
+        self._after_timeout = False
+
+    async def _settle(self) -> None:
+        """After a timeout, let a late reply arrive and drop it: ``>`` replies carry no address,
+        so a late one would otherwise be taken for the answer to the next command."""
+        if self._after_timeout:
+            self._after_timeout = False
+            await asyncio.sleep(self.timeout)
+        self.serial.reset_input()
 
     async def transact(self, text: str, timeout: float | None = None) -> str:
-        self.serial.reset_input()  # a late reply to an earlier command must not be taken for this one
+        await self._settle()
         await self.serial.write(frame(text, self.use_checksum))
         self.transactions += 1
         try:
             raw = await self.serial.read_until(CR, self.timeout if timeout is None else timeout)
         except TimeoutError:
+            self._after_timeout = True
             if self.serial.pending:
                 raise CommError(ErrorKind.GARBAGE, f"truncated reply to {text!r} (no CR)") from None
             raise CommError(ErrorKind.TIMEOUT, f"no reply to {text!r}") from None
@@ -35,5 +47,6 @@ class DconLink:
 
     async def broadcast(self, text: str) -> None:
         """A command nobody answers (``~**``)."""
+        await self._settle()
         await self.serial.write(frame(text, self.use_checksum))
         self.transactions += 1

@@ -348,6 +348,8 @@ class SimBus:
         for fault in list(self.faults):
             if fault.address not in (None, address):
                 continue
+            if fault.kind == "wrong-address" and not (frame[:1] in (b"!", b"?") and len(frame) > 3):
+                continue  # '>' replies carry no address
             if fault.count is not None:
                 fault.count -= 1
                 if fault.count <= 0:
@@ -362,7 +364,7 @@ class SimBus:
                 return b"\x00\xff#%&\r", 0.0
             if fault.kind == "truncate":
                 return frame[: max(1, len(frame) // 2)], 0.0
-            if fault.kind == "wrong-address" and len(frame) > 3:
+            if fault.kind == "wrong-address":
                 other = f"{(address + 1) & 0xFF:02X}".encode()
                 text = frame[:1] + other + frame[3:-1 - (2 if self.checksum else 0)]
                 return codec.frame(text.decode("ascii"), self.checksum), 0.0
