@@ -102,14 +102,20 @@ class EmcyProducer(Service):
         self._produce(0x0000, b"", now)
         return True
 
+    def signal(self, code: int, register: int, manufacturer: bytes = b"", now: float | None = None) -> None:
+        """Send (and record) a one-off event EMCY that does not stay active, e.g. the I-7232D's
+        ``00 FF 80 0A`` on an NMT reset request; ``register`` is sent as given."""
+        self._produce(code, bytes(manufacturer[:5]), now, register)
+
     def is_active(self, code: int) -> bool:
         return any(k[0] == code for k in self.active)
 
     # -- producing ------------------------------------------------------------------------
-    def _produce(self, code: int, manufacturer: bytes, now: float | None) -> None:
+    def _produce(self, code: int, manufacturer: bytes, now: float | None, register: int | None = None) -> None:
         now = self.node.now if now is None else now
         self.history.appendleft(history_value(code, manufacturer))
-        data = code.to_bytes(2, "little") + bytes([self.register]) + manufacturer.ljust(5, b"\x00")
+        register = self.register if register is None else register & 0xFF
+        data = code.to_bytes(2, "little") + bytes([register]) + manufacturer.ljust(5, b"\x00")
         cob = self.node.od.get(0x1014)
         if cob & COB_ID_INVALID:
             self.counters["disabled"] += 1

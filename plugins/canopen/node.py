@@ -43,6 +43,7 @@ NMT_STOP = 0x02
 NMT_PRE_OPERATIONAL = 0x80
 NMT_RESET_NODE = 0x81
 NMT_RESET_COMMUNICATION = 0x82
+RESET_EMCY_CODE, RESET_EMCY_REGISTER, RESET_EMCY_MANUFACTURER = 0xFF00, 0x80, b"\x0a"  # I-7232D/I-7231D
 
 
 class Node:
@@ -60,6 +61,7 @@ class Node:
         self.counters: Counter[str] = Counter()
         self.emcy = None  # the EMCY producer, set when one is added (see .emcy)
         self.now = 0.0  # time of the last boot()/receive()/tick(), for calls from outside
+        self.reset_emcy = False  # send EMCY 00 FF 80 0A before an NMT reset (ICP DAS gateways do)
         self._outbox: list[Frame] = []
         self._nmt_listeners: list[Callable[[NmtState, NmtState], None]] = []
         self._master_listeners: list[Callable[[bool, str], None]] = []
@@ -176,10 +178,10 @@ class Node:
             self.set_state(NmtState.STOPPED, now)
         elif cs == NMT_PRE_OPERATIONAL:
             self.set_state(NmtState.PRE_OPERATIONAL, now)
-        elif cs == NMT_RESET_NODE:
-            self.reset_node(now)
-        elif cs == NMT_RESET_COMMUNICATION:
-            self.reset_communication(now)
+        elif cs in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
+            if self.reset_emcy and self.emcy is not None:
+                self.emcy.signal(RESET_EMCY_CODE, RESET_EMCY_REGISTER, RESET_EMCY_MANUFACTURER, now)
+            self._reset(now, application=cs == NMT_RESET_NODE)
         else:
             self.counters["nmt_unknown_command"] += 1
 

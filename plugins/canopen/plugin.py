@@ -75,6 +75,7 @@ class CanopenFrontConfig(FrontConfig, IoFrontOptions):
     heartbeat_consumers: int = Field(1, ge=0, le=127, description="number of 0x1016 heartbeat consumer entries")
     on_master_lost: Literal["pre-operational", "no-change", "stopped"] = Field("no-change", description="0x1029:1 default: NMT state change on life guarding / heartbeat timeout / bus-off (NA-9161: pre-operational)")
     sync_cob_id: int = Field(0x80, ge=1, le=0x7FF, description="0x1005 default SYNC COB-ID")
+    emcy_on_nmt_reset: bool = Field(False, description="send EMCY 00 FF 80 0A 00 00 00 00 before an NMT reset node/communication, as the I-7232D/I-7231D do")
     emcy_history: int = Field(5, ge=5, le=254, description="depth of the 0x1003 pre-defined error field")
     sdo_timeout_ms: int = Field(1000, ge=10, le=60_000, description="server-side SDO transfer timeout")
     sdo_block_size: int = Field(127, ge=1, le=127, description="block size the SDO server offers")
@@ -117,7 +118,7 @@ class CanopenFront(Front):
             node_id=cfg.node_id,
             identity=Identity(device_type, ident.vendor_id, ident.product_code, ident.revision, ident.serial, ident.device_name, ident.hardware_version, ident.software_version),
             heartbeat_ms=cfg.heartbeat_ms, guard_time_ms=cfg.guard_time_ms, life_time_factor=cfg.life_time_factor,
-            heartbeat_consumers=cfg.heartbeat_consumers, emcy_history=cfg.emcy_history,
+            heartbeat_consumers=cfg.heartbeat_consumers, emcy_history=cfg.emcy_history, emcy_on_nmt_reset=cfg.emcy_on_nmt_reset,
             error_behaviour=("pre-operational", "no-change", "stopped").index(cfg.on_master_lost),
             sdo_timeout_s=cfg.sdo_timeout_ms / 1000.0, sdo_block_size=cfg.sdo_block_size, sdo_zero_extend=cfg.sdo_zero_extend, sync_cob_id=cfg.sync_cob_id,
             store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),

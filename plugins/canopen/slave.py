@@ -47,6 +47,7 @@ class NodeSettings:
     sdo_timeout_s: float = 1.0
     sdo_block_size: int = 127
     sdo_zero_extend: bool = False
+    emcy_on_nmt_reset: bool = False
     sync_cob_id: int = 0x80
     store_path: Path | None = None
     fingerprint: str = ""
@@ -79,6 +80,7 @@ class IdentityObjects(Service):
 
 def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
     node = Node(settings.node_id, name=name)
+    node.reset_emcy = settings.emcy_on_nmt_reset
     node.add_service(IdentityObjects(settings.identity))
     node.add_service(EmcyProducer(settings.emcy_history))
     node.add_service(ErrorControl(settings.guard_time_ms, settings.life_time_factor, settings.heartbeat_ms, settings.heartbeat_consumers, settings.error_behaviour))

@@ -85,3 +85,12 @@ def test_no_emcy_in_stopped_but_history_kept(rig):
     assert emit(rig, rig.node.emcy.raise_error, 0x1000) == []
     rig.send("000 80 01")
     assert rig.sdo("40 03 10 01 00 00 00 00") == "43 03 10 01 00 10 00 00"
+
+
+def test_emcy_on_nmt_reset_option():
+    plain = Rig(seed_node())
+    assert plain.send("000 82 01") == ["701 00"]
+    icpdas = Rig(seed_node(emcy_on_nmt_reset=True))
+    assert icpdas.send("000 81 00") == ["081 00 FF 80 0A 00 00 00 00", "701 00"]
+    assert icpdas.sdo("40 01 10 00 00 00 00 00") == "4F 01 10 00 00 00 00 00"  # not an active error
+    assert icpdas.sdo("40 03 10 01 00 00 00 00") == "43 03 10 01 00 FF 0A 00"
