@@ -8,6 +8,6 @@ See docs/conformance.md. Programmatic use::
 """
 
 from .framework import CASES, PROFILES, Case, CaseResult, Options, Timing, Verdict, select
-from .runner import SuiteConfig, failed, run_suite
+from .runner import DeviceSilent, SuiteConfig, failed, run_suite
 
-__all__ = ["CASES", "PROFILES", "Case", "CaseResult", "Options", "SuiteConfig", "Timing", "Verdict", "failed", "run_suite", "select"]
+__all__ = ["CASES", "DeviceSilent", "PROFILES", "Case", "CaseResult", "Options", "SuiteConfig", "Timing", "Verdict", "failed", "run_suite", "select"]

@@ -8,7 +8,7 @@ import sys
 from ..plugin import hookimpl
 from .framework import PROFILES, Options, Timing, Verdict
 from .report import line, details, summary, write_junit
-from .runner import SuiteConfig, run_suite
+from .runner import DeviceSilent, SuiteConfig, run_suite
 
 HELP = "run the CANopen conformance suite against a device (black box: bus + EDS)"
 
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         results = run_suite(config, interface=args.interface, channel=args.channel, bitrate=args.bitrate, progress=progress)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, DeviceSilent) as exc:
         print(f"conformance: cannot start: {exc}", file=sys.stderr)
         return 2
     print()

@@ -12,6 +12,10 @@ from .framework import CaseResult, Context, Options, Timing, Verdict, run_cases,
 from .link import Link
 
 
+class DeviceSilent(Exception):
+    """The device does not answer at all: wrong node-ID, wrong bus, or not running."""
+
+
 @dataclass
 class SuiteConfig:
     node_id: int
@@ -29,6 +33,8 @@ def run_suite(config: SuiteConfig, bus: can.BusABC | None = None, *, interface: 
         device = Device.from_eds(link, config.node_id, config.eds, config.timing)
         ctx = Context(device, config.timing, config.options)
         device.nmt(NMT_PREOP)
+        if not any(device.sdo_request(bytes([0x40, 0x00, 0x10, 0x00])) for _ in range(2)):
+            raise DeviceSilent(f"node {config.node_id} does not answer an SDO read of 0x1000 on 0x{device.sdo_rx:03X}: wrong node-ID or bus, or the device is not running")
         return run_cases(select(config.profiles, config.patterns), ctx, progress)
     finally:
         link.close()

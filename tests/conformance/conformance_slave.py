@@ -205,7 +205,8 @@ class TinySlave:
         b0 = data[0]
         if b0 & 0x02:
             n = (b0 >> 2) & 3 if b0 & 0x01 else 0
-            return self._store(index, sub, data[4 : 8 - n])
+            self._store(index, sub, data[4 : 8 - n])
+            return
         if OBJECTS[(index, sub)][1] != "rw":
             return self._abort(index, sub, 0x06010002)
         self.transfer = ("down", index, sub, b"", 0, time.monotonic())
@@ -219,26 +220,32 @@ class TinySlave:
         if t != toggle:
             return self._abort(index, sub, 0x05030000)
         got += data[1 : 8 - ((data[0] >> 1) & 7)]
-        self._reply(bytes([0x20 | t << 4]))
-        if data[0] & 1:
-            self.transfer = None
-            self._store(index, sub, got, reply=False)
-        else:
+        if not data[0] & 1:
             self.transfer = (kind, index, sub, got, toggle ^ 1, time.monotonic())
+            return self._reply(bytes([0x20 | t << 4]))
+        self.transfer = None
+        if self._store(index, sub, got, reply=False):
+            self._reply(bytes([0x20 | t << 4]))
 
-    def _store(self, index: int, sub: int, value: bytes, reply: bool = True) -> None:
+    def _store(self, index: int, sub: int, value: bytes, reply: bool = True) -> bool:
+        """Write an entry; an abort is sent and False returned if the value is refused."""
         size, access, _, lo, hi = OBJECTS[(index, sub)]
-        if access != "rw":
-            return self._abort(index, sub, 0x06010002)
-        if size is not None and len(value) != size:
-            return self._abort(index, sub, 0x06070012 if len(value) > size else 0x06070013)
         number = int.from_bytes(value, "little")
-        if hi is not None and number > hi:
-            return self._abort(index, sub, 0x06090031)
-        if lo is not None and number < lo:
-            return self._abort(index, sub, 0x06090032)
+        error = None
+        if access != "rw":
+            error = 0x06010002
+        elif size is not None and len(value) != size:
+            error = 0x06070012 if len(value) > size else 0x06070013
+        elif hi is not None and number > hi:
+            error = 0x06090031
+        elif lo is not None and number < lo:
+            error = 0x06090032
+        if error:
+            self._abort(index, sub, error)
+            return False
         self.values[(index, sub)] = value
         if index == 0x1017:
             self.next_heartbeat = time.monotonic() + number / 1000 if number else None
         if reply:
             self._reply(bytes([0x60]) + struct.pack("<HB", index, sub))
+        return True

@@ -37,3 +37,10 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
     assert main(["--node-id", "200", "--eds", "x.eds", "--interface", "virtual"]) == 2
     assert main(["--node-id", "5", "--eds", str(tmp_path / "missing.eds"), "--interface", "virtual", "--channel", "cli-missing-eds"]) == 2
     assert "cannot start" in capsys.readouterr().err
+
+
+def test_a_silent_device_stops_the_run_with_exit_2(tmp_path, capsys):
+    eds = tmp_path / "dev.eds"
+    eds.write_text(eds_text())
+    assert main(["--node-id", "5", "--eds", str(eds), "--interface", "virtual", "--channel", "cli-nobody", "--timeout", "0.05"]) == 2
+    assert "does not answer an SDO read of 0x1000 on 0x605" in capsys.readouterr().err

@@ -164,12 +164,24 @@ def _error_mode(ctx: Context, mode_idx: int, value_idx: int, out_idx: int, in_id
     frame, _, _ = life_guard(ctx, max(20, ctx.timing.heartbeat_ms // 2), 2)
     if frame is None:
         raise Fail("no life guarding event to trigger the error mode", seen="nothing")
-    wait_value(ctx, in_idx, 1, after, f"input after the communication error (mode {mode:#x}, value {err_value:#x})")
+    what = f"input after the communication error (mode {mode:#x}, value {err_value:#x})"
+    if after == before:  # "keep": give the device time to do it wrong
+        time.sleep(max(0.1, ctx.timing.silence))
+        seen = dev.read(in_idx, 1)
+        if seen != after:
+            raise Fail(what, expected=f"0x{in_idx:04X}:1 = {after:#x} (kept)", seen=f"{seen:#x}")
+        return
+    wait_value(ctx, in_idx, 1, after, what)
 
 
 @case("cia401", "error_mode_do", "0x6206/0x6207: on a communication error masked DO bits take their error value")
 def error_mode_do(ctx: Context) -> None:
     _error_mode(ctx, 0x6206, 0x6207, 0x6200, 0x6000, 0x31, 0xF8, 0xFF, 0xFE)
+
+
+@case("cia401", "error_mode_hold", "0x6206 = 0: on a communication error the DO bits keep their value")
+def error_mode_hold(ctx: Context) -> None:
+    _error_mode(ctx, 0x6206, 0x6207, 0x6200, 0x6000, 0x00, 0xFF, 0xA5, 0xA5)
 
 
 @case("cia401", "error_mode_ao", "0x6443/0x6444: on a communication error the AO takes its error value")

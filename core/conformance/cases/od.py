@@ -70,6 +70,8 @@ def read_all(ctx: Context) -> None:
             continue
         except Fail as exc:
             problems.append(f"{where}: {exc.message} ({exc.seen})")
+            if len(problems) >= 3 and all("no SDO response" in p for p in problems[-3:]):
+                raise Fail("the device stopped answering SDO", seen="\n                " + "\n                ".join(problems[-3:])) from None
             continue
         if var.fixed_size and len(raw) * 8 != len(var):
             problems.append(f"{where}: {len(raw)} bytes served, {type_name(var)} needs {len(var) // 8}")

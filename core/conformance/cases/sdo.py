@@ -121,6 +121,24 @@ def unknown_command(ctx: Context) -> None:
     ctx.device.expect_abort(bytes([0xE0]) + mux(0x1000, 0), (0x05040001,), "ccs 7")
 
 
+@case("sdo", "segment_without_transfer", "a segment request outside any transfer is aborted with 0504 0001")
+def segment_without_transfer(ctx: Context) -> None:
+    dev = ctx.device
+    dev.require(0x1000)
+    dev.upload(0x1000, 0)  # any earlier transfer is over
+    dev.expect_abort(bytes([0x60]), (0x05040001,), "upload segment request without an upload")
+    dev.expect_abort(bytes([0x00]) + bytes(7), (0x05040001,), "download segment without a download")
+
+
+@case("sdo", "segmented_size_mismatch", "a segmented download of more bytes than the entry holds is refused (0607 0010/0012)")
+def segmented_size_mismatch(ctx: Context) -> None:
+    dev = ctx.device
+    var = small_writable(dev)
+    raw = dev.upload(var.index, var.subindex)
+    ctx.cleanup(lambda: dev.download(var.index, var.subindex, raw))
+    dev.expect_write_abort(var.index, var.subindex, raw + b"\0" * (8 - len(raw)), (0x06070010, 0x06070012), f"8 bytes into 0x{var.index:04X}:{var.subindex} ({len(raw)} bytes)")
+
+
 @case("sdo", "client_abort", "a transfer aborted by the client is dropped silently and the server serves the next one")
 def client_abort(ctx: Context) -> None:
     dev = ctx.device
