@@ -212,7 +212,6 @@ class LssSlave:
         self.pending_bitrate: int | None = None
         self._selective = _Sequence()
         self._identify = _Sequence()
-        self._identify_ranges: dict[str, int] = {}
         self._fastscan_sub = 0
         self._actions: list[ResetCommunication | SwitchBitRate] = []
         self._switch_at: float | None = None  # bit-rate switch pending at this time
