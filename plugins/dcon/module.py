@@ -98,8 +98,8 @@ class DconModule(PolledModule):
             readings.update(self._bits(Kind.DI, codec.hex_field(body[3:5], "DI")))
         if p.ai:
             readings.update(await self._read_analog())
-        if self.watch_status and self.watchdog_enabled:
-            await self.read_status()
+        if (self.watch_status and self.watchdog_enabled) or not (p.di or p.do or p.ai):
+            await self.read_status()  # analog-output modules have nothing else to read: status keeps them polled
         return readings
 
     def _bits(self, kind: Kind, bits: int) -> dict[str, bool]:

@@ -76,3 +76,15 @@ async def test_garbage_ai_data_is_counted_not_raised(gateway, wait_for):
         back.modules[2].data_format = back.modules[2].data_format.ENGINEERING  # out of step: hex text parsed as numbers
         await wait_for(lambda: gw.health.get("rs485", 2).errors[ErrorKind.GARBAGE] >= 1)
         assert back.status()["dcon_modules"][0]["warnings"]  # topology says engineering, module says hex
+
+
+async def test_analog_output_module_is_polled_and_goes_offline_when_silent(gateway, wait_for):
+    async with gateway([{"address": 2, "model": "I-7024"}]) as gw:
+        sim = gw.bench.simulator("rs485")
+        health = gw.health.get("rs485", 2)
+        await wait_for(lambda: health.requests > 5)  # ~AA0 keeps an output-only module polled
+        sim.inject("silence", 2)
+        await wait_for(lambda: not health.online)
+        assert gw.image["rs485/m2/ao0"].quality is Quality.COMM_FAULT
+        sim.clear_faults()
+        await wait_for(lambda: health.online and gw.image["rs485/m2/ao0"].quality is Quality.GOOD)

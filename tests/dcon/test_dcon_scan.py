@@ -1,0 +1,101 @@
+"""Scanning a line for modules: in process against the simulator, and the two CLI commands together."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+from ruamel.yaml import YAML
+
+from fieldgate.plugins.dcon.link import DconLink
+from fieldgate.plugins.dcon.scan import parse_addresses, scan_line, topology_yaml
+from fieldgate.plugins.dcon.simulator import DconSimulator
+from fieldgate.serial_link import AsyncSerial, PtyPair
+from fieldgate.topology import load_topology
+
+
+async def _scan(modules, addresses, *, sim_checksum=False, checksum=False):
+    with PtyPair() as pair:
+        sim = DconSimulator.from_modules(pair.b, modules, checksum=sim_checksum)
+        await sim.start()
+        serial = await AsyncSerial.open(pair.a)
+        progress = []
+        try:
+            found = await scan_line(DconLink(serial, checksum, 0.03), addresses, 9600, lambda *a: progress.append(a))
+        finally:
+            await serial.close()
+            await sim.stop()
+    return found, progress
+
+
+async def test_scan_finds_and_identifies_modules_and_prints_a_valid_topology(dcon_registry):
+    modules = [(1, "I-7017", 0x09, "engineering"), (5, "I-7055"), (0x20, "I-87024", 0x35)]
+    found, progress = await _scan(modules, range(0, 0x22))
+    assert [(f.address, f.profile.model, f.config.type_code) for f in found] == [(1, "I-7017", 0x09), (5, "I-7055", 0x40), (0x20, "I-87024", 0x35)]
+    assert found[0].name == "7017" and found[0].firmware and found[0].describe_range() == "+/-5 V"
+    assert len(progress) == 0x22 and progress[-1] == (0x22, 0x22, 3)
+    text = topology_yaml(found, "/dev/ttyUSB0", False)
+    back = YAML(typ="safe").load(text)["backs"][0]
+    assert back["modules"][0] == {"address": 1, "model": "I-7017", "type_code": 9, "data_format": "engineering"}
+    topo = load_topology({"gateway": {"name": "g"}, "fronts": [{"name": "plc", "type": "memory"}], "backs": [back]}, dcon_registry)
+    assert len([s for s in topo.channel_specs if s.source.module == 0x20]) == 4  # ready to paste: it validates
+
+
+async def test_checksum_mismatch_finds_nothing():
+    found, progress = await _scan([(1, "I-7060")], range(0, 3), sim_checksum=True, checksum=False)
+    assert found == [] and progress[-1] == (3, 3, 0)
+    found, _ = await _scan([(1, "I-7060")], range(0, 3), sim_checksum=True, checksum=True)
+    assert [f.address for f in found] == [1]
+
+
+def test_yaml_for_several_baud_rates_and_unknown_modules():
+    from fieldgate.plugins.dcon.codec import ModuleConfigReply
+    from fieldgate.plugins.dcon.profiles import find_profile
+    from fieldgate.plugins.dcon.scan import Found
+
+    found = [Found(1, 9600, "7060", "", ModuleConfigReply(0x40, 6, 0), find_profile("7060")),
+             Found(2, 115200, "7099", "", ModuleConfigReply(0x40, 0x0A, 0x40), None)]
+    data = YAML(typ="safe").load(topology_yaml(found, "/dev/ttyS1", False))
+    assert [b["name"] for b in data["backs"]] == ["rs485-9600", "rs485-115200"]
+    text = topology_yaml(found, "/dev/ttyS1", False)
+    assert "NOT SUPPORTED" in text and "module checksum is on" in text
+
+
+@pytest.mark.parametrize("text, addresses", [("0-3", [0, 1, 2, 3]), ("1,8,0x10", [1, 8, 16]), ("5-6,1", [1, 5, 6])])
+def test_parse_addresses(text, addresses):
+    assert parse_addresses(text) == addresses
+
+
+def test_parse_addresses_rejects_out_of_range():
+    with pytest.raises(ValueError):
+        parse_addresses("250-300")
+
+
+def test_simulate_and_scan_commands_together():
+    exe = os.path.join(os.path.dirname(sys.executable), "fieldgate")
+    sim = subprocess.Popen([exe, "simulate", "dcon", "--pty", "--module", "3:I-7060", "--module", "7:I-7012:0x0A:percent", "--duration", "20"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        port = None
+        for line in sim.stdout:
+            if line.startswith("serving on "):
+                port = line.split()[2]
+                break
+        assert port and port.startswith("/dev/")
+        scan = subprocess.run([exe, "scan", "dcon", "--port", port, "--addresses", "0-9", "--timeout-ms", "40"], capture_output=True, text=True, timeout=30)
+        assert scan.returncode == 0, scan.stderr
+        assert "10/10 addresses, 2 module(s) found" in scan.stderr
+        backs = YAML(typ="safe").load(scan.stdout)["backs"]
+        assert [(m["address"], m["model"]) for m in backs[0]["modules"]] == [(3, "I-7060"), (7, "I-7012")]
+        assert backs[0]["modules"][1]["type_code"] == 0x0A and backs[0]["modules"][1]["data_format"] == "percent"
+    finally:
+        sim.terminate()
+        sim.wait(timeout=10)
+
+
+def test_cli_errors_are_one_line():
+    exe = os.path.join(os.path.dirname(sys.executable), "fieldgate")
+    result = subprocess.run([exe, "scan", "dcon", "--port", "/dev/does-not-exist", "--addresses", "1"], capture_output=True, text=True, timeout=30)
+    assert result.returncode == 2 and "cannot open serial port /dev/does-not-exist" in result.stderr and "Traceback" not in result.stderr
+    result = subprocess.run([exe, "simulate", "dcon", "--pty", "--module", "3:I-7999"], capture_output=True, text=True, timeout=30)
+    assert result.returncode == 2 and "unknown DCON module" in result.stderr
