@@ -17,8 +17,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interface", default="socketcan", help="python-can interface (socketcan, virtual, pcan, slcan, ...); default socketcan")
     p.add_argument("--channel", default="vcan0", help="python-can channel; default vcan0")
     p.add_argument("--bitrate", type=int, default=None, help="bit rate for adapters that set it")
-    p.add_argument("--node-id", type=int, required=True, help="node-ID of the device under test (1..127)")
-    p.add_argument("--eds", required=True, metavar="FILE", help="the device's EDS (or DCF)")
+    p.add_argument("--node-id", type=int, help="node-ID of the device under test (1..127); required unless --list")
+    p.add_argument("--eds", metavar="FILE", help="the device's EDS (or DCF); required unless --list")
     p.add_argument("--profile", action="append", choices=PROFILES, default=[], help=f"run only these profiles (repeatable): {', '.join(PROFILES)}")
     p.add_argument("-k", dest="patterns", action="append", default=[], metavar="PATTERN", help="run only cases whose id contains PATTERN (or matches a glob); repeatable")
     p.add_argument("--list", action="store_true", help="list the selected cases and exit")
@@ -53,13 +53,16 @@ def config_from_args(args: argparse.Namespace) -> SuiteConfig:
 def run(args: argparse.Namespace) -> int:
     from .framework import select
 
-    if not 1 <= args.node_id <= 127:
-        print("conformance: --node-id must be 1..127", file=sys.stderr)
-        return 2
     if args.list:
         for c in select(args.profile, args.patterns):
             print(f"{c.id:<34} {c.title}")
         return 0
+    if args.node_id is None or args.eds is None:
+        print("conformance: --node-id and --eds are required", file=sys.stderr)
+        return 2
+    if not 1 <= args.node_id <= 127:
+        print("conformance: --node-id must be 1..127", file=sys.stderr)
+        return 2
     config = config_from_args(args)
     print(f"fieldgate conformance: node {args.node_id} on {args.interface}:{args.channel}, EDS {args.eds}", flush=True)
 
