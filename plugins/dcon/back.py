@@ -110,10 +110,9 @@ class DconBack(SerialBack):
 
     # -- one-shot requests on the line (recovery, run-time watchdog settings) -------------------
     def _submit(self, action: Callable[[], Awaitable[Any]]) -> asyncio.Future[Any]:
+        if self.scheduler is None or self.dcon is None or self.link is None:
+            raise PluginStartError(f"back {self.name} is not running")
         future: asyncio.Future[Any] = asyncio.get_running_loop().create_future()
-        if self.scheduler is None or self.dcon is None:
-            future.set_exception(PluginStartError(f"back {self.name} is not running"))
-            return future
         self._requests.append((action, future))
         self.scheduler.wake()
         return future

@@ -203,7 +203,7 @@ class DconModule(PolledModule):
         if await self._ask("5") == "1":
             log.info("%s module %d (%s) was reset or powered up", self.link_name, self.address, self.profile.model)
         await self.read_config()
-        if self.config.watchdog is not None:
+        if self.config.watchdog is not None or self.watchdog_enabled:  # from the topology or set at run time
             await self.configure_watchdog()
         if self.profile.do or self.profile.ao:
             await self.read_status()
