@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from ..device import NMT_RESET_COMM, NMT_START, NMT_STOP
+from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_START, NMT_STOP
 from ..framework import Context, Fail, Skip, case
 from .common import EMCY_LIFE_GUARD, emcy_code, expect_emcy
 
@@ -177,3 +177,24 @@ def guarding_off(ctx: Context) -> None:
     frame = expect_emcy(ctx, None, max(ctx.timing.silence, 0.3))
     if frame is not None:
         raise Fail("EMCY with guarding disabled (0x100C = 0)", expected="none", seen=str(frame))
+
+
+@case("errctl", "error_behaviour", "0x1029:1 decides the NMT state after a communication error: 0 pre-op, 1 no change, 2 stopped")
+def error_behaviour(ctx: Context) -> None:
+    require_guarding(ctx)
+    dev = ctx.device
+    dev.require(0x1029, 1, why="error behaviour")
+    for value, state, name in ((0, 0x7F, "Pre-operational"), (2, 0x04, "Stopped"), (1, 0x05, "Operational (no change)")):
+        dev.write(0x1029, 1, value)
+        dev.nmt(NMT_START)
+        time.sleep(0.02)
+        frame, _, _ = life_guard(ctx, max(20, ctx.timing.heartbeat_ms // 2), 2)
+        if frame is None:
+            raise Fail("no life guarding event", seen="nothing")
+        reply = dev.guard()
+        if reply is None or reply.data[0] & 0x7F != state:
+            raise Fail(f"state after a life guarding event with 0x1029:1 = {value}", expected=f"{state:#04x} {name}", seen=str(reply) if reply else "no guarding reply")
+        dev.nmt(NMT_PREOP)  # SDO again, also from Stopped
+        time.sleep(0.02)
+        dev.write(0x100C, 0, 0)
+        dev.reset(NMT_RESET_COMM)

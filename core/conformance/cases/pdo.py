@@ -392,3 +392,51 @@ def rtr_not_allowed(ctx: Context) -> None:
     frame = rtr(ctx, pdo, ctx.timing.silence)
     if frame is not None:
         raise Fail(f"{pdo.name} answered RTR with bit 30 set", expected="nothing", seen=str(frame))
+
+
+@case("sync-pdo", "sync_counter", "SYNC counter (0x1019) with SYNC start value (sub 6): a type-2 TPDO at counters 3, 5, 7")
+def sync_counter(ctx: Context) -> None:
+    dev = ctx.device
+    dev.require(0x1019, why="SYNC counter overflow value")
+    pdo = active_pdo(dev, tx=True)
+    dev.require(pdo.comm, 6, why="SYNC start value")
+    if dev.has(0x1006) and dev.read(0x1006, 0) != 0:
+        raise Skip("0x1006 is not 0: 0x1019 may not be changed")
+    dev.patch(ctx, 0x1019, 0, 10)
+    set_pdo_type(ctx, pdo, 2)
+    invalidate(ctx, pdo)  # the start value may only change while the PDO is invalid
+    set_pdo_sub(ctx, pdo, 6, 3, "SYNC start value")
+    dev.write(pdo.comm, 1, pdo.cob)
+    ctx.cleanup(lambda: dev.write(pdo.comm, 1, pdo.cob | 0x80000000))  # runs first: restore sub 6 while invalid
+    operational(ctx)
+    cob = dev.od_default(0x1005, 0, 0x80) & 0x7FF
+    hits = []
+    for counter in range(1, 9):
+        dev.link.flush()
+        dev.link.send(cob, bytes([counter]))
+        if tpdo_frames(ctx, pdo, min(ctx.timing.silence, 0.08)):
+            hits.append(counter)
+    if hits != [3, 5, 7]:
+        raise Fail(f"{pdo.name} type 2, start value 3, SYNC counters 1..8", expected="TPDO after counters [3, 5, 7]", seen=f"after counters {hits}")
+
+
+@case("sync-pdo", "restricted_sync_emcy_cobid", "restricted CAN-IDs (0x601, 0x701) are refused for SYNC (0x1005) and EMCY (0x1014)")
+def restricted_sync_emcy_cobid(ctx: Context) -> None:
+    dev = ctx.device
+    targets = [i for i in (0x1005, 0x1014) if dev.has(i)]
+    if not targets:
+        raise Skip("EDS lists neither 0x1005 nor 0x1014")
+    problems = []
+    for index in targets:
+        original = dev.read(index, 0)
+        ctx.cleanup(lambda i=index, o=original: dev.write(i, 0, o))
+        for cob in (0x601, 0x701):
+            if index == 0x1014:
+                dev.write(index, 0, original | 0x80000000)  # the EMCY CAN-ID changes only while invalid
+            try:
+                dev.expect_write_abort(index, 0, cob.to_bytes(4, "little"), COBID_ABORTS, f"0x{index:04X} = 0x{cob:03X}")
+            except Fail as exc:
+                problems.append(f"{exc.message} ({exc.seen or 'no abort'})")
+            dev.write(index, 0, original | (0x80000000 if index == 0x1014 else 0))
+    if problems:
+        raise Fail("restricted CAN-IDs accepted", expected=f"{abort_text(0x06090030)} (or 0604 0043 / 0800 0000)", seen="; ".join(problems))
