@@ -86,6 +86,7 @@ class CanAdapter:
         self._reopen = reopen
         self.counters: Counter[str] = Counter()
         self._timer: asyncio.TimerHandle | None = None
+        self._armed_at = 0.0
         self._state_timer: asyncio.TimerHandle | None = None
         self._notifier: can.Notifier | None = None
         self._bus_off = False
@@ -133,6 +134,8 @@ class CanAdapter:
         else:
             self.counters["rx"] += 1
             self.transmit(self.node.receive(to_frame(msg), self.now))
+            self._arm(self.node.deadline_after_call, known=True)
+            return
         self._arm()
 
     def _error_frame(self, msg: can.Message) -> None:
@@ -205,22 +208,31 @@ class CanAdapter:
         self.transmit(self.node.flush())
         self._arm()
 
-    def _arm(self) -> None:
+    def _arm(self, deadline: float | None = None, known: bool = False) -> None:
+        """Have ``_tick`` run by the node's next deadline.
+
+        An armed timer that fires no later than the deadline is kept (an early tick only
+        re-arms), so the per-frame cost is a comparison, not a cancel and a new timer.
+        """
         if self.closed:
             return
+        if not known:
+            deadline = self.node.next_deadline()
+        if deadline is None:
+            return
         if self._timer is not None:
+            if self._armed_at <= deadline:
+                return
             self._timer.cancel()
-            self._timer = None
-        deadline = self.node.next_deadline()
-        if deadline is not None:
-            self._timer = self.loop.call_at(max(deadline, self.now), self._tick)
+        self._armed_at = deadline
+        self._timer = self.loop.call_at(max(deadline, self.now), self._tick)
 
     def _tick(self) -> None:
         self._timer = None
         if self.closed:
             return
         self.transmit(self.node.tick(self.now))
-        self._arm()
+        self._arm(self.node.deadline_after_call, known=True)
 
     # -- LSS bit timing ---------------------------------------------------------------------
     def _bit_timing(self, bitrate: int, delay_s: float) -> None:

@@ -61,6 +61,7 @@ class Node:
         self.counters: Counter[str] = Counter()
         self.emcy = None  # the EMCY producer, set when one is added (see .emcy)
         self.now = 0.0  # time of the last boot()/receive()/tick(), for calls from outside
+        self._deadline_hint: float | None = None
         self.reset_emcy = False  # send EMCY 00 FF 80 0A before an NMT reset (ICP DAS gateways do)
         self._outbox: list[Frame] = []
         self._nmt_listeners: list[Callable[[NmtState, NmtState], None]] = []
@@ -138,6 +139,11 @@ class Node:
         self._run_due(now)
         return self._drain()
 
+    @property
+    def deadline_after_call(self) -> float | None:
+        """``next_deadline()`` as of the end of the last receive()/tick(), without recomputing."""
+        return self._deadline_hint
+
     def next_deadline(self) -> float | None:
         deadlines = [d for d in (self._safe_deadline(s) for s in self.services) if d is not None]
         return min(deadlines) if deadlines else None
@@ -150,13 +156,22 @@ class Node:
             return None
 
     def _run_due(self, now: float) -> None:
+        """Poll the services that are due; note the earliest deadline left (one pass)."""
+        earliest, polled = None, False
         for service in self.services:
             try:
                 deadline = service.deadline()
-                if deadline is not None and deadline <= now:
+                if deadline is None:
+                    continue
+                if deadline <= now:
+                    polled = True
                     service.poll(now)
+                elif earliest is None or deadline < earliest:
+                    earliest = deadline
             except Exception:
                 self._internal_error(service, "poll")
+        # a poll may move any service's deadline (an EMCY queued behind its inhibit time...)
+        self._deadline_hint = self.next_deadline() if polled else earliest
 
     def _internal_error(self, service: Service, where: str, frame: Frame | None = None) -> None:
         self.counters["internal_errors"] += 1
