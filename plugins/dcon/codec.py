@@ -129,23 +129,21 @@ def addressed(text: str, address: int) -> str:
 
 def data(text: str, address: int | None = None) -> str:
     """Data of a ``>(data)`` reply (``#AA`` and ``@AA`` reads); ``?AA`` -> EXCEPTION."""
-    reply = parse(text)
-    if reply.lead == "?":
-        _check_refusal_address(reply, address)
-        raise CommError(ErrorKind.EXCEPTION, f"module refused the command ({text!r})")
-    if reply.lead != ">":
-        raise CommError(ErrorKind.GARBAGE, f"expected '>(data)', got {text!r}")
-    return reply.text
+    return _unaddressed(text, ">", address)
 
 
 def status_data(text: str, address: int | None = None) -> str:
     """Data of a ``!(data)`` reply without address (``$AA6`` of digital modules)."""
+    return _unaddressed(text, "!", address)
+
+
+def _unaddressed(text: str, lead: str, address: int | None) -> str:
     reply = parse(text)
     if reply.lead == "?":
         _check_refusal_address(reply, address)
         raise CommError(ErrorKind.EXCEPTION, f"module refused the command ({text!r})")
-    if reply.lead != "!":
-        raise CommError(ErrorKind.GARBAGE, f"expected '!(data)', got {text!r}")
+    if reply.lead != lead:
+        raise CommError(ErrorKind.GARBAGE, f"expected '{lead}(data)', got {text!r}")
     return reply.text
 
 

@@ -38,7 +38,7 @@ def wait_for_fixture():
 def gateway(dcon_registry):
     """``async with gateway(modules, **back) as gw``: a running gateway on simulated modules."""
 
-    def make(modules, **back):
-        return Gateway.load(topology(modules, **back), registry=dcon_registry, simulate=True)
+    def make(modules, animate=False, **back):
+        return Gateway.load(topology(modules, **back), registry=dcon_registry, simulate=True, animate=animate)
 
     return make

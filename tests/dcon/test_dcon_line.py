@@ -117,3 +117,10 @@ async def test_safe_and_power_on_values_are_stored_in_the_modules(gateway, wait_
         await wait_for(lambda: sim.module(3).safe_ao == [100, 200, 300, 400] and sim.module(4).power_on_ao == [0x400])
         assert sim.module(1).do_bits == 0x8000  # the image's value is back after the latching
         assert sim.module(3).ao_raw == [0, 0, 0, 0]
+
+
+async def test_animated_simulation_moves_the_gateway_inputs(gateway, wait_for):
+    async with gateway([{"address": 1, "model": "I-7017"}], animate=True) as gw:
+        await wait_for(lambda: gw.image["rs485/m1/ai0"].quality is Quality.GOOD)
+        seen = {gw.read("rs485/m1/ai0")}
+        await wait_for(lambda: seen.add(gw.read("rs485/m1/ai0")) or len(seen) >= 3)

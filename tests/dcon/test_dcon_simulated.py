@@ -187,3 +187,16 @@ def test_config_change_moves_the_module():
     assert ask(b, "%0105090602") == "!05"
     assert ask(b, "$052") == "!05090602" and ask(b, "$012") is None
     assert ask(b, "%0506300602") == "?05"  # 0x30 is no I-7017 range
+
+
+def test_animation_changes_inputs_visibly():
+    b = bus((1, "I-7053"), (2, "I-7017", {"type_code": 0x08}), (3, "I-7043"))
+    b.animate(0.0)
+    first = (b.modules[1].di_bits, list(b.modules[2].ai_raw))
+    b.animate(1.0)
+    second = (b.modules[1].di_bits, list(b.modules[2].ai_raw))
+    assert first[0] == 1 and second[0] == 2  # a walking bit, one step a second
+    assert first[1] != second[1] and len(set(second[1])) > 1  # a sine per channel
+    rng = b.modules[2].range
+    assert all(rng.hmin < v < rng.hmax for v in first[1] + second[1])  # stays inside the range
+    assert b.modules[3].do_bits == 0  # outputs are never animated
