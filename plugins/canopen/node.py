@@ -62,6 +62,8 @@ class Node:
         self.emcy = None  # the EMCY producer, set when one is added (see .emcy)
         self.now = 0.0  # time of the last boot()/receive()/tick(), for calls from outside
         self._deadline_hint: float | None = None
+        self._routes: dict[tuple[int, bool], Service] = {}
+        self._routes_generation = -1
         self.reset_emcy = False  # send EMCY 00 FF 80 0A before an NMT reset (ICP DAS gateways do)
         self._outbox: list[Frame] = []
         self._nmt_listeners: list[Callable[[NmtState, NmtState], None]] = []
@@ -70,6 +72,7 @@ class Node:
 
     # -- assembling ------------------------------------------------------------------
     def add_service(self, service: Service) -> Service:
+        self._routes.clear()
         self.services.append(service)
         service.attach(self)
         if getattr(service, "is_emcy_producer", False):
@@ -120,19 +123,36 @@ class Node:
         if frame.can_id == 0 and not frame.rtr:
             self._nmt_command(frame, now)
         else:
-            for service in self.services:
-                if self.state not in service.active_states:
-                    continue
-                try:
-                    if service.on_frame(frame, now):
-                        break
-                except Exception:
-                    self._internal_error(service, "on_frame", frame)
-                    break
-            else:
-                self.counters["ignored"] += 1
+            self._dispatch(frame, now)
         self._run_due(now)
         return self._drain()
+
+    def _dispatch(self, frame: Frame, now: float) -> None:
+        """Offer the frame to the services in add order until one takes it.
+
+        The service that took a COB-ID last time is asked first. The route is forgotten
+        on any dictionary write (COB-IDs live there), NMT state change or added service;
+        a service that declines is simply followed by the ordered scan.
+        """
+        if self._routes_generation != self.od.generation:
+            self._routes.clear()
+            self._routes_generation = self.od.generation
+        key = (frame.can_id, frame.rtr)
+        cached = self._routes.get(key)
+        if cached is not None and self._offer(cached, frame, now):
+            return
+        for service in self.services:
+            if service is not cached and self.state in service.active_states and self._offer(service, frame, now):
+                self._routes[key] = service
+                return
+        self.counters["ignored"] += 1
+
+    def _offer(self, service: Service, frame: Frame, now: float) -> bool:
+        try:
+            return bool(service.on_frame(frame, now))
+        except Exception:
+            self._internal_error(service, "on_frame", frame)
+            return True  # consumed (by a bug): not offered to the others
 
     def tick(self, now: float) -> list[Frame]:
         self.now = max(self.now, now)
@@ -205,6 +225,7 @@ class Node:
         if old == new:
             return
         self.state = new
+        self._routes.clear()
         log.info("%s: NMT %s -> %s", self.name, old.label, new.label)
         self._each("on_nmt_state", old, new, now)
         self._notify(self._nmt_listeners, "NMT", old, new)

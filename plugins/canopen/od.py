@@ -72,6 +72,7 @@ class Dictionary:
         self._setters: dict[tuple[int, int], Setter] = {}
         self._validators: dict[int, list[Validator]] = {}
         self._listeners: dict[int, list[WriteListener]] = {}
+        self.generation = 0
         for var in self.variables():
             self._values[(var.index, var.subindex)] = self.default(var)
 
@@ -80,6 +81,7 @@ class Dictionary:
         var = _make_var(name, index, 0, data_type, access, default, minimum, maximum, relative, mappable, max_size)
         self.model.add_object(var)
         self._values[(index, 0)] = self.default(var)
+        self.generation += 1
         return var
 
     def add_record(self, index: int, name: str, members: list[tuple], *, array: bool = False) -> cod.ODRecord | cod.ODArray:
@@ -99,6 +101,7 @@ class Dictionary:
         self.model.add_object(obj)
         for var in obj.subindices.values():
             self._values[(index, var.subindex)] = self.default(var)
+        self.generation += 1
         return obj
 
     def add_array(self, index: int, name: str, members: list[tuple]) -> cod.ODArray:
@@ -110,6 +113,7 @@ class Dictionary:
             self.model.names.pop(obj.name, None)
         for key in [k for k in self._values if k[0] == index]:
             del self._values[key]
+        self.generation += 1
 
     # -- lookup --------------------------------------------------------------------
     def __contains__(self, key: int | tuple[int, int]) -> bool:
@@ -160,6 +164,7 @@ class Dictionary:
             self._getters[(index, subindex)] = getter
         if setter is not None:
             self._setters[(index, subindex)] = setter
+        self.generation += 1
 
     def add_validator(self, index: int, validator: Validator) -> None:
         self._validators.setdefault(index, []).append(validator)
@@ -214,6 +219,7 @@ class Dictionary:
         self._store_value(var, value, True)
 
     def _store_value(self, var: cod.ODVariable, value: Value, notify: bool) -> None:
+        self.generation += 1  # tells caches (the node's frame routes) that something changed
         key = (var.index, var.subindex)
         setter = self._setters.get(key)
         if setter is not None:

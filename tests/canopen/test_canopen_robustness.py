@@ -83,3 +83,16 @@ def test_dictionary_serves_an_imported_eds(tmp_path):
     served.node_id = 9
     served.reload()
     assert served.get(0x1014) == 0x89
+
+
+def test_frame_routes_follow_cob_id_changes():
+    rig = Rig(seed_node())
+    assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"  # 0x601 routed to SDO
+    seen = []
+    rig.node.service("sync").on_sync = lambda counter, now: seen.append(counter)
+    # SYNC moved onto 0x601 (sync comes before sdo in the node): it must now win
+    assert rig.sdo("23 05 10 00 01 06 00 00") == "60 05 10 00 00 00 00 00"
+    assert rig.send("601") == []
+    assert seen == [None]
+    rig.node.od.set(0x1005, 0, 0x80)
+    assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"
