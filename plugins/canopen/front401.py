@@ -52,9 +52,10 @@ def io_device(front: Any) -> IoDevice:
     topology = ctx.topology
     models = {(b.name, m.address): m.model or "" for b in topology.backs for m in b.modules}
     dcon = {b.name for b in topology.backs if b.type == "dcon"}
+    watchdogs = {(b.name, m.address): (bool(m.watchdog.enabled), int(m.watchdog.timeout_ms)) for b in topology.backs if b.type == "dcon" for m in b.modules if getattr(m, "watchdog", None) is not None}
     return IoDevice(
         io_settings(cfg), ctx.image, ctx.front_channels(cfg), origin=front.name, health=ctx.health, masters=ctx.masters,
-        front=front.name, backs=getattr(ctx, "backs", {}), dcon_backs=dcon, models=models, master_events=False, module_emcy=False,
+        front=front.name, backs=getattr(ctx, "backs", {}), dcon_backs=dcon, models=models, master_events=False, module_emcy=False, watchdogs=watchdogs,
     )
 
 

@@ -89,6 +89,7 @@ class IoDevice(Service):
         models: dict[tuple[str, int], str] | None = None,
         master_events: bool = True,
         module_emcy: bool = True,
+        watchdogs: dict[tuple[str, int], tuple[bool, int]] | None = None,
     ):
         super().__init__()
         self.settings = settings
@@ -98,7 +99,7 @@ class IoDevice(Service):
         self.layout: IoLayout = build_layout(channels, settings.style, compressed=settings.compressed, models=models)
         self.defaults = default_pdos(self.layout, settings.style, count=settings.count, mapping_closed=settings.mapping_closed)
         self.profile = Profile401(image, self.layout, origin)
-        self.manufacturer = ManufacturerObjects(self.layout, health or HealthRegistry(), style=settings.style, backs=backs, dcon_backs=dcon_backs, module_emcy=module_emcy)
+        self.manufacturer = ManufacturerObjects(self.layout, health or HealthRegistry(), style=settings.style, backs=backs, dcon_backs=dcon_backs, module_emcy=module_emcy, watchdogs=watchdogs)
         self.master_events = master_events  # False: the front reports node.on_master to the masters itself
         self.directory = Directory(self.profile.objects() + self.manufacturer.objects())
         self.engine: PdoEngine | None = None

@@ -52,13 +52,14 @@ def module_emcy_bytes(address: int) -> bytes:
 
 
 class ManufacturerObjects:
-    def __init__(self, layout: IoLayout, health: HealthRegistry, *, style: str = "icpdas", backs: dict[str, Any] | None = None, dcon_backs: set[str] | None = None, module_emcy: bool = True):
+    def __init__(self, layout: IoLayout, health: HealthRegistry, *, style: str = "icpdas", backs: dict[str, Any] | None = None, dcon_backs: set[str] | None = None, module_emcy: bool = True, watchdogs: dict[tuple[str, int], tuple[bool, int]] | None = None):
         self.layout = layout
         self.module_emcy = module_emcy  # False: the front raises/clears the offline EMCY itself
         self.health = health
         self.style = style
         self.backs = backs or {}
         self.dcon_backs = dcon_backs or set()
+        self.watchdogs = watchdogs or {}  # configured (enabled, timeout ms) per DCON module: values before the back runs
         self._raise: Raise | None = None
         self._clear: Clear | None = None
         self._keys = {(m.back, m.address) for m in layout.modules}
@@ -127,13 +128,17 @@ class ManufacturerObjects:
         except Exception as exc:  # back not running, module unknown
             raise Abort(abort.HARDWARE_ERROR, str(exc)) from None
 
-    def _wd_enabled(self, module: ModuleRef) -> int:
+    def _watchdog(self, module: ModuleRef) -> tuple[bool, int]:
         m = self._dcon_module(module)
-        return int(bool(m is not None and m.watchdog_enabled))
+        if m is None:
+            return self.watchdogs.get((module.back, module.address), (False, 0))
+        return bool(m.watchdog_enabled), m.watchdog_timeout_ms or 0
+
+    def _wd_enabled(self, module: ModuleRef) -> int:
+        return int(self._watchdog(module)[0])
 
     def _wd_time(self, module: ModuleRef) -> int:
-        m = self._dcon_module(module)
-        return 0 if m is None else min(255, (m.watchdog_timeout_ms or 0) // 100)
+        return min(255, self._watchdog(module)[1] // 100)
 
     def _wd_status(self, module: ModuleRef) -> int:
         back = self._dcon(module)

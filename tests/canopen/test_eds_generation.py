@@ -64,9 +64,10 @@ def test_eds_imports_with_canopen_and_describes_the_layout(tmp_path, style):
     assert od[0x1800][2].default == (255 if style == "icpdas" else 254)
 
 
-def test_eds_passes_lely_dcfchk(tmp_path):
+@pytest.mark.parametrize("options", [{"style": "icpdas", "pdo_count": 64}, {"style": "na9161", "compressed": False}])
+def test_eds_passes_lely_dcfchk(tmp_path, options):
     assert Path(DCFCHK).exists(), "dcf-tools is in the test extra"
-    path = generate(tmp_path, style="icpdas", pdo_count=64)
+    path = generate(tmp_path, **options)
     result = dcfchk(path)
     assert result.returncode == 0 and "Warning" not in result.stderr and "rror" not in result.stderr, result.stderr
     # the check can fail: a default outside its limits is reported
@@ -82,22 +83,49 @@ def test_cli_with_an_unknown_front_fails_with_a_message(tmp_path, capsys):
     assert not (tmp_path / "plc.eds").exists()
 
 
+def assert_served_as_described(eds: canopen.ObjectDictionary, node) -> None:
+    in_eds = set()
+    for obj in eds.values():
+        for var in [obj] if isinstance(obj, canopen.objectdictionary.ODVariable) else obj.subindices.values():
+            in_eds.add((var.index, var.subindex))
+            served = node.od.variable(var.index, var.subindex)
+            assert (served.access_type, served.data_type) == (var.access_type, var.data_type), f"0x{var.index:04X}:{var.subindex}"
+            if var.index == 0x1003 and var.subindex:
+                continue  # empty error history answers 0800 0024
+            assert decode(served, node.od.read(var.index, var.subindex)) == var.default, f"0x{var.index:04X}:{var.subindex}"
+    assert {(v.index, v.subindex) for v in node.od.variables()} == in_eds
+
+
 @pytest.mark.parametrize("style", ["icpdas", "na9161"])
 async def test_every_eds_object_is_served_with_its_default_and_access(tmp_path, style):
     eds = canopen.import_od(str(generate(tmp_path, style=style)), node_id=5)
     gw = Gateway.load(topology(tmp_path, style=style), registry=load_registry())
     await gw.start()
     try:
-        node = gw.component("plc").node
-        in_eds = set()
-        for obj in eds.values():
-            for var in [obj] if isinstance(obj, canopen.objectdictionary.ODVariable) else obj.subindices.values():
-                in_eds.add((var.index, var.subindex))
-                served = node.od.variable(var.index, var.subindex)
-                assert (served.access_type, served.data_type) == (var.access_type, var.data_type), f"0x{var.index:04X}:{var.subindex}"
-                if var.index == 0x1003 and var.subindex:
-                    continue  # empty error history answers 0800 0024
-                assert decode(served, node.od.read(var.index, var.subindex)) == var.default, f"0x{var.index:04X}:{var.subindex}"
-        assert {(v.index, v.subindex) for v in node.od.variables()} == in_eds
+        assert_served_as_described(eds, gw.component("plc").node)
+    finally:
+        await gw.stop()
+
+
+async def test_dcon_watchdog_objects_in_the_eds_match_the_running_gateway(tmp_path):
+    registry = load_registry()
+    if registry.lookup("back", "dcon") is None:
+        pytest.skip("the dcon back plugin is not installed")
+    topo = topology(tmp_path)
+    topo["backs"] = [{"name": "rs485", "type": "dcon", "port": "simulated", "timeout_ms": 60, "poll_ms": 10, "modules": [
+        {"address": 1, "model": "I-7060", "watchdog": {"enabled": True, "timeout_ms": 1500}}, {"address": 2, "model": "I-7017"}]}]
+    from ruamel.yaml import YAML
+    path = tmp_path / "dcon.yaml"
+    with path.open("w") as f:
+        YAML().dump(topo, f)
+    out = tmp_path / "dcon.eds"
+    assert cli_main(["eds", str(path), "-o", str(out)]) == 0
+    assert dcfchk(out).returncode == 0
+    eds = canopen.import_od(str(out), node_id=5)
+    assert eds[0x2001][1].default == 1 and eds[0x2002][1].default == 15 and eds[0x2003][0].default == 2
+    gw = Gateway.load(topo, registry=registry, simulate=True)
+    await gw.start()
+    try:
+        assert_served_as_described(eds, gw.component("plc").node)
     finally:
         await gw.stop()
