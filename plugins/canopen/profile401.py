@@ -27,6 +27,7 @@ TRUE an AI change that meets its 0x6421 trigger fires ``(0x6401, channel)``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 from fieldgate.image import Change, Channel, DataType, ErrorMode, Kind, ProcessImage, Subscription
@@ -48,6 +49,8 @@ def to_int16(channel: Channel, value: bool | int | float | None = None) -> int:
     v = channel.value if value is None else value
     if channel.spec.data_type is DataType.UINT16 and isinstance(v, int) and v > 0x7FFF:
         return v - 0x10000
+    if isinstance(v, float) and not math.isfinite(v):
+        return 0x7FFF if v == math.inf else (-0x8000 if v == -math.inf else 0)
     v = int(round(v))
     return max(-0x8000, min(0x7FFF, v))
 

@@ -134,3 +134,14 @@ def test_bus_off_applies_error_values_and_recovery_reports_the_master_back():
     assert b.value(0x6200, 1) == 0xFE and not b.masters.is_ok("can")
     b.node.service("error_control").bus_state(False, b.clock.t)
     assert b.masters.is_ok("can") and b.value(0x6200, 1) == 0xFE
+
+
+def test_float_analog_input_is_rounded_clamped_and_never_breaks_a_tpdo():
+    image = make_image([(1, 0, 0, 2, 0)], dtypes={(1, Kind.AI): DataType.FLOAT32})
+    b = Bench(image)
+    b.start()
+    image.update_input("bus/m1/ai0", 12.6)
+    image.update_input("bus/m1/ai1", 1e9)
+    assert b.rx(0x281, rtr=True) == ["281 [4] 0D 00 FF 7F"]
+    image.update_input("bus/m1/ai0", float("nan"))
+    assert b.rx(0x281, rtr=True) == ["281 [4] 00 00 FF 7F"]
