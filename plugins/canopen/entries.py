@@ -18,8 +18,9 @@ import struct
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
-from . import abort
-from .abort import SdoAbort
+from .abort import (
+    LENGTH_TOO_HIGH, LENGTH_TOO_LOW, NO_OBJECT, NO_SUBINDEX, READ_ONLY, VALUE_TOO_HIGH, VALUE_TOO_LOW, WRITE_ONLY, SdoAbort,
+)
 
 # CiA 301 data type indices
 BOOLEAN, INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32 = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
@@ -28,20 +29,7 @@ VISIBLE_STRING = 0x09
 _FORMATS = {BOOLEAN: "<?", INTEGER8: "<b", INTEGER16: "<h", INTEGER32: "<i", UNSIGNED8: "<B", UNSIGNED16: "<H", UNSIGNED32: "<I"}
 RANGES = {BOOLEAN: (0, 1), INTEGER8: (-0x80, 0x7F), INTEGER16: (-0x8000, 0x7FFF), INTEGER32: (-0x8000_0000, 0x7FFF_FFFF), UNSIGNED8: (0, 0xFF), UNSIGNED16: (0, 0xFFFF), UNSIGNED32: (0, 0xFFFF_FFFF)}
 
-# CiA 301 abort codes used here (the node's own table and exception, see .abort)
-OBJECT_DOES_NOT_EXIST = abort.NO_OBJECT
-SUB_DOES_NOT_EXIST = abort.NO_SUBINDEX
-READ_ONLY = abort.READ_ONLY
-WRITE_ONLY = abort.WRITE_ONLY
-NOT_MAPPABLE = abort.NOT_MAPPABLE
-PDO_LENGTH_EXCEEDED = abort.PDO_TOO_LONG
-LENGTH_TOO_HIGH = abort.LENGTH_TOO_HIGH
-LENGTH_TOO_LOW = abort.LENGTH_TOO_LOW
-VALUE_RANGE = abort.VALUE_RANGE
-VALUE_TOO_HIGH = abort.VALUE_TOO_HIGH
-VALUE_TOO_LOW = abort.VALUE_TOO_LOW
-DEVICE_STATE = abort.DEVICE_STATE
-
+# Abort codes (CiA 301) and the exception are the node's own, see .abort.
 Abort = SdoAbort  # an SDO or mapping request refused with a CiA 301 abort code
 
 
@@ -161,14 +149,14 @@ class Directory:
         try:
             return self._objects[index]
         except KeyError:
-            raise Abort(OBJECT_DOES_NOT_EXIST, f"no object 0x{index:04X}") from None
+            raise Abort(NO_OBJECT, f"no object 0x{index:04X}") from None
 
     def entry(self, index: int, sub: int) -> Entry:
         obj = self.object(index)
         try:
             return obj.by_sub[sub]
         except KeyError:
-            raise Abort(SUB_DOES_NOT_EXIST, f"no sub-index {sub} in 0x{index:04X}") from None
+            raise Abort(NO_SUBINDEX, f"no sub-index {sub} in 0x{index:04X}") from None
 
     def read(self, index: int, sub: int) -> bytes:
         entry = self.entry(index, sub)

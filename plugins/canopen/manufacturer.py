@@ -31,7 +31,8 @@ from typing import Any
 from fieldgate.health import HealthEvent, HealthRegistry, ModuleHealth
 
 from . import abort
-from .entries import UNSIGNED8, UNSIGNED16, VALUE_RANGE, VISIBLE_STRING, Abort, Entry, ObjectDef, array, count_entry
+from .abort import VALUE_RANGE
+from .entries import UNSIGNED8, UNSIGNED16, VISIBLE_STRING, Abort, Entry, ObjectDef, array, count_entry
 from .layouts import IoLayout, ModuleRef
 
 log = logging.getLogger("fieldgate.canopen.manufacturer")

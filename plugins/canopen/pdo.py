@@ -37,10 +37,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
-from .entries import (
-    DEVICE_STATE, NOT_MAPPABLE, PDO_LENGTH_EXCEEDED, UNSIGNED8, UNSIGNED16, UNSIGNED32, VALUE_RANGE,
-    Abort, Directory, Entry, ObjectDef, count_entry, decode, encode,
-)
+from .abort import DEVICE_STATE, NOT_MAPPABLE, PDO_TOO_LONG, VALUE_RANGE
+from .entries import UNSIGNED8, UNSIGNED16, UNSIGNED32, Abort, Directory, Entry, ObjectDef, count_entry, decode, encode
 from .layouts import COB_INVALID, PdoDefault
 
 log = logging.getLogger("fieldgate.canopen.pdo")
@@ -423,7 +421,7 @@ class PdoEngine:
     def _compile(self, pdo: Pdo, values: list[int]) -> list[_Slot]:
         slots = [self._check_entry(pdo, v) for v in values]
         if sum(s.size for s in slots) * 8 > MAX_BITS:
-            raise Abort(PDO_LENGTH_EXCEEDED, f"the mapping needs {sum(s.size for s in slots) * 8} bits, at most {MAX_BITS}")
+            raise Abort(PDO_TOO_LONG, f"the mapping needs {sum(s.size for s in slots) * 8} bits, at most {MAX_BITS}")
         return slots
 
     def _reindex(self) -> None:
@@ -477,7 +475,7 @@ class PdoEngine:
 
     def _set_map_count(self, pdo: Pdo, value: int) -> None:
         if value > MAX_ENTRIES:
-            raise Abort(PDO_LENGTH_EXCEEDED, f"at most {MAX_ENTRIES} entries")
+            raise Abort(PDO_TOO_LONG, f"at most {MAX_ENTRIES} entries")
         slots = self._compile(pdo, pdo.map_entries[:value])
         pdo.map_count, pdo.slots = value, slots
         pdo.sample = None

@@ -33,9 +33,8 @@ from collections.abc import Callable
 from fieldgate.image import Change, Channel, DataType, ErrorMode, Kind, ProcessImage, Subscription
 from fieldgate.layout import byte_value
 
-from .entries import (
-    BOOLEAN, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED32, VALUE_RANGE, Abort, Entry, ObjectDef, array,
-)
+from .abort import VALUE_RANGE
+from .entries import BOOLEAN, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED32, Abort, Entry, ObjectDef, array
 from .layouts import AI_OBJECT, AO_OBJECT, DI_OBJECT, DO_OBJECT, IoLayout
 
 DI_POLARITY, DO_ERROR_MODE, DO_ERROR_VALUE, DO_FILTER = 0x6002, 0x6206, 0x6207, 0x6208
