@@ -133,7 +133,8 @@ class CanAdapter:
             self.counters["rx_fd_dropped"] += 1
         else:
             self.counters["rx"] += 1
-            self.transmit(self.node.receive(to_frame(msg), self.now))
+            now = self.loop.time()
+            self.transmit(self.node.receive(to_frame(msg), now), now)
             self._arm(self.node.deadline_after_call, known=True)
             return
         self._arm()
@@ -189,8 +190,10 @@ class CanAdapter:
         self.transmit(self.node.flush())
 
     # -- transmit and timers ---------------------------------------------------------------
-    def transmit(self, frames: list[Frame]) -> None:
-        now = self.now
+    def transmit(self, frames: list[Frame], now: float | None = None) -> None:
+        if not frames:
+            return
+        now = self.loop.time() if now is None else now
         for frame in frames:
             if self.transmit_allowed is not None and not self.transmit_allowed(now):
                 self.counters["tx_suppressed"] += 1

@@ -58,6 +58,7 @@ class Node:
         self.od.node_id = node_id if node_id != UNCONFIGURED_NODE_ID else 0
         self.state = NmtState.INITIALISING
         self.services: list[Service] = []
+        self._timed: list[Service] = []
         self.counters: Counter[str] = Counter()
         self.emcy = None  # the EMCY producer, set when one is added (see .emcy)
         self.now = 0.0  # time of the last boot()/receive()/tick(), for calls from outside
@@ -74,6 +75,8 @@ class Node:
     def add_service(self, service: Service) -> Service:
         self._routes.clear()
         self.services.append(service)
+        if type(service).deadline is not Service.deadline:  # services without timers are skipped
+            self._timed.append(service)
         service.attach(self)
         if getattr(service, "is_emcy_producer", False):
             self.emcy = service
@@ -165,7 +168,7 @@ class Node:
         return self._deadline_hint
 
     def next_deadline(self) -> float | None:
-        deadlines = [d for d in (self._safe_deadline(s) for s in self.services) if d is not None]
+        deadlines = [d for d in (self._safe_deadline(s) for s in self._timed) if d is not None]
         return min(deadlines) if deadlines else None
 
     def _safe_deadline(self, service: Service) -> float | None:
@@ -178,7 +181,7 @@ class Node:
     def _run_due(self, now: float) -> None:
         """Poll the services that are due; note the earliest deadline left (one pass)."""
         earliest, polled = None, False
-        for service in self.services:
+        for service in self._timed:
             try:
                 deadline = service.deadline()
                 if deadline is None:
