@@ -33,6 +33,10 @@ Rules:
   exception as an internal error and carries on, but a well-behaved service answers
   bad input with its protocol error (SDO abort, EMCY) or counts a drop in
   :attr:`counters` (shown in the front's ``status()``).
+* Timers: override ``deadline``/``poll`` in the class; the node asks only services
+  whose class overrides ``deadline``. The node also remembers which service took a
+  COB-ID and offers it that frame first; that memory is dropped on every dictionary
+  change, NMT state change and added service, so keep COB-IDs in the dictionary.
 * ``active_states``: the NMT states in which the node passes frames to ``on_frame``.
   The default is pre-operational and operational (SDO, SYNC, EMCY per CiA 301); a PDO
   service sets ``{NmtState.OPERATIONAL}``, error control and LSS set all states.
