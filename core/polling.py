@@ -156,6 +156,14 @@ class LineScheduler:
             st.dirty.update(st.module.outputs)
         self._wake.set()
 
+    def rewrite_outputs(self, module: PolledModule) -> None:
+        """Queue a rewrite of the module's outputs that a front (or the config) has set,
+        e.g. after the module was reset behind the poller's back."""
+        for st in self._states:
+            if st.module is module:
+                st.dirty.update(cid for cid in module.outputs if self.image[cid].written_by or self.image[cid].spec.initial is not None)
+        self._wake.set()
+
     @property
     def pending_writes(self) -> int:
         return sum(len(st.dirty) for st in self._states)

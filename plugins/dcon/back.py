@@ -69,8 +69,13 @@ class DconBack(SerialBack):
         if old is not None:  # a restart keeps what was learnt (identity, watchdog state)
             module.name, module.firmware, module.in_watchdog, module.watchdog_events = old.name, old.firmware, old.in_watchdog, old.watchdog_events
             module.watchdog_enabled, module.watchdog_timeout_ms = old.watchdog_enabled, old.watchdog_timeout_ms
+        module.on_reset = self._rewrite
         self.modules[config.address] = module
         return module
+
+    def _rewrite(self, module: DconModule) -> None:
+        if self.scheduler is not None:
+            self.scheduler.rewrite_outputs(module)
 
     def line_jobs(self) -> list[LineJob]:
         period = self.host_ok_period()
@@ -153,8 +158,7 @@ class DconBack(SerialBack):
 
         async def clear() -> None:
             await module.clear_watchdog()
-            if self.scheduler is not None:
-                self.scheduler.mark_all_outputs_dirty()  # bring the outputs back to what the image says
+            self._rewrite(module)  # bring the outputs back to what the image says
 
         return self._submit(clear)
 

@@ -46,7 +46,8 @@ async def _scan(args: argparse.Namespace, addresses: list[int], bauds: list[int]
         print(f"scanning {args.port} at {baud} bit/s, checksum {'on' if args.checksum else 'off'}", file=sys.stderr)
         serial = await AsyncSerial.open(args.port, baud)
         try:
-            link = DconLink(serial, args.checksum, args.timeout_ms / 1000)
+            # every scan reply carries its address, so a late one cannot be mistaken: no settling
+            link = DconLink(serial, args.checksum, args.timeout_ms / 1000, settle_after_timeout=False)
             found += await scan_line(link, addresses, baud, progress_bar())
         finally:
             await serial.close()

@@ -17,8 +17,9 @@ class DconLink:
     ``write``, ``read_until``, ``reset_input`` and ``pending``).
     """
 
-    def __init__(self, serial, use_checksum: bool, timeout: float):
+    def __init__(self, serial, use_checksum: bool, timeout: float, *, settle_after_timeout: bool = True):
         self.serial = serial
+        self.settle_after_timeout = settle_after_timeout
         self.use_checksum = use_checksum
         self.timeout = timeout
         self.transactions = 0
@@ -29,7 +30,8 @@ class DconLink:
         so a late one would otherwise be taken for the answer to the next command."""
         if self._after_timeout:
             self._after_timeout = False
-            await asyncio.sleep(self.timeout)
+            if self.settle_after_timeout:
+                await asyncio.sleep(self.timeout)
         self.serial.reset_input()
 
     async def transact(self, text: str, timeout: float | None = None) -> str:

@@ -19,6 +19,7 @@ from .tables import TABLES, TypeRange
 log = logging.getLogger("fieldgate.dcon")
 
 WATCHDOG_TIMEOUT_BIT = 0x04  # ~AA0 status: host watchdog timeout occurred
+RESET_CHECK_EVERY = 10  # polls between two $AA5 reset-status reads of a module with outputs
 
 
 class DconModule(PolledModule):
@@ -40,6 +41,10 @@ class DconModule(PolledModule):
         self.watchdog_events = 0
         self.watch_status = watch_status  # poll ~AA0 with the inputs (set while host OK is suspended)
         self._outputs_configured = False
+        self.polls = 0
+        self.resets = 0
+        self._seen_online = False
+        self.on_reset = lambda module: None  # set by the back: rewrite the outputs
         wd = config.watchdog
         self.watchdog_enabled = bool(wd and wd.enabled)
         self.watchdog_timeout_ms = wd.timeout_ms if wd else 0
@@ -100,7 +105,20 @@ class DconModule(PolledModule):
             readings.update(await self._read_analog())
         if (self.watch_status and self.watchdog_enabled) or not (p.di or p.do or p.ai):
             await self.read_status()  # analog-output modules have nothing else to read: status keeps them polled
+        self.polls += 1
+        if (p.do or p.ao) and self.polls % RESET_CHECK_EVERY == 0:
+            await self.check_reset()
         return readings
+
+    async def check_reset(self) -> bool:
+        """``$AA5``: a module reset (power glitch) between two polls is back at its power-on
+        values without ever looking offline; its outputs are written again."""
+        if await self._ask("5") != "1":
+            return False
+        self.resets += 1
+        log.warning("%s module %d (%s) was reset: writing its outputs again", self.link_name, self.address, self.profile.model)
+        self.on_reset(self)
+        return True
 
     def _bits(self, kind: Kind, bits: int) -> dict[str, bool]:
         return {cid: bool(bits >> i & 1) for i, cid in enumerate(self.by_kind[kind])}
@@ -202,6 +220,9 @@ class DconModule(PolledModule):
                 log.warning("%s module %d: $AAM says %r, topology says %s", self.link_name, self.address, self.name, self.profile.model)
         if await self._ask("5") == "1":
             log.info("%s module %d (%s) was reset or powered up", self.link_name, self.address, self.profile.model)
+            if self._seen_online:
+                self.resets += 1  # the scheduler rewrites the outputs after on_online
+        self._seen_online = True
         await self.read_config()
         if self.config.watchdog is not None or self.watchdog_enabled:  # from the topology or set at run time
             await self.configure_watchdog()
@@ -267,6 +288,7 @@ class DconModule(PolledModule):
             "range": None if self.range is None else self.range.label,
             "data_format": None if self.data_format is None else self.data_format.label,
             "watchdog": {"enabled": self.watchdog_enabled, "timeout_ms": self.watchdog_timeout_ms, "timed_out": self.in_watchdog, "events": self.watchdog_events},
+            "resets_seen": self.resets,
             "warnings": list(self.warnings),
             "config_error": self.config_error,
         }

@@ -12,7 +12,7 @@ def dcon_registry():
 
 def topology(modules, **back):
     """A gateway: the test package's ``memory`` front, one ``dcon`` back (short timeouts for tests)."""
-    settings = {"timeout_ms": 60, "poll_ms": 10, "offline_probe_ms": 100, **back}
+    settings = {"timeout_ms": 150, "poll_ms": 10, "offline_probe_ms": 100, **back}
     return {
         "gateway": {"name": "dcon-test"},
         "fronts": [{"name": "plc", "type": "memory"}],

@@ -53,7 +53,7 @@ def registry(dcon_registry):
 
 async def test_i7231d_example_on_simulated_dcon_modules(registry, tmp_path):
     channel = f"fg-7231d-{uuid.uuid4().hex[:8]}"
-    overrides = {"fronts.can.channel": channel, "backs.rs485.poll_ms": 10, "backs.rs485.timeout_ms": 60, "gateway.state_dir": str(tmp_path)}
+    overrides = {"fronts.can.channel": channel, "backs.rs485.poll_ms": 10, "backs.rs485.timeout_ms": 150, "gateway.state_dir": str(tmp_path)}
     gw = Gateway.load(EXAMPLE, overrides, registry, simulate=True)
     await gw.start()
     master = Master(channel)

@@ -21,7 +21,7 @@ async def _scan(modules, addresses, *, sim_checksum=False, checksum=False):
         serial = await AsyncSerial.open(pair.a)
         progress = []
         try:
-            found = await scan_line(DconLink(serial, checksum, 0.03), addresses, 9600, lambda *a: progress.append(a))
+            found = await scan_line(DconLink(serial, checksum, 0.06, settle_after_timeout=False), addresses, 9600, lambda *a: progress.append(a))
         finally:
             await serial.close()
             await sim.stop()
@@ -82,7 +82,7 @@ def test_simulate_and_scan_commands_together():
                 port = line.split()[2]
                 break
         assert port and port.startswith("/dev/")
-        scan = subprocess.run([exe, "scan", "dcon", "--port", port, "--addresses", "0-9", "--timeout-ms", "40"], capture_output=True, text=True, timeout=30)
+        scan = subprocess.run([exe, "scan", "dcon", "--port", port, "--addresses", "0-9", "--timeout-ms", "100"], capture_output=True, text=True, timeout=30)
         assert scan.returncode == 0, scan.stderr
         assert "10/10 addresses, 2 module(s) found" in scan.stderr
         backs = YAML(typ="safe").load(scan.stdout)["backs"]
