@@ -71,15 +71,22 @@ def run(args: argparse.Namespace) -> int:
         if result.verdict is Verdict.FAIL:
             print("\n".join(details(result)), flush=True)
 
+    properties = {"node-id": str(args.node_id), "bus": f"{args.interface}:{args.channel}", "eds": args.eds}
+
+    def on_start(ident: dict[str, str]) -> None:
+        properties.update(ident)
+        if ident:
+            print("device: " + ", ".join(f"{k} {v}" for k, v in ident.items()), flush=True)
+
     try:
-        results = run_suite(config, interface=args.interface, channel=args.channel, bitrate=args.bitrate, progress=progress)
+        results = run_suite(config, interface=args.interface, channel=args.channel, bitrate=args.bitrate, progress=progress, on_start=on_start)
     except (OSError, ValueError, DeviceSilent) as exc:
         print(f"conformance: cannot start: {exc}", file=sys.stderr)
         return 2
     print()
     print(summary(results))
     if args.junit:
-        write_junit(results, args.junit)
+        write_junit(results, args.junit, properties)
     return 1 if any(r.verdict is Verdict.FAIL for r in results) else 0
 
 

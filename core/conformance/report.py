@@ -44,7 +44,7 @@ def text_report(results: list[CaseResult], header: str = "") -> str:
     return "\n".join(out) + "\n"
 
 
-def junit_xml(results: list[CaseResult], suite_name: str = "fieldgate-conformance") -> ET.ElementTree:
+def junit_xml(results: list[CaseResult], suite_name: str = "fieldgate-conformance", properties: dict[str, str] | None = None) -> ET.ElementTree:
     counts = Counter(r.verdict for r in results)
     suites = ET.Element("testsuites")
     suite = ET.SubElement(
@@ -57,6 +57,10 @@ def junit_xml(results: list[CaseResult], suite_name: str = "fieldgate-conformanc
         errors="0",
         time=f"{sum(r.duration for r in results):.3f}",
     )
+    if properties:
+        props = ET.SubElement(suite, "properties")
+        for name, value in properties.items():
+            ET.SubElement(props, "property", name=name, value=str(value))
     for r in results:
         tc = ET.SubElement(suite, "testcase", classname=f"conformance.{r.case.profile}", name=r.case.id, time=f"{r.duration:.3f}")
         if r.verdict is Verdict.FAIL:
@@ -68,5 +72,5 @@ def junit_xml(results: list[CaseResult], suite_name: str = "fieldgate-conformanc
     return ET.ElementTree(suites)
 
 
-def write_junit(results: list[CaseResult], path: str | Path) -> None:
-    junit_xml(results).write(path, encoding="utf-8", xml_declaration=True)
+def write_junit(results: list[CaseResult], path: str | Path, properties: dict[str, str] | None = None) -> None:
+    junit_xml(results, properties=properties).write(path, encoding="utf-8", xml_declaration=True)

@@ -113,7 +113,10 @@ def test_cli_exit_code_junit_and_selection(eds, tmp_path, capsys):
         assert code == 1
         assert "FAIL  sdo.upload_toggle_error" in out and "PASS  sdo.download_toggle_error" in out
         assert "od." not in out  # profile and -k selection
+        assert "device: device name TinySlave conformance, vendor-ID 0x0000ABCD" in out
         suite = ET.parse(junit).getroot().find("testsuite")
+        props = {p.get("name"): p.get("value") for p in suite.iter("property")}
+        assert props["node-id"] == "5" and props["serial number"] == "0x12345678"
         assert suite.get("tests") == "2" and suite.get("failures") == "1"
         failure = suite.find("testcase[@name='sdo.upload_toggle_error']/failure")
         assert "05030000" in failure.get("message") + failure.text
