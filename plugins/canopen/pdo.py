@@ -177,6 +177,7 @@ class PdoEngine:
         self._depth = 0
         self._rx: dict[int, Pdo] = {}
         self._rtr: dict[int, Pdo] = {}
+        self._timed: list[Pdo] = []
         self._events: dict[tuple[int, int], list[Pdo]] = {}
         self._queued: dict[int, Pdo] = {}
         self._queued_at: float | None = None
@@ -279,7 +280,7 @@ class PdoEngine:
         with self._call(now):
             if self.operational:
                 self._run_queued(now)
-                for pdo in self.tpdos:
+                for pdo in self._timed:
                     if pdo.pending and now >= pdo.next_allowed:
                         self._send(pdo, now)
                     elif pdo.timer_due is not None and now >= pdo.timer_due:
@@ -290,7 +291,7 @@ class PdoEngine:
     def next_deadline(self) -> float | None:
         if not self.operational:
             return None
-        times = [p.next_allowed for p in self.tpdos if p.pending] + [p.timer_due for p in self.tpdos if p.timer_due is not None]
+        times = [p.next_allowed for p in self._timed if p.pending] + [p.timer_due for p in self._timed if p.timer_due is not None]
         if self._queued_at is not None:
             times.append(self._queued_at)
         return min(times) if times else None
@@ -425,6 +426,8 @@ class PdoEngine:
         return slots
 
     def _reindex(self) -> None:
+        # Only these TPDOs ever have a deadline (event timer, or events held back by an inhibit time).
+        self._timed = [p for p in self.tpdos if p.valid and _async_type(p.trans_type) and (p.event_timer or p.inhibit)]
         self._rx = {p.can_id: p for p in self.rpdos if p.valid}
         self._rtr = {p.can_id: p for p in self.tpdos if p.valid and p.rtr_allowed}
         self._events = {}
@@ -462,16 +465,19 @@ class PdoEngine:
         pdo.trans_type = value
         pdo.clear_runtime()
         self._arm_timer(pdo, self.clock())
+        self._reindex()
 
     def _set_while_invalid(self, pdo: Pdo, attr: str, value: int) -> None:
         if pdo.valid and pdo.transmit:
             raise Abort(VALUE_RANGE, f"{attr.replace('_', ' ')} can change only while the PDO is invalid")
         setattr(pdo, attr, value)
         pdo.clear_runtime()
+        self._reindex()
 
     def _set_event_timer(self, pdo: Pdo, value: int) -> None:
         pdo.event_timer = value
         self._arm_timer(pdo, self.clock())
+        self._reindex()
 
     def _set_map_count(self, pdo: Pdo, value: int) -> None:
         if value > MAX_ENTRIES:
