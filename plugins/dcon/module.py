@@ -247,20 +247,25 @@ class DconModule(PolledModule):
             ss = cfg.safe_value if cfg.safe_value is not None else codec.hex_field(current[2:4], "safe value")
             await self._ask(f"5{pp:02X}{ss:02X}", "~")
         elif p.do:
-            await self._latch_digital()
+            if not await self._latch_digital():
+                return
         else:
             await self._latch_analog()
         log.info("%s module %d (%s): safe/power-on values stored", self.link_name, self.address, p.model)
 
-    async def _latch_digital(self) -> None:
+    async def _latch_digital(self) -> bool:
+        """Returns False when the module already held both values (nothing written)."""
         cfg, p = self.config, self.profile
+        wanted = [(letter, value) for letter, value in (("S", cfg.safe_value), ("P", cfg.power_on_value)) if value is not None]
+        missing = [(letter, value) for letter, value in wanted if codec.hex_field((await self._ask(f"4{letter}", "~"))[:8], "DO value") != value]
+        if not missing:
+            return False  # already stored: no need to drive the outputs through them
         before, _ = p.decode_dio(codec.data(await self.link.transact(codec.command("@", self.address)), self.address))
-        for letter, value in (("S", cfg.safe_value), ("P", cfg.power_on_value)):
-            if value is None or codec.hex_field((await self._ask(f"4{letter}", "~"))[:8], "DO value") == value:
-                continue  # already stored: no need to drive the outputs through it
+        for letter, value in missing:
             await self._write(codec.command("@", self.address, p.encode_do(value)))
             await self._ask(f"5{letter}", "~")
         await self._write(codec.command("@", self.address, p.encode_do(before)))
+        return True
 
     async def _latch_analog(self) -> None:
         cfg, p = self.config, self.profile
