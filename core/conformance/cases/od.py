@@ -145,18 +145,18 @@ def read_write_only(ctx: Context) -> None:
 def missing_object(ctx: Context) -> None:
     dev = ctx.device
     index = next(i for i in (0x5FFF, 0x5FFE, 0x3FFF, 0x2FFF, 0x1FFE) if not dev.has(i))
-    dev.expect_abort(bytes([0x40]) + mux(index, 0), (0x06020000,), f"read of 0x{index:04X}")
-    dev.expect_abort(bytes([0x2F]) + mux(index, 0) + b"\x01", (0x06020000,), f"write of 0x{index:04X}")
+    dev.expect_abort(bytes([0x40]) + mux(index, 0), (0x06020000, 0x08000000), f"read of 0x{index:04X}")
+    dev.expect_abort(bytes([0x2F]) + mux(index, 0) + b"\x01", (0x06020000, 0x08000000), f"write of 0x{index:04X}")
 
 
 @case("od", "missing_subindex", "a sub-index the EDS does not list is refused with 0609 0011")
 def missing_subindex(ctx: Context) -> None:
     dev = ctx.device
     dev.require(0x1000)
-    dev.expect_abort(bytes([0x40]) + mux(0x1000, 1), (0x06090011,), "read of 0x1000:1")
+    dev.expect_abort(bytes([0x40]) + mux(0x1000, 1), (0x06090011, 0x08000000), "read of 0x1000:1")
     if dev.has(0x1018):
         top = max(dev.od[0x1018].subindices) + 1
-        dev.expect_abort(bytes([0x40]) + mux(0x1018, top), (0x06090011,), f"read of 0x1018:{top}")
+        dev.expect_abort(bytes([0x40]) + mux(0x1018, top), (0x06090011, 0x08000000), f"read of 0x1018:{top}")
 
 
 @case("od", "length_mismatch", "writes of the wrong length are refused with 0607 0010/0012/0013")
@@ -168,8 +168,8 @@ def length_mismatch(ctx: Context) -> None:
     if short is None and long is None:
         raise Skip("EDS lists no writable 16- or 32-bit entry")
     for var, data, codes, what in (
-        (short, b"\x00\x00\x00\x00", (0x06070010, 0x06070012), "4 bytes into a 16-bit entry"),
-        (long, b"\x00", (0x06070010, 0x06070013), "1 byte into a 32-bit entry"),
+        (short, b"\x00\x00\x00\x00", (0x06070010, 0x06070012, 0x08000000), "4 bytes into a 16-bit entry"),
+        (long, b"\x00", (0x06070010, 0x06070013, 0x08000000), "1 byte into a 32-bit entry"),
     ):
         if var is None:
             continue
@@ -187,9 +187,9 @@ def value_range(ctx: Context) -> None:
         lo_type, hi_type = (-(1 << bits), (1 << bits) - 1) if signed(var) else (0, (1 << bits) - 1)
         probes = []
         if var.max is not None and var.max < hi_type:
-            probes.append((var.max + 1, (0x06090030, 0x06090031), "above HighLimit"))
+            probes.append((var.max + 1, (0x06090030, 0x06090031, 0x08000000), "above HighLimit"))
         if var.min is not None and var.min > lo_type:
-            probes.append((var.min - 1, (0x06090030, 0x06090032), "below LowLimit"))
+            probes.append((var.min - 1, (0x06090030, 0x06090032, 0x08000000), "below LowLimit"))
         if not probes:
             continue
         old = dev.upload(var.index, var.subindex)

@@ -118,7 +118,7 @@ def download_toggle_error(ctx: Context) -> None:
 
 @case("sdo", "unknown_command", "an unknown command specifier is aborted with 0504 0001")
 def unknown_command(ctx: Context) -> None:
-    ctx.device.expect_abort(bytes([0xE0]) + mux(0x1000, 0), (0x05040001,), "ccs 7")
+    ctx.device.expect_abort(bytes([0xE0]) + mux(0x1000, 0), (0x05040001, 0x08000000), "ccs 7")
 
 
 @case("sdo", "segment_without_transfer", "a segment request outside any transfer is aborted with 0504 0001")
