@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-from fieldgate.image import Change, Channel, DataType, ErrorMode, Kind, ProcessImage, Subscription
+from fieldgate.image import Change, Channel, DataType, ErrorMode, ProcessImage, Subscription
 from fieldgate.layout import byte_value
 
 from .abort import VALUE_RANGE

@@ -7,7 +7,6 @@ import random
 
 from io_bench import Bench, demo_7232d, make_image, wire
 
-from fieldgate.image import Kind
 
 
 def abort(index, sub, code):

@@ -6,7 +6,7 @@ DLCs, the 0x1805/0x1A05 "5th" PDO). Analog values are the loopback's exact value
 
 from __future__ import annotations
 
-from io_bench import Bench, demo_7231d, demo_7232d, make_image, module_health, wire
+from io_bench import Bench, demo_7231d, demo_7232d, make_image, module_health
 
 OK = "60 {:02X} {:02X} {:02X} 00 00 00 00"
 
