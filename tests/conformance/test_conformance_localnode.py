@@ -16,7 +16,7 @@ from conformance_localnode import NODE_ID, LocalNodeDevice, write_eds
 from fieldgate.conformance import PROFILES, SuiteConfig, Timing, Verdict, run_suite
 from fieldgate.conformance.report import text_report
 
-TIMING = dict(response=0.15, silence=0.06, heartbeat_ms=50, bootup=0.15, sdo_server_timeout=0.3)
+TIMING = dict(response=0.1, silence=0.05, heartbeat_ms=50, bootup=0.1, sdo_server_timeout=0.2)
 
 # what the probe measured as missing in LocalNode, and the case that must catch it
 PROBE_GAPS = {
