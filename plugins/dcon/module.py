@@ -126,6 +126,8 @@ class DconModule(PolledModule):
     async def _read_analog(self) -> dict[str, Any]:
         ids = self.by_kind[Kind.AI]
         if self.config_error:
+            await self.read_config()  # keeps the module polled, and sees it when it is set right
+        if self.config_error:
             return {cid: (self.image.value(cid), Quality.CONFIG_ERROR) for cid in ids}
         assert self.range is not None and self.data_format is not None
         data = codec.data(await self.link.transact(codec.command("#", self.address)), self.address)

@@ -100,6 +100,9 @@ async def test_type_code_outside_the_model_table_is_a_config_error(gateway, wait
         sim.module(1).type_code = 0x20  # an RTD code on an I-7017
         await wait_for(lambda: gw.image["rs485/m1/ai0"].quality is Quality.CONFIG_ERROR)
         assert "not a I-7017 range" in gw.component("rs485").modules[1].status()["config_error"]
+        sim.module(1).type_code = 0x08  # set right (DCON utility): the back sees it at the next poll
+        sim.set_input("rs485/m1/ai0", 0x0100)
+        await wait_for(lambda: gw.image["rs485/m1/ai0"].quality is Quality.GOOD and gw.read("rs485/m1/ai0") == 0x0100)
 
 
 async def test_safe_and_power_on_values_are_stored_in_the_modules(gateway, wait_for):
