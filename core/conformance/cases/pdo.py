@@ -440,3 +440,22 @@ def restricted_sync_emcy_cobid(ctx: Context) -> None:
             dev.write(index, 0, original | (0x80000000 if index == 0x1014 else 0))
     if problems:
         raise Fail("restricted CAN-IDs accepted", expected=f"{abort_text(0x06090030)} (or 0604 0043 / 0800 0000)", seen="; ".join(problems))
+
+
+@case("sync-pdo", "rpdo_sync", "a synchronous RPDO (type 1) is applied at the next SYNC, not on reception")
+def rpdo_sync(ctx: Context) -> None:
+    dev = ctx.device
+    pdo = active_pdo(dev, tx=False)
+    good = mapped_values(dev, pdo)
+    ctx.cleanup(lambda: [dev.download(e >> 16, (e >> 8) & 0xFF, part) for e, part in _split(pdo, good)])
+    set_pdo_type(ctx, pdo, 1)
+    operational(ctx)
+    changed = bytes(b ^ 0x01 for b in good)
+    dev.link.send(pdo.cob & 0x7FF, changed)
+    time.sleep(0.05)
+    if mapped_values(dev, pdo) != good:
+        raise Fail(f"{pdo.name} (type 1) applied before the SYNC", expected=f"still {good.hex(' ')}", seen=mapped_values(dev, pdo).hex(" "))
+    sync(ctx)
+    time.sleep(0.05)
+    if mapped_values(dev, pdo) != changed:
+        raise Fail(f"{pdo.name} (type 1) not applied at the SYNC", expected=changed.hex(" "), seen=mapped_values(dev, pdo).hex(" "))
