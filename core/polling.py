@@ -183,6 +183,7 @@ class LineScheduler:
             while True:
                 deadline = await self.step()
                 if deadline is None:
+                    await asyncio.sleep(0)  # a step that did no real I/O must not starve the loop
                     continue
                 delay = deadline - self.clock()
                 if delay > 0:

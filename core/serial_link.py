@@ -192,3 +192,86 @@ class PtyPair:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class PortServer:
+    """The serving end of a serial port, for module simulators.
+
+    Received bytes go to ``on_data(data, now)`` on the event loop; replies are written
+    at once (:meth:`send`) or after a delay (:meth:`send_later`, for fault injection).
+    """
+
+    def __init__(self, port: str, on_data: Callable[[bytes, float], None], *, baudrate: int = 9600, bytesize: int = 8, parity: str = "N", stopbits: int = 1):
+        self.port_name = port
+        self.on_data = on_data
+        self.settings = dict(baudrate=baudrate, bytesize=bytesize, parity=_PARITY[parity], stopbits=stopbits)
+        self.sent = 0  # replies written
+        self._port: serial.SerialBase | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._timers: set[asyncio.TimerHandle] = set()
+
+    def open(self) -> None:
+        """Open the port and start serving; PluginStartError with the cause on failure."""
+        try:
+            self._port = serial.serial_for_url(self.port_name, timeout=0, **self.settings)
+        except (serial.SerialException, ValueError) as exc:
+            raise PluginStartError(f"simulator cannot open {self.port_name}: {exc}") from None
+        self._loop = asyncio.get_running_loop()
+        self._loop.add_reader(self._port.fileno(), self._readable)
+
+    @property
+    def now(self) -> float:
+        assert self._loop is not None
+        return self._loop.time()
+
+    def _readable(self) -> None:
+        assert self._port is not None and self._loop is not None
+        try:
+            data = self._port.read(4096)
+        except (serial.SerialException, OSError):
+            self._loop.remove_reader(self._port.fileno())
+            return
+        if data:
+            self.on_data(data, self._loop.time())
+
+    def send(self, data: bytes) -> None:
+        if self._port is None:
+            return
+        try:
+            self._port.write(data)
+            self.sent += 1
+        except (serial.SerialException, OSError):
+            pass  # the other end went away: a simulator keeps serving
+
+    def send_later(self, delay: float, data: bytes) -> None:
+        assert self._loop is not None
+
+        def fire() -> None:
+            self._timers.discard(timer)
+            self.send(data)
+
+        timer = self._loop.call_later(delay, fire)
+        self._timers.add(timer)
+
+    def close(self) -> None:
+        for timer in self._timers:
+            timer.cancel()
+        self._timers.clear()
+        if self._port is not None:
+            if self._loop is not None:
+                try:
+                    self._loop.remove_reader(self._port.fileno())
+                except (ValueError, OSError):
+                    pass
+            self._port.close()
+            self._port = None
+
+
+async def cancel_task(task: asyncio.Task | None) -> None:
+    """Cancel a background task and wait until it has ended."""
+    if task is not None:
+        task.cancel()
+        try:
+            await task
+        except asyncio.CancelledError:
+            pass

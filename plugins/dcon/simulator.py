@@ -19,9 +19,8 @@ import asyncio
 import logging
 import re
 
-import serial
-
-from fieldgate.plugin import PluginStartError, Simulator
+from fieldgate.plugin import Simulator
+from fieldgate.serial_link import PortServer, cancel_task
 
 from .codec import BAUD_TO_CODE
 from .config import DconBackConfig
@@ -41,10 +40,12 @@ class DconSimulator(Simulator):
         self.bus = bus
         self.baudrate = baudrate
         self.animate = animate
-        self._port: serial.SerialBase | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
+        self.server = PortServer(port, self._received, baudrate=baudrate)
         self._ticker: asyncio.Task | None = None
-        self.replies = 0
+
+    @property
+    def replies(self) -> int:
+        return self.server.sent
 
     # -- construction -------------------------------------------------------------------
     @classmethod
@@ -72,37 +73,20 @@ class DconSimulator(Simulator):
 
     # -- life cycle ---------------------------------------------------------------------
     async def start(self) -> None:
-        self._loop = asyncio.get_running_loop()
-        try:
-            self._port = serial.serial_for_url(self.port_name, baudrate=self.baudrate, timeout=0)
-        except (serial.SerialException, ValueError) as exc:
-            raise PluginStartError(f"simulator cannot open {self.port_name}: {exc}") from None
-        now = self._loop.time()
+        self.server.open()
+        now = self.server.now
         for module in self.bus.modules.values():
             module.power_cycle(now)
-        self._loop.add_reader(self._port.fileno(), self._readable)
         self._ticker = asyncio.create_task(self._tick())
 
     async def stop(self) -> None:
-        if self._ticker is not None:
-            self._ticker.cancel()
-            try:
-                await self._ticker
-            except asyncio.CancelledError:
-                pass
-            self._ticker = None
-        if self._port is not None and self._loop is not None:
-            try:
-                self._loop.remove_reader(self._port.fileno())
-            except (ValueError, OSError):
-                pass
-            self._port.close()
-            self._port = None
+        await cancel_task(self._ticker)
+        self._ticker = None
+        self.server.close()
 
     async def _tick(self) -> None:
-        assert self._loop is not None
         while True:
-            now = self._loop.time()
+            now = self.server.now
             for address in self.bus.tick(now):
                 log.info("simulated module %d: host-watchdog timeout, outputs at safe values", address)
             if self.animate:
@@ -110,25 +94,12 @@ class DconSimulator(Simulator):
                 self.bus.propagate()
             await asyncio.sleep(TICK)
 
-    def _readable(self) -> None:
-        assert self._port is not None and self._loop is not None
-        try:
-            data = self._port.read(4096)
-        except (serial.SerialException, OSError):
-            return
-        for reply, delay in self.bus.feed(data, self._loop.time()):
+    def _received(self, data: bytes, now: float) -> None:
+        for reply, delay in self.bus.feed(data, now):
             if delay > 0:
-                self._loop.call_later(delay, self._send, reply)
+                self.server.send_later(delay, reply)
             else:
-                self._send(reply)
-
-    def _send(self, reply: bytes) -> None:
-        if self._port is not None:
-            try:
-                self._port.write(reply)
-                self.replies += 1
-            except (serial.SerialException, OSError):
-                pass
+                self.server.send(reply)
 
     # -- the Simulator interface -------------------------------------------------------------
     def _locate(self, channel_id: str) -> tuple[SimModule, str, int]:

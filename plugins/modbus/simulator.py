@@ -25,10 +25,9 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import serial
-
 from fieldgate.image import DataType, Kind
-from fieldgate.plugin import PluginStartError, Simulator
+from fieldgate.plugin import Simulator
+from fieldgate.serial_link import PortServer, cancel_task
 
 from . import values as regvalues
 from .codec import (
@@ -274,73 +273,30 @@ class ModbusSimulator(Simulator):
         self._driven: set[int] = set()  # modules the gateway has written to
         for module in self.modules.values():
             module.on_write = self._propagate
-        self._port: serial.SerialBase | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
+        c = config
+        self.server = PortServer(port, self._received, baudrate=c.baudrate, bytesize=c.bytesize, parity=c.parity, stopbits=c.stopbits)
         self._task: asyncio.Task | None = None
-        self._timers: set[asyncio.TimerHandle] = set()
         self.output_listeners: list[Callable[[str, object], None]] = []
         self._outputs_seen = {cid: m.get_point(p) for cid, (m, p) in self.channels.items() if p.kind.is_output}
 
     # -- life cycle -----------------------------------------------------------------
     async def start(self) -> None:
-        c = self.config
-        try:
-            self._port = serial.serial_for_url(self.port_name, baudrate=c.baudrate, bytesize=c.bytesize, parity=c.parity, stopbits=c.stopbits, timeout=0)
-        except (serial.SerialException, ValueError) as exc:
-            raise PluginStartError(f"simulator cannot open {self.port_name}: {exc}") from None
-        self._loop = asyncio.get_running_loop()
-        self._loop.add_reader(self._port.fileno(), self._readable)
+        self.server.open()
         self._propagate(None)
         if self.animate:
             self._task = asyncio.create_task(self._animate(), name=f"modbus-sim-{self.config.name}")
 
     async def stop(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            try:
-                await self._task
-            except asyncio.CancelledError:
-                pass
-            self._task = None
-        for timer in self._timers:
-            timer.cancel()
-        self._timers.clear()
-        if self._port is not None:
-            try:
-                self._loop.remove_reader(self._port.fileno())
-            except (ValueError, OSError):
-                pass
-            self._port.close()
-            self._port = None
+        await cancel_task(self._task)
+        self._task = None
+        self.server.close()
 
-    def _readable(self) -> None:
-        try:
-            data = self._port.read(4096)
-        except (serial.SerialException, OSError):
-            self._loop.remove_reader(self._port.fileno())
-            return
-        if not data:
-            return
-        for reply in self.responder.feed(data, self._loop.time()):
+    def _received(self, data: bytes, now: float) -> None:
+        for reply in self.responder.feed(data, now):
             if reply.delay:
-                self._send_later(reply.delay, reply.frame)
+                self.server.send_later(reply.delay, reply.frame)
             else:
-                self._send(reply.frame)
-
-    def _send_later(self, delay: float, frame: bytes) -> None:
-        def fire() -> None:
-            self._timers.discard(timer)
-            self._send(frame)
-
-        timer = self._loop.call_later(delay, fire)
-        self._timers.add(timer)
-
-    def _send(self, frame: bytes) -> None:
-        if self._port is not None:
-            try:
-                self._port.write(frame)
-            except (serial.SerialException, OSError) as exc:
-                log.debug("simulator write failed: %s", exc)
+                self.server.send(reply.frame)
 
     # -- the Simulator API ------------------------------------------------------------
     def _lookup(self, channel_id: str) -> tuple[SimModule, Point]:

@@ -235,3 +235,22 @@ async def test_a_poll_with_nothing_due_is_neither_a_success_nor_a_request():
     await drain(line)
     assert health[1].requests == 1 and line.stats.requests == 1
     assert health[1].consecutive_failures == 2  # not reset by a poll that asked nothing
+
+
+async def test_run_yields_to_the_loop_even_when_polls_do_no_io():
+    import asyncio
+
+    clock_line = make_line(n_modules=1)
+    line = clock_line[0]
+    line._states[0].period = 0.0  # poll_ms 0: as fast as the line allows, and the module never awaits I/O
+    ticks = []
+
+    async def other_task():
+        for _ in range(5):
+            ticks.append(1)
+            await asyncio.sleep(0)
+
+    task = asyncio.create_task(line.run())
+    await asyncio.wait_for(other_task(), 2)
+    task.cancel()
+    assert len(ticks) == 5

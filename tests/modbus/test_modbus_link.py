@@ -110,7 +110,7 @@ async def test_a_delayed_reply_times_out_and_does_not_poison_the_next_request(wi
     assert info.value.kind is ErrorKind.TIMEOUT
     assert 0.14 < time.monotonic() - started < 1.0
     await asyncio.sleep(0.25)  # the late reply arrives while the line is idle
-    assert not sim._timers  # the simulator forgets a delayed reply once sent
+    assert not sim.server._timers  # the simulator forgets a delayed reply once sent
     assert await link.read_bits(1, 2, 32, 1) == [True]
     assert await link.read_registers(5, 4, 0, 1) == [11]
 
