@@ -8,20 +8,26 @@
   defaults come back at the next reset node / reset communication (CiA 301); other
   values abort 0800 0020.
 * The file (JSON) is written with :func:`fieldgate.persist.write_atomic`, so a crash
-  mid-write keeps the previous copy. It carries a fingerprint of the module set: a
-  store saved for another module set, or an unreadable one, is ignored (defaults),
-  logged once and reported with an EMCY once the node is pre-operational:
-  corrupt store ``00 50 81 02 ..`` (the I-7232D's EEPROM error), other module set
-  ``00 63 81 0C ..`` (0x6300 "data set"). A successful save clears them.
-* Other services persist their own small sections (LSS node-ID and bit rate) with
-  :meth:`put_section` / :meth:`section`.
+  mid-write keeps the previous copy. It carries a fingerprint of the module set (the
+  front's channel list plus what services add with :meth:`add_fingerprint`, e.g. the
+  I/O layout style): a store saved for another module set, or an unreadable one, is
+  ignored as a whole (values and sections: defaults), logged once and reported with an
+  EMCY once the node is pre-operational: corrupt store ``00 50 81 02 ..`` (the
+  I-7232D's EEPROM error), other module set ``00 63 81 0C ..`` (0x6300 "data set").
+  A successful save clears them.
+* Services whose parameters do not live in the dictionary keep them as named sections
+  of the same file: :meth:`add_area_hook` lets them update their section
+  (:meth:`set_section`) inside each "save" / "load", so one atomic write carries
+  everything; :meth:`section` reads it back.
 """
 
 from __future__ import annotations
 
 import base64
+import hashlib
 import json
 import logging
+from collections.abc import Callable
 from pathlib import Path
 
 from canopen.objectdictionary import datatypes as dt
@@ -41,6 +47,8 @@ OTHER_SET_CODE, OTHER_SET_MFR = 0x6300, b"\x0c"
 AREAS = {1: (True, True), 2: (True, False), 3: (False, True)}
 
 log = logging.getLogger("fieldgate.canopen.store")
+
+AreaHook = Callable[[bool, bool, bool], None]  # (communication, application, saving) inside a save / load
 
 
 def _key(index: int, sub: int) -> str:
@@ -67,7 +75,8 @@ class StoreService(Service):
     def __init__(self, path: str | Path | None, fingerprint: str = ""):
         super().__init__()
         self.path = Path(path) if path is not None else None
-        self.fingerprint = fingerprint
+        self._fingerprint_parts = [fingerprint]
+        self._area_hooks: list[AreaHook] = []
         self.values: dict[tuple[int, int], object] = {}
         self.sections: dict[str, object] = {}
         self.problem: tuple[int, bytes] | None = None
@@ -81,6 +90,20 @@ class StoreService(Service):
             od.add_validator(index, lambda sub, value, sig=sig: self._check_signature(sig, value))
             for sub in AREAS:
                 od.bind(index, sub, getter=lambda: 1, setter=(lambda v, sub=sub: self.save(sub)) if sig == SAVE else (lambda v, sub=sub: self.restore(sub)))
+
+    @property
+    def fingerprint(self) -> str:
+        """The front's module-set fingerprint, extended by what services added."""
+        base, *added = self._fingerprint_parts
+        return hashlib.sha256("\n".join(self._fingerprint_parts).encode()).hexdigest()[:16] if added else base
+
+    def add_fingerprint(self, part: str) -> None:
+        """A fact the stored data depend on beyond the channel list (call before :meth:`load`)."""
+        self._fingerprint_parts.append(part)
+
+    def add_area_hook(self, hook: AreaHook) -> None:
+        """``hook(communication, application, saving)`` runs inside every "save" / "load" before the write."""
+        self._area_hooks.append(hook)
 
     @staticmethod
     def _check_signature(expected: int, value: int) -> None:
@@ -103,11 +126,11 @@ class StoreService(Service):
         except (CorruptStore, OSError, ValueError, TypeError, AttributeError, KeyError) as exc:
             self._problem(CORRUPT_CODE, CORRUPT_MFR, f"stored parameters unreadable, using defaults: {exc}")
             return
-        self.sections = sections
         if doc.get("fingerprint") != self.fingerprint:
             self._problem(OTHER_SET_CODE, OTHER_SET_MFR, f"{self.path}: stored for another module set, using defaults")
             return
         self.values = values
+        self.sections = sections
         self.node.od.set_stored(values)
 
     def _problem(self, code: int, mfr: bytes, text: str) -> None:
@@ -134,6 +157,7 @@ class StoreService(Service):
         keep = {k: v for k, v in self.values.items() if not _in_area(k[0], communication, application)}
         changed = {k: v for k, v in od.snapshot(communication, application).items() if v != od.default(od.variable(*k))}
         self.values = {**keep, **changed}
+        self._run_area_hooks(communication, application, True)
         self._write()
         od.set_stored(self.values)
         self.counters["saves"] += 1
@@ -144,16 +168,25 @@ class StoreService(Service):
     def restore(self, sub: int = 1) -> None:
         communication, application = AREAS[sub]
         self.values = {k: v for k, v in self.values.items() if not _in_area(k[0], communication, application)}
+        self._run_area_hooks(communication, application, False)
         self._write()
         self.node.od.set_stored(self.values)
         self.counters["restores"] += 1
 
+    def _run_area_hooks(self, communication: bool, application: bool, saving: bool) -> None:
+        for hook in self._area_hooks:
+            hook(communication, application, saving)
+
     def section(self, name: str, default=None):
         return self.sections.get(name, default)
 
-    def put_section(self, name: str, value) -> None:
-        """Persist a service's own data (e.g. LSS node-ID/bit rate); raises SdoAbort on I/O errors."""
+    def set_section(self, name: str, value) -> None:
+        """Change a section in memory; the next write (save, load, :meth:`put_section`) persists it."""
         self.sections[name] = value
+
+    def put_section(self, name: str, value) -> None:
+        """Persist a service's own data at once; raises SdoAbort on I/O errors."""
+        self.set_section(name, value)
         self._write()
 
     # -- reporting ------------------------------------------------------------------------------

@@ -151,3 +151,37 @@ def test_sync_cob_id_rules(rig):
     assert rig.sdo("23 05 10 00 90 00 00 00") == "60 05 10 00 00 00 00 00"
     rig.send("090")
     assert len(rig.node.recorder.seen) == 1
+
+
+def test_store_of_another_module_set_drops_its_sections_too(tmp_path, caplog):
+    path = tmp_path / "node.json"
+    path.write_text(json.dumps({"format": "fieldgate-canopen-store/1", "fingerprint": "set-B",
+                                "values": {"1017.00": 500}, "sections": {"io401": {"pdo": [1, 2]}}}))
+    node = seed_node(store_path=path, fingerprint="set-A")
+    store = node.service("store")
+    store.load()
+    r = Rig(node)
+    assert r.boot == ["701 00", "081 00 63 81 0C 00 00 00 00"]
+    assert store.section("io401") is None and node.od.get(0x1017) == 0
+    assert len([rec for rec in caplog.records if "store" in rec.name]) == 1
+    # the next save writes this module set's data only
+    assert r.send("601 23 10 10 01 73 61 76 65")[-1] == "581 60 10 10 01 00 00 00 00"
+    doc = json.loads(path.read_text())
+    assert doc["fingerprint"] == "set-A" and doc["sections"] == {} and doc["values"] == {}
+
+
+def test_store_fingerprint_covers_contributed_parts(tmp_path):
+    path = tmp_path / "node.json"
+
+    def node_with(part):
+        node = seed_node(store_path=path, fingerprint="set-A")
+        node.service("store").add_fingerprint(part)
+        node.service("store").load()
+        Rig(node)  # boot: stored values become the current ones
+        return node
+
+    first = node_with("style=icpdas")
+    Rig(first, now=1.0).sdo("2B 17 10 00 F4 01 00 00")
+    first.service("store").save(1)
+    assert node_with("style=icpdas").od.get(0x1017) == 500
+    assert node_with("style=na9161").od.get(0x1017) == 0

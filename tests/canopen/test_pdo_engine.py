@@ -211,3 +211,24 @@ def test_512_pdos_per_direction():
     b.start()
     b.image.update_input("bus/m1/di3", True)
     assert b.flush() == ["181 [1] 08", "1F0 [1] 08"]
+
+
+def test_io_parameters_and_node_values_share_one_store_write_and_fingerprint(tmp_path, monkeypatch):
+    """One "save" = one atomic write of one file; a layout change drops all of it."""
+    from fieldgate.plugins.canopen import store as store_module
+    from fieldgate.plugins.canopen.iodevice import IoSettings
+
+    path = tmp_path / "node.json"
+    writes = []
+    real_write = store_module.write_atomic
+    monkeypatch.setattr(store_module, "write_atomic", lambda p, data: (writes.append(p), real_write(p, data)))
+    b = Bench(make_image([(1, 8, 8, 0, 0)]), IoSettings(style="icpdas"), store_path=path)
+    b.write(0x1017, 0, 100, 2)
+    b.write(0x1800, 2, 7, 1)
+    assert b.write(0x1010, 1, 0x65766173, 4) == ok(0x1010, 1)
+    assert writes == [path]
+    assert list(tmp_path.iterdir()) == [path]
+    same = Bench(make_image([(1, 8, 8, 0, 0)]), IoSettings(style="icpdas"), store_path=path)
+    assert same.value(0x1017, 0) == 100 and same.value(0x1800, 2) == 7
+    other_style = Bench(make_image([(1, 8, 8, 0, 0)]), IoSettings(style="icpdas", mapping_closed=True), store_path=path)
+    assert other_style.value(0x1017, 0) == 0 and other_style.value(0x1800, 2) == 255
