@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from ..plugin import hookimpl
-from .framework import PROFILES, Options, Timing, Verdict
+from .framework import OPT_IN, PROFILES, Options, Timing, Verdict
 from .report import line, details, summary, write_junit
 from .runner import DeviceSilent, SuiteConfig, run_suite
 
@@ -19,7 +19,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bitrate", type=int, default=None, help="bit rate for adapters that set it")
     p.add_argument("--node-id", type=int, help="node-ID of the device under test (1..127); required unless --list")
     p.add_argument("--eds", metavar="FILE", help="the device's EDS (or DCF); required unless --list")
-    p.add_argument("--profile", action="append", choices=PROFILES, default=[], help=f"run only these profiles (repeatable): {', '.join(PROFILES)}")
+    p.add_argument("--profile", action="append", choices=PROFILES + ("all",), default=[],
+                   help=f"run only these profiles (repeatable): {', '.join(PROFILES)}; default: all but {', '.join(OPT_IN)}; 'all': every profile")
     p.add_argument("-k", dest="patterns", action="append", default=[], metavar="PATTERN", help="run only cases whose id contains PATTERN (or matches a glob); repeatable")
     p.add_argument("--list", action="store_true", help="list the selected cases and exit")
     p.add_argument("--junit", metavar="FILE", help="also write a JUnit XML report")

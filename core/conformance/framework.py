@@ -19,6 +19,9 @@ if TYPE_CHECKING:
     from .device import Device
 
 PROFILES = ("od", "sdo", "nmt", "errctl", "emcy", "sync-pdo", "lss", "store", "cia401", "seed")
+# run only when asked for by name (or "all"): the seed vectors concern devices that claim
+# I-7232D / I-7231D compatibility
+OPT_IN = ("seed",)
 
 
 class Fail(Exception):
@@ -125,12 +128,19 @@ class Context:
 
 
 def select(profiles: list[str] | None = None, patterns: list[str] | None = None) -> list[Case]:
-    """Cases of the given profiles (all when empty) whose id matches any -k pattern."""
+    """Cases of the given profiles whose id matches any -k pattern. No profiles: every profile
+    but the opt-in ones (``seed``); ``"all"``: every profile."""
     from . import cases  # noqa: F401  (registers every case)
 
+    if not profiles:
+        wanted = set(PROFILES) - set(OPT_IN)
+    elif "all" in profiles:
+        wanted = set(PROFILES)
+    else:
+        wanted = set(profiles)
     chosen = []
     for c in CASES.values():
-        if profiles and c.profile not in profiles:
+        if c.profile not in wanted:
             continue
         if patterns and not any(_matches(c.id, p) for p in patterns):
             continue

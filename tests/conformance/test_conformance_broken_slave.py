@@ -37,6 +37,7 @@ def run_against(eds: str, faults: set[str], **select):
     with TinySlave(channel, 5, faults):
         bus = can.Bus(interface="virtual", channel=channel)
         try:
+            select.setdefault("profiles", ["all"])
             return run_suite(SuiteConfig(5, eds, timing=Timing(**TIMING), **select), bus=bus)
         finally:
             bus.shutdown()

@@ -24,7 +24,9 @@ def test_list_through_the_fieldgate_cli():
 
 
 def test_every_profile_has_cases_and_selection_keeps_profile_order():
-    chosen = select()
+    assert {c.profile for c in select()} == set(PROFILES) - {"seed"}  # seed is opt-in
+    assert {c.profile for c in select(["seed"])} == {"seed"}
+    chosen = select(["all"])
     assert {c.profile for c in chosen} == set(PROFILES)
     order = [PROFILES.index(c.profile) for c in chosen]
     assert order == sorted(order)

@@ -28,7 +28,7 @@ def results(tmp_path_factory):
     with GatewayThread(topo):
         bus = can.Bus(interface="virtual", channel=channel)
         try:
-            return run_suite(SuiteConfig(NODE_ID, str(eds), timing=timing, options=Options(loopback=True)), bus=bus)
+            return run_suite(SuiteConfig(NODE_ID, str(eds), profiles=["all"], timing=timing, options=Options(loopback=True)), bus=bus)
         finally:
             bus.shutdown()
 

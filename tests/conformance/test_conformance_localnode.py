@@ -13,7 +13,7 @@ import can
 import pytest
 from conformance_localnode import NODE_ID, LocalNodeDevice, write_eds
 
-from fieldgate.conformance import PROFILES, SuiteConfig, Timing, Verdict, run_suite
+from fieldgate.conformance import SuiteConfig, Timing, Verdict, run_suite
 from fieldgate.conformance.report import text_report
 
 TIMING = dict(response=0.1, silence=0.05, heartbeat_ms=50, bootup=0.1, sdo_server_timeout=0.2)
@@ -45,8 +45,8 @@ def run_localnode(eds_dir: Path):
     with LocalNodeDevice(channel, eds):
         bus = can.Bus(interface="virtual", channel=channel)
         try:
-            profiles = [p for p in PROFILES if p != "seed"]  # LocalNode claims no I-7232D compatibility
-            return run_suite(SuiteConfig(NODE_ID, str(eds), profiles=profiles, timing=Timing(**TIMING)), bus=bus)
+            # default selection: LocalNode claims no I-7232D compatibility, so no seed profile
+            return run_suite(SuiteConfig(NODE_ID, str(eds), timing=Timing(**TIMING)), bus=bus)
         finally:
             bus.shutdown()
 

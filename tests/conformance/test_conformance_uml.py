@@ -51,7 +51,7 @@ def test_suite_over_vcan0_against_the_gateway_process(tmp_path):
         junit = tmp_path / "conformance.xml"
         run = subprocess.run(
             [sys.executable, "-m", "fieldgate.conformance", "--interface", "socketcan", "--channel", CHANNEL, "--node-id", str(NODE_ID),
-             "--eds", str(eds), "--loopback", "--junit", str(junit), "--heartbeat-ms", "100", "--tolerance-ms", "40"],
+             "--eds", str(eds), "--profile", "all", "--loopback", "--junit", str(junit), "--heartbeat-ms", "100", "--tolerance-ms", "40"],
             capture_output=True, text=True, timeout=600,
         )
         assert run.returncode in (0, 1), run.stdout[-3000:] + run.stderr[-2000:]

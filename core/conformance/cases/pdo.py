@@ -45,6 +45,18 @@ def rtr(ctx: Context, pdo: Pdo, timeout: float | None = None):
     return dev.link.expect(pdo.cob & 0x7FF, ctx.timing.response if timeout is None else timeout)
 
 
+def set_while_invalid(ctx: Context, pdo: Pdo, values: dict[int, tuple[int, str]]) -> None:
+    """Write communication sub-indices {sub: (value, what)} the CiA 301 way (PDO invalid
+    meanwhile, as inhibit time and SYNC start value require), then make the PDO valid again.
+    Everything is restored when the case ends."""
+    dev = ctx.device
+    invalidate(ctx, pdo)
+    for sub, (value, what) in values.items():
+        set_pdo_sub(ctx, pdo, sub, value, what)
+    dev.write(pdo.comm, 1, pdo.cob)
+    ctx.cleanup(lambda: dev.write(pdo.comm, 1, pdo.cob | 0x80000000))  # runs first: the restores happen while invalid
+
+
 def check_len(frame, pdo: Pdo) -> None:
     if len(frame.data) != pdo.length:
         raise Fail(f"{pdo.name} DLC", expected=f"{pdo.length} (mapped length)", seen=str(frame))
@@ -284,7 +296,10 @@ def event_timer(ctx: Context) -> None:
     pdo = active_pdo(ctx.device, tx=True)
     period = ctx.timing.heartbeat_ms / 1000
     set_pdo_type(ctx, pdo, 254)
-    set_pdo_sub(ctx, pdo, 5, ctx.timing.heartbeat_ms, "event timer")
+    values = {5: (ctx.timing.heartbeat_ms, "event timer")}
+    if ctx.device.has(pdo.comm, 3):
+        values[3] = (0, "inhibit time")  # a default inhibit time (NA-9161: 500 ms) would space the frames
+    set_while_invalid(ctx, pdo, values)
     operational(ctx)
     ctx.device.link.expect(pdo.cob & 0x7FF, period + ctx.timing.response)
     frames = tpdo_frames(ctx, pdo, 4.5 * period)
@@ -307,11 +322,7 @@ def inhibit_time(ctx: Context) -> None:
     pdo = active_pdo(dev, tx=True)
     inhibit_s = 2 * ctx.timing.heartbeat_ms / 1000
     set_pdo_type(ctx, pdo, 254)
-    invalidate(ctx, pdo)  # CiA 301: the inhibit time may only change while the PDO is invalid
-    set_pdo_sub(ctx, pdo, 3, int(inhibit_s * 10000), "inhibit time")
-    set_pdo_sub(ctx, pdo, 5, max(1, ctx.timing.heartbeat_ms // 5), "event timer")
-    dev.write(pdo.comm, 1, pdo.cob)
-    ctx.cleanup(lambda: dev.write(pdo.comm, 1, pdo.cob | 0x80000000))  # runs first: restore sub 3/5 while invalid
+    set_while_invalid(ctx, pdo, {3: (int(inhibit_s * 10000), "inhibit time"), 5: (max(1, ctx.timing.heartbeat_ms // 5), "event timer")})
     operational(ctx)
     frames = tpdo_frames(ctx, pdo, 3.5 * inhibit_s)
     if len(frames) < 2:
@@ -404,10 +415,7 @@ def sync_counter(ctx: Context) -> None:
         raise Skip("0x1006 is not 0: 0x1019 may not be changed")
     dev.patch(ctx, 0x1019, 0, 10)
     set_pdo_type(ctx, pdo, 2)
-    invalidate(ctx, pdo)  # the start value may only change while the PDO is invalid
-    set_pdo_sub(ctx, pdo, 6, 3, "SYNC start value")
-    dev.write(pdo.comm, 1, pdo.cob)
-    ctx.cleanup(lambda: dev.write(pdo.comm, 1, pdo.cob | 0x80000000))  # runs first: restore sub 6 while invalid
+    set_while_invalid(ctx, pdo, {6: (3, "SYNC start value")})
     operational(ctx)
     cob = dev.od_default(0x1005, 0, 0x80) & 0x7FF
     hits = []
