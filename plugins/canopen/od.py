@@ -11,7 +11,8 @@ needs on top of it:
 * bindings: an entry can be served by a getter (process image inputs) and/or a
   setter (outputs), so SDO answers never wait on a back end;
 * validators per index (``add_validator``) that veto a write with an abort code, and
-  write listeners (``on_write``) that react after a write took effect;
+  write listeners (``on_write``) that react after a write took effect (an SDO write or
+  :meth:`set`; reloads at a reset do not call them);
 * :meth:`write` checks existence, access, length, type and range (0609 0031/0032)
   and runs the validators *before* the value changes; it raises :class:`SdoAbort`.
 
@@ -256,7 +257,12 @@ class Dictionary:
             self._stored[key] = value
 
     def reload(self, communication: bool = True, application: bool = True) -> None:
-        """Reset communication (``application=False``) or reset node: stored or default values."""
+        """Reset communication (``application=False``) or reset node: stored or default values.
+
+        Setters see the reloaded values (they take effect); write listeners do not: a reset
+        is not a write, and services learn of it from ``on_reset_communication`` /
+        ``on_reset_application``.
+        """
         for var in self.variables():
             if in_communication_area(var.index) and not communication:
                 continue
@@ -266,7 +272,7 @@ class Dictionary:
             if key in self._getters:
                 continue
             value = self._stored.get(key, self.default(var)) if var.writable else self.default(var)
-            self._store_value(var, value, True)
+            self._store_value(var, value, False)
 
 
 # -- encoding helpers -------------------------------------------------------------------

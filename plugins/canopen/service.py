@@ -9,7 +9,7 @@ How a service plugs in (PDO engine, CiA 401 objects, LSS, ... are written this w
             super().attach(node)
             node.od.add_record(0x1400, ...)      # add your objects
             node.od.add_validator(0x1400, ...)   # veto bad writes with SdoAbort
-            node.od.on_write(0x1400, ...)        # react to accepted writes
+            node.od.on_write(0x1400, ...)        # react to accepted writes (resets reload without calling it)
 
         def on_frame(self, frame, now) -> bool:  # every received frame, in add order,
             if frame.can_id != self.cob_id:      # until one service returns True

@@ -185,3 +185,20 @@ def test_store_fingerprint_covers_contributed_parts(tmp_path):
     first.service("store").save(1)
     assert node_with("style=icpdas").od.get(0x1017) == 500
     assert node_with("style=na9161").od.get(0x1017) == 0
+
+
+def test_resets_reload_values_without_calling_write_listeners():
+    node = seed_node()
+    seen = []
+    for index in (0x1010, 0x1011, 0x1017, 0x2102):
+        node.od.on_write(index, lambda index, sub, value: seen.append((index, sub, value)))
+    r = Rig(node)
+    r.sdo("2B 17 10 00 F4 01 00 00")
+    r.sdo("2B 02 21 00 2A 00 00 00")
+    assert seen == [(0x1017, 0, 500), (0x2102, 0, 42)]
+    seen.clear()
+    assert r.send("000 81 01") == ["701 00"]  # reset node: everything reloaded, nothing "written"
+    assert r.send("000 82 01") == ["701 00"]
+    assert seen == []
+    assert node.od.get(0x1017) == 0 and node.od.get(0x2102) == 0
+    assert r.advance(1.0) == []  # the heartbeat producer follows the reloaded 0x1017 = 0
