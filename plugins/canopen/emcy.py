@@ -27,6 +27,7 @@ from canopen.objectdictionary import datatypes as dt
 
 from . import abort
 from .abort import SdoAbort
+from .cobid import check_cob_id
 from .frame import Frame
 from .service import ALL_STATES, COMMUNICATING, Service
 
@@ -35,7 +36,6 @@ COMMUNICATION = 0x10
 MANUFACTURER = 0x80
 QUEUE_LIMIT = 16
 COB_ID_INVALID = 1 << 31
-COB_ID_EXTENDED = 1 << 29
 
 
 def history_value(code: int, manufacturer: bytes) -> int:
@@ -164,8 +164,7 @@ class EmcyProducer(Service):
         self.history.clear()
 
     def _check_cob_id(self, sub: int, value: int) -> None:
-        if value & COB_ID_EXTENDED or value & 0x1FFFF800:
-            raise SdoAbort(abort.VALUE_RANGE, "only 11-bit EMCY COB-IDs are supported")
+        check_cob_id(value, "EMCY", in_use=not value & COB_ID_INVALID)
         old = self.node.od.get(0x1014)
         if not (old & COB_ID_INVALID) and not (value & COB_ID_INVALID) and (old & 0x7FF) != (value & 0x7FF):
             raise SdoAbort(abort.VALUE_RANGE, "set bit 31 before changing the EMCY COB-ID")

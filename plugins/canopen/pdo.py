@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from .abort import DEVICE_STATE, NOT_MAPPABLE, PDO_TOO_LONG, VALUE_RANGE
+from .cobid import check_cob_id
 from .entries import UNSIGNED8, UNSIGNED16, UNSIGNED32, Abort, Directory, Entry, ObjectDef, count_entry, decode, encode
 from .layouts import COB_INVALID, PdoDefault
 
@@ -46,20 +47,12 @@ log = logging.getLogger("fieldgate.canopen.pdo")
 Frame = tuple[int, bytes]
 
 COB_NO_RTR = 1 << 30
-COB_EXTENDED = 1 << 29
 MAX_ENTRIES = 8
 MAX_BITS = 64
 MAX_PDOS = 512
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 
 # CiA 301 §7.3.5: identifiers a PDO may not use.
-_RESTRICTED = [(0x000, 0x000), (0x001, 0x07F), (0x101, 0x180), (0x581, 0x5FF), (0x601, 0x67F), (0x6E0, 0x6FF), (0x701, 0x77F), (0x780, 0x7FF)]
-
-
-def restricted(can_id: int) -> bool:
-    return any(lo <= can_id <= hi for lo, hi in _RESTRICTED)
-
-
 def _sync_type(t: int) -> bool:
     return t <= 240
 
@@ -439,15 +432,11 @@ class PdoEngine:
 
     # -- parameter objects ----------------------------------------------------------
     def _set_cob_id(self, pdo: Pdo, value: int) -> None:
-        if value & COB_EXTENDED or value & 0x1FFF_F800:
-            raise Abort(VALUE_RANGE, "only 11-bit identifiers are supported")
         new_valid = not value & COB_INVALID
+        can_id = check_cob_id(value, "PDO", in_use=new_valid)
         if pdo.valid and new_valid and value != pdo.cob_id:
             raise Abort(VALUE_RANGE, "the COB-ID of a valid PDO cannot change; set bit 31 first")
         if new_valid:
-            can_id = value & 0x7FF
-            if restricted(can_id):
-                raise Abort(VALUE_RANGE, f"COB-ID 0x{can_id:03X} is restricted")
             clash = [p for p in (self.tpdos + self.rpdos) if p is not pdo and p.valid and p.can_id == can_id]
             if clash:
                 raise Abort(VALUE_RANGE, f"COB-ID 0x{can_id:03X} is used by another PDO")

@@ -20,12 +20,12 @@ from canopen.objectdictionary import datatypes as dt
 
 from . import abort
 from .abort import SdoAbort
+from .cobid import check_cob_id
 from .frame import Frame
 from .service import COMMUNICATING, Service
 
 SYNC_LOSS_CODE = 0x8100
 PRODUCER_BIT = 1 << 30
-EXTENDED_BIT = 1 << 29
 LOSS_TOLERANCE = 1.5
 
 
@@ -130,8 +130,7 @@ class SyncService(Service):
 
     # -- validators --------------------------------------------------------------------------
     def _check_cob_id(self, sub: int, value: int) -> None:
-        if value & EXTENDED_BIT or value & 0x1FFFF800:
-            raise SdoAbort(abort.VALUE_RANGE, "only 11-bit SYNC COB-IDs are supported")
+        check_cob_id(value, "SYNC")  # SYNC is always consumed: bit 31 does not free the identifier
         old = self.node.od.get(0x1005)
         if old & value & PRODUCER_BIT and (old & 0x7FF) != (value & 0x7FF):
             raise SdoAbort(abort.VALUE_RANGE, "clear bit 30 before changing the SYNC COB-ID")

@@ -94,3 +94,12 @@ def test_emcy_on_nmt_reset_option():
     assert icpdas.send("000 81 00") == ["081 00 FF 80 0A 00 00 00 00", "701 00"]
     assert icpdas.sdo("40 01 10 00 00 00 00 00") == "4F 01 10 00 00 00 00 00"  # not an active error
     assert icpdas.sdo("40 03 10 01 00 00 00 00") == "43 03 10 01 00 FF 0A 00"
+
+
+@pytest.mark.parametrize("can_id", [0x000, 0x07F, 0x101, 0x180, 0x581, 0x601, 0x6E0, 0x701, 0x77F, 0x780, 0x7FF])
+def test_cob_id_restricted_can_ids_are_refused(rig, can_id):
+    assert rig.sdo("23 14 10 00 81 00 00 80") == "60 14 10 00 00 00 00 00"  # EMCY off: the ID may change
+    assert rig.sdo("23 14 10 00 " + can_id.to_bytes(4, "little").hex(" ")) == "80 14 10 00 30 00 09 06"
+    assert rig.node.od.get(0x1014) == 0x80000081
+    assert rig.sdo("23 14 10 00 " + (can_id | 1 << 31).to_bytes(4, "little").hex(" ")) == "60 14 10 00 00 00 00 00"  # not in use
+    assert rig.sdo("23 14 10 00 00 01 00 00") == "60 14 10 00 00 00 00 00"  # 0x100: allowed

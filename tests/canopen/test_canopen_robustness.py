@@ -90,8 +90,9 @@ def test_frame_routes_follow_cob_id_changes():
     assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"  # 0x601 routed to SDO
     seen = []
     rig.node.service("sync").on_sync = lambda counter, now: seen.append(counter)
-    # SYNC moved onto 0x601 (sync comes before sdo in the node): it must now win
-    assert rig.sdo("23 05 10 00 01 06 00 00") == "60 05 10 00 00 00 00 00"
+    # SYNC moved onto 0x601 (sync comes before sdo in the node): it must now win. 0x601 is a
+    # restricted CAN-ID that an SDO write refuses; a local write bypasses the validators.
+    rig.node.od.set(0x1005, 0, 0x601)
     assert rig.send("601") == []
     assert seen == [None]
     rig.node.od.set(0x1005, 0, 0x80)

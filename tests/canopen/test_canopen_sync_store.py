@@ -202,3 +202,16 @@ def test_resets_reload_values_without_calling_write_listeners():
     assert seen == []
     assert node.od.get(0x1017) == 0 and node.od.get(0x2102) == 0
     assert r.advance(1.0) == []  # the heartbeat producer follows the reloaded 0x1017 = 0
+
+
+@pytest.mark.parametrize("can_id", [0x000, 0x001, 0x07F, 0x101, 0x180, 0x581, 0x5FF, 0x601, 0x67F, 0x6E0, 0x6FF, 0x701, 0x77F, 0x780, 0x7FF])
+def test_sync_cob_id_restricted_can_ids_are_refused(rig, can_id):
+    request = "23 05 10 00 " + (can_id | 1 << 31).to_bytes(4, "little").hex(" ")  # bit 31 is "don't care" for SYNC
+    assert rig.sdo(request) == "80 05 10 00 30 00 09 06"
+    assert rig.node.od.get(0x1005) == 0x80
+
+
+@pytest.mark.parametrize("can_id", [0x080, 0x100, 0x181, 0x580, 0x600, 0x680, 0x6DF, 0x700])
+def test_sync_cob_id_unrestricted_can_ids_are_taken(rig, can_id):
+    assert rig.sdo("23 05 10 00 " + can_id.to_bytes(4, "little").hex(" ")) == "60 05 10 00 00 00 00 00"
+    assert rig.node.od.get(0x1005) == can_id
