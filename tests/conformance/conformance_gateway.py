@@ -13,11 +13,8 @@ from pathlib import Path
 NODE_ID = 5
 
 # case id -> what the front does wrong (reported to the front's authors; docs/conformance.md)
-# (the two findings of the first runs, reset node keeping application entries and 0602 0000
-# for a non-mappable object, were fixed in the front)
-KNOWN_FINDINGS: dict[str, str] = {
-    "sync-pdo.restricted_sync_emcy_cobid": "0x1005 and 0x1014 accept restricted CAN-IDs such as 0x601 and 0x701 (CiA 301 §7.3.5)",
-}
+# (the three findings of the first runs were fixed in the front: see docs/conformance.md)
+KNOWN_FINDINGS: dict[str, str] = {}
 # case id -> why it cannot apply to this gateway (a substring of the SKIP reason)
 DOCUMENTED_SKIPS = {
     "od.read_write_only": "no write-only entry",
