@@ -108,3 +108,28 @@ async def test_dead_receiver_fails_the_adapter(setup):
             adapter.failed.result()
     finally:
         adapter._notifier = real
+
+
+async def test_pump_on_every_loop_turn_does_not_postpone_the_timers(setup):
+    """An I/O service may flush the node on every loop turn; the heartbeat must still run."""
+    adapter, peer, _ = setup
+    assert bytes((await _recv(peer, 0x701)).data) == b"\x00"
+    loop = asyncio.get_running_loop()
+    end = loop.time() + 0.2
+    beats = []
+
+    async def collect():
+        while loop.time() < end:
+            msg = await asyncio.to_thread(peer.recv, 0.05)
+            if msg is not None and msg.arbitration_id == 0x701:
+                beats.append(bytes(msg.data))
+
+    collector = asyncio.create_task(collect())
+    pumps = 0
+    while loop.time() < end:
+        adapter.pump()
+        pumps += 1
+        await asyncio.sleep(0)
+    await collector
+    assert pumps > 100
+    assert len(beats) >= 3 and set(beats) == {b"\x7f"}  # 20 ms heartbeat over 200 ms, under load
