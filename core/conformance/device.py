@@ -199,16 +199,17 @@ class Device:
         raise Fail(f"{what}: accepted", expected=" or ".join(abort_text(c) for c in codes), seen=str(frame))
 
     def expect_write_abort(self, index: int, sub: int, data: bytes, codes: tuple[int, ...], what: str) -> int:
-        request = bytes([0x23 | (4 - len(data)) << 2]) + mux(index, sub) + data.ljust(4, b"\0") if len(data) <= 4 else None
-        if request is None:
-            try:
-                self.download(index, sub, data)
-            except SdoAbort as exc:
-                if exc.code in codes:
-                    return exc.code
-                raise Fail(f"{what}: wrong abort code", expected=" or ".join(abort_text(c) for c in codes), seen=abort_text(exc.code)) from None
-            raise Fail(f"{what}: accepted", expected=" or ".join(abort_text(c) for c in codes))
-        return self.expect_abort(request, codes, what)
+        """Write ``data`` (expedited up to 4 bytes, else segmented); it must be refused with one of ``codes``."""
+        if len(data) <= 4:
+            return self.expect_abort(bytes([0x23 | (4 - len(data)) << 2]) + mux(index, sub) + data.ljust(4, b"\0"), codes, what)
+        wanted = " or ".join(abort_text(c) for c in codes)
+        try:
+            self.download(index, sub, data)
+        except SdoAbort as exc:
+            if exc.code in codes:
+                return exc.code
+            raise Fail(f"{what}: wrong abort code", expected=wanted, seen=abort_text(exc.code)) from None
+        raise Fail(f"{what}: accepted", expected=wanted)
 
     # -- typed access through the EDS --------------------------------------------
     def read(self, index: int, sub: int = 0):

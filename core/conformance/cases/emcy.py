@@ -118,7 +118,7 @@ def cobid_change_while_valid(ctx: Context) -> None:
     if original & 0x80000000:
         raise Skip("0x1014 is invalid by default")
     ctx.cleanup(lambda: dev.write(0x1014, 0, original))
-    new = (original & 0x7FF) ^ 0x001 if (original & 0x7FF) != 0x80 + dev.node_id else 0x80 + dev.node_id % 127 + 1
+    new = 0x80 + (ctx.options.lss_spare_node_id or dev.node_id % 127 + 1)  # another node's EMCY CAN-ID
     code = None
     try:
         dev.write(0x1014, 0, new)
