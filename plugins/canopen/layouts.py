@@ -43,6 +43,8 @@ ANALOG_PER_PDO = 4  # 16-bit channels
 TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
 RPDO_BASES = (0x200, 0x300, 0x400, 0x500)
 STYLE_PDO_COUNT = {"icpdas": 32, "na9161": 8}
+DEVICE_PROFILE_401 = 0x0191
+IO_KINDS = (Kind.DI, Kind.DO, Kind.AI, Kind.AO)  # the order of the 0x1000 bits 16-19
 
 
 class LayoutError(ValueError):
@@ -72,9 +74,12 @@ class IoLayout:
 
     @property
     def device_type(self) -> int:
-        """0x1000: profile 401 plus the DI/DO/AI/AO bits of what exists."""
-        bits = [bool(self.di_bytes), bool(self.do_bytes), bool(self.ai), bool(self.ao)]
-        return 0x0191 | sum(1 << (16 + i) for i, present in enumerate(bits) if present)
+        return device_type({kind for kind, present in zip(IO_KINDS, (self.di_bytes, self.do_bytes, self.ai, self.ao)) if present})
+
+
+def device_type(kinds: set[Kind]) -> int:
+    """0x1000: profile 401 (0x0191) plus bit 16/17/18/19 when DI/DO/AI/AO are served (I-7232D rule)."""
+    return DEVICE_PROFILE_401 | sum(1 << (16 + i) for i, kind in enumerate(IO_KINDS) if kind in kinds)
 
 
 def build_layout(channels: Sequence[Channel], style: Style = "icpdas", *, compressed: bool = True, models: dict[tuple[str, int], str] | None = None) -> IoLayout:

@@ -20,7 +20,6 @@ from pydantic import Field
 
 from fieldgate import __version__
 from fieldgate.health import HealthEvent, ModuleHealth
-from fieldgate.image import Kind
 from fieldgate.plugin import Front, GatewayContext, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
@@ -29,13 +28,13 @@ from .adapter import CanAdapter, open_bus
 from .eds import register_command as register_eds_command
 from .front401 import IoFrontOptions
 from .front401 import install as install_io_device
+from .layouts import device_type as io_device_type
 from .lss import LssService, LssStore
 from .node import Node
 from .slave import Identity, NodeSettings, build_node
 
 MODULE_FAILURE_CODE = 0xFF00
 MODULE_FAILURE_REGISTER = 0x81
-DEVICE_PROFILE_401 = 0x0191
 
 NodeExtension = Callable[["CanopenFront", Node], None]
 _node_extensions: list[NodeExtension] = []
@@ -109,10 +108,9 @@ class CanopenFront(Front):
     def build(self) -> Node:
         cfg = self.config
         channels = self.context.front_channels(cfg)
-        kinds = {c.kind for c in channels}
         device_type = cfg.identity.device_type
         if device_type is None:
-            device_type = DEVICE_PROFILE_401 | sum(1 << (16 + i) for i, k in enumerate((Kind.DI, Kind.DO, Kind.AI, Kind.AO)) if k in kinds)
+            device_type = io_device_type({c.kind for c in channels})
         ident = cfg.identity
         settings = NodeSettings(
             node_id=cfg.node_id,

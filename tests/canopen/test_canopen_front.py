@@ -157,3 +157,24 @@ async def test_dead_bus_restarts_the_front(tmp_path, registry):
     finally:
         await gateway.stop()
         peer.bus.shutdown()
+
+
+@pytest.mark.parametrize("expose, expected", [
+    (None, 0x000F0191),
+    (["io/m3/di*"], 0x00010191),
+    (["io/m3/do*", "io/m3/ai*"], 0x00060191),
+    (["io/m3/ao*"], 0x00080191),
+])
+def test_device_type_is_the_io_layouts(tmp_path, registry, expose, expected):
+    """0x1000 has one source, the CiA 401 layout of the channels the front serves."""
+    from fieldgate.plugins.canopen.plugin import CanopenFront
+
+    def front(topo):
+        gateway = Gateway.load(topo, registry=registry)
+        return CanopenFront(gateway.topology.fronts[0], gateway.context)
+
+    topo = topology(tmp_path / "state", NODE, expose=expose)
+    served = front(topo)
+    assert served.build().od.get(0x1000) == expected == served.io.device_type
+    topo["fronts"][0]["identity"]["device_type"] = 0x12345678
+    assert front(topo).build().od.get(0x1000) == 0x12345678
