@@ -6,6 +6,7 @@ the cases that check that behaviour fail, and change nothing else.
 
 import uuid
 import xml.etree.ElementTree as ET
+from concurrent.futures import ThreadPoolExecutor
 
 import can
 import pytest
@@ -44,13 +45,21 @@ def run_against(eds: str, faults: set[str], **select):
 
 
 @pytest.fixture(scope="module")
-def healthy(eds):
-    return {r.case.id: r for r in run_against(eds, set())}
+def runs(eds):
+    """The healthy and the broken slave, each on its own virtual channel, run side by side."""
+    with ThreadPoolExecutor(2) as pool:
+        futures = [pool.submit(run_against, eds, faults) for faults in (set(), set(FAULTS))]
+        return [{r.case.id: r for r in f.result()} for f in futures]
 
 
 @pytest.fixture(scope="module")
-def broken(eds):
-    return {r.case.id: r for r in run_against(eds, set(FAULTS))}
+def healthy(runs):
+    return runs[0]
+
+
+@pytest.fixture(scope="module")
+def broken(runs):
+    return runs[1]
 
 
 def test_healthy_slave_passes_every_applicable_case(healthy):

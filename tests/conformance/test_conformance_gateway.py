@@ -15,22 +15,26 @@ from conformance_gateway import DOCUMENTED_SKIPS, KNOWN_FINDINGS, NODE_ID, Gatew
 from fieldgate.conformance import Options, SuiteConfig, Timing, Verdict, run_suite
 from fieldgate.conformance.report import text_report
 
-@pytest.fixture(scope="module")
-def results(tmp_path_factory):
+def run_gateway(work, style: str = "icpdas", **select):
     reason = front_unavailable()
     if reason:
         pytest.skip(reason)
     channel = f"gw-{uuid.uuid4().hex[:8]}"
-    work = tmp_path_factory.mktemp("gateway")
     topo = topology(work / "state", channel)
+    topo["fronts"][0]["style"] = style
     eds = write_eds(topo, work)
     timing = Timing(response=0.3, silence=0.1, heartbeat_ms=50, bootup=1.0, sdo_server_timeout=1.0)
     with GatewayThread(topo):
         bus = can.Bus(interface="virtual", channel=channel)
         try:
-            return run_suite(SuiteConfig(NODE_ID, str(eds), profiles=["all"], timing=timing, options=Options(loopback=True)), bus=bus)
+            return run_suite(SuiteConfig(NODE_ID, str(eds), timing=timing, options=Options(loopback=True), **select), bus=bus)
         finally:
             bus.shutdown()
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    return run_gateway(tmp_path_factory.mktemp("gateway"), profiles=["all"])
 
 
 def test_every_case_passes_or_is_a_documented_skip(results):
@@ -55,3 +59,12 @@ def test_known_findings_still_fail(results):
     by_id = {r.case.id: r for r in results}
     fixed = [cid for cid in KNOWN_FINDINGS if by_id[cid].verdict is Verdict.PASS]
     assert not fixed, f"fixed in the front, update KNOWN_FINDINGS: {fixed}"
+
+
+def test_na9161_layout_passes_the_layout_sensitive_cases(tmp_path):
+    """The same suite on the front's NA-9161 layout (8 PDOs, PDO sub 0 = 5, 500 ms default TPDO
+    inhibit): nothing in the generic profiles may assume the I-7232D layout."""
+    patterns = ["sync-pdo.event_timer", "sync-pdo.inhibit_time", "sync-pdo.sync_type1", "sync-pdo.tpdo_rtr", "sync-pdo.rpdo_gated", "cia401.*", "od.eds_check"]
+    results = run_gateway(tmp_path, style="na9161", patterns=patterns)
+    assert len(results) >= 12
+    assert [r.case.id for r in results if r.verdict is not Verdict.PASS] == [], text_report(results)
