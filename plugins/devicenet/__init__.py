@@ -1,0 +1,1 @@
+"""DeviceNet Group 2 Only slave front (``type: devicenet``)."""

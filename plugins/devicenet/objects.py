@@ -1,0 +1,243 @@
+"""The CIP objects the slave serves: Identity (1), DeviceNet (3), Assembly (4), Connection (5).
+
+Each object maps ``(instance, attribute)`` to an :class:`Attribute` (a getter returning
+bytes and an optional setter taking bytes and returning the response data). Class-level
+attributes are instance 0. Errors are :class:`~.cip.CipError`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from . import cip
+from .cip import CipError
+from .connection import TimeoutAction
+
+if TYPE_CHECKING:
+    from .engine import DeviceNetSlave
+
+Getter = Callable[[], bytes]
+Setter = Callable[[bytes], bytes]
+
+
+@dataclass
+class Attribute:
+    get: Getter
+    set: Setter | None = None
+
+
+def u8(v: int) -> bytes:
+    return bytes([v & 0xFF])
+
+
+def u16(v: int) -> bytes:
+    return (v & 0xFFFF).to_bytes(2, "little")
+
+
+def u32(v: int) -> bytes:
+    return (v & 0xFFFFFFFF).to_bytes(4, "little")
+
+
+def short_string(text: str) -> bytes:
+    raw = text.encode("latin-1", "replace")[:255]
+    return bytes([len(raw)]) + raw
+
+
+def const(data: bytes) -> Getter:
+    return lambda: data
+
+
+class Sized:
+    """Set data of a fixed-size attribute: too short 0x13, too long 0x15 (unless tolerated)."""
+
+    def __init__(self, slave: DeviceNetSlave):
+        self.slave = slave
+
+    def take(self, data: bytes, size: int) -> int:
+        if len(data) < size:
+            raise CipError(cip.NOT_ENOUGH_DATA)
+        if len(data) > size and not self.slave.settings.tolerate_trailing_bytes:
+            raise CipError(cip.TOO_MUCH_DATA)
+        return int.from_bytes(data[:size], "little")
+
+
+class CipObject:
+    class_id = 0
+    revision = 1
+
+    def __init__(self, slave: DeviceNetSlave):
+        self.slave = slave
+        self.sized = Sized(slave)
+
+    def instances(self) -> list[int]:
+        return [1]
+
+    def class_attributes(self) -> dict[int, Attribute]:
+        return {1: Attribute(const(u16(self.revision))), 2: Attribute(lambda: u16(max(self.instances(), default=0)))}
+
+    def instance_attributes(self, instance: int) -> dict[int, Attribute]:
+        return {}
+
+    def attribute(self, instance: int, attribute: int) -> Attribute:
+        if instance != 0 and instance not in self.instances():
+            raise CipError(cip.OBJECT_DOES_NOT_EXIST)
+        table = self.class_attributes() if instance == 0 else self.instance_attributes(instance)
+        if attribute not in table:
+            raise CipError(cip.ATTRIBUTE_NOT_SUPPORTED)
+        return table[attribute]
+
+    def service(self, service: int, instance: int, body: bytes, now: float) -> bytes:
+        """Object-specific services beyond Get/Set_Attribute_Single."""
+        raise CipError(cip.SERVICE_NOT_SUPPORTED)
+
+
+class IdentityObject(CipObject):
+    class_id, revision = 0x01, 1
+
+    def instance_attributes(self, instance: int) -> dict[int, Attribute]:
+        s = self.slave.settings
+        return {
+            1: Attribute(const(u16(s.vendor_id))),
+            2: Attribute(const(u16(s.device_type))),
+            3: Attribute(const(u16(s.product_code))),
+            4: Attribute(const(bytes([s.major_revision, s.minor_revision]))),
+            5: Attribute(lambda: u16(self.slave.identity_status)),
+            6: Attribute(const(u32(s.serial))),
+            7: Attribute(const(short_string(s.product_name))),
+            10: Attribute(lambda: u8(self.slave.heartbeat_s), self._set_heartbeat),
+        }
+
+    def _set_heartbeat(self, data: bytes) -> bytes:
+        self.slave.set_heartbeat(self.sized.take(data, 1))
+        return b""
+
+    def service(self, service: int, instance: int, body: bytes, now: float) -> bytes:
+        if service != cip.RESET or instance != 1:
+            raise CipError(cip.SERVICE_NOT_SUPPORTED)
+        if len(body) > 1:
+            raise CipError(cip.TOO_MUCH_DATA)
+        if body and body[0] != 0:
+            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)  # type 1 (factory defaults) is not offered
+        self.slave.schedule_restart(self.class_id)
+        return b""
+
+
+BAUD_CODES = {125_000: 0, 250_000: 1, 500_000: 2}
+
+
+class DeviceNetObject(CipObject):
+    class_id, revision = 0x03, 2
+
+    def class_attributes(self) -> dict[int, Attribute]:
+        return {1: Attribute(const(u16(self.revision)))}
+
+    def instance_attributes(self, instance: int) -> dict[int, Attribute]:
+        slave = self.slave
+        return {
+            1: Attribute(lambda: u8(slave.mac_id), self._set_mac),
+            2: Attribute(lambda: u8(slave.baud_code), self._set_baud),
+            3: Attribute(lambda: u8(slave.bus_off_interrupt), self._set_boi),
+            4: Attribute(lambda: u8(slave.bus_off_count), self._set_bus_off_count),
+            5: Attribute(lambda: bytes([slave.allocation_choice, slave.master_mac])),
+        }
+
+    def _set_mac(self, data: bytes) -> bytes:
+        mac = self.sized.take(data, 1)
+        if mac > 63:
+            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
+        self.slave.change_mac(mac)
+        return b""
+
+    def _set_baud(self, data: bytes) -> bytes:
+        code = self.sized.take(data, 1)
+        if code > 2:
+            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
+        self.slave.pending_baud_code = code
+        return b""
+
+    def _set_boi(self, data: bytes) -> bytes:
+        value = self.sized.take(data, 1)
+        if value > 1:
+            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
+        self.slave.bus_off_interrupt = value
+        return b""
+
+    def _set_bus_off_count(self, data: bytes) -> bytes:
+        self.sized.take(data, 1)  # any write clears the counter
+        self.slave.bus_off_count = 0
+        return b""
+
+    def service(self, service: int, instance: int, body: bytes, now: float) -> bytes:
+        if service in (cip.ALLOCATE, cip.RELEASE) and instance == 1:
+            return self.slave.allocation.handle(service, body, now)
+        raise CipError(cip.SERVICE_NOT_SUPPORTED)
+
+
+class AssemblyObject(CipObject):
+    class_id, revision = 0x04, 2
+
+    def instances(self) -> list[int]:
+        return list(self.slave.assemblies.instances)
+
+    def instance_attributes(self, instance: int) -> dict[int, Attribute]:
+        assembly = self.slave.assemblies.instances[instance]
+        setter = None
+        if assembly.is_output:
+            def setter(data: bytes) -> bytes:
+                if len(data) < assembly.size:
+                    raise CipError(cip.NOT_ENOUGH_DATA)
+                if len(data) > assembly.size:
+                    raise CipError(cip.TOO_MUCH_DATA)
+                self.slave.write_assembly(assembly, data)
+                return b""
+        return {3: Attribute(assembly.data, setter)}
+
+
+class ConnectionObject(CipObject):
+    class_id, revision = 0x05, 1
+
+    def instances(self) -> list[int]:
+        return [n for n, c in self.slave.connections.items() if c.exists]
+
+    def class_attributes(self) -> dict[int, Attribute]:
+        return {1: Attribute(const(u16(self.revision)))}
+
+    def instance_attributes(self, instance: int) -> dict[int, Attribute]:
+        c = self.slave.connections[instance]
+        path_in = b"\x20\x2b\x24\x01" if instance == 4 and c.acked else b""
+        return {
+            1: Attribute(lambda: u8(c.state)),
+            2: Attribute(const(u8(0 if instance == 1 else 1))),
+            3: Attribute(lambda: u8(c.transport)),
+            4: Attribute(lambda: u16(c.produced_id)),
+            5: Attribute(lambda: u16(c.consumed_id)),
+            6: Attribute(lambda: u8(c.comm_characteristics)),
+            7: Attribute(lambda: u16(c.produced_size)),
+            8: Attribute(lambda: u16(c.consumed_size)),
+            9: Attribute(lambda: u16(c.epr_ms), lambda data: self._set_epr(c, data)),
+            12: Attribute(lambda: u8(c.action), lambda data: self._set_action(c, data)),
+            13: Attribute(const(u16(0))),
+            14: Attribute(const(b"")),
+            15: Attribute(const(u16(len(path_in)))),
+            16: Attribute(const(path_in)),
+            17: Attribute(lambda: u16(c.inhibit_ms), lambda data: self._set_inhibit(c, data)),
+        }
+
+    def _set_epr(self, c, data: bytes) -> bytes:
+        granted = self.slave.set_epr(c, self.sized.take(data, 2))
+        return u16(granted)
+
+    def _set_action(self, c, data: bytes) -> bytes:
+        value = self.sized.take(data, 1)
+        if value not in (TimeoutAction.TIMED_OUT, TimeoutAction.AUTO_DELETE):
+            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
+        c.action = TimeoutAction(value)
+        return b""
+
+    def _set_inhibit(self, c, data: bytes) -> bytes:
+        if c.instance != 4:
+            raise CipError(cip.ATTRIBUTE_NOT_SETTABLE)
+        c.inhibit_ms = self.sized.take(data, 2)
+        return b""

@@ -1,0 +1,44 @@
+"""Duplicate MAC ID check at start, answering other nodes' checks, and the silent comm-fault state."""
+
+from dnet_rig import Rig
+
+REQUEST = "44F 00 23 03 01 00 00 00"  # TV-26: port 0, vendor 803, serial 1
+
+
+def test_two_requests_one_second_apart_then_online():
+    rig = Rig(online=False, vendor_id=803, serial=1)
+    assert rig.boot == [REQUEST]
+    assert rig.slave.state == "dup-mac-check"
+    assert rig.send("44E 0A 4B 03 01 01 0A") == []  # not online yet: silent
+    assert rig.advance(0.99) == []
+    assert rig.advance(0.01) == [REQUEST]
+    assert rig.advance(0.99) == [] and rig.slave.state == "dup-mac-check"
+    rig.advance(0.01)
+    assert rig.slave.state == "online"
+    assert rig.allocate(0x01) == "44B 0A CB 00"
+
+
+def test_a_response_during_the_check_is_a_duplicate():
+    rig = Rig(online=False)
+    assert rig.send("44F 80 34 12 07 00 00 00") == []
+    assert rig.slave.state == "comm-fault"
+    assert rig.faults and "duplicate MAC ID 9" in rig.faults[0] and "vendor 4660" in rig.faults[0]
+    assert rig.advance(5.0) == []  # never goes online, never sends again
+    assert rig.send("44E 0A 4B 03 01 01 0A") == []
+    assert rig.slave.counters["rx_while_comm-fault"] == 1
+
+
+def test_another_node_checking_the_same_mac_is_a_duplicate():
+    rig = Rig(online=False)
+    rig.advance(1.0)
+    rig.send("44F 00 34 12 07 00 00 00")
+    assert rig.slave.state == "comm-fault"
+
+
+def test_online_slave_answers_a_check_of_its_mac_and_ignores_others():
+    rig = Rig(vendor_id=803, serial=0x01020304)
+    assert rig.send("44F 00 34 12 07 00 00 00") == ["44F 80 23 03 04 03 02 01"]
+    assert rig.send("44F 80 34 12 07 00 00 00") == []  # a response while online: ignored
+    assert rig.send("457 00 34 12 07 00 00 00") == []  # another MAC's check
+    assert rig.send("44F 00 01") == []  # malformed: counted
+    assert rig.slave.state == "online" and rig.slave.counters["rx_malformed"] == 1
