@@ -122,12 +122,15 @@ class DeviceNetSlave:
     # -- adapter interface ----------------------------------------------------------------
     def boot(self, now: float) -> list[Frame]:
         """Start (or restart) with the duplicate MAC ID check."""
+        self._start_dup_check(now)
+        return self._done()
+
+    def _start_dup_check(self, now: float) -> None:
         self._now = now
         self.state = "dup-mac-check"
         self._dup_step = 1
         self._dup_at = now + DUP_MAC_INTERVAL_S
         self._send_dup_mac(response=False)
-        return self._done()
 
     def receive(self, frame: Frame, now: float) -> list[Frame]:
         self._now = now
@@ -399,7 +402,7 @@ class DeviceNetSlave:
             if self._bit_timing is not None:
                 self._bit_timing(self.bitrate, 0.0)
         self.pending_baud_code = None
-        self.boot(now)
+        self._start_dup_check(now)
 
     def write_assembly(self, assembly: Assembly, data: bytes) -> None:
         assembly.write(self.assemblies.image, data, self.assemblies.origin)

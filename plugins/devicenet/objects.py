@@ -137,7 +137,7 @@ class DeviceNetObject(CipObject):
         slave = self.slave
         return {
             1: Attribute(lambda: u8(slave.mac_id), self._set_mac),
-            2: Attribute(lambda: u8(slave.baud_code), self._set_baud),
+            2: Attribute(lambda: u8(slave.baud_code if slave.pending_baud_code is None else slave.pending_baud_code), self._set_baud),
             3: Attribute(lambda: u8(slave.bus_off_interrupt), self._set_boi),
             4: Attribute(lambda: u8(slave.bus_off_count), self._set_bus_off_count),
             5: Attribute(lambda: bytes([slave.allocation_choice, slave.master_mac])),
