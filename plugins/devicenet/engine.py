@@ -136,6 +136,8 @@ class DeviceNetSlave:
         self._now = now
         try:
             self._dispatch(frame, now)
+            if self.state == "online" and self._produce_at is not None and now >= self._produce_at:
+                self._produce(now)  # a connection just established produces at once, after its response
         except Exception:  # never let a frame stop the gateway; count it
             self.counters["rx_internal_errors"] += 1
         return self._done()
