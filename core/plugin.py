@@ -199,6 +199,8 @@ class Registry:
 
     def add_command(self, path: tuple[str, ...], help: str, configure: Callable[[argparse.ArgumentParser], None], run: Callable[[argparse.Namespace], int]) -> None:
         self.commands.append(Command(tuple(path), help, configure, run, self._current))
+        if self._current in self.plugins:
+            self.plugins[self._current].provides.append("command:" + " ".join(path))
 
     def add_simulator(self, back_type: str, factory: SimulatorFactory) -> None:
         """``factory(back_config, port, animate)`` returns a :class:`Simulator` for that back type."""

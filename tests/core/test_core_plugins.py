@@ -52,6 +52,18 @@ def test_a_broken_plugin_is_reported_and_does_not_hide_the_others():
     assert registry.lookup("back", "loopback").plugin == "loopback"
 
 
+def test_commands_count_as_what_a_plugin_provides():
+    class Tool:
+        PLUGIN_NAME = "tool"
+
+        @hookimpl
+        def fieldgate_register(self, registry):
+            registry.add_command(("scan", "thing"), "finds things", lambda parser: None, lambda args: 0)
+
+    registry = load_registry(extra_plugins=[Tool()])
+    assert registry.plugins["tool"].provides == ["command:scan thing"]
+
+
 def test_fieldgate_plugins_lists_name_version_and_what_each_provides():
     out = subprocess.run([sys.executable, "-m", "fieldgate", "plugins"], capture_output=True, text=True, check=True).stdout
     line = next(l for l in out.splitlines() if l.startswith("loopback"))

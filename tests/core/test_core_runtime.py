@@ -105,10 +105,10 @@ def test_cli_start_failure_is_one_clear_line_and_exit_2(tmp_path):
 
 def test_cli_invalid_file_exit_1_with_line(tmp_path):
     path = tmp_path / "t.yaml"
-    path.write_text(TOPOLOGY.replace("type: memory", "type: devicenet"))
+    path.write_text(TOPOLOGY.replace("type: memory", "type: profibus"))
     result = subprocess.run(cli("run", str(path)), capture_output=True, text=True, timeout=30)
     assert result.returncode == 1
-    assert f"{path}:3:" in result.stderr and "front type 'devicenet'" in result.stderr
+    assert f"{path}:3:" in result.stderr and "front type 'profibus'" in result.stderr
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])

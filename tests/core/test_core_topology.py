@@ -76,7 +76,7 @@ BROKEN = {
     "missing-gateway-name": (VALID.replace("  name: bench\n", "  description: x\n"), 2, "gateway.name", "required field is missing"),
     "wrong-type": (VALID.replace("        digital: 10", "        digital: ten"), 18, "backs[0].modules[1].digital", "valid integer"),
     "out-of-range": (VALID.replace("        digital: 10", "        digital: 100"), 18, "backs[0].modules[1].digital", "less than or equal to 64"),
-    "plugin-not-installed": (VALID.replace("type: memory", "type: devicenet"), 5, "fronts[0].type", "no installed plugin provides front type 'devicenet'"),
+    "plugin-not-installed": (VALID.replace("type: memory", "type: profibus"), 5, "fronts[0].type", "no installed plugin provides front type 'profibus'"),
     "type-typo": (VALID.replace("type: loopback", "type: lopback"), 9, "backs[0].type", "did you mean 'loopback'?"),
     "duplicate-names": (VALID.replace("  - name: io", "  - name: plc"), 8, "backs[0].name", "already used by fronts[0]"),
     "duplicate-address": (VALID.replace("      - address: 1\n", "      - address: 3\n"), 17, "backs[0].modules[1].address", "address 3 is already used by modules[0]"),
