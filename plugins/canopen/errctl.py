@@ -141,8 +141,14 @@ class ErrorControl(Service):
 
     # -- timers -------------------------------------------------------------------------
     def deadline(self) -> float | None:
-        times = [t for t in (self.life_deadline, self.heartbeat_due, *self.watched.values()) if t is not None]
-        return min(times) if times else None
+        earliest = None
+        for t in (self.life_deadline, self.heartbeat_due):
+            if t is not None and (earliest is None or t < earliest):
+                earliest = t
+        for t in self.watched.values() if self.watched else ():
+            if t is not None and (earliest is None or t < earliest):
+                earliest = t
+        return earliest
 
     def poll(self, now: float) -> None:
         if self.heartbeat_due is not None and now >= self.heartbeat_due:

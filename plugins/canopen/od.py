@@ -286,7 +286,18 @@ def _zero(var: cod.ODVariable) -> Value:
     return 0
 
 
+_INTEGER_STRUCTS = {t: cod.ODVariable.STRUCT_TYPES[t] for t in dt.INTEGER_TYPES}
+
+
 def encode(var: cod.ODVariable, value: Value) -> bytes:
+    packer = _INTEGER_STRUCTS.get(var.data_type)
+    if packer is not None:  # the common case, without canopen's generic encode_raw
+        if not isinstance(value, int):
+            raise TypeError(f"{var.qualname}: {value!r} is not an integer")
+        try:
+            return packer.pack(value)
+        except struct.error:
+            raise ValueError(f"{var.qualname}: {value!r} does not fit its type") from None
     if var.data_type == dt.VISIBLE_STRING and isinstance(value, str):
         return value.encode("latin-1")
     if var.data_type in (dt.OCTET_STRING, dt.DOMAIN) and isinstance(value, str):

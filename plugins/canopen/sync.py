@@ -104,8 +104,10 @@ class SyncService(Service):
 
     # -- timers ------------------------------------------------------------------------------
     def deadline(self) -> float | None:
-        times = [t for t in (self.loss_deadline, self.produce_due) if t is not None]
-        return min(times) if times else None
+        loss, produce = self.loss_deadline, self.produce_due
+        if loss is None or produce is None:
+            return produce if loss is None else loss
+        return min(loss, produce)
 
     def poll(self, now: float) -> None:
         if self.produce_due is not None and now >= self.produce_due:

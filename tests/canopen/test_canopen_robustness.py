@@ -97,3 +97,25 @@ def test_frame_routes_follow_cob_id_changes():
     assert seen == [None]
     rig.node.od.set(0x1005, 0, 0x80)
     assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"
+
+
+def test_integer_encoding_matches_canopens_and_refuses_bad_values():
+    """od.encode packs integers itself (the SDO fast path); it must agree with canopen's encoder."""
+    import pytest
+    from canopen.objectdictionary import ODVariable
+    from canopen.objectdictionary import datatypes as cdt
+
+    from fieldgate.plugins.canopen.od import encode
+
+    for data_type in cdt.INTEGER_TYPES:
+        var = ODVariable("x", 0x2000)
+        var.data_type = data_type
+        size = var.STRUCT_TYPES[data_type].size
+        signed = data_type in cdt.SIGNED_TYPES
+        for value in ((-(1 << (8 * size - 1)), -1, 0, 1, (1 << (8 * size - 1)) - 1) if signed else (0, 1, (1 << (8 * size)) - 1)):
+            assert encode(var, value) == var.encode_raw(value)
+        if size in (1, 2, 4, 8):  # canopen's 24/40/48/56-bit packers truncate silently (theirs, unchanged)
+            with pytest.raises(ValueError):
+                encode(var, 1 << (8 * size))
+        with pytest.raises(TypeError):
+            encode(var, "1")
