@@ -49,6 +49,7 @@ class Settings:
     serial: int = 1
     product_name: str = "fieldgate"
     tolerate_trailing_bytes: bool = True  # the seed's Set requests carry a stray byte (extract §9.2)
+    dup_mac_interval_s: float = DUP_MAC_INTERVAL_S
 
 
 class OutgoingFragments:
@@ -129,7 +130,7 @@ class DeviceNetSlave:
         self._now = now
         self.state = "dup-mac-check"
         self._dup_step = 1
-        self._dup_at = now + DUP_MAC_INTERVAL_S
+        self._dup_at = now + self.settings.dup_mac_interval_s
         self._send_dup_mac(response=False)
 
     def receive(self, frame: Frame, now: float) -> list[Frame]:
@@ -188,7 +189,7 @@ class DeviceNetSlave:
     def _dup_mac_step(self, now: float) -> None:
         if self._dup_step == 1:
             self._dup_step = 2
-            self._dup_at = now + DUP_MAC_INTERVAL_S
+            self._dup_at = now + self.settings.dup_mac_interval_s
             self._send_dup_mac(response=False)
         else:
             self._dup_step, self._dup_at = 0, None

@@ -1,0 +1,140 @@
+"""The ``devicenet`` front: a DeviceNet Group 2 Only slave on any python-can bus.
+
+The sans-I/O :class:`~.engine.DeviceNetSlave` runs on the event loop through the CAN
+adapter shared with the canopen front (``fieldgate.plugins.canopen.adapter``: receive
+path, timers, bus-off, bit-rate switching). Input changes reach change-of-state
+connections through a process-image subscription; I/O connection timeouts and releases
+go to ``context.masters.lost`` with the outputs this front serves, a new allocation to
+``masters.ok``. A duplicate MAC ID stops the slave (silent) and is logged and reported in
+the front's status.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from typing import Any, Literal
+
+from pydantic import Field
+
+from fieldgate.health import HealthEvent, ModuleHealth
+from fieldgate.image import Change
+from fieldgate.plugin import Front, GatewayContext, hookimpl
+from fieldgate.plugins.canopen.adapter import CanAdapter, open_bus
+from fieldgate.topology import FrontConfig
+from fieldgate.topology.model import StrictModel
+
+from .assembly import Assemblies
+from .engine import BAUD_RATES, DeviceNetSlave, Settings
+
+
+class DeviceNetIdentity(StrictModel):
+    vendor_id: int = Field(0, ge=0, le=0xFFFF, description="Identity attr 1 (also in the duplicate MAC check); the I-7241D uses 803")
+    device_type: int = Field(0, ge=0, le=0xFFFF, description="Identity attr 2 (0 = generic device)")
+    product_code: int = Field(1, ge=0, le=0xFFFF, description="Identity attr 3")
+    major_revision: int = Field(1, ge=1, le=127, description="Identity attr 4, major")
+    minor_revision: int = Field(0, ge=0, le=255, description="Identity attr 4, minor")
+    serial: int = Field(1, ge=0, le=0xFFFFFFFF, description="Identity attr 6; make it unique per gateway on one network")
+    product_name: str = Field("fieldgate", min_length=1, max_length=32, description="Identity attr 7 (SHORT_STRING)")
+
+
+class DeviceNetFrontConfig(FrontConfig):
+    type: Literal["devicenet"] = "devicenet"
+    interface: str = Field("socketcan", description="python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...")
+    channel: str | None = Field("can0", description="python-can channel")
+    baudrate: Literal[125_000, 250_000, 500_000] = Field(125_000, description="DeviceNet bit rate in bit/s")
+    mac_id: int = Field(63, ge=0, le=63, description="MAC ID 0..63")
+    bus_options: dict[str, Any] = Field(default_factory=dict, description="extra keyword arguments for can.Bus")
+    dup_mac_timeout_ms: int = Field(1000, ge=10, le=5000, description="wait after each duplicate MAC ID request (DeviceNet: 1 s)")
+    strict_lengths: bool = Field(False, description="refuse Set requests with trailing bytes (0x15); default tolerates them as the I-7241D does")
+    identity: DeviceNetIdentity = Field(default_factory=DeviceNetIdentity)
+
+
+class DeviceNetFront(Front):
+    def __init__(self, config: DeviceNetFrontConfig, context: GatewayContext):
+        super().__init__(config, context)
+        self.slave: DeviceNetSlave | None = None
+        self.adapter: CanAdapter | None = None
+        self.outputs: list[str] = []
+        self._modules: set[tuple[str, int]] = set()
+        self._offline: set[tuple[str, int]] = set()
+        self._subscription = None
+        self._health_subscribed = False
+
+    def build(self) -> DeviceNetSlave:
+        cfg, ident = self.config, self.config.identity
+        channels = self.context.front_channels(cfg)
+        assemblies = Assemblies(self.context.image, channels, origin=f"{self.name}:devicenet")
+        settings = Settings(
+            mac_id=cfg.mac_id, baud_code=BAUD_RATES.index(cfg.baudrate), vendor_id=ident.vendor_id,
+            device_type=ident.device_type, product_code=ident.product_code, major_revision=ident.major_revision,
+            minor_revision=ident.minor_revision, serial=ident.serial, product_name=ident.product_name,
+            tolerate_trailing_bytes=not cfg.strict_lengths, dup_mac_interval_s=cfg.dup_mac_timeout_ms / 1000.0,
+        )
+        slave = DeviceNetSlave(settings, assemblies)
+        self.outputs = assemblies.output_ids()
+        self._modules = {(c.source.back, c.source.module) for c in channels}
+        slave.on_master(self._master_state)
+        slave.on_fault(lambda reason: self.log.error("DeviceNet communication fault: %s", reason))
+        return slave
+
+    async def start(self) -> None:
+        cfg = self.config
+        loop = asyncio.get_running_loop()
+        self.slave = slave = self.build()
+        bus = open_bus(cfg.interface, cfg.channel, cfg.baudrate, cfg.bus_options)
+        self.adapter = CanAdapter(slave, bus, loop, on_bus_state=self._bus_state,
+                                  reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options))
+        self.adapter.start()
+        self._subscription = self.context.image.subscribe(self._input_changed, ids=slave.assemblies.input_ids())
+        if not self._health_subscribed:
+            self._health_subscribed = True
+            self.context.health.subscribe(self._module_health)
+        self.log.info("DeviceNet MAC %d on %s/%s at %d bit/s: %d bytes produced, %d consumed", cfg.mac_id, cfg.interface, cfg.channel,
+                      cfg.baudrate, slave.assemblies.produced_size, slave.assemblies.consumed_size)
+
+    async def run(self) -> None:
+        """Everything is callback-driven; raises only when receiving from the bus has died."""
+        await self.adapter.failed
+
+    async def stop(self) -> None:
+        if self._subscription is not None:
+            self._subscription.cancel()
+            self._subscription = None
+        if self.adapter is not None:
+            self.adapter.close()
+            self.adapter = None
+
+    def _input_changed(self, change: Change) -> None:
+        if self.adapter is not None and change.value_changed:
+            self.slave.inputs_changed(self.adapter.now)
+            self.adapter.pump()
+
+    def _bus_state(self, bus_off: bool, now: float) -> None:
+        if bus_off:
+            self.slave.bus_off_count = min(255, self.slave.bus_off_count + 1)
+
+    def _master_state(self, ok: bool, reason: str) -> None:
+        if ok:
+            self.context.masters.ok(self.name, reason)
+        else:
+            self.context.masters.lost(self.name, reason, self.outputs)
+
+    def _module_health(self, health: ModuleHealth, event: HealthEvent) -> None:
+        if health.key not in self._modules or self.slave is None:
+            return
+        if event is HealthEvent.OFFLINE:
+            self._offline.add(health.key)
+        elif event is HealthEvent.ONLINE:
+            self._offline.discard(health.key)
+        self.slave.module_fault = bool(self._offline)
+
+    def status(self) -> dict:
+        if self.slave is None:
+            return {}
+        return {**self.slave.status(), "bus": self.adapter.status() if self.adapter else None,
+                "interface": self.config.interface, "channel": self.config.channel}
+
+
+@hookimpl
+def fieldgate_register(registry) -> None:
+    registry.add_front("devicenet", DeviceNetFrontConfig, DeviceNetFront, "DeviceNet Group 2 Only slave on any python-can bus")

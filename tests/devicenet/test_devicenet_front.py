@@ -1,0 +1,92 @@
+"""The devicenet front in a Gateway on python-can's virtual bus, driven by a small master."""
+
+from __future__ import annotations
+
+import uuid
+
+import pytest
+from dnet_master import Master
+
+from fieldgate import Gateway, load_registry
+from fieldgate.plugins.devicenet import plugin as devicenet_plugin
+from fieldgate.runtime import GatewayStartError
+
+SLAVE = 5
+
+
+@pytest.fixture(scope="module")
+def registry():
+    registry = load_registry()
+    if registry.lookup("front", "devicenet") is None:
+        registry = load_registry([devicenet_plugin])
+    return registry
+
+
+def topology(tmp_path, channel: str, **front) -> dict:
+    return {
+        "gateway": {"name": "dnet-test", "state_dir": str(tmp_path)},
+        "fronts": [{"name": "dnet", "type": "devicenet", "interface": "virtual", "channel": channel, "mac_id": SLAVE,
+                    "baudrate": 500000, "dup_mac_timeout_ms": 50,
+                    "identity": {"vendor_id": 803, "serial": 42, "product_name": "fieldgate test slave"}, **front}],
+        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}]}],
+    }
+
+
+@pytest.fixture
+async def rig(tmp_path, registry):
+    channel = f"dnet-{uuid.uuid4().hex[:8]}"
+    master = Master(channel, SLAVE)
+    gateway = Gateway.load(topology(tmp_path, channel), registry=registry)
+    await gateway.start()
+    await master.wait_online()
+    yield gateway, master
+    await gateway.stop()
+    master.close()
+
+
+async def test_allocate_identity_poll_loopback_and_timeout(rig):
+    gateway, master = rig
+    assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
+    assert await master.request(bytes.fromhex("0E 01 01 01")) == bytes.fromhex("8E 23 03")
+    name = await master.request(bytes.fromhex("0E 01 01 07"))  # 22 bytes: fragmented
+    assert name == b"\x8e\x14fieldgate test slave"
+    assert await master.request(bytes.fromhex("0E 01 01 06")) == bytes.fromhex("8E 2A 00 00 00")
+    assert await master.request(bytes.fromhex("10 05 02 09 64 00")) == bytes.fromhex("90 64 00")  # poll EPR 100 ms
+    # outputs: DO byte + AO0 + AO1; inputs: DI byte + AI0 + AI1 (the loopback wires DO n to DI n)
+    assert await master.poll(bytes.fromhex("A5 34 12 CD AB")) == bytes.fromhex("A5 34 12 CD AB")
+    assert gateway.read("io/m3/do0") is True and gateway.read("io/m3/ao1") == -0x5433
+    assert await master.poll(bytes.fromhex("0F 01 00 FF 7F")) == bytes.fromhex("0F 01 00 FF 7F")
+    assert gateway.masters.is_ok("dnet")
+    await master.frames(0.6)  # no polls for more than 4 x 100 ms
+    assert not gateway.masters.is_ok("dnet")
+    assert gateway.read("io/m3/do0") is False and gateway.read("io/m3/ao1") == 0  # error values
+    assert gateway.component("dnet").status()["connections"]["poll"] == {"state": "timed_out", "epr_ms": 100}
+    assert await master.allocate(0x02) == bytes.fromhex("0A CB 00")  # re-allocation
+    assert gateway.masters.is_ok("dnet")
+    await master.request(bytes.fromhex("10 05 02 09 64 00"))
+    assert await master.poll(bytes.fromhex("01 00 00 00 00")) == bytes.fromhex("01 00 00 00 00")
+
+
+async def test_change_of_state_follows_the_process_image(rig):
+    gateway, master = rig
+    assert await master.allocate(0x51) == bytes.fromhex("0A CB 00")  # explicit + COS, no acks
+    assert await master.request(bytes.fromhex("10 05 04 09 10 27")) == bytes.fromhex("90 10 27")  # EPR 10 s
+    assert await master.expect(0x340 | SLAVE) == bytes(5)
+    gateway.write("io/m3/do2", True)  # the loopback sets DI 2: the slave produces at once
+    assert await master.expect(0x340 | SLAVE, 1.0) == bytes.fromhex("04 00 00 00 00")
+    gateway.write("io/m3/ao0", 300)
+    assert await master.expect(0x340 | SLAVE, 1.0) == bytes.fromhex("04 2C 01 00 00")
+
+
+async def test_unknown_interface_is_a_one_line_start_error(tmp_path, registry):
+    gateway = Gateway.load(topology(tmp_path, "x", interface="no-such-can"), registry=registry)
+    with pytest.raises(GatewayStartError) as err:
+        await gateway.start()
+    assert "unknown CAN interface 'no-such-can'" in str(err.value) and "\n" not in str(err.value)
+
+
+async def test_missing_channel_is_a_start_error(tmp_path, registry):
+    gateway = Gateway.load(topology(tmp_path, "fieldgate-missing0", interface="socketcan"), registry=registry)
+    with pytest.raises(GatewayStartError) as err:
+        await gateway.start()
+    assert "socketcan" in str(err.value) and "\n" not in str(err.value)
