@@ -25,6 +25,12 @@ ours at least as fast as LocalNode.
 First, the server-side work per request without threads or other receivers: ours is the
 adapter's whole receive step on the event loop (frame conversion, the node's validation and
 answer, the send, re-arming the timer), LocalNode's is ``sdo.on_request`` including its send.
+Then the cost of the wake-up alone: the same round trip to a server that answers at once,
+woken as LocalNode is (a thread blocked on the bus) and as ours is (the event loop, woken
+with ``call_soon_threadsafe`` by our receive path), and on uvloop when it is installed.
+
+``--loop uvloop`` runs our front on uvloop (``pip install uvloop``) instead of asyncio's
+default loop.
 """
 
 from __future__ import annotations
@@ -60,14 +66,14 @@ class OurServer:
 
     label = "fieldgate front"
 
-    def __init__(self, channel: str, state_dir: Path):
+    def __init__(self, channel: str, state_dir: Path, loop_factory: Callable[[], asyncio.AbstractEventLoop] = asyncio.new_event_loop):
         self.topology = {
             "gateway": {"name": "bench", "state_dir": str(state_dir)},
             "fronts": [{"name": "plc", "type": "canopen", "interface": "virtual", "channel": channel,
                         "node_id": NODE_ID, "identity": {"device_type": DEVICE_TYPE}}],
             "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 1, "digital": 8, "analog": 2}]}],
         }
-        self.loop = asyncio.new_event_loop()
+        self.loop = loop_factory()
         self.gateway: Gateway | None = None
         self.thread = threading.Thread(target=self._run, name="gateway", daemon=True)
 
@@ -168,6 +174,63 @@ class CanopenClient:
         self.network.disconnect()
 
 
+class WakeupOnly:
+    """A server that answers every request at once: what is left is the wake-up itself."""
+
+    def __init__(self, channel: str, on_loop: Callable[[], asyncio.AbstractEventLoop] | None):
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.answer = can.Message(arbitration_id=0x580 + NODE_ID, data=ANSWER, is_extended_id=False)
+        self.stopping = threading.Event()
+        self.loop = on_loop() if on_loop is not None else None
+        self.thread = threading.Thread(target=self._serve_thread if self.loop is None else self.loop.run_forever, daemon=True)
+        self.thread.start()
+        if self.loop is not None:
+            from fieldgate.plugins.canopen.busrx import start_receiver
+
+            ready = threading.Event()
+
+            def attach() -> None:
+                self.receiver = start_receiver(self.bus, self.loop, self._answer)
+                ready.set()
+
+            self.loop.call_soon_threadsafe(attach)
+            ready.wait(5)
+
+    def _answer(self, msg: can.Message) -> None:
+        if msg.arbitration_id == 0x600 + NODE_ID:
+            self.bus.send(self.answer)
+
+    def _serve_thread(self) -> None:
+        while not self.stopping.is_set():
+            msg = self.bus.recv(0.05)
+            if msg is not None:
+                self._answer(msg)
+
+    def stop(self) -> None:
+        self.stopping.set()
+        if self.loop is not None:
+            self.loop.call_soon_threadsafe(self.receiver.stop)
+            self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(5)
+        self.bus.shutdown()
+
+
+def wakeup_round_trips(requests: int, rounds: int, loops: dict) -> dict[str, dict[str, float]]:
+    """p50/p99 of a raw-frame round trip to :class:`WakeupOnly` servers, alternating in rounds."""
+    times: dict[str, list[float]] = {label: [] for label in loops}
+    for _ in range(rounds):
+        for label, on_loop in loops.items():
+            channel = f"bench-wake-{uuid.uuid4().hex[:8]}"
+            server, client = WakeupOnly(channel, on_loop), RawClient(channel)
+            try:
+                measure(client.upload, 50)
+                times[label] += measure(client.upload, requests // rounds)
+            finally:
+                client.close()
+                server.stop()
+    return {label: summary(t) for label, t in times.items()}
+
+
 def measure(call: Callable[[], None], n: int) -> list[float]:
     times = []
     for _ in range(n):
@@ -186,10 +249,28 @@ def summary(times: list[float]) -> dict[str, float]:
     }
 
 
-def run(requests: int, rounds: int) -> int:
+def uvloop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
+    try:
+        import uvloop
+    except ImportError:
+        return None
+    return uvloop.new_event_loop
+
+
+def run(requests: int, rounds: int, loop: str) -> int:
     ours_channel, peer_channel = (f"bench-{name}-{uuid.uuid4().hex[:8]}" for name in ("ours", "peer"))
+    factory = uvloop_factory() if loop == "uvloop" else asyncio.new_event_loop
+    if factory is None:
+        print("--loop uvloop: uvloop is not installed")
+        return 2
+    wake_loops = {"thread on the bus (LocalNode)": None, "asyncio event loop (ours)": asyncio.new_event_loop}
+    if uvloop_factory() is not None:
+        wake_loops["uvloop event loop"] = uvloop_factory()
+    wakeups = wakeup_round_trips(requests, rounds, wake_loops)
     with tempfile.TemporaryDirectory() as state:
-        servers = {"ours": OurServer(ours_channel, Path(state)), "peer": LocalNodeServer(peer_channel)}
+        servers = {"ours": OurServer(ours_channel, Path(state), factory), "peer": LocalNodeServer(peer_channel)}
+        if loop == "uvloop":
+            servers["ours"].label = "fieldgate (uvloop)"
         for server in servers.values():
             server.start()
         try:
@@ -212,14 +293,18 @@ def run(requests: int, rounds: int) -> int:
         finally:
             for server in servers.values():
                 server.stop()
-    return report(work, results, servers)
+    return report(work, wakeups, results, servers)
 
 
-def report(work: dict, results: dict, servers: dict) -> int:
+def report(work: dict, wakeups: dict, results: dict, servers: dict) -> int:
     print("Server-side work per expedited upload (no threads, no other receivers; best of 3)")
     for side in ("ours", "peer"):
         print(f"  {servers[side].label:<20} {work[side]:6.1f} us")
     print(f"  ratio LocalNode / ours = {work['peer'] / work['ours']:.2f}  (>= 1: ours does it in less time)")
+    print()
+    print("Wake-up alone: raw-frame round trip to a server that answers at once")
+    for label, r in wakeups.items():
+        print(f"  {label:<32} p50 {r['p50']:6.1f} us  p99 {r['p99']:6.1f} us")
     print()
     print("SDO expedited upload of 0x1000:00, one request in flight, python-can virtual bus")
     print(f"{'client':<20} {'server':<20} {'p50 us':>8} {'p99 us':>8} {'req/s':>8}")
@@ -241,8 +326,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--requests", type=int, default=4000, help="requests per server and client (default 4000)")
     parser.add_argument("--rounds", type=int, default=8, help="alternations between the servers (default 8)")
+    parser.add_argument("--loop", choices=("asyncio", "uvloop"), default="asyncio", help="event loop of our front (default asyncio)")
     args = parser.parse_args()
-    return run(args.requests, args.rounds)
+    return run(args.requests, args.rounds, args.loop)
 
 
 if __name__ == "__main__":
