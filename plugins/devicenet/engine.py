@@ -210,6 +210,17 @@ class DeviceNetSlave:
         else:
             self.counters["dup_mac_responses_ignored"] += 1
 
+    def _offline_request(self, data: bytes, now: float) -> None:
+        """Offline Connection Set (seed-003 §2.7): identify faulted nodes, or give one a new MAC ID."""
+        if len(data) >= 2 and data[1] == cip.ALLOCATE and not data[0] & 0x40:  # identify, match bit clear
+            self._send(ids.group4_id(ids.G4_FAULTED_RESPONSE), self._dup_mac_payload(response=False))
+        elif len(data) == 8 and data[1] == cip.HEARTBEAT and data[2:] == self._dup_mac_payload(False)[1:] and data[0] <= 63:
+            self.counters["offline_mac_changes"] += 1
+            self.mac_id, self.fault_reason = data[0], ""
+            self._start_dup_check(now)
+        else:
+            self.counters["rx_offline_ignored"] += 1
+
     def _enter_fault(self, reason: str) -> None:
         self.state, self.fault_reason = "comm-fault", reason
         self._dup_at = self._heartbeat_at = self._produce_at = None
@@ -223,8 +234,11 @@ class DeviceNetSlave:
             self.counters["rx_rtr_ignored"] += 1
             return
         group, message, mac = ids.decode(frame.can_id)
+        if group == 4 and message == ids.G4_FAULTED_REQUEST and self.state == "comm-fault":
+            self._offline_request(frame.data, now)
+            return
         if group != 2:
-            return  # group 1/3/4 traffic is for others (the Offline Connection Set is not served)
+            return  # group 1/3 traffic and other group 4 messages are for other nodes
         data = frame.data
         if mac == self.mac_id and message == ids.G2_DUP_MAC:
             self._dup_mac_frame(data)

@@ -18,6 +18,9 @@ G2_EXPLICIT_REQUEST = 4
 G2_POLL = 5
 G2_UNCONNECTED_REQUEST = 6
 G2_DUP_MAC = 7
+# Group 4 (Offline Connection Set)
+G4_FAULTED_RESPONSE = 0x2C
+G4_FAULTED_REQUEST = 0x2D
 
 
 def group1_id(message: int, mac: int) -> int:

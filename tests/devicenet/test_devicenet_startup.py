@@ -42,3 +42,22 @@ def test_online_slave_answers_a_check_of_its_mac_and_ignores_others():
     assert rig.send("457 00 34 12 07 00 00 00") == []  # another MAC's check
     assert rig.send("44F 00 01") == []  # malformed: counted
     assert rig.slave.state == "online" and rig.slave.counters["rx_malformed"] == 1
+
+
+def test_seed_offline_connection_set_identifies_and_moves_a_faulted_node():
+    rig = Rig(online=False, vendor_id=803, serial=1)
+    rig.send("44F 80 23 03 02 00 00 00")
+    assert rig.slave.state == "comm-fault"
+    assert rig.send("7ED 3F 4B 02") == ["7EC 00 23 03 01 00 00 00"]  # TV-39 / TV-40
+    assert rig.send("7ED 07 4D 23 03 02 00 00 00") == []  # another device's serial: not us
+    assert rig.send("7ED 07 4D 23 03 01 00 00 00") == ["43F 00 23 03 01 00 00 00"]  # TV-41 / TV-42
+    assert rig.slave.mac_id == 7 and rig.slave.state == "dup-mac-check"
+    assert rig.advance(1.0) == ["43F 00 23 03 01 00 00 00"]
+    rig.advance(1.0)
+    assert rig.slave.state == "online"
+    assert rig.send("7ED 3F 4B 02") == []  # only faulted nodes answer
+
+
+def test_online_node_ignores_the_offline_connection_set():
+    rig = Rig(serial=1, vendor_id=803)
+    assert rig.send("7ED 07 4D 23 03 01 00 00 00") == [] and rig.slave.mac_id == 9
