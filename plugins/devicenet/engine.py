@@ -102,6 +102,7 @@ class DeviceNetSlave:
         self._master_listeners: list[Callable[[bool, str], None]] = []
         self._fault_listeners: list[Callable[[str], None]] = []
         self._bit_timing: Callable[[int, float], None] | None = None
+        self._settings_listeners: list[Callable[[int, int], None]] = []
         self.deadline_after_call: float | None = None
         self._now = 0.0
         self._new_mac: int | None = None
@@ -112,6 +113,16 @@ class DeviceNetSlave:
 
     def on_fault(self, listener: Callable[[str], None]) -> None:
         self._fault_listeners.append(listener)
+
+    def on_settings(self, listener: Callable[[int, int], None]) -> None:
+        """``listener(mac_id, baud_code)`` when either is changed over the network (to be stored)."""
+        self._settings_listeners.append(listener)
+
+    def settings_changed(self) -> None:
+        mac = self.mac_id if self._new_mac is None else self._new_mac
+        baud = self.baud_code if self.pending_baud_code is None else self.pending_baud_code
+        for listener in list(self._settings_listeners):
+            listener(mac, baud)
 
     def on_bit_timing(self, listener: Callable[[int, float], None]) -> None:
         self._bit_timing = listener
@@ -217,6 +228,7 @@ class DeviceNetSlave:
         elif len(data) == 8 and data[1] == cip.HEARTBEAT and data[2:] == self._dup_mac_payload(False)[1:] and data[0] <= 63:
             self.counters["offline_mac_changes"] += 1
             self.mac_id, self.fault_reason = data[0], ""
+            self.settings_changed()
             self._start_dup_check(now)
         else:
             self.counters["rx_offline_ignored"] += 1
@@ -403,6 +415,7 @@ class DeviceNetSlave:
     def change_mac(self, mac: int) -> None:
         self._new_mac = mac
         self._restart = DeviceNetObject.class_id
+        self.settings_changed()
 
     def _restart_device(self, class_id: int, header: int, now: float) -> None:
         """Device Shutdown from the current MAC, connections gone, dup-MAC check at the new MAC/baud."""

@@ -155,6 +155,7 @@ class DeviceNetObject(CipObject):
         if code > 2:
             raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
         self.slave.pending_baud_code = code
+        self.slave.settings_changed()
         return b""
 
     def _set_boi(self, data: bytes) -> bytes:

@@ -12,6 +12,7 @@ the front's status.
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import Field
@@ -25,6 +26,7 @@ from fieldgate.topology.model import StrictModel
 
 from .assembly import Assemblies
 from .engine import BAUD_RATES, DeviceNetSlave, Settings
+from .store import NetworkStore
 
 
 class DeviceNetIdentity(StrictModel):
@@ -45,6 +47,7 @@ class DeviceNetFrontConfig(FrontConfig):
     mac_id: int = Field(63, ge=0, le=63, description="MAC ID 0..63")
     bus_options: dict[str, Any] = Field(default_factory=dict, description="extra keyword arguments for can.Bus")
     dup_mac_timeout_ms: int = Field(1000, ge=10, le=5000, description="wait after each duplicate MAC ID request (DeviceNet: 1 s)")
+    store_file: str | None = Field(None, description="file keeping a MAC ID / baud rate set over the network (relative to the state dir); default <front name>.devicenet.json")
     strict_lengths: bool = Field(False, description="refuse Set requests with trailing bytes (0x15); default tolerates them as the I-7241D does")
     identity: DeviceNetIdentity = Field(default_factory=DeviceNetIdentity)
 
@@ -62,10 +65,13 @@ class DeviceNetFront(Front):
 
     def build(self) -> DeviceNetSlave:
         cfg, ident = self.config, self.config.identity
+        path = Path(cfg.store_file or f"{self.name}.devicenet.json")
+        store = NetworkStore(path if path.is_absolute() else self.context.state_dir / path, (cfg.mac_id, BAUD_RATES.index(cfg.baudrate)))
+        mac_id, baud_code = store.load() or (cfg.mac_id, BAUD_RATES.index(cfg.baudrate))
         channels = self.context.front_channels(cfg)
         assemblies = Assemblies(self.context.image, channels, origin=f"{self.name}:devicenet")
         settings = Settings(
-            mac_id=cfg.mac_id, baud_code=BAUD_RATES.index(cfg.baudrate), vendor_id=ident.vendor_id,
+            mac_id=mac_id, baud_code=baud_code, vendor_id=ident.vendor_id,
             device_type=ident.device_type, product_code=ident.product_code, major_revision=ident.major_revision,
             minor_revision=ident.minor_revision, serial=ident.serial, product_name=ident.product_name,
             tolerate_trailing_bytes=not cfg.strict_lengths, dup_mac_interval_s=cfg.dup_mac_timeout_ms / 1000.0,
@@ -74,6 +80,7 @@ class DeviceNetFront(Front):
         self.outputs = assemblies.output_ids()
         self._modules = {(c.source.back, c.source.module) for c in channels}
         slave.on_master(self._master_state)
+        slave.on_settings(store.save)
         slave.on_fault(lambda reason: self.log.error("DeviceNet communication fault: %s", reason))
         return slave
 
@@ -81,7 +88,7 @@ class DeviceNetFront(Front):
         cfg = self.config
         loop = asyncio.get_running_loop()
         self.slave = slave = self.build()
-        bus = open_bus(cfg.interface, cfg.channel, cfg.baudrate, cfg.bus_options)
+        bus = open_bus(cfg.interface, cfg.channel, slave.bitrate, cfg.bus_options)
         self.adapter = CanAdapter(slave, bus, loop, on_bus_state=self._bus_state,
                                   reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options))
         self.adapter.start()
@@ -89,8 +96,8 @@ class DeviceNetFront(Front):
         if not self._health_subscribed:
             self._health_subscribed = True
             self.context.health.subscribe(self._module_health)
-        self.log.info("DeviceNet MAC %d on %s/%s at %d bit/s: %d bytes produced, %d consumed", cfg.mac_id, cfg.interface, cfg.channel,
-                      cfg.baudrate, slave.assemblies.produced_size, slave.assemblies.consumed_size)
+        self.log.info("DeviceNet MAC %d on %s/%s at %d bit/s: %d bytes produced, %d consumed", slave.mac_id, cfg.interface, cfg.channel,
+                      slave.bitrate, slave.assemblies.produced_size, slave.assemblies.consumed_size)
 
     async def run(self) -> None:
         """Everything is callback-driven; raises only when receiving from the bus has died."""

@@ -90,3 +90,45 @@ async def test_missing_channel_is_a_start_error(tmp_path, registry):
     with pytest.raises(GatewayStartError) as err:
         await gateway.start()
     assert "socketcan" in str(err.value) and "\n" not in str(err.value)
+
+
+async def test_mac_id_set_over_the_network_survives_a_restart_until_the_yaml_changes(tmp_path, registry):
+    channel = f"dnet-{uuid.uuid4().hex[:8]}"
+    master = Master(channel, SLAVE)
+    gateway = Gateway.load(topology(tmp_path, channel), registry=registry)
+    await gateway.start()
+    try:
+        await master.wait_online()
+        assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
+        assert await master.request(bytes.fromhex("10 03 01 01 06")) == bytes.fromhex("90")
+        assert await master.expect(0x42B) == bytes.fromhex("0A CE 03 00 01 00 04 00")  # shutdown from MAC 5
+        assert await master.expect(0x437) == bytes.fromhex("00 23 03 2A 00 00 00")  # checking MAC 6
+    finally:
+        await gateway.stop()
+    restarted = Gateway.load(topology(tmp_path, channel), registry=registry)
+    await restarted.start()
+    try:
+        assert await master.expect(0x437) == bytes.fromhex("00 23 03 2A 00 00 00")
+        assert restarted.component("dnet").status()["mac_id"] == 6
+    finally:
+        await restarted.stop()
+    edited = Gateway.load(topology(tmp_path, channel, mac_id=7), registry=registry)
+    await edited.start()
+    try:
+        assert await master.expect(0x43F) == bytes.fromhex("00 23 03 2A 00 00 00")  # the YAML wins
+    finally:
+        await edited.stop()
+        master.close()
+
+
+def test_store_ignores_corrupt_and_out_of_range_files(tmp_path):
+    from fieldgate.plugins.devicenet.store import NetworkStore
+    store = NetworkStore(tmp_path / "s.json", (5, 0))
+    assert store.load() is None
+    store.save(9, 2)
+    assert store.load() == (9, 2)
+    assert NetworkStore(tmp_path / "s.json", (5, 1)).load() is None  # written for another configuration
+    (tmp_path / "s.json").write_text("{not json")
+    assert store.load() is None
+    (tmp_path / "s.json").write_text('{"configured": [5, 0], "mac_id": 64, "baud_code": 0}')
+    assert store.load() is None
