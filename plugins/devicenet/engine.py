@@ -406,8 +406,7 @@ class DeviceNetSlave:
 
     def _send_heartbeat(self) -> None:
         header = self.master_mac if self.master_mac != UNALLOCATED else self.mac_id
-        flags = 0x01 if self.module_fault else 0x00  # EV bit: an exception (a module fault) is present
-        self._send_explicit(bytes([header, cip.HEARTBEAT | cip.RESPONSE, 0x01, 0x00, 0x03, flags, 0x00, 0x00]))
+        self._send_explicit(bytes([header, cip.HEARTBEAT | cip.RESPONSE, 0x01, 0x00, 0x03, 0x00, 0x00, 0x00]))
 
     def schedule_restart(self, class_id: int) -> None:
         self._restart = class_id

@@ -162,3 +162,11 @@ def test_garbage_never_raises(rig):
         data = bytes(rnd.randrange(256) for _ in range(rnd.randrange(9)))
         rig.slave.receive(__import__("fieldgate.plugins.canopen.frame", fromlist=["Frame"]).Frame(can_id, data), rig.now)
     assert rig.slave.counters["rx_internal_errors"] == 0
+
+
+def test_identity_status_shows_ownership_and_module_faults():
+    rig = Rig()
+    rig.allocate(0x01)
+    assert rig.explicit("0E 01 01 05") == "0A 8E 01 00"
+    rig.slave.module_fault = True  # the front sets it while a served module is offline
+    assert rig.explicit("0E 01 01 05") == "0A 8E 01 01"  # bit 8: minor recoverable fault

@@ -132,3 +132,20 @@ def test_store_ignores_corrupt_and_out_of_range_files(tmp_path):
     assert store.load() is None
     (tmp_path / "s.json").write_text('{"configured": [5, 0], "mac_id": 64, "baud_code": 0}')
     assert store.load() is None
+
+
+async def test_offline_module_shows_in_the_identity_status(rig):
+    from fieldgate.health import ErrorKind, ModuleHealth
+    gateway, master = rig
+    assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
+    try:
+        health = gateway.health.get("io", 3)
+    except KeyError:
+        health = gateway.health.add(ModuleHealth("io", 3))
+    assert await master.request(bytes.fromhex("0E 01 01 05")) == bytes.fromhex("8E 01 00")
+    for _ in range(5):
+        health.record_failure(ErrorKind.TIMEOUT, "no answer")
+    assert not health.online
+    assert await master.request(bytes.fromhex("0E 01 01 05")) == bytes.fromhex("8E 01 01")
+    health.record_success()
+    assert await master.request(bytes.fromhex("0E 01 01 05")) == bytes.fromhex("8E 01 00")
