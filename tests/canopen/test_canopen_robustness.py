@@ -119,3 +119,14 @@ def test_integer_encoding_matches_canopens_and_refuses_bad_values():
                 encode(var, 1 << (8 * size))
         with pytest.raises(TypeError):
             encode(var, "1")
+
+
+def test_frames_are_immutable_values():
+    import pytest
+
+    a, b = Frame(0x605, b"\x40\x00\x10\x00\x00\x00\x00\x00"), Frame(0x605, bytes.fromhex("4000100000000000"))
+    assert a == b and hash(a) == hash(b) and a != Frame(0x605, b"\x40", rtr=False) and len({a, b}) == 1
+    with pytest.raises(AttributeError):
+        a.can_id = 0x606
+    assert str(Frame(0x705, b"", rtr=True, dlc=1)) == "705 RTR [1]" and Frame(0x705, b"", rtr=True, dlc=1).length == 1
+    assert str(a) == "605 [8] 40 00 10 00 00 00 00 00"
