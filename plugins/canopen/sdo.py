@@ -39,6 +39,8 @@ from .frame import Frame
 from .od import size_of
 from .service import Service
 
+EXPEDITED_UPLOAD = struct.Struct("<BHB4s")  # command, index, sub-index, data zero-padded to 4 bytes
+
 log = logging.getLogger("fieldgate.canopen.sdo")
 
 DEFAULT_TIMEOUT_S = 1.0
@@ -248,7 +250,7 @@ class SdoServer(Service):
 
     def _answer_upload(self, value: bytes) -> None:
         if 0 < len(value) <= 4:  # expedited: nothing of the transfer state was touched
-            self.node.send(Frame(self.tx_cob, bytes([0x43 | ((4 - len(value)) << 2), self.index & 0xFF, self.index >> 8, self.subindex]) + value.ljust(4, b"\x00")))
+            self.node.send(Frame(self.tx_cob, EXPEDITED_UPLOAD.pack(0x43 | ((4 - len(value)) << 2), self.index, self.subindex, value)))
             self.counters["transfers"] += 1
             self.index = self.subindex = 0
             return
