@@ -181,13 +181,8 @@ class StoreService(Service):
         return self.sections.get(name, default)
 
     def set_section(self, name: str, value) -> None:
-        """Change a section in memory; the next write (save, load, :meth:`put_section`) persists it."""
+        """Change a section in memory (from an area hook); the save / load in progress writes it."""
         self.sections[name] = value
-
-    def put_section(self, name: str, value) -> None:
-        """Persist a service's own data at once; raises SdoAbort on I/O errors."""
-        self.set_section(name, value)
-        self._write()
 
     # -- reporting ------------------------------------------------------------------------------
     def on_nmt_state(self, old, new, now) -> None:
