@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from fieldgate import __version__
 from fieldgate.health import HealthEvent, ModuleHealth
@@ -25,6 +25,7 @@ from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
 from .adapter import CanAdapter, open_bus
+from .cobid import restricted
 from .eds import register_command as register_eds_command
 from .front401 import IoFrontOptions
 from .front401 import install as install_io_device
@@ -84,6 +85,13 @@ class CanopenFrontConfig(FrontConfig, IoFrontOptions):
     lss_store_file: str | None = Field(None, description="LSS store file (relative to the state dir); default <front name>.lss.json")
     module_emcy: bool = Field(True, description="send EMCY 00 FF 81 0B <address> when a served module goes offline")
     identity: IdentitySettings = Field(default_factory=IdentitySettings)
+
+    @field_validator("sync_cob_id")
+    @classmethod
+    def _sync_cob_id_not_restricted(cls, value: int) -> int:
+        if restricted(value):
+            raise ValueError(f"0x{value:03X} is a restricted CAN-ID (CiA 301 §7.3.5); 0x80 is the usual SYNC COB-ID")
+        return value
 
 
 class CanopenFront(Front):

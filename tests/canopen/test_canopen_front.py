@@ -178,3 +178,16 @@ def test_device_type_is_the_io_layouts(tmp_path, registry, expose, expected):
     assert served.build().od.get(0x1000) == expected == served.io.device_type
     topo["fronts"][0]["identity"]["device_type"] = 0x12345678
     assert front(topo).build().od.get(0x1000) == 0x12345678
+
+
+@pytest.mark.parametrize("cob_id, ok", [(0x80, True), (0x100, True), (0x601, False), (0x07F, False), (0x701, False)])
+def test_configured_sync_cob_id_follows_the_restricted_can_id_rule(tmp_path, registry, cob_id, ok):
+    from fieldgate.topology import TopologyError
+
+    topo = topology(tmp_path / "state", NODE, sync_cob_id=cob_id)
+    if ok:
+        assert Gateway.load(topo, registry=registry).topology.fronts[0].sync_cob_id == cob_id
+        return
+    with pytest.raises(TopologyError) as err:
+        Gateway.load(topo, registry=registry)
+    assert "sync_cob_id" in str(err.value) and "restricted" in str(err.value)
