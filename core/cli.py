@@ -83,7 +83,18 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
         for issue in exc.issues:
             print(issue, file=sys.stderr)
         return 1
-    return asyncio.run(_run(gateway, args))
+    return _runner(args.loop).run(_run(gateway, args))
+
+
+def _runner(loop: str) -> asyncio.Runner:
+    """asyncio's own loop, or uvloop (optional: ``pip install 'fieldgate[fast]'``)."""
+    if loop == "uvloop":
+        try:
+            import uvloop
+        except ImportError:
+            raise SystemExit("fieldgate: --loop uvloop needs uvloop: pip install 'fieldgate[fast]'") from None
+        return asyncio.Runner(loop_factory=uvloop.new_event_loop)
+    return asyncio.Runner()
 
 
 async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
@@ -148,6 +159,7 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="override a field, e.g. fronts.can.interface=virtual")
     p.add_argument("--simulate", action="store_true", help="serve every back from simulated modules on pseudo-terminals (no hardware)")
+    p.add_argument("--loop", choices=["asyncio", "uvloop"], default="asyncio", help="event loop: asyncio (default) or uvloop, which wakes faster on frames from other threads (extra 'fast')")
     p.add_argument("--status-every", type=float, default=0, metavar="SECONDS", help="print the process image periodically")
     p.add_argument("--duration", type=float, default=0, metavar="SECONDS", help="stop by itself after this long")
     p.set_defaults(handler=cmd_run)
