@@ -32,9 +32,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout too
 
-from fieldgate.health import HealthRegistry  # noqa: E402
-from fieldgate.image import ProcessImage  # noqa: E402
-from fieldgate.masters import MasterMonitor  # noqa: E402
 from fieldgate.plugin import GatewayContext  # noqa: E402
 from fieldgate.plugins.dcon import codec  # noqa: E402
 from fieldgate.plugins.dcon.back import DconBack  # noqa: E402
@@ -172,11 +169,8 @@ async def cycle_time(baud: int | None, cycles: int) -> tuple[float, float, list[
     with PtyPair(baudrate=baud) as pair, Turnaround() as turnaround:
         proc, _ = await start_child_simulator(["--port", pair.b])
         cfg = line_config(pair.a, baud or 115200)
-        image = ProcessImage()
-        for spec in cfg.channel_specs():
-            image.add(spec)
         topology = Topology(GatewaySection(name="bench"), [], [cfg], channel_specs=cfg.channel_specs())
-        back = DconBack(cfg, GatewayContext(topology, image, HealthRegistry(), MasterMonitor(image)))
+        back = DconBack(cfg, GatewayContext.build(topology))
         await back.start()
         task = asyncio.create_task(back.run())
         try:

@@ -27,9 +27,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout too
 
-from fieldgate.health import HealthRegistry  # noqa: E402
-from fieldgate.image import ProcessImage  # noqa: E402
-from fieldgate.masters import MasterMonitor  # noqa: E402
 from fieldgate.plugin import GatewayContext  # noqa: E402
 from fieldgate.plugins.modbus.back import ModbusBack  # noqa: E402
 from fieldgate.plugins.modbus.client import ModbusLink, inter_frame_gap  # noqa: E402
@@ -114,11 +111,8 @@ async def cycle_time(baud: int | None, cycles: int) -> float:
         cfg = config(pair.a, baud or 115200, **({} if baud else {"inter_frame_ms": 0}))
         sim = ModbusSimulator(cfg, pair.b)
         await sim.start()
-        image = ProcessImage()
-        for spec in cfg.channel_specs():
-            image.add(spec)
         topology = Topology(GatewaySection(name="bench"), [], [cfg], channel_specs=cfg.channel_specs())
-        back = ModbusBack(cfg, GatewayContext(topology, image, HealthRegistry(), MasterMonitor(image)))
+        back = ModbusBack(cfg, GatewayContext.build(topology))
         await back.start()
         task = asyncio.create_task(back.run())
         try:

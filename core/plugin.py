@@ -54,6 +54,18 @@ class GatewayContext:
         self.masters = masters
         self.backs: dict[str, Component] = {}  # running back instances by name (a front's manufacturer objects reach them)
 
+    @classmethod
+    def build(cls, topology: Topology, clock: Callable[[], float] | None = None) -> GatewayContext:
+        """A fresh process image holding the topology's channels, with empty health and master state.
+
+        The gateway builds its context this way; so do tools and benches that run one
+        front or back on its own.
+        """
+        image = ProcessImage(clock) if clock is not None else ProcessImage()
+        for spec in topology.channel_specs:
+            image.add(spec)
+        return cls(topology, image, HealthRegistry(), MasterMonitor(image))
+
     @property
     def clock(self) -> Callable[[], float]:
         return self.image.clock

@@ -20,9 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .health import HealthRegistry
-from .image import ProcessImage, Quality
-from .masters import MasterMonitor
+from .image import Quality
 from .simulation import SimulationBench
 from .plugin import Component, GatewayContext, PluginStartError, Registry, load_registry
 from .topology import Topology, load_topology
@@ -41,12 +39,10 @@ class Gateway:
         self.topology = topology
         self.bench = SimulationBench(topology, registry, animate) if simulate else None
         self.registry = registry
-        self.image = ProcessImage(clock)
-        self.health = HealthRegistry()
-        self.masters = MasterMonitor(self.image)
-        self.context = GatewayContext(topology, self.image, self.health, self.masters)
-        for spec in topology.channel_specs:
-            self.image.add(spec)
+        self.context = GatewayContext.build(topology, clock)
+        self.image = self.context.image
+        self.health = self.context.health
+        self.masters = self.context.masters
         self.backs: list[Component] = []
         self.fronts: list[Component] = []
         self._tasks: dict[str, asyncio.Task] = {}

@@ -26,9 +26,6 @@ from typing import Any
 
 import canopen
 
-from fieldgate.health import HealthRegistry
-from fieldgate.image import ProcessImage
-from fieldgate.masters import MasterMonitor
 from fieldgate.plugin import GatewayContext, Registry, load_registry
 from fieldgate.topology import TopologyError, load_topology
 
@@ -47,10 +44,7 @@ def front_node(topology_source: str | Path | dict, front_name: str | None = None
     if not fronts:
         raise EdsError(f"no canopen front{f' named {front_name!r}' if front_name else ''} in the topology")
     cfg = fronts[0]
-    image = ProcessImage()
-    for spec in topology.channel_specs:
-        image.add(spec)
-    context = GatewayContext(topology, image, HealthRegistry(), MasterMonitor(image))
+    context = GatewayContext.build(topology)
     ctype = registry.lookup("front", cfg.type)
     front = ctype.factory(cfg, context)
     return front, front.build()
