@@ -52,3 +52,40 @@ async def test_i7241d_example_polls_simulated_dcon_modules(tmp_path):
     finally:
         master.close()
         await gw.stop()
+
+
+MODBUS_EXAMPLE = EXAMPLE.with_name("devicenet-modbus.yaml")
+
+
+async def test_devicenet_modbus_example_on_simulated_modbus_modules(tmp_path):
+    """M-7055D (8 DI + 8 DO) at 1, M-7017R (8 AI) at 2: 1 byte consumed, 17 produced.
+
+    Parity is overridden to N: with the example's parity E the simulated (pty) link fails to
+    open here with termios EINVAL (reported to the modbus back's owners).
+    """
+    registry = load_registry()
+    if registry.lookup("back", "modbus") is None:
+        pytest.skip("the modbus back plugin is not installed")
+    channel = f"fg-dnmb-{uuid.uuid4().hex[:8]}"
+    overrides = {"fronts.dnet.interface": "virtual", "fronts.dnet.channel": channel, "fronts.dnet.dup_mac_timeout_ms": 50,
+                 "backs.rs485.poll_ms": 10, "backs.rs485.parity": "N", "gateway.state_dir": str(tmp_path)}
+    gw = Gateway.load(MODBUS_EXAMPLE, overrides, registry, simulate=True)
+    master = Master(channel, slave=5)
+    await gw.start()
+    try:
+        sim = gw.bench.simulator("rs485")
+        sim.set_input("rs485/m1/di6", True)
+        sim.set_input("rs485/m2/ai7", -2)
+        await master.wait_online()
+        assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
+        assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex("90 F4 01")
+        for _ in range(100):
+            inputs = await master.poll_fragmented_reply(bytes([0x81]), 17)
+            if inputs[0] == 0x40 and inputs[15:17] == bytes.fromhex("FE FF") and sim.get_output("rs485/m1/do7"):
+                break
+            await master.frames(0.03)
+        assert inputs[0] == 0x40 and inputs[15:17] == bytes.fromhex("FE FF")
+        assert sim.get_output("rs485/m1/do0") and sim.get_output("rs485/m1/do7") and not sim.get_output("rs485/m1/do1")
+    finally:
+        master.close()
+        await gw.stop()
