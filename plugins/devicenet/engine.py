@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from fieldgate.plugins.canopen.frame import Frame
 
 from . import cip, ids
-from .allocation import BIT_ACK_SUPPRESS, BIT_COS, BIT_CYCLIC, CONNECTION_BITS, UNALLOCATED, Allocation
+from .allocation import BIT_ACK_SUPPRESS, BIT_COS, CONNECTION_BITS, UNALLOCATED, Allocation
 from .assembly import Assembly, Assemblies
 from .cip import CipError
 from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, Connection, State, TimeoutAction

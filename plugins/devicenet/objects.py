@@ -184,16 +184,15 @@ class AssemblyObject(CipObject):
 
     def instance_attributes(self, instance: int) -> dict[int, Attribute]:
         assembly = self.slave.assemblies.instances[instance]
-        setter = None
-        if assembly.is_output:
-            def setter(data: bytes) -> bytes:
-                if len(data) < assembly.size:
-                    raise CipError(cip.NOT_ENOUGH_DATA)
-                if len(data) > assembly.size:
-                    raise CipError(cip.TOO_MUCH_DATA)
-                self.slave.write_assembly(assembly, data)
-                return b""
-        return {3: Attribute(assembly.data, setter)}
+
+        def write(data: bytes) -> bytes:
+            if len(data) < assembly.size:
+                raise CipError(cip.NOT_ENOUGH_DATA)
+            if len(data) > assembly.size:
+                raise CipError(cip.TOO_MUCH_DATA)
+            self.slave.write_assembly(assembly, data)
+            return b""
+        return {3: Attribute(assembly.data, write if assembly.is_output else None)}
 
 
 class ConnectionObject(CipObject):
