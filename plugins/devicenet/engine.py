@@ -15,6 +15,7 @@ master loss / return through :meth:`on_master` and of a duplicate MAC through
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -28,6 +29,8 @@ from .cip import CipError
 from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, Connection, State, TimeoutAction
 from .fragment import ACK, ACK_OK, ACK_TOO_MUCH, EXPLICIT_CHUNK, Reassembler, io_frames, split
 from .objects import AssemblyObject, ConnectionObject, DeviceNetObject, IdentityObject, u16
+
+log = logging.getLogger("fieldgate.devicenet")
 
 BAUD_RATES = (125_000, 250_000, 500_000)
 DUP_MAC_INTERVAL_S = 1.0
@@ -150,8 +153,10 @@ class DeviceNetSlave:
             self._dispatch(frame, now)
             if self.state == "online" and self._produce_at is not None and now >= self._produce_at:
                 self._produce(now)  # a connection just established produces at once, after its response
-        except Exception:  # never let a frame stop the gateway; count it
+        except Exception:  # never let a frame stop the gateway; count it (and show the first)
             self.counters["rx_internal_errors"] += 1
+            if self.counters["rx_internal_errors"] == 1:
+                log.exception("DeviceNet frame %s not handled", frame)
         return self._done()
 
     def tick(self, now: float) -> list[Frame]:
