@@ -84,6 +84,7 @@ class Assemblies:
     def __init__(self, image: ProcessImage, channels: Sequence[Channel], origin: str = "devicenet"):
         self.image = image
         self.origin = origin
+        self.channels = list(channels)
         self.instances: dict[int, Assembly] = {}
         number = FIRST_INSTANCE
         for kind in CATEGORY_ORDER:

@@ -24,6 +24,7 @@ from fieldgate.plugins.canopen.frame import Frame
 
 from . import cip, ids
 from .allocation import BIT_ACK_SUPPRESS, BIT_COS, CONNECTION_BITS, UNALLOCATED, Allocation
+from .application import ApplicationObject, module_views
 from .assembly import Assembly, Assemblies
 from .cip import CipError
 from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, Connection, State, TimeoutAction
@@ -88,7 +89,9 @@ class DeviceNetSlave:
         self.fault_reason = ""
         self.connections = {i: Connection(i) for i in (EXPLICIT, POLL, STROBE, COS_CYCLIC)}
         self.allocation = Allocation(self)
-        self.objects = {o.class_id: o for o in (IdentityObject(self), DeviceNetObject(self), AssemblyObject(self), ConnectionObject(self))}
+        self.module_errors: Callable[[str, int], int] = lambda back, address: 0  # the front reads module health
+        application = ApplicationObject(self, module_views(assemblies.channels), lambda back, address: self.module_errors(back, address))
+        self.objects = {o.class_id: o for o in (IdentityObject(self), DeviceNetObject(self), AssemblyObject(self), ConnectionObject(self), application)}
         explicit_size = max(EXPLICIT_MIN_SIZE, max((a.size for a in assemblies.instances.values()), default=0) + 4)
         self.explicit_in = Reassembler(explicit_size)
         self.explicit_size = explicit_size

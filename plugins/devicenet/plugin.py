@@ -79,6 +79,7 @@ class DeviceNetFront(Front):
         slave = DeviceNetSlave(settings, assemblies)
         self.outputs = assemblies.output_ids()
         self._modules = {(c.source.back, c.source.module) for c in channels}
+        slave.module_errors = self._module_errors
         slave.on_master(self._master_state)
         slave.on_settings(store.save)
         slave.on_fault(lambda reason: self.log.error("DeviceNet communication fault: %s", reason))
@@ -125,6 +126,12 @@ class DeviceNetFront(Front):
             self.context.masters.ok(self.name, reason)
         else:
             self.context.masters.lost(self.name, reason, self.outputs)
+
+    def _module_errors(self, back: str, address: int) -> int:
+        try:
+            return self.context.health.get(back, address).error_counter
+        except KeyError:
+            return 0
 
     def _module_health(self, health: ModuleHealth, event: HealthEvent) -> None:
         if health.key not in self._modules or self.slave is None:

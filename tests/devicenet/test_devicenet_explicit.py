@@ -170,3 +170,27 @@ def test_identity_status_shows_ownership_and_module_faults():
     assert rig.explicit("0E 01 01 05") == "0A 8E 01 00"
     rig.slave.module_fault = True  # the front sets it while a served module is offline
     assert rig.explicit("0E 01 01 05") == "0A 8E 01 01"  # bit 8: minor recoverable fault
+
+
+def test_application_object_serves_each_module():
+    from dnet_rig import image_with
+    from fieldgate.image import Kind
+    image = image_with([(1, {Kind.DI: 8, Kind.DO: 8}), (2, {Kind.AI: 2}), (4, {Kind.DO: 2, Kind.AO: 1})])
+    rig = Rig(image)
+    rig.slave.module_errors = lambda back, address: 7 if (back, address) == ("io", 2) else 0
+    rig.allocate(0x01)
+    assert rig.explicit("0E 64 00 02") == "0A 8E 03 00"  # three modules
+    assert rig.explicit("0E 64 03 02") == "0A 8E 04"  # instance 3 = module 4
+    assert rig.explicit("0E 64 02 07") == "0A 8E 07 00 00 00"
+    assert [rig.explicit(f"0E 64 02 {a:02X}") for a in (0x0C, 0x0D, 0x0E, 0x0F)] == ["0A 8E 00", "0A 8E 00", "0A 8E 00", "0A 8E 04"]
+    assert [rig.explicit(f"0E 64 03 {a:02X}") for a in (0x10, 0x11)] == ["0A 8E 02", "0A 8E 01"]
+    image.update_input("io/m2/ai1", -2)
+    assert rig.explicit("0E 64 02 17") == "0A 8E 00 00 FE FF"
+    assert rig.explicit("10 64 03 14 03") == "0A 90"
+    assert rig.explicit("10 64 03 15 E8 03") == "0A 90"
+    assert image.value("io/m4/do1") is True and image.value("io/m4/ao0") == 1000
+    assert rig.explicit("10 64 01 16 FF") == "0A 94 0E FF"  # DI data is Get only
+    assert rig.explicit("10 64 03 14 03 00") == "0A 94 15 FF"
+    assert rig.explicit("0E 64 01 15") == "0A 94 14 FF"  # module 1 has no AO
+    assert rig.explicit("0E 64 01 08") == "0A 94 14 FF"  # DCON watchdog attributes: not served
+    assert rig.explicit("0E 64 04 02") == "0A 94 16 FF"

@@ -1,0 +1,81 @@
+"""The I-7241D's Application object, vendor class 0x64: one instance per served module.
+
+Instances are numbered from 1 in the order the front serves modules (ascending address
+in the seeds' order). Served attributes (seed-003 §3.6): 0x02 module address, 0x07 data
+error counter (the module's 16-bit error counter), 0x0C-0x0F DO/AO/DI/AI length in bytes,
+0x10-0x13 DO/AO/DI/AI channel count, 0x14/0x15 DO/AO data (Get/Set), 0x16/0x17 DI/AI data
+(Get). Module id, checksum, baud rate, type code, data format and the DCON host-watchdog
+attributes (0x01, 0x03-0x06, 0x08-0x0B) are not served (0x14).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
+from fieldgate.image import Channel, Kind
+from fieldgate.layout import of_kind, pack_bits
+
+from . import cip
+from .assembly import Assembly
+from .cip import CipError
+from .objects import Attribute, CipObject, u8, u32
+
+if TYPE_CHECKING:
+    from .engine import DeviceNetSlave
+
+KINDS = (Kind.DO, Kind.AO, Kind.DI, Kind.AI)
+LENGTH_ATTR, COUNT_ATTR, DATA_ATTR = 0x0C, 0x10, 0x14
+
+ErrorCounter = Callable[[str, int], int]
+
+
+class ModuleView:
+    def __init__(self, back: str, address: int, channels: Sequence[Channel]):
+        self.back, self.address = back, address
+        self.parts = {kind: Assembly(0, kind, pack_bits(members) if kind.is_digital else members)
+                      for kind in KINDS if (members := of_kind(channels, kind))}
+
+
+def module_views(channels: Sequence[Channel]) -> list[ModuleView]:
+    order: dict[tuple[str, int], list[Channel]] = {}
+    for channel in channels:
+        order.setdefault((channel.source.back, channel.source.module), []).append(channel)
+    return [ModuleView(back, address, members) for (back, address), members in order.items()]
+
+
+class ApplicationObject(CipObject):
+    class_id, revision = 0x64, 2
+
+    def __init__(self, slave: DeviceNetSlave, modules: list[ModuleView], error_counter: ErrorCounter):
+        super().__init__(slave)
+        self.modules = modules
+        self.error_counter = error_counter
+
+    def instances(self) -> list[int]:
+        return list(range(1, len(self.modules) + 1))
+
+    def instance_attributes(self, instance: int) -> dict[int, Attribute]:
+        module = self.modules[instance - 1]
+        table = {
+            0x02: Attribute(lambda: u8(module.address)),
+            0x07: Attribute(lambda: u32(self.error_counter(module.back, module.address))),
+        }
+        for offset, kind in enumerate(KINDS):
+            part = module.parts.get(kind)
+            size = part.size if part else 0
+            count = len(part.channels) if part else 0
+            table[LENGTH_ATTR + offset] = Attribute(lambda size=size: u8(size))
+            table[COUNT_ATTR + offset] = Attribute(lambda count=count: u8(count))
+            if part is not None:
+                table[DATA_ATTR + offset] = Attribute(part.data, self._writer(part) if kind.is_output else None)
+        return table
+
+    def _writer(self, part: Assembly):
+        def write(data: bytes) -> bytes:
+            if len(data) != part.size:
+                raise CipError(cip.NOT_ENOUGH_DATA if len(data) < part.size else cip.TOO_MUCH_DATA)
+            self.slave.write_assembly(part, data)
+            return b""
+        return write
+
