@@ -7,9 +7,13 @@ plugin simulator serves the other end, so the back runs its real serial code.
 
 from __future__ import annotations
 
+import logging
+
 from .plugin import PluginStartError, Registry, Simulator
 from .serial_link import PtyPair
 from .topology import Topology
+
+log = logging.getLogger("fieldgate.simulation")
 
 
 class SimulationBench:
@@ -30,6 +34,10 @@ class SimulationBench:
             pair = PtyPair()
             self._pairs.append(pair)
             back.port = pair.a
+            if getattr(back, "parity", "N") != "N":
+                # a pseudo-terminal carries bytes, not bits, and Linux refuses even parity on one
+                log.info("back %s: simulated line runs without parity (configured %s)", back.name, back.parity)
+                back.parity = "N"
             simulator = factory(back, pair.b, self.animate)
             await simulator.start()
             self.simulators[back.name] = simulator

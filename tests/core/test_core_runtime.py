@@ -151,3 +151,21 @@ def test_status_line_groups_modules_and_flags_bad_quality():
     image.update_input("b/m2/ai0", -5)
     image.set_quality(["b/m2/ai0"], Quality.COMM_FAULT)
     assert format_image(image) == "b/m1 di=101 | b/m2 ai=[-5]!comm-fault"
+
+
+async def test_simulated_lines_drop_parity_a_pty_cannot_carry(registry):
+    """examples/devicenet-modbus.yaml uses parity E; under --simulate it must still run."""
+    from fieldgate.simulation import SimulationBench
+    from fieldgate.topology import load_topology
+
+    topo = load_topology({
+        "gateway": {"name": "sim"},
+        "fronts": [{"name": "plc", "type": "memory"}],
+        "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "parity": "E", "modules": [{"address": 1, "model": "M-7055D"}]}],
+    }, registry)
+    bench = SimulationBench(topo, registry)
+    await bench.start()
+    try:
+        assert topo.backs[0].parity == "N" and topo.backs[0].port.startswith("/dev/pts/")
+    finally:
+        await bench.stop()
