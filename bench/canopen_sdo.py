@@ -185,7 +185,7 @@ class WakeupOnly:
         self.thread = threading.Thread(target=self._serve_thread if self.loop is None else self.loop.run_forever, daemon=True)
         self.thread.start()
         if self.loop is not None:
-            from fieldgate.plugins.canopen.busrx import start_receiver
+            from fieldgate.can.busrx import start_receiver
 
             ready = threading.Event()
 

@@ -1,35 +1,12 @@
-"""CAN frames as the sans-I/O CANopen engine sees them, and the NMT states.
-
-The engine never touches python-can: the adapter converts ``can.Message`` to
-:class:`Frame` and back (:mod:`fieldgate.plugins.canopen.adapter`).
-"""
+"""The NMT states, and the CAN frame type the CANopen engine uses (:mod:`fieldgate.can.frame`)."""
 
 from __future__ import annotations
 
 from enum import IntEnum
-from typing import NamedTuple
 
+from fieldgate.can.frame import Frame
 
-class Frame(NamedTuple):
-    """One classic CAN frame. ``dlc`` is only meaningful for RTR frames (no data).
-
-    Immutable and compared by value; a ``NamedTuple`` because two are built per SDO
-    request and it constructs in half the time of a frozen dataclass.
-    """
-
-    can_id: int
-    data: bytes = b""
-    rtr: bool = False
-    dlc: int | None = None
-
-    @property
-    def length(self) -> int:
-        return self.dlc if (self.rtr and self.dlc is not None) else len(self.data)
-
-    def __str__(self) -> str:
-        if self.rtr:
-            return f"{self.can_id:03X} RTR [{self.length}]"
-        return f"{self.can_id:03X} [{len(self.data)}] {self.data.hex(' ').upper()}".rstrip()
+__all__ = ["Frame", "NmtState", "UNCONFIGURED_NODE_ID"]
 
 
 class NmtState(IntEnum):

@@ -24,7 +24,7 @@ from fieldgate.plugin import Front, GatewayContext, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
-from .adapter import CanAdapter, open_bus
+from fieldgate.can.adapter import CanAdapter, open_bus
 from .cobid import restricted
 from .eds import register_command as register_eds_command
 from .front401 import IoFrontOptions

@@ -20,7 +20,7 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from fieldgate.plugins.canopen.frame import Frame
+from fieldgate.can.frame import Frame
 
 from . import cip, ids
 from .allocation import BIT_ACK_SUPPRESS, BIT_COS, CONNECTION_BITS, UNALLOCATED, Allocation

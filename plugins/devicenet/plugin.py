@@ -1,7 +1,7 @@
 """The ``devicenet`` front: a DeviceNet Group 2 Only slave on any python-can bus.
 
 The sans-I/O :class:`~.engine.DeviceNetSlave` runs on the event loop through the CAN
-adapter shared with the canopen front (``fieldgate.plugins.canopen.adapter``: receive
+adapter shared with the canopen front (``fieldgate.can.adapter``: receive
 path, timers, bus-off, bit-rate switching). Input changes reach change-of-state
 connections through a process-image subscription; I/O connection timeouts and releases
 go to ``context.masters.lost`` with the outputs this front serves, a new allocation to
@@ -20,7 +20,7 @@ from pydantic import Field
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.image import Change
 from fieldgate.plugin import Front, GatewayContext, hookimpl
-from fieldgate.plugins.canopen.adapter import CanAdapter, open_bus
+from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 

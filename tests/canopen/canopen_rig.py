@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from canopen.objectdictionary import datatypes as dt
 
-from fieldgate.plugins.canopen.frame import Frame
+from fieldgate.can.frame import Frame
 from fieldgate.plugins.canopen.slave import Identity, NodeSettings, build_node
 
 

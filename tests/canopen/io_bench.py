@@ -9,7 +9,7 @@ from fieldgate.health import HealthRegistry, ModuleHealth
 from fieldgate.image import ChannelSpec, DataType, ErrorMode, Kind, ProcessImage, Source, channel_id
 from fieldgate.layout import default_order
 from fieldgate.masters import MasterMonitor
-from fieldgate.plugins.canopen.frame import Frame
+from fieldgate.can.frame import Frame
 from fieldgate.plugins.canopen.iodevice import IoDevice, IoSettings
 from fieldgate.plugins.canopen.slave import Identity, NodeSettings, build_node
 

@@ -11,7 +11,7 @@ import uuid
 import can
 import pytest
 
-from fieldgate.plugins.canopen.busrx import start_receiver
+from fieldgate.can.busrx import start_receiver
 
 
 def channel() -> str:

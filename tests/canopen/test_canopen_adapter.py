@@ -11,8 +11,8 @@ import pytest
 from canopen_rig import seed_node
 
 from fieldgate.plugin import PluginStartError
-from fieldgate.plugins.canopen import adapter as adapter_mod
-from fieldgate.plugins.canopen.adapter import CanAdapter, open_bus
+from fieldgate.can import adapter as adapter_mod
+from fieldgate.can.adapter import CanAdapter, open_bus
 
 
 async def _recv(bus: can.BusABC, can_id: int, timeout: float = 2.0) -> can.Message:

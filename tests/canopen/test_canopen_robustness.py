@@ -5,7 +5,7 @@ import random
 import canopen
 from canopen_rig import Rig, seed_node
 
-from fieldgate.plugins.canopen.frame import Frame
+from fieldgate.can.frame import Frame
 
 IDS = [0x000, 0x080, 0x081, 0x100, 0x201, 0x601, 0x602, 0x701, 0x77F, 0x7E5, 0x7FF]
 

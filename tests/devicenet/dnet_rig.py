@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fieldgate.image import ChannelSpec, ErrorMode, Kind, ProcessImage, Source, channel_id
 from fieldgate.layout import default_order
-from fieldgate.plugins.canopen.frame import Frame
+from fieldgate.can.frame import Frame
 from fieldgate.plugins.devicenet.assembly import Assemblies
 from fieldgate.plugins.devicenet.engine import DeviceNetSlave, Settings
 

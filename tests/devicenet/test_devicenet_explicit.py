@@ -160,7 +160,7 @@ def test_garbage_never_raises(rig):
     for _ in range(3000):
         can_id = rnd.choice([0x44C, 0x44D, 0x44E, 0x44F, 0x44A, 0x450, rnd.randrange(0x800)])
         data = bytes(rnd.randrange(256) for _ in range(rnd.randrange(9)))
-        rig.slave.receive(__import__("fieldgate.plugins.canopen.frame", fromlist=["Frame"]).Frame(can_id, data), rig.now)
+        rig.slave.receive(__import__("fieldgate.can.frame", fromlist=["Frame"]).Frame(can_id, data), rig.now)
     assert rig.slave.counters["rx_internal_errors"] == 0
 
 

@@ -108,7 +108,7 @@ async def test_socketcan_is_read_by_the_event_loop_without_a_thread():
     import asyncio
     import threading
 
-    from fieldgate.plugins.canopen.busrx import start_receiver
+    from fieldgate.can.busrx import start_receiver
 
     got, done = [], asyncio.Event()
 

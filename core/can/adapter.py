@@ -1,4 +1,4 @@
-"""Binds a sans-I/O :class:`~.node.Node` to a python-can bus and the asyncio clock.
+"""Binds a sans-I/O CAN engine (the CANopen ``Node``, the DeviceNet engine) to a python-can bus and the asyncio clock.
 
 * Any python-can interface works: ``interface``, ``channel``, ``bitrate`` and extra
   options go to ``can.Bus`` unchanged (socketcan, virtual, pcan, kvaser, slcan, ...).
@@ -24,7 +24,7 @@ import asyncio
 import logging
 from collections import Counter
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 import can
 
@@ -32,9 +32,21 @@ from fieldgate.plugin import PluginStartError
 
 from .busrx import start_receiver
 from .frame import Frame
-from .node import Node
 
-log = logging.getLogger("fieldgate.canopen.adapter")
+log = logging.getLogger("fieldgate.can.adapter")
+
+
+class CanEngine(Protocol):
+    """What the adapter needs of a sans-I/O engine: frames and times in, frames out."""
+
+    deadline_after_call: float | None
+
+    def boot(self, now: float) -> list[Frame]: ...
+    def receive(self, frame: Frame, now: float) -> list[Frame]: ...
+    def tick(self, now: float) -> list[Frame]: ...
+    def flush(self) -> list[Frame]: ...
+    def next_deadline(self) -> float | None: ...
+    def on_bit_timing(self, callback: Callable[..., Any]) -> None: ...
 
 CAN_ERR_BUSOFF = 0x40
 CAN_ERR_RESTARTED = 0x100
@@ -74,7 +86,7 @@ def to_frame(msg: can.Message) -> Frame:
 
 
 class CanAdapter:
-    def __init__(self, node: Node, bus: can.BusABC, loop: asyncio.AbstractEventLoop, *,
+    def __init__(self, node: CanEngine, bus: can.BusABC, loop: asyncio.AbstractEventLoop, *,
                  on_bus_state: Callable[[bool, float], None] | None = None,
                  transmit_allowed: Callable[[float], bool] | None = None,
                  reopen: Callable[[int], can.BusABC] | None = None):

@@ -24,7 +24,7 @@ from collections.abc import Callable
 import can
 from can.interfaces import virtual
 
-log = logging.getLogger("fieldgate.canopen.busrx")
+log = logging.getLogger("fieldgate.can.busrx")
 
 OnMessage = Callable[[can.Message], None]
 
