@@ -8,6 +8,7 @@ See docs/conformance.md. Programmatic use::
 """
 
 from .framework import CASES, PROFILES, Case, CaseResult, Options, Timing, Verdict, select
+from .dnet import DnetSuiteConfig, run_devicenet_suite
 from .runner import DeviceSilent, SuiteConfig, failed, run_suite
 
-__all__ = ["CASES", "DeviceSilent", "PROFILES", "Case", "CaseResult", "Options", "SuiteConfig", "Timing", "Verdict", "failed", "run_suite", "select"]
+__all__ = ["CASES", "DeviceSilent", "DnetSuiteConfig", "run_devicenet_suite", "PROFILES", "Case", "CaseResult", "Options", "SuiteConfig", "Timing", "Verdict", "failed", "run_suite", "select"]

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from ..plugin import hookimpl
-from .framework import OPT_IN, PROFILES, Options, Timing, Verdict
+from .framework import DEVICENET_PROFILES, OPT_IN, PROFILES, Options, Timing, Verdict
 from .report import line, details, summary, write_junit
 from .runner import DeviceSilent, SuiteConfig, run_suite
 
@@ -17,10 +17,13 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interface", default="socketcan", help="python-can interface (socketcan, virtual, pcan, slcan, ...); default socketcan")
     p.add_argument("--channel", default="vcan0", help="python-can channel; default vcan0")
     p.add_argument("--bitrate", type=int, default=None, help="bit rate for adapters that set it")
+    p.add_argument("--protocol", choices=("canopen", "devicenet"), default="canopen", help="the device's protocol; default canopen")
+    p.add_argument("--mac-id", type=int, help="devicenet: MAC ID of the device under test (0..63); no EDS needed")
+    p.add_argument("--master-mac", type=int, default=0, help="devicenet: the tester's own MAC ID (must be free on the bus); default 0")
     p.add_argument("--node-id", type=int, help="node-ID of the device under test (1..127); required unless --list")
     p.add_argument("--eds", metavar="FILE", help="the device's EDS (or DCF); required unless --list")
-    p.add_argument("--profile", action="append", choices=PROFILES + ("all",), default=[],
-                   help=f"run only these profiles (repeatable): {', '.join(PROFILES)}; default: all but {', '.join(OPT_IN)}; 'all': every profile")
+    p.add_argument("--profile", action="append", choices=PROFILES + DEVICENET_PROFILES + ("all",), default=[],
+                   help=f"run only these profiles (repeatable): {', '.join(PROFILES)} (canopen), {', '.join(DEVICENET_PROFILES)} (devicenet); default: all of the protocol's but {', '.join(OPT_IN)}; 'all': every profile of the protocol")
     p.add_argument("-k", dest="patterns", action="append", default=[], metavar="PATTERN", help="run only cases whose id contains PATTERN (or matches a glob); repeatable")
     p.add_argument("--list", action="store_true", help="list the selected cases and exit")
     p.add_argument("--junit", metavar="FILE", help="also write a JUnit XML report")
@@ -55,9 +58,11 @@ def run(args: argparse.Namespace) -> int:
     from .framework import select
 
     if args.list:
-        for c in select(args.profile, args.patterns):
+        for c in select(args.profile, args.patterns, protocol=args.protocol):
             print(f"{c.id:<34} {c.title}")
         return 0
+    if args.protocol == "devicenet":
+        return run_devicenet(args)
     if args.node_id is None or args.eds is None:
         print("conformance: --node-id and --eds are required", file=sys.stderr)
         return 2
@@ -67,12 +72,18 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     print(f"fieldgate conformance: node {args.node_id} on {args.interface}:{args.channel}, EDS {args.eds}", flush=True)
 
+    properties = {"node-id": str(args.node_id), "bus": f"{args.interface}:{args.channel}", "eds": args.eds}
+    return _run_and_report(args, properties, lambda progress, on_start: run_suite(
+        config, interface=args.interface, channel=args.channel, bitrate=args.bitrate, progress=progress, on_start=on_start))
+
+
+def _run_and_report(args: argparse.Namespace, properties: dict[str, str], start) -> int:
+    """Run ``start(progress, on_start)``, print the report, write JUnit; the exit code."""
+
     def progress(result):
         print(line(result), flush=True)
         if result.verdict is Verdict.FAIL:
             print("\n".join(details(result)), flush=True)
-
-    properties = {"node-id": str(args.node_id), "bus": f"{args.interface}:{args.channel}", "eds": args.eds}
 
     def on_start(ident: dict[str, str]) -> None:
         properties.update(ident)
@@ -80,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
             print("device: " + ", ".join(f"{k} {v}" for k, v in ident.items()), flush=True)
 
     try:
-        results = run_suite(config, interface=args.interface, channel=args.channel, bitrate=args.bitrate, progress=progress, on_start=on_start)
+        results = start(progress, on_start)
     except (OSError, ValueError, DeviceSilent) as exc:
         print(f"conformance: cannot start: {exc}", file=sys.stderr)
         return 2
@@ -89,6 +100,20 @@ def run(args: argparse.Namespace) -> int:
     if args.junit:
         write_junit(results, args.junit, properties)
     return 1 if any(r.verdict is Verdict.FAIL for r in results) else 0
+
+
+def run_devicenet(args: argparse.Namespace) -> int:
+    from .dnet import DnetSuiteConfig, run_devicenet_suite
+
+    if args.mac_id is None or not 0 <= args.mac_id <= 63 or not 0 <= args.master_mac <= 63 or args.mac_id == args.master_mac:
+        print("conformance: --protocol devicenet needs --mac-id 0..63 (and a different --master-mac 0..63)", file=sys.stderr)
+        return 2
+    base = config_from_args(args)
+    config = DnetSuiteConfig(args.mac_id, args.master_mac, args.profile, args.patterns, base.timing, base.options)
+    print(f"fieldgate conformance: DeviceNet MAC ID {args.mac_id} on {args.interface}:{args.channel} (tester MAC ID {args.master_mac})", flush=True)
+    properties = {"mac-id": str(args.mac_id), "bus": f"{args.interface}:{args.channel}"}
+    return _run_and_report(args, properties, lambda progress, on_start: run_devicenet_suite(
+        config, interface=args.interface, channel=args.channel, bitrate=args.bitrate, progress=progress, on_start=on_start))
 
 
 def main(argv: list[str] | None = None) -> int:

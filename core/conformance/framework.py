@@ -22,6 +22,9 @@ PROFILES = ("od", "sdo", "nmt", "errctl", "emcy", "sync-pdo", "lss", "store", "c
 # run only when asked for by name (or "all"): the seed vectors concern devices that claim
 # I-7232D / I-7231D compatibility
 OPT_IN = ("seed",)
+# DeviceNet devices get their own profiles, selected with protocol="devicenet" (no EDS needed)
+DEVICENET_PROFILES = ("devicenet",)
+PROTOCOL_PROFILES = {"canopen": PROFILES, "devicenet": DEVICENET_PROFILES}
 
 
 class Fail(Exception):
@@ -55,7 +58,7 @@ CASES: dict[str, Case] = {}
 
 def case(profile: str, name: str, title: str):
     """Register ``fn`` as case ``<profile>.<name>``; the docstring explains the check."""
-    if profile not in PROFILES:
+    if profile not in PROFILES + DEVICENET_PROFILES:
         raise ValueError(f"unknown profile {profile!r}")
 
     def register(fn):
@@ -127,17 +130,18 @@ class Context:
         return errors
 
 
-def select(profiles: list[str] | None = None, patterns: list[str] | None = None) -> list[Case]:
+def select(profiles: list[str] | None = None, patterns: list[str] | None = None, protocol: str = "canopen") -> list[Case]:
     """Cases of the given profiles whose id matches any -k pattern. No profiles: every profile
-    but the opt-in ones (``seed``); ``"all"``: every profile."""
+    of the protocol but the opt-in ones (``seed``); ``"all"``: every profile of the protocol."""
     from . import cases  # noqa: F401  (registers every case)
 
+    available = PROTOCOL_PROFILES[protocol]
     if not profiles:
-        wanted = set(PROFILES) - set(OPT_IN)
+        wanted = set(available) - set(OPT_IN)
     elif "all" in profiles:
-        wanted = set(PROFILES)
+        wanted = set(available)
     else:
-        wanted = set(profiles)
+        wanted = set(profiles) & set(available)
     chosen = []
     for c in CASES.values():
         if c.profile not in wanted:
@@ -145,7 +149,8 @@ def select(profiles: list[str] | None = None, patterns: list[str] | None = None)
         if patterns and not any(_matches(c.id, p) for p in patterns):
             continue
         chosen.append(c)
-    return sorted(chosen, key=lambda c: PROFILES.index(c.profile))
+    order = PROFILES + DEVICENET_PROFILES
+    return sorted(chosen, key=lambda c: order.index(c.profile))
 
 
 def _matches(case_id: str, pattern: str) -> bool:
