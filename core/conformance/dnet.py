@@ -90,8 +90,20 @@ class DnetDevice:
         frame = self.unconnected(ALLOCATE, bytes([choice, mac]), master=mac)
         return self._unconnected_reply(frame, ALLOCATE, f"Allocate 0x{choice:02X}")
 
-    def release(self, choice: int) -> Frame:
-        return self._unconnected_reply(self.unconnected(RELEASE, bytes([choice])), RELEASE, f"Release 0x{choice:02X}")
+    def release(self, choice: int, master: int | None = None) -> Frame:
+        return self._unconnected_reply(self.unconnected(RELEASE, bytes([choice]), master=master), RELEASE, f"Release 0x{choice:02X}")
+
+    def expect_unconnected_error(self, service: int, body: bytes, codes: tuple[int, int], what: str) -> None:
+        """An unconnected request that must be refused with ``(general, additional)``."""
+        frame = self.unconnected(service, body)
+        want = f"[hdr] 94 {codes[0]:02X} {codes[1]:02X} ({STATUS_NAMES.get(codes[0], 'error')})"
+        if frame is None:
+            raise Fail(f"{what}: no response", expected=want, seen="nothing")
+        data = frame.data
+        if len(data) < 2 or data[1] != ERROR | 0x80:
+            raise Fail(f"{what}: accepted", expected=want, seen=str(frame))
+        if tuple(data[2:4]) != codes:
+            raise Fail(f"{what}: wrong error codes", expected=want, seen=str(frame))
 
     def _unconnected_reply(self, frame: Frame | None, service: int, what: str) -> Frame:
         if frame is None:

@@ -83,6 +83,19 @@ def test_a_release_that_keeps_the_connections_fails(device, monkeypatch):
     assert failed(run(device, ["release"])) == ["devicenet.release"]
 
 
+def test_wrong_allocation_errors_fail(device, monkeypatch):
+    original = Allocation.allocate
+
+    def lax(self, choice, master, now):  # choice 0 refused with the wrong code
+        if choice == 0:
+            raise CipError(cip.RESOURCE_UNAVAILABLE, cip.INVALID_ALLOCATION_CHOICE)
+        return original(self, choice, master, now)
+
+    monkeypatch.setattr(Allocation, "allocate", lax)
+    results = run(device, ["allocate_"])
+    assert failed(results) == ["devicenet.allocate_validation"] and len(results) == 3
+
+
 def test_no_inactivity_timeout_fails(device, monkeypatch):
     monkeypatch.setattr(Connection, "expired", lambda self, now: False)
     results = run(device, ["epr_", "inactivity"])

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import time
 
-from ..dnet import (CHOICE_EXPLICIT, CHOICE_POLL, G2_DUP_MAC, GET, RESET, SET, CipErrorSeen, DnetDevice,
+from ..dnet import (ALLOCATE, CHOICE_EXPLICIT, CHOICE_POLL, G2_DUP_MAC, GET, RESET, SET, CipErrorSeen, DnetDevice,
                     status_text)
 from ..framework import Context, Fail, Skip, case
 
@@ -124,6 +124,15 @@ def allocate_conflict(ctx: Context) -> None:
                 raise Fail(f"{what}: wrong general status", expected=" or ".join(status_text(c) for c in codes), seen=str(err.frame)) from None
             continue
         raise Fail(f"{what}: accepted", expected="an error response [hdr] CB→94", seen=str(frame))
+
+
+@case(P, "allocate_validation", "invalid Allocate choices are refused 09/02, other services on the unconnected port 02/03")
+def allocate_validation(ctx: Context) -> None:
+    d = dev(ctx)
+    for choice, what in ((0x00, "Allocate with choice 0"), (0x41, "ack suppression without COS or cyclic"),
+                         (CHOICE_POLL, "poll without the explicit connection")):
+        d.expect_unconnected_error(ALLOCATE, bytes([choice, d.master_mac]), (0x09, 0x02), what)
+    d.expect_unconnected_error(GET, bytes([1]), (0x02, 0x03), "Get_Attribute_Single on the Group 2 Only unconnected port")
 
 
 @case(P, "identity", "Identity (class 1 instance 1): vendor, device type, product code, revision, status, serial, product name")
@@ -265,5 +274,11 @@ def release(ctx: Context) -> None:
     except CipErrorSeen as err:
         if err.general != 0x0B:
             raise Fail("second Release: wrong general status", expected=status_text(0x0B), seen=str(err.frame)) from None
-        return
-    raise Fail("a Release of a connection not allocated is accepted", expected="error 0x0B", seen=str(frame))
+    else:
+        raise Fail("a Release of a connection not allocated is accepted", expected="error 0x0B", seen=str(frame))
+    other = (d.master_mac + 1) & 0x3F  # with nothing allocated the set has no owner: another master may allocate
+    ctx.cleanup(lambda: d.unconnected(0x4C, bytes([CHOICE_EXPLICIT]), master=other))
+    try:
+        d.allocate(CHOICE_EXPLICIT, master=other)
+    except CipErrorSeen as err:
+        raise Fail("after releasing everything the set still has an owner: Allocate by another master refused", expected=f"{other:02X} CB 00", seen=str(err.frame)) from None
