@@ -13,7 +13,7 @@ import can
 import pytest
 from conformance_gateway import GatewayThread
 
-from fieldgate.conformance import DnetSuiteConfig, Timing, Verdict, failed, run_devicenet_suite, select
+from fieldgate.conformance import DnetSuiteConfig, Options, Timing, Verdict, failed, run_devicenet_suite, select
 from fieldgate.conformance.cli import main as conformance_main
 from fieldgate.plugins.devicenet import cip
 from fieldgate.plugins.devicenet.allocation import Allocation
@@ -45,10 +45,10 @@ def device(tmp_path):
         yield channel
 
 
-def run(channel: str, patterns: list[str] | None = None):
+def run(channel: str, patterns: list[str] | None = None, loopback: bool = True):
     bus = can.Bus(interface="virtual", channel=channel)
     try:
-        return run_devicenet_suite(DnetSuiteConfig(MAC_ID, patterns=patterns or [], timing=TIMING), bus=bus)
+        return run_devicenet_suite(DnetSuiteConfig(MAC_ID, patterns=patterns or [], timing=TIMING, options=Options(loopback=loopback)), bus=bus)
     finally:
         bus.shutdown()
 
@@ -81,6 +81,15 @@ def test_wrong_cip_error_fails_only_its_case(device, monkeypatch):
 def test_a_release_that_keeps_the_connections_fails(device, monkeypatch):
     monkeypatch.setattr(Allocation, "release", lambda self, choice, now: b"")  # answers CC, closes nothing
     assert failed(run(device, ["release"])) == ["devicenet.release"]
+
+
+def test_loopback_case_skips_without_the_bench_and_fails_on_a_broken_loop(device, monkeypatch):
+    skipped = run(device, ["loopback"], loopback=False)
+    assert [(r.verdict, r.reason) for r in skipped] == [(Verdict.SKIP, "needs --loopback (a bench whose outputs are wired to its inputs)")]
+    from fieldgate.plugins.devicenet.assembly import Assemblies
+
+    monkeypatch.setattr(Assemblies, "consume", lambda self, data: None)  # polled outputs are dropped
+    assert failed(run(device, ["loopback"])) == ["devicenet.loopback_poll"]
 
 
 def test_wrong_allocation_errors_fail(device, monkeypatch):

@@ -214,6 +214,30 @@ def poll_io(ctx: Context) -> None:
         raise Fail("poll response has the wrong size", expected=f"{produced} bytes (connection attribute 7)", seen=f"{len(data)} bytes")
 
 
+@case(P, "loopback_poll", "--loopback: outputs sent by poll come back in the poll response (same layout both ways)")
+def loopback_poll(ctx: Context) -> None:
+    if not ctx.options.loopback:
+        raise Skip("needs --loopback (a bench whose outputs are wired to its inputs)")
+    d = dev(ctx)
+    allocate_poll(d)
+    produced, consumed = io_sizes(d, POLL_INSTANCE)
+    if produced != consumed or not consumed:
+        raise Skip(f"produced ({produced} bytes) and consumed ({consumed} bytes) sizes differ: the layout cannot be compared")
+    set_epr(d, POLL_INSTANCE, 1000)
+    pattern = bytes((0xA5, 0x5A, 0x3C)[i % 3] for i in range(consumed))
+    try:
+        seen = b""
+        deadline = time.monotonic() + 4 * ctx.timing.response
+        while seen != pattern and time.monotonic() < deadline:  # the loop may take a few polls
+            first = d.poll(pattern)
+            seen = d.poll_fragments(first, produced) if first is not None else b""
+            time.sleep(0.02)
+        if seen != pattern:
+            raise Fail("the outputs did not come back through the loopback", expected=pattern.hex(" ").upper(), seen=seen.hex(" ").upper() or "no poll response")
+    finally:
+        d.poll(bytes(consumed))  # outputs back to zero
+
+
 @case(P, "epr_keeps_alive", "polls faster than the expected packet rate keep the poll connection Established")
 def epr_keeps_alive(ctx: Context) -> None:
     d = dev(ctx)
