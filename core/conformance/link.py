@@ -47,6 +47,7 @@ class Link:
         self._rx: queue.Queue[Frame] = queue.Queue()
         self.network = canopen.Network(bus)
         self.network.listeners.append(self._on_message)
+        self.network.NOTIFIER_CYCLE = 0.1  # closing the link waits up to one cycle for the receive thread
         self.network.connect()
         self.log: list[tuple[float, str, Frame]] = []
         self._t0 = time.time()
