@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from ..plugin import hookimpl
-from .framework import DEVICENET_PROFILES, OPT_IN, PROFILES, Options, Timing, Verdict
+from .framework import DEVICENET_PROFILES, OPT_IN, PROFILES, PROTOCOL_PROFILES, Options, Timing, Verdict
 from .report import line, details, summary, write_junit
 from .runner import DeviceSilent, SuiteConfig, run_suite
 
@@ -57,6 +57,10 @@ def config_from_args(args: argparse.Namespace) -> SuiteConfig:
 def run(args: argparse.Namespace) -> int:
     from .framework import select
 
+    foreign = [p for p in args.profile if p != "all" and p not in PROTOCOL_PROFILES[args.protocol]]
+    if foreign:
+        print(f"conformance: profile {', '.join(foreign)} is not a {args.protocol} profile (see --protocol)", file=sys.stderr)
+        return 2
     if args.list:
         for c in select(args.profile, args.patterns, protocol=args.protocol):
             print(f"{c.id:<34} {c.title}")

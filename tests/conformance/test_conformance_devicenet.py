@@ -152,3 +152,5 @@ def test_cli_devicenet_list_and_arguments():
     assert not any(c.profile == "devicenet" for c in select()) and not any(c.profile == "devicenet" for c in select(["all"]))
     assert conformance_main(["--protocol", "devicenet", "--channel", "x"]) == 2  # no --mac-id
     assert conformance_main(["--protocol", "devicenet", "--mac-id", "0", "--master-mac", "0"]) == 2
+    assert conformance_main(["--profile", "devicenet", "--list"]) == 2  # a DeviceNet profile needs --protocol devicenet
+    assert conformance_main(["--protocol", "devicenet", "--profile", "sdo", "--list"]) == 2
