@@ -38,7 +38,7 @@ from fieldgate.plugins.dcon.back import DconBack  # noqa: E402
 from fieldgate.plugins.dcon.config import DconBackConfig  # noqa: E402
 from fieldgate.plugins.dcon.link import DconLink  # noqa: E402
 from fieldgate.plugins.dcon.simulator import DconSimulator  # noqa: E402
-from fieldgate.serial_link import AsyncSerial, PtyPair  # noqa: E402
+from fieldgate.serial_link import AsyncSerial, PtyPair, char_time  # noqa: E402
 from fieldgate.topology import GatewaySection, Topology  # noqa: E402
 
 LINE = [(1, "I-7043"), (2, "I-7053"), (3, "I-7021"), (4, "I-7012"), (5, "I-7017")]
@@ -57,7 +57,7 @@ TRANSACTIONS = [
 
 
 def wire_time(command: str, reply_chars: int, baud: int) -> float:
-    return (len(command) + 1 + reply_chars) * BITS_PER_CHAR / baud
+    return (len(command) + 1 + reply_chars) * char_time(baud, BITS_PER_CHAR)
 
 
 async def per_transaction(action, n: int) -> float:

@@ -32,7 +32,7 @@ from fieldgate.plugins.modbus.back import ModbusBack  # noqa: E402
 from fieldgate.plugins.modbus.client import ModbusLink, inter_frame_gap  # noqa: E402
 from fieldgate.plugins.modbus.config import ModbusBackConfig  # noqa: E402
 from fieldgate.plugins.modbus.simulator import ModbusSimulator  # noqa: E402
-from fieldgate.serial_link import PtyPair  # noqa: E402
+from fieldgate.serial_link import PtyPair, char_time  # noqa: E402
 from fieldgate.topology import GatewaySection, Topology  # noqa: E402
 
 I7232D = [
@@ -57,7 +57,7 @@ CYCLE = TRANSACTIONS[:4]  # one poll of each module
 
 
 def wire_time(request: int, reply: int, baud: int) -> float:
-    return (request + reply) * BITS_PER_CHAR / baud + 2 * inter_frame_gap(baud)
+    return (request + reply) * char_time(baud, BITS_PER_CHAR) + 2 * inter_frame_gap(baud)
 
 
 def config(port: str = "unused", baud: int = 115200, **extra) -> ModbusBackConfig:

@@ -33,6 +33,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException
 from fieldgate.health import ErrorKind
 from fieldgate.plugin import PluginStartError
 from fieldgate.polling import CommError
+from fieldgate.serial_link import char_time
 
 from .codec import Function, diagnose
 
@@ -51,7 +52,7 @@ class ModbusExceptionError(CommError):
 
 def inter_frame_gap(baudrate: int, bits_per_char: int = 11) -> float:
     """t3.5 of the Modbus serial line spec: 3.5 characters, fixed 1.75 ms above 19200 baud."""
-    return 0.00175 if baudrate > 19200 else 3.5 * bits_per_char / baudrate
+    return 0.00175 if baudrate > 19200 else 3.5 * char_time(baudrate, bits_per_char)
 
 
 @dataclass

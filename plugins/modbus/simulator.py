@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from fieldgate.image import DataType, Kind
 from fieldgate.plugin import Simulator
-from fieldgate.serial_link import PortServer, cancel_task
+from fieldgate.serial_link import PortServer, cancel_task, char_time
 
 from . import values as regvalues
 from .codec import (
@@ -266,7 +266,7 @@ class ModbusSimulator(Simulator):
             self.modules[address] = module
             for p in points:
                 self.channels[p.channel] = (module, p)
-        gap = max(0.02, 3.5 * 11 / config.baudrate * 4)
+        gap = max(0.02, 4 * 3.5 * char_time(config.baudrate))  # four t3.5 without the fixed 1.75 ms cap
         self.responder = RtuResponder(self.modules, gap)
         self.wiring = demo_wiring(config) if animate else []
         self._source_of = {dst: src for src, dst in self.wiring}
