@@ -34,7 +34,7 @@ from collections.abc import Callable
 
 from .frame import UNCONFIGURED_NODE_ID, Frame, NmtState
 from .od import Dictionary
-from .service import Service
+from .service import QUIET, Service
 
 log = logging.getLogger("fieldgate.canopen")
 
@@ -60,6 +60,7 @@ class Node:
         self.services: list[Service] = []
         self._timed: list[Service] = []
         self.counters: Counter[str] = Counter()
+        self.frames_received = 0  # counters["rx"] in status(); a plain integer on the per-frame path
         self.emcy = None  # the EMCY producer, set when one is added (see .emcy)
         self.now = 0.0  # time of the last boot()/receive()/tick(), for calls from outside
         self._deadline_hint: float | None = None
@@ -107,7 +108,11 @@ class Node:
         self._outbox.append(frame)
 
     def flush(self) -> list[Frame]:
-        """Frames queued by calls from outside the engine (e.g. ``node.emcy.raise_error``)."""
+        """Frames queued by calls from outside the engine (e.g. ``node.emcy.raise_error``).
+
+        Such a call may also have moved a timer: the deadline hint is brought up to date.
+        """
+        self._deadline_hint = self.next_deadline()
         return self._drain()
 
     def _drain(self) -> list[Frame]:
@@ -118,19 +123,24 @@ class Node:
         """Power-on: Initialisation, load everything, boot-up, Pre-operational."""
         self.now = now
         self._reset(now, application=True)
+        self._deadline_hint = self.next_deadline()
         return self._drain()
 
     def receive(self, frame: Frame, now: float) -> list[Frame]:
         self.now = now
-        self.counters["rx"] += 1
+        self.frames_received += 1
         if frame.can_id == 0 and not frame.rtr:
             self._nmt_command(frame, now)
-        else:
-            self._dispatch(frame, now)
-        self._run_due(now)
+            self._run_due(now)
+        elif self._dispatch(frame, now) is not QUIET:
+            self._run_due(now)
+        else:  # a read: timers as they were, unless one is due already (or none is known)
+            hint = self._deadline_hint
+            if hint is None or hint <= now:
+                self._run_due(now)
         return self._drain()
 
-    def _dispatch(self, frame: Frame, now: float) -> None:
+    def _dispatch(self, frame: Frame, now: float) -> object:
         """Offer the frame to the services in add order until one takes it.
 
         The service that took a COB-ID last time is asked first. The route is forgotten
@@ -142,17 +152,23 @@ class Node:
             self._routes_generation = self.od.generation
         key = (frame.can_id, frame.rtr)
         cached = self._routes.get(key)
-        if cached is not None and self._offer(cached, frame, now):
-            return
+        if cached is not None:
+            taken = self._offer(cached, frame, now)
+            if taken:
+                return taken
         for service in self.services:
-            if service is not cached and self.state in service.active_states and self._offer(service, frame, now):
-                self._routes[key] = service
-                return
+            if service is not cached and self.state in service.active_states:
+                taken = self._offer(service, frame, now)
+                if taken:
+                    self._routes[key] = service
+                    return taken
         self.counters["ignored"] += 1
+        return None
 
-    def _offer(self, service: Service, frame: Frame, now: float) -> bool:
+    def _offer(self, service: Service, frame: Frame, now: float) -> object:
+        """``service.on_frame``'s answer: false (not taken), True or QUIET."""
         try:
-            return bool(service.on_frame(frame, now))
+            return service.on_frame(frame, now)
         except Exception:
             self._internal_error(service, "on_frame", frame)
             return True  # consumed (by a bug): not offered to the others
@@ -297,6 +313,6 @@ class Node:
         return {
             "node_id": self.node_id if self.configured else None,
             "nmt_state": self.state.label,
-            "counters": dict(self.counters),
+            "counters": {"rx": self.frames_received, **self.counters},
             "services": {s.name: s.status() for s in self.services},
         }

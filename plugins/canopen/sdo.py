@@ -28,6 +28,7 @@ from __future__ import annotations
 import binascii
 import logging
 import struct
+from collections import Counter
 from enum import Enum, auto
 
 from canopen.objectdictionary import datatypes as dt
@@ -37,7 +38,7 @@ from . import abort
 from .abort import SdoAbort
 from .frame import Frame
 from .od import size_of
-from .service import Service
+from .service import QUIET, Service
 
 EXPEDITED_UPLOAD = struct.Struct("<BHB4s")  # command, index, sub-index, data zero-padded to 4 bytes
 
@@ -73,6 +74,7 @@ class SdoServer(Service):
         self.timeout_s = timeout_s
         self.block_size = block_size
         self.zero_extend = zero_extend  # accept short expedited writes to unsigned objects (NA-9161 masters)
+        self.expedited_uploads = 0
         self._idle()
 
     def attach(self, node) -> None:
@@ -130,6 +132,9 @@ class SdoServer(Service):
         if len(frame.data) != 8:
             self.counters["bad_dlc_dropped"] += 1
             return True
+        if frame.data[0] == 0x40 and self.phase is Phase.IDLE and self._expedited_upload(frame.data):
+            self.expedited_uploads += 1  # a request and a transfer; status() adds them in
+            return QUIET
         self.counters["requests"] += 1
         self.last_deadline = now + self.timeout_s
         try:
@@ -244,6 +249,24 @@ class SdoServer(Service):
         self.toggle ^= 1
 
     # -- expedited / segmented upload ----------------------------------------------------
+    def _expedited_upload(self, d: bytes) -> bool:
+        """An upload request outside a transfer, for a value of 1 to 4 bytes: answered here.
+
+        The most frequent request there is (a master reading a value). It leaves the
+        transfer state and every timer as they were; anything else (a longer value, an
+        abort) returns False and takes the general path, which reads again and answers.
+        """
+        index, subindex = d[1] | (d[2] << 8), d[3]
+        try:
+            value = self.node.od.read(index, subindex)
+        except SdoAbort:
+            return False
+        size = len(value)
+        if not 0 < size <= 4:
+            return False
+        self.node.send(Frame(self.tx_cob, EXPEDITED_UPLOAD.pack(0x43 | ((4 - size) << 2), index, subindex, value)))
+        return True
+
     def _initiate_upload(self, d: bytes) -> None:
         self._begin(d, Phase.IDLE)
         self._answer_upload(self.node.od.read(self.index, self.subindex))
@@ -373,4 +396,6 @@ class SdoServer(Service):
         self._done()
 
     def status(self) -> dict:
-        return {**self.counters, "phase": self.phase.name.lower()}
+        counts = Counter(self.counters)
+        counts.update(requests=self.expedited_uploads, transfers=self.expedited_uploads)
+        return {**counts, "phase": self.phase.name.lower()}

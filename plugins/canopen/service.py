@@ -12,10 +12,10 @@ How a service plugs in (PDO engine, CiA 401 objects, LSS, ... are written this w
             node.od.on_write(0x1400, ...)        # react to accepted writes (resets reload without calling it)
 
         def on_frame(self, frame, now) -> bool:  # every received frame, in add order,
-            if frame.can_id != self.cob_id:      # until one service returns True
+            if frame.can_id != self.cob_id:      # until one service returns a true value
                 return False
             self.node.send(Frame(...))           # answers go to the node's outbox
-            return True
+            return True                          # (or QUIET: see below)
 
         def on_nmt_state(self, old, new, now): ...   # NMT state changed
         def on_sync(self, counter, now): ...         # a SYNC was consumed (counter or None)
@@ -37,6 +37,10 @@ Rules:
   whose class overrides ``deadline``. The node also remembers which service took a
   COB-ID and offers it that frame first; that memory is dropped on every dictionary
   change, NMT state change and added service, so keep COB-IDs in the dictionary.
+* ``QUIET``: ``on_frame`` may return it instead of True for a frame that moved no
+  timer, changed no dictionary value and no NMT state (the SDO server's expedited
+  upload: a read). The node then skips its timer pass after that frame unless a timer
+  is already due. Returning True is always correct; QUIET is only an optimisation.
 * ``active_states``: the NMT states in which the node passes frames to ``on_frame``.
   The default is pre-operational and operational (SDO, SYNC, EMCY per CiA 301); a PDO
   service sets ``{NmtState.OPERATIONAL}``, error control and LSS set all states.
@@ -53,6 +57,21 @@ if TYPE_CHECKING:
     from .node import Node
 
 ALL_STATES = frozenset(NmtState)
+
+
+class _Quiet:
+    """``on_frame``'s "taken, and nothing a timer depends on changed" (true, like True)."""
+
+    __slots__ = ()
+
+    def __bool__(self) -> bool:
+        return True
+
+    def __repr__(self) -> str:
+        return "QUIET"
+
+
+QUIET = _Quiet()
 COMMUNICATING = frozenset({NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL})
 
 

@@ -13,6 +13,7 @@ from canopen_rig import seed_node
 from fieldgate.plugin import PluginStartError
 from fieldgate.can import adapter as adapter_mod
 from fieldgate.can.adapter import CanAdapter, open_bus
+from fieldgate.can.frame import Frame
 
 
 async def _recv(bus: can.BusABC, can_id: int, timeout: float = 2.0) -> can.Message:
@@ -133,3 +134,18 @@ async def test_pump_on_every_loop_turn_does_not_postpone_the_timers(setup):
     await collector
     assert pumps > 100
     assert len(beats) >= 3 and set(beats) == {b"\x7f"}  # 20 ms heartbeat over 200 ms, under load
+
+
+@pytest.mark.parametrize("frame", [Frame(0x585, bytes(range(8))), Frame(0x185, b"\x01"), Frame(0x705, b""), Frame(0x705, b"", rtr=True, dlc=1)])
+def test_frames_become_the_same_messages_as_with_keyword_arguments(frame):
+    """to_message builds can.Message positionally for speed: it must match the keyword form field by field."""
+    if frame.rtr:
+        expected = can.Message(arbitration_id=frame.can_id, is_extended_id=False, is_remote_frame=True, dlc=1)
+    else:
+        expected = can.Message(arbitration_id=frame.can_id, is_extended_id=False, data=frame.data)
+    got = adapter_mod.to_message(frame)
+    for field in can.Message.__slots__:
+        if field != "__weakref__":
+            assert getattr(got, field) == getattr(expected, field), field
+    assert type(got.data) is bytearray
+    assert adapter_mod.to_frame(got) == frame
