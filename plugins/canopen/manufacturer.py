@@ -29,6 +29,7 @@ from collections.abc import Callable
 from typing import Any
 
 from fieldgate.health import HealthEvent, HealthRegistry, ModuleHealth
+from fieldgate.host_watchdog import HostWatchdogs, NoHostWatchdog, WatchdogUnavailable
 
 from . import abort
 from .abort import VALUE_RANGE
@@ -58,9 +59,8 @@ class ManufacturerObjects:
         self.module_emcy = module_emcy  # False: the front raises/clears the offline EMCY itself
         self.health = health
         self.style = style
-        self.backs = backs or {}
-        self.dcon_backs = dcon_backs or set()
-        self.watchdogs = watchdogs or {}  # configured (enabled, timeout ms) per DCON module: values before the back runs
+        # DCON host watchdogs: the running backs, which are DCON, the configured (enabled, timeout ms) before they run
+        self.host_watchdogs = HostWatchdogs(backs if backs is not None else {}, dcon_backs or (), watchdogs)
         self._raise: Raise | None = None
         self._clear: Clear | None = None
         self._keys = {(m.back, m.address) for m in layout.modules}
@@ -103,65 +103,34 @@ class ManufacturerObjects:
         if h is not None:
             h.clear_error_counter()
 
-    # -- DCON watchdog (0x2001-0x2003) -------------------------------------------------
-    def _dcon(self, module: ModuleRef) -> Any | None:
-        if module.back not in self.dcon_backs:
-            return None
-        return self.backs.get(module.back)
-
-    def _dcon_module(self, module: ModuleRef) -> Any | None:
-        back = self._dcon(module)
-        if back is None:
-            return None
+    # -- DCON watchdog (0x2001-0x2003): fieldgate.host_watchdog, shared with the devicenet front ------
+    def _wd_call(self, action: Callable[[], None]) -> None:
         try:
-            return back.module(module.address)
-        except (KeyError, AttributeError):
-            return None
-
-    def _dcon_call(self, module: ModuleRef, action: Callable[[Any], Any]) -> None:
-        back = self._dcon(module)
-        if back is None:
-            raise Abort(VALUE_RANGE, f"module {module.address} has no DCON host watchdog")
-        try:
-            action(back)
-        except ValueError as exc:
+            action()
+        except (NoHostWatchdog, ValueError) as exc:
             raise Abort(VALUE_RANGE, str(exc)) from None
-        except Exception as exc:  # back not running, module unknown
+        except WatchdogUnavailable as exc:
             raise Abort(abort.HARDWARE_ERROR, str(exc)) from None
 
-    def _watchdog(self, module: ModuleRef) -> tuple[bool, int]:
-        m = self._dcon_module(module)
-        if m is None:
-            return self.watchdogs.get((module.back, module.address), (False, 0))
-        return bool(m.watchdog_enabled), m.watchdog_timeout_ms or 0
-
     def _wd_enabled(self, module: ModuleRef) -> int:
-        return int(self._watchdog(module)[0])
+        return int(self.host_watchdogs.enabled(module.back, module.address))
 
     def _wd_time(self, module: ModuleRef) -> int:
-        return min(255, self._watchdog(module)[1] // 100)
+        return self.host_watchdogs.timeout_tenths(module.back, module.address)
 
     def _wd_status(self, module: ModuleRef) -> int:
-        back = self._dcon(module)
-        try:
-            return int(bool(back is not None and back.watchdog_status(module.address)))
-        except KeyError:
-            return 0
+        return int(self.host_watchdogs.expired(module.back, module.address))
 
     def _write_wd_enabled(self, module: ModuleRef, value: int) -> None:
-        if value > 1:
-            raise Abort(VALUE_RANGE, "0 = off, 1 = on")
-        self._dcon_call(module, lambda back: back.set_watchdog(module.address, bool(value)))
+        self._wd_call(lambda: self.host_watchdogs.set_enabled(module.back, module.address, value))
 
     def _write_wd_time(self, module: ModuleRef, value: int) -> None:
-        if value == 0:
-            raise Abort(VALUE_RANGE, "the watchdog time is 1..255 x 0.1 s")
-        self._dcon_call(module, lambda back: back.set_watchdog(module.address, bool(self._wd_enabled(module)), value * 100))
+        self._wd_call(lambda: self.host_watchdogs.set_timeout_tenths(module.back, module.address, value))
 
     def _write_wd_status(self, module: ModuleRef, value: int) -> None:
         if value != 0:
             raise Abort(VALUE_RANGE, "write 0 to clear the watchdog status")
-        self._dcon_call(module, lambda back: back.request_clear_watchdog(module.address))
+        self._wd_call(lambda: self.host_watchdogs.recover(module.back, module.address))
 
     # -- objects ----------------------------------------------------------------------------
     def objects(self) -> list[ObjectDef]:
@@ -176,7 +145,7 @@ class ManufacturerObjects:
             ))
 
         objs = [per_module(ERROR_COUNTERS, "Module error counter", UNSIGNED16, "rw", self._counter, self._write_counter)]
-        if any(m.back in self.dcon_backs for m in mods):
+        if self.host_watchdogs.any((m.back, m.address) for m in mods):
             objs += [
                 per_module(WATCHDOG_ENABLE, "Host watchdog enable", UNSIGNED8, "rw", self._wd_enabled, self._write_wd_enabled),
                 per_module(WATCHDOG_TIME, "Host watchdog time", UNSIGNED8, "rw", self._wd_time, self._write_wd_time),

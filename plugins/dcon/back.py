@@ -10,6 +10,11 @@ values after its timeout, whatever happens to the gateway. A module in watchdog
 timeout ignores output writes (answers ``!``) until ``~AA1``: its outputs get quality
 ``watchdog`` and its status says so. Recovery is explicit: :meth:`DconBack.clear_watchdog`
 (or :meth:`request_clear_watchdog` from synchronous code such as an SDO handler).
+
+Fronts reach all this through ``fieldgate.host_watchdog.HostWatchdogs`` (core), whose
+protocols this back (``watchdog_settings``, ``watchdog_status``, ``set_watchdog``,
+``request_clear_watchdog``) and its config (``DconBackConfig.host_watchdogs``) implement:
+no front imports this plugin.
 """
 
 from __future__ import annotations
@@ -183,6 +188,11 @@ class DconBack(SerialBack):
             if job.name == "host-ok" and period:
                 job.period = period
                 job.due = min(job.due, self.context.clock() + period)
+
+    def watchdog_settings(self, address: int) -> tuple[bool, int]:
+        """The module's host watchdog now: (enabled, timeout ms; 0 = not set). KeyError if unknown."""
+        module = self.module(address)
+        return bool(module.watchdog_enabled), module.watchdog_timeout_ms or 0
 
     def watchdog_status(self, address: int) -> bool:
         """True while the module sits in host-watchdog timeout (0x2003 != 0)."""

@@ -111,6 +111,11 @@ class DconBackConfig(SerialBackConfig):
             return self.host_ok_ms / 1000
         return min(timeouts) / 3000 if timeouts else None
 
+    def host_watchdogs(self) -> dict[int, tuple[bool, int] | None]:
+        """The configured host watchdog of every module, None where the module keeps its own
+        (``fieldgate.host_watchdog.WatchdogBackConfig``: the fronts' watchdog objects)."""
+        return {m.address: None if m.watchdog is None else (bool(m.watchdog.enabled), int(m.watchdog.timeout_ms)) for m in self.modules}
+
     def channel_specs(self) -> list[ChannelSpec]:
         specs: list[ChannelSpec] = []
         for m in sorted(self.modules, key=lambda m: m.address):

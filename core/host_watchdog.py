@@ -1,0 +1,159 @@
+"""Host watchdogs of polled modules, as a front sees them: one API for every front.
+
+Many RS-485 I/O modules have a *host watchdog*: when the host stays silent for a
+timeout, the module puts its outputs to safe values and remembers that it did until
+the host clears it. ICP DAS DCON modules do it with ``~AA3EVV`` / ``~**`` / ``~AA0`` /
+``~AA1``; the same modules in Modbus mode (M-7000) have the same feature behind
+registers. Gateways publish it per module on their fieldbus side: the I-7231D as
+CANopen objects 0x2001-0x2003, the I-7241D as DeviceNet Application (0x64) attributes
+0x08-0x0B.
+
+Why this lives in core and not in the dcon plugin: what a front needs (does this module
+have a host watchdog, its enable and timeout, has it expired, recover it) depends
+neither on the front's protocol nor on the back's. Putting it here lets the canopen and
+devicenet fronts share it without importing each other or a back plugin, and lets any
+back join by implementing two small protocols:
+
+* its config, :class:`WatchdogBackConfig`: ``host_watchdogs()`` -> the configured
+  ``(enabled, timeout_ms)`` per module address (``None``: left as the module has it),
+  known before the back runs (EDS generation, defaults);
+* the running back, :class:`WatchdogBack`: ``watchdog_settings``, ``watchdog_status``,
+  ``set_watchdog``, ``request_clear_watchdog`` (the dcon back implements both).
+
+Fronts translate the exceptions into their protocol's answers: :class:`NoHostWatchdog`
+(the module has none here), ``ValueError`` (a value out of range),
+:class:`WatchdogUnavailable` (the back cannot do it now: not running, module unknown).
+Changes are queued on the back's line and acknowledged at once (fire and forget); the
+line request's outcome shows in the module's status and health.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any, Protocol, runtime_checkable
+
+Key = tuple[str, int]  # (back name, module address)
+Setting = tuple[bool, int]  # (enabled, timeout in ms; 0 = unknown)
+
+TENTHS_MIN, TENTHS_MAX = 1, 255  # the timeout in 0.1 s steps, as DCON's ~AA3EVV and both gateways carry it
+
+
+@runtime_checkable
+class WatchdogBackConfig(Protocol):
+    name: str
+
+    def host_watchdogs(self) -> dict[int, Setting | None]:
+        """Every module address of the back -> its configured watchdog, or None when not configured."""
+
+
+@runtime_checkable
+class WatchdogBack(Protocol):
+    def watchdog_settings(self, address: int) -> Setting:
+        """The module's current (enabled, timeout ms); KeyError for a module the back does not run."""
+
+    def watchdog_status(self, address: int) -> bool:
+        """True while the module sits in watchdog timeout; KeyError for an unknown module."""
+
+    def set_watchdog(self, address: int, enabled: bool, timeout_ms: int | None = None) -> Any:
+        """Queue the new setting on the line (None: keep the timeout)."""
+
+    def request_clear_watchdog(self, address: int) -> Any:
+        """Queue the recovery (DCON ``~AA1``) on the line."""
+
+
+class NoHostWatchdog(LookupError):
+    """The module has no host watchdog this gateway can reach."""
+
+
+class WatchdogUnavailable(RuntimeError):
+    """The back cannot change the watchdog now (not running, module unknown, line closed)."""
+
+
+class HostWatchdogs:
+    """The host watchdogs of the modules of every watchdog-capable back.
+
+    ``backs`` maps back names to running back objects (``GatewayContext.backs``: looked up
+    at each call, so restarts and late starts are seen); ``capable`` names the backs whose
+    modules have a host watchdog; ``configured`` is the topology's setting per module,
+    answered while the back does not run.
+    """
+
+    def __init__(self, backs: Mapping[str, Any] | None = None, capable: Iterable[str] = (), configured: Mapping[Key, Setting] | None = None):
+        self.backs = backs if backs is not None else {}
+        self.capable = set(capable)
+        self.configured = dict(configured or {})
+
+    @classmethod
+    def from_context(cls, context: Any) -> HostWatchdogs:
+        """Capable backs and configured settings from the topology's back configs."""
+        capable: set[str] = set()
+        configured: dict[Key, Setting] = {}
+        for config in context.topology.backs:
+            if isinstance(config, WatchdogBackConfig):
+                capable.add(config.name)
+                configured.update({(config.name, a): s for a, s in config.host_watchdogs().items() if s is not None})
+        return cls(context.backs, capable, configured)
+
+    # -- reading ------------------------------------------------------------------------
+    def has(self, back: str, address: int) -> bool:
+        """Whether the module is on a watchdog-capable back (a DCON module)."""
+        return back in self.capable
+
+    def any(self, keys: Iterable[Key]) -> bool:
+        return any(self.has(back, address) for back, address in keys)
+
+    def _back(self, back: str) -> Any | None:
+        return self.backs.get(back) if back in self.capable else None
+
+    def settings(self, back: str, address: int) -> Setting:
+        """(enabled, timeout ms) as the back has it, else as configured, else (False, 0)."""
+        running = self._back(back)
+        if running is not None:
+            try:
+                enabled, timeout_ms = running.watchdog_settings(address)
+                return bool(enabled), int(timeout_ms or 0)
+            except (KeyError, AttributeError):
+                pass
+        return self.configured.get((back, address), (False, 0))
+
+    def enabled(self, back: str, address: int) -> bool:
+        return self.settings(back, address)[0]
+
+    def timeout_tenths(self, back: str, address: int) -> int:
+        """The timeout in 0.1 s (0 = not known: the module keeps its own), at most 255."""
+        return min(TENTHS_MAX, self.settings(back, address)[1] // 100)
+
+    def expired(self, back: str, address: int) -> bool:
+        running = self._back(back)
+        try:
+            return bool(running is not None and running.watchdog_status(address))
+        except KeyError:
+            return False
+
+    # -- changing -----------------------------------------------------------------------
+    def set_enabled(self, back: str, address: int, value: int) -> None:
+        """0 = off, 1 = on (the timeout stays); ValueError for anything else."""
+        if value not in (0, 1):
+            raise ValueError("0 = off, 1 = on")
+        self._call(back, address, lambda b: b.set_watchdog(address, bool(value)))
+
+    def set_timeout_tenths(self, back: str, address: int, tenths: int) -> None:
+        """The timeout in 0.1 s, 1..255; the enable stays."""
+        if not TENTHS_MIN <= tenths <= TENTHS_MAX:
+            raise ValueError(f"the watchdog time is {TENTHS_MIN}..{TENTHS_MAX} x 0.1 s")
+        self._call(back, address, lambda b: b.set_watchdog(address, self.enabled(back, address), tenths * 100))
+
+    def recover(self, back: str, address: int) -> None:
+        """Clear the module's watchdog timeout (DCON ``~AA1``); its outputs are written again."""
+        self._call(back, address, lambda b: b.request_clear_watchdog(address))
+
+    def _call(self, back: str, address: int, action) -> None:
+        running = self._back(back)
+        if running is None:
+            raise NoHostWatchdog(f"module {address} has no host watchdog" if back not in self.capable else f"back {back} is not running")
+        try:
+            action(running)
+        except ValueError:
+            raise
+        except Exception as exc:  # back not running, module unknown
+            raise WatchdogUnavailable(str(exc)) from None
