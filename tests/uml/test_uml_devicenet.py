@@ -1,0 +1,236 @@
+"""The DeviceNet front over real SocketCAN. Runs inside User-Mode Linux (`.ci/uml/run`), skipped elsewhere.
+
+One gateway runs as its own process (``fieldgate run topology.yaml --simulate``): a
+``devicenet`` front on vcan0 and a ``modbus`` back whose four modules are simulated on a
+pseudo-terminal. The simulator's demo wiring (``animate``, on with ``--simulate``) copies the
+DO module to the DI module and the AO module to the AI module, so the poll consumes
+DO (1 byte) + AO (4 x 2) = 9 bytes and produces DI (1) + AI (4 x 2) = 9 bytes, laid out alike:
+a bench whose outputs come back as its inputs, through the real RS-485 code.
+
+* tests/devicenet's master (``dnet_master.Master``) on a socketcan bus allocates the
+  Predefined Master/Slave Connection Set and polls: first the simulator's moving AI values
+  come back, then the polled outputs reach the process image (its ``--status-every`` lines)
+  and the simulated output modules, whose wired inputs come back in the poll response; without
+  polls the master is lost and the outputs go to their error value 0, on the modules too.
+* The conformance tool's DeviceNet profile runs against it as a separate process
+  (``python -m fieldgate.conformance --protocol devicenet ... --loopback``): every case passes.
+* SIGINT stops the gateway with exit code 0.
+
+The tests share the one gateway process (each start costs about 3 s in the guest) and run
+in file order: the first one sees the inputs move before anything drove the outputs.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import can
+import pytest
+
+from fieldgate.conformance import select
+
+CHANNEL = "vcan0"
+SLAVE = 5
+REPO = Path(__file__).resolve().parents[2]
+PRODUCT_NAME = "fieldgate DeviceNet on vcan0"  # 27 characters: a fragmented explicit response
+
+pytestmark = [
+    pytest.mark.uml,
+    pytest.mark.skipif(
+        not Path(f"/sys/class/net/{CHANNEL}").exists(),
+        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/uml/run)",
+    ),
+]
+
+sys.path.insert(0, str(REPO / "tests" / "devicenet"))
+from dnet_master import Master  # noqa: E402  (tests/devicenet is not a package)
+
+
+class VcanMaster(Master):
+    """tests/devicenet's master on the kernel's CAN stack instead of python-can's virtual bus."""
+
+    def __init__(self, slave: int, mac: int = 0x0A):
+        self.bus = can.Bus(interface="socketcan", channel=CHANNEL)
+        self.slave, self.mac = slave, mac
+
+
+def topology(state_dir: Path) -> dict:
+    zero = {"value": 0}
+    return {
+        "gateway": {"name": "dnet-uml", "state_dir": str(state_dir)},
+        "fronts": [{"name": "dnet", "type": "devicenet", "interface": "socketcan", "channel": CHANNEL, "mac_id": SLAVE,
+                    "baudrate": 500000, "dup_mac_timeout_ms": 50,
+                    "identity": {"vendor_id": 803, "serial": 7241, "product_name": PRODUCT_NAME}}],
+        "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "baudrate": 115200, "poll_ms": 10, "timeout_ms": 100,
+                   "modules": [
+                       {"address": 1, "model": "M-7055D", "counts": {"di": 0}, "error_mode": zero},  # 8 DO
+                       {"address": 2, "model": "M-7024", "error_mode": zero},  # 4 AO
+                       {"address": 3, "model": "M-7052D"},  # 8 DI, wired from module 1
+                       {"address": 4, "model": "M-7017R", "counts": {"ai": 4}},  # 4 AI, wired from module 2
+                   ]}],
+    }
+
+
+class GatewayProcess:
+    """``fieldgate run`` as its own process; its image is printed every 0.1 s on stdout."""
+
+    def __init__(self, workdir: Path):
+        self.source = workdir / "topology.yaml"
+        self.source.write_text(json.dumps(topology(workdir / "state"), indent=1))  # JSON is YAML
+        self.status_file, self.log_file = workdir / "status.txt", workdir / "gateway.log"
+        self.proc: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        with self.status_file.open("w") as out, self.log_file.open("w") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "fieldgate", "run", str(self.source), "--simulate", "--status-every", "0.1"],
+                stdout=out, stderr=err, cwd=REPO,
+            )
+
+    def log(self) -> str:
+        return self.log_file.read_text()
+
+    def image(self) -> dict[str, str]:
+        """The last status line as ``{"rs485/m1 do": "10100000!stale", ...}``."""
+        lines = [line for line in self.status_file.read_text().splitlines() if " | " in line]
+        if not lines:
+            return {}
+        return dict(part.split("=", 1) for part in lines[-1].split(" | "))
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def ensure_ptmx() -> None:
+    """Give the guest a /dev/ptmx, so ``--simulate`` can open its pseudo-terminal pairs.
+
+    The UML guest's /dev is a bare tmpfs (`.ci/uml/run` mounts one over the kernel's
+    devtmpfs) with devpts on /dev/pts but no /dev/ptmx, so ``os.openpty()`` fails with
+    ENOENT. devpts(5): /dev/ptmx may be a symlink to pts/ptmx. Only inside the UML guest
+    (its /dev lives and dies with it), and only when missing.
+    """
+    ptmx = Path("/dev/ptmx")
+    if os.environ.get("FIELDGATE_UML") == "1" and not ptmx.exists() and Path("/dev/pts/ptmx").exists():
+        ptmx.symlink_to("pts/ptmx")
+
+
+def wait_online(gateway: GatewayProcess, timeout: float) -> bool:
+    """The front's two duplicate MAC ID requests went out (Group 2 message 7 of its MAC)."""
+    dup_mac = 0x400 | SLAVE << 3 | 7
+    seen = 0
+    with can.Bus(interface="socketcan", channel=CHANNEL) as bus:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and seen < 2 and gateway.proc.poll() is None:
+            msg = bus.recv(0.2)
+            if msg is not None and msg.arbitration_id == dup_mac and msg.data[:1] == b"\x00":
+                seen += 1
+    time.sleep(0.2)  # online one check period (50 ms) after the second request
+    return seen == 2
+
+
+@pytest.fixture(scope="module")
+def gateway(tmp_path_factory):
+    ensure_ptmx()
+    gw = GatewayProcess(tmp_path_factory.mktemp("dnet-uml"))
+    gw.start()
+    try:
+        assert wait_online(gw, 30), gw.log()
+        yield gw
+    finally:
+        gw.stop()
+
+
+def bits(byte: int) -> str:
+    """A DO/DI byte as the status line shows it: channel 0 first."""
+    return "".join("1" if byte >> n & 1 else "0" for n in range(8))
+
+
+def words(values: list[int]) -> bytes:
+    return b"".join(v.to_bytes(2, "little", signed=True) for v in values)
+
+
+async def wait_for_image(gateway: GatewayProcess, expected: dict[str, str], timeout: float = 5.0) -> dict[str, str]:
+    end = time.monotonic() + timeout
+    while True:
+        image = gateway.image()
+        if all(image.get(key) == value for key, value in expected.items()) or time.monotonic() > end:
+            return image
+        await asyncio.sleep(0.05)
+
+
+async def test_master_polls_simulated_modules_and_master_loss_zeroes_outputs(gateway):
+    master = VcanMaster(SLAVE)
+    try:
+        assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")  # explicit + poll
+        assert await master.request(bytes.fromhex("0E 05 02 07")) == bytes.fromhex("8E 09 00")  # produced 9 bytes
+        assert await master.request(bytes.fromhex("0E 05 02 08")) == bytes.fromhex("8E 09 00")  # consumed 9 bytes
+        assert await master.request(bytes.fromhex("10 05 02 09 64 00")) == bytes.fromhex("90 64 00")  # EPR 100 ms
+        idle = []
+        for _ in range(8):  # idle polls (no outputs): the inputs only; nothing has driven the wired inputs yet
+            idle.append(await master.poll_fragmented_reply(b"", 9))
+            await master.frames(0.08)
+        analog_inputs = {reply[1:] for reply in idle}
+        assert len(analog_inputs) > 1 and bytes(8) not in analog_inputs, idle  # the simulator's AI ramps, read over RS-485
+        analog = [1000, -1234, 0x7FFF, -0x8000]
+        outputs = bytes([0x35]) + words(analog)
+        for _ in range(100):  # the loop runs through the RS-485 polls: a few DeviceNet polls
+            inputs = await master.poll_fragmented_reply(outputs, 9)
+            if inputs == outputs:
+                break
+            await master.frames(0.02)
+        assert inputs == outputs  # DI = DO and AI = AO, produced by the simulated input modules
+        shown = "[" + ",".join(map(str, analog)) + "]"
+        expected = {"rs485/m1 do": bits(0x35), "rs485/m2 ao": shown, "rs485/m3 di": bits(0x35), "rs485/m4 ai": shown}
+        image = await wait_for_image(gateway, expected)
+        assert {key: image.get(key) for key in expected} == expected
+        await master.frames(0.6)  # no polls for more than 4 x 100 ms: master lost, outputs to their error value 0
+        zeros = {"rs485/m1 do": bits(0), "rs485/m2 ao": "[0,0,0,0]", "rs485/m3 di": bits(0), "rs485/m4 ai": "[0,0,0,0]"}
+        image = await wait_for_image(gateway, zeros)
+        assert {key: image.get(key) for key in zeros} == zeros, gateway.log()[-3000:]
+        assert await master.allocate(0x02) == bytes.fromhex("0A CB 00")  # the timed-out poll is allocated again
+        assert await master.request(bytes.fromhex("10 05 02 09 64 00")) == bytes.fromhex("90 64 00")
+        assert await master.poll_fragmented_reply(b"", 9) == bytes(9)  # idle poll: the inputs, outputs untouched
+        assert await master.allocate(0x02) == bytes.fromhex("0A 94 0B 02")  # already allocated
+        master.send(master.g2(6), bytes([master.mac, 0x4C, 0x03, 0x01, 0x03]))  # release poll + explicit
+        assert await master.expect(master.g2(3)) == bytes.fromhex("0A CC")
+    finally:
+        master.close()
+    assert gateway.proc.poll() is None, gateway.log()
+
+
+def test_devicenet_conformance_profile_passes_over_vcan0(gateway, tmp_path):
+    junit = tmp_path / "dnet.xml"
+    run = subprocess.run(
+        [sys.executable, "-m", "fieldgate.conformance", "--protocol", "devicenet", "--interface", "socketcan", "--channel", CHANNEL,
+         "--mac-id", str(SLAVE), "--loopback", "--junit", str(junit), "--timeout", "0.5", "--silence", "0.15", "--heartbeat-ms", "100",
+         "--bootup-timeout", "3"],
+        capture_output=True, text=True, timeout=120, cwd=REPO,
+    )
+    assert run.returncode == 0, run.stdout[-8000:] + run.stderr[-2000:] + gateway.log()[-3000:]
+    suite = ET.parse(junit).getroot().find("testsuite")
+    cases = {tc.get("name"): tc for tc in suite.iter("testcase")}
+    assert list(cases) == [c.id for c in select(protocol="devicenet")]
+    assert "devicenet.loopback_poll" in cases and len(cases) >= 15
+    not_passed = {name: [child.tag for child in tc] for name, tc in cases.items() if len(tc)}
+    assert not_passed == {}, run.stdout[-8000:]  # no failure, no skip: the sizes match and the loop is wired
+    assert suite.get("failures") == "0" and suite.get("skipped") == "0"
+    properties = {p.get("name"): p.get("value") for p in suite.iter("property")}
+    assert properties["mac-id"] == str(SLAVE) and properties["product name"] == PRODUCT_NAME
+    assert gateway.proc.poll() is None, gateway.log()
+
+
+def test_sigint_stops_the_gateway_with_exit_code_0(gateway):
+    assert gateway.proc.poll() is None, gateway.log()
+    gateway.proc.send_signal(signal.SIGINT)
+    assert gateway.proc.wait(20) == 0, gateway.log()
+    assert "Traceback" not in gateway.log(), gateway.log()
