@@ -4,8 +4,23 @@ Instances are numbered from 1 in the order the front serves modules (ascending a
 in the seeds' order). Served attributes (seed-003 §3.6): 0x02 module address, 0x07 data
 error counter (the module's 16-bit error counter), 0x0C-0x0F DO/AO/DI/AI length in bytes,
 0x10-0x13 DO/AO/DI/AI channel count, 0x14/0x15 DO/AO data (Get/Set), 0x16/0x17 DI/AI data
-(Get). Module id, checksum, baud rate, type code, data format and the DCON host-watchdog
-attributes (0x01, 0x03-0x06, 0x08-0x0B) are not served (0x14).
+(Get). Module id, checksum, baud rate, type code and data format (0x01, 0x03-0x06) are
+not served (0x14).
+
+DCON host watchdog (seed-003 §3.6, §5.3, TV-44..51), only on modules of a DCON back
+(elsewhere 0x14), through ``fieldgate.host_watchdog`` (shared with the canopen front's
+0x2001-0x2003):
+
+| Attr | Type | Access | Meaning | Bad value |
+|---|---|---|---|---|
+| 0x08 | USINT | Get/Set | watchdog enable, 0/1 | 0x09 |
+| 0x09 | USINT | Get/Set | watchdog time, 0.1 s, 1..255 (Get 0: not set, the module keeps its own) | 0x09 |
+| 0x0A | USINT | Get | watchdog status: 1 = timed out | Set: 0x0E |
+| 0x0B | NULL | Set | clear the status (``~AA1``); the outputs are written again | Get: 0x2C |
+
+Set data: none 0x13, more than the type 0x15 (tolerated with the front's default
+``strict_lengths: false``, as for every USINT). A back that cannot take the change now
+(not running) answers 0x10 device state conflict.
 """
 
 from __future__ import annotations
@@ -13,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
+from fieldgate.host_watchdog import HostWatchdogs, NoHostWatchdog, WatchdogUnavailable
 from fieldgate.image import Channel, Kind
 from fieldgate.layout import of_kind, pack_bits
 
@@ -26,6 +42,7 @@ if TYPE_CHECKING:
 
 KINDS = (Kind.DO, Kind.AO, Kind.DI, Kind.AI)
 LENGTH_ATTR, COUNT_ATTR, DATA_ATTR = 0x0C, 0x10, 0x14
+WATCHDOG_ENABLE, WATCHDOG_TIME, WATCHDOG_STATUS, WATCHDOG_CLEAR = 0x08, 0x09, 0x0A, 0x0B
 
 ErrorCounter = Callable[[str, int], int]
 
@@ -69,7 +86,30 @@ class ApplicationObject(CipObject):
             table[COUNT_ATTR + offset] = Attribute(lambda count=count: u8(count))
             if part is not None:
                 table[DATA_ATTR + offset] = Attribute(part.data, self._writer(part) if kind.is_output else None)
+        watchdogs = self.slave.host_watchdogs
+        if watchdogs.has(module.back, module.address):
+            table.update(self._watchdog_attributes(watchdogs, module.back, module.address))
         return table
+
+    def _watchdog_attributes(self, wd: HostWatchdogs, back: str, address: int) -> dict[int, Attribute]:
+        def change(size: int, action: Callable[[int], None]):
+            def write(data: bytes) -> bytes:
+                value = self.sized.take(data, size)
+                try:
+                    action(value)
+                except ValueError:
+                    raise CipError(cip.INVALID_ATTRIBUTE_VALUE) from None
+                except (NoHostWatchdog, WatchdogUnavailable):
+                    raise CipError(cip.DEVICE_STATE_CONFLICT) from None
+                return b""
+            return write
+
+        return {
+            WATCHDOG_ENABLE: Attribute(lambda: u8(wd.enabled(back, address)), change(1, lambda v: wd.set_enabled(back, address, v))),
+            WATCHDOG_TIME: Attribute(lambda: u8(wd.timeout_tenths(back, address)), change(1, lambda v: wd.set_timeout_tenths(back, address, v))),
+            WATCHDOG_STATUS: Attribute(lambda: u8(wd.expired(back, address))),
+            WATCHDOG_CLEAR: Attribute(None, change(0, lambda _: wd.recover(back, address))),
+        }
 
     def _writer(self, part: Assembly):
         def write(data: bytes) -> bytes:

@@ -21,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from fieldgate.can.frame import Frame
+from fieldgate.host_watchdog import HostWatchdogs
 
 from . import cip, ids
 from .allocation import BIT_ACK_SUPPRESS, BIT_COS, CONNECTION_BITS, UNALLOCATED, Allocation
@@ -90,6 +91,7 @@ class DeviceNetSlave:
         self.connections = {i: Connection(i) for i in (EXPLICIT, POLL, STROBE, COS_CYCLIC)}
         self.allocation = Allocation(self)
         self.module_errors: Callable[[str, int], int] = lambda back, address: 0  # the front reads module health
+        self.host_watchdogs = HostWatchdogs()  # the front gives the gateway's (Application attributes 0x08-0x0B)
         application = ApplicationObject(self, module_views(assemblies.channels), lambda back, address: self.module_errors(back, address))
         self.objects = {o.class_id: o for o in (IdentityObject(self), DeviceNetObject(self), AssemblyObject(self), ConnectionObject(self), application)}
         explicit_size = max(EXPLICIT_MIN_SIZE, max((a.size for a in assemblies.instances.values()), default=0) + 4)
@@ -361,6 +363,8 @@ class DeviceNetSlave:
             if service == cip.GET_ATTRIBUTE_SINGLE:
                 if len(rest) > 1:
                     raise CipError(cip.TOO_MUCH_DATA)
+                if attribute.get is None:
+                    raise CipError(cip.ATTRIBUTE_NOT_GETTABLE)
                 return attribute.get()
             if attribute.set is None:
                 raise CipError(cip.ATTRIBUTE_NOT_SETTABLE)

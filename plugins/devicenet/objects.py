@@ -24,7 +24,7 @@ Setter = Callable[[bytes], bytes]
 
 @dataclass
 class Attribute:
-    get: Getter
+    get: Getter | None  # None: Set only (Get answers 0x2C)
     set: Setter | None = None
 
 

@@ -18,6 +18,7 @@ from typing import Any, Literal
 from pydantic import Field
 
 from fieldgate.health import HealthEvent, ModuleHealth
+from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Change
 from fieldgate.plugin import Front, GatewayContext, hookimpl
 from fieldgate.can.adapter import CanAdapter, open_bus
@@ -80,6 +81,7 @@ class DeviceNetFront(Front):
         self.outputs = assemblies.output_ids()
         self._modules = {(c.source.back, c.source.module) for c in channels}
         slave.module_errors = self._module_errors
+        slave.host_watchdogs = HostWatchdogs.from_context(self.context)
         slave.on_master(self._master_state)
         slave.on_settings(store.save)
         slave.on_fault(lambda reason: self.log.error("DeviceNet communication fault: %s", reason))

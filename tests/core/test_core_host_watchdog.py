@@ -1,0 +1,52 @@
+"""fieldgate.host_watchdog: which backs offer host watchdogs, configured values, errors fronts map."""
+
+import pytest
+
+from fieldgate import GatewayContext
+from fieldgate.host_watchdog import HostWatchdogs, NoHostWatchdog, WatchdogUnavailable
+from fieldgate.topology import load_topology
+
+
+def test_capable_backs_and_configured_settings_come_from_the_back_configs(registry, topology_dict):
+    if registry.lookup("back", "dcon") is None:
+        pytest.skip("the dcon back plugin is not installed")
+    data = topology_dict()
+    data["backs"].append({"name": "rs485", "type": "dcon", "port": "simulated", "modules": [
+        {"address": 4, "model": "I-7060", "watchdog": {"timeout_ms": 700}}, {"address": 6, "model": "I-7052"}]})
+    context = GatewayContext.build(load_topology(data, registry))
+    wd = HostWatchdogs.from_context(context)
+    assert wd.capable == {"rs485"}  # the loopback back has no host watchdog protocol
+    assert wd.has("rs485", 6) and not wd.has("io", 3)
+    assert wd.any([("io", 1), ("rs485", 4)]) and not wd.any([("io", 1), ("io", 3)])
+    assert wd.settings("rs485", 4) == (True, 700) and wd.timeout_tenths("rs485", 4) == 7
+    assert wd.settings("rs485", 6) == (False, 0) and not wd.expired("rs485", 4)
+    with pytest.raises(NoHostWatchdog, match="back rs485 is not running"):
+        wd.recover("rs485", 4)  # not started: context.backs is empty
+    with pytest.raises(NoHostWatchdog, match="module 3 has no host watchdog"):
+        wd.set_enabled("io", 3, 1)
+    context.backs["rs485"] = object()  # a back object without the protocol's methods
+    with pytest.raises(WatchdogUnavailable):
+        wd.set_enabled("rs485", 4, 0)
+    assert wd.settings("rs485", 4) == (True, 700)
+
+
+def test_values_are_checked_before_the_back_is_asked():
+    class Back:
+        calls = []
+
+        def set_watchdog(self, address, enabled, timeout_ms=None):
+            self.calls.append((address, enabled, timeout_ms))
+
+        def watchdog_settings(self, address):
+            return (True, 30_000)  # longer than 0.1 s x 255: reported as 255
+
+    wd = HostWatchdogs({"b": Back()}, {"b"})
+    for bad in (2, -1):
+        with pytest.raises(ValueError):
+            wd.set_enabled("b", 1, bad)
+    for bad in (0, 256):
+        with pytest.raises(ValueError):
+            wd.set_timeout_tenths("b", 1, bad)
+    assert Back.calls == [] and wd.timeout_tenths("b", 1) == 255
+    wd.set_timeout_tenths("b", 1, 1)
+    assert Back.calls == [(1, True, 100)]
