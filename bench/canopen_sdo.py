@@ -1,15 +1,16 @@
 """CANopen SDO server: expedited upload round trip and requests/s, ours against canopen's LocalNode.
 
-Run:  .venv/bin/python bench/canopen_sdo.py [--requests N] [--rounds R]   (about 15 s)
+Run:  .venv/bin/python bench/canopen_sdo.py [--requests N] [--rounds R] [--loop auto|uvloop|asyncio]   (about 5 s)
 
 Both servers run in this process on python-can's in-process ``virtual`` bus, each on its
 own channel, measured in the same run with the same client, alternating in rounds so that
 machine noise hits both alike:
 
 * ours: the gateway's CANopen front, started like ``fieldgate run`` does (Gateway with a
-  loopback back), on its own asyncio event loop in a thread; every request goes through
-  the python-can Notifier thread, the hop to the event loop, the node's full validation
-  (NMT state, COB-ID, DLC, object, access, size) and back out;
+  loopback back, the same event loop: uvloop where installed), on that loop in a thread;
+  every request goes through our receive path (the sender's thread hands the frame to
+  the loop), the node's full validation (NMT state, COB-ID, DLC, object, access, size)
+  and back out;
 * peer: ``canopen.LocalNode`` (canopen 2.4) with an equivalent object dictionary, served
   from its Network's Notifier thread.
 
@@ -29,8 +30,8 @@ Then the cost of the wake-up alone: the same round trip to a server that answers
 woken as LocalNode is (a thread blocked on the bus) and as ours is (the event loop, woken
 with ``call_soon_threadsafe`` by our receive path), and on uvloop when it is installed.
 
-``--loop uvloop`` runs our front on uvloop (``pip install uvloop``) instead of asyncio's
-default loop.
+``--loop asyncio`` runs our front on asyncio's standard loop instead (``fieldgate run
+--loop asyncio``); ``auto`` (the default) is what ``fieldgate run`` picks.
 """
 
 from __future__ import annotations
@@ -54,6 +55,7 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable  # noqa: E402
 from canopen.objectdictionary import datatypes as dt  # noqa: E402
 
 from fieldgate import Gateway, load_registry  # noqa: E402
+from fieldgate.cli import loop_factory  # noqa: E402
 
 NODE_ID = 5
 DEVICE_TYPE = 0x000F0191
@@ -259,18 +261,14 @@ def uvloop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
 
 def run(requests: int, rounds: int, loop: str) -> int:
     ours_channel, peer_channel = (f"bench-{name}-{uuid.uuid4().hex[:8]}" for name in ("ours", "peer"))
-    factory = uvloop_factory() if loop == "uvloop" else asyncio.new_event_loop
-    if factory is None:
-        print("--loop uvloop: uvloop is not installed")
-        return 2
+    factory = loop_factory(loop)  # what `fieldgate run --loop <loop>` runs on
     wake_loops = {"thread on the bus (LocalNode)": None, "asyncio event loop (ours)": asyncio.new_event_loop}
     if uvloop_factory() is not None:
         wake_loops["uvloop event loop"] = uvloop_factory()
     wakeups = wakeup_round_trips(requests, rounds, wake_loops)
     with tempfile.TemporaryDirectory() as state:
         servers = {"ours": OurServer(ours_channel, Path(state), factory), "peer": LocalNodeServer(peer_channel)}
-        if loop == "uvloop":
-            servers["ours"].label = "fieldgate (uvloop)"
+        servers["ours"].label = f"fieldgate ({'uvloop' if factory is uvloop_factory() else 'asyncio'})"
         for server in servers.values():
             server.start()
         try:
@@ -326,7 +324,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--requests", type=int, default=4000, help="requests per server and client (default 4000)")
     parser.add_argument("--rounds", type=int, default=8, help="alternations between the servers (default 8)")
-    parser.add_argument("--loop", choices=("asyncio", "uvloop"), default="asyncio", help="event loop of our front (default asyncio)")
+    parser.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto", help="event loop of our front, as `fieldgate run --loop` (default auto: uvloop when installed)")
     args = parser.parse_args()
     return run(args.requests, args.rounds, args.loop)
 

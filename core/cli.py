@@ -12,6 +12,7 @@ import json
 import logging
 import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from . import __version__
@@ -86,15 +87,35 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
     return _runner(args.loop).run(_run(gateway, args))
 
 
-def _runner(loop: str) -> asyncio.Runner:
-    """asyncio's own loop, or uvloop (optional: ``pip install 'fieldgate[fast]'``)."""
-    if loop == "uvloop":
-        try:
-            import uvloop
-        except ImportError:
-            raise SystemExit("fieldgate: --loop uvloop needs uvloop: pip install 'fieldgate[fast]'") from None
-        return asyncio.Runner(loop_factory=uvloop.new_event_loop)
-    return asyncio.Runner()
+LOOP_CHOICES = ("auto", "uvloop", "asyncio")
+
+
+def loop_factory(choice: str = "auto") -> Callable[[], asyncio.AbstractEventLoop]:
+    """The event loop ``fieldgate run`` uses: uvloop when installed (``auto``), or asyncio's own.
+
+    uvloop is a dependency on Linux and macOS: it wakes for a frame handed over from
+    another thread in about two thirds of the time of asyncio's loop, which is most of
+    an SDO round trip (docs/canopen-bench.md). ``asyncio`` forces the standard loop.
+    """
+    if choice not in LOOP_CHOICES:
+        raise ValueError(f"event loop {choice!r}: expected one of {', '.join(LOOP_CHOICES)}")
+    if choice == "asyncio":
+        return asyncio.new_event_loop
+    try:
+        import uvloop
+    except ImportError:
+        if choice == "uvloop":
+            raise SystemExit("fieldgate: --loop uvloop: uvloop is not installed here (pip install uvloop; there is none for Windows)") from None
+        return asyncio.new_event_loop
+    return uvloop.new_event_loop
+
+
+def loop_name(loop: asyncio.AbstractEventLoop) -> str:
+    return "uvloop" if type(loop).__module__.startswith("uvloop") else "asyncio"
+
+
+def _runner(choice: str) -> asyncio.Runner:
+    return asyncio.Runner(loop_factory=loop_factory(choice))
 
 
 async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
@@ -103,6 +124,7 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    log.info("event loop: %s", loop_name(loop))
     try:
         await gateway.start()
     except GatewayStartError as exc:
@@ -159,7 +181,7 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.add_argument("file")
     p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="override a field, e.g. fronts.can.interface=virtual")
     p.add_argument("--simulate", action="store_true", help="serve every back from simulated modules on pseudo-terminals (no hardware)")
-    p.add_argument("--loop", choices=["asyncio", "uvloop"], default="asyncio", help="event loop: asyncio (default) or uvloop, which wakes faster on frames from other threads (extra 'fast')")
+    p.add_argument("--loop", choices=LOOP_CHOICES, default="auto", help="event loop: auto (default: uvloop when installed, else asyncio), uvloop, or asyncio's standard loop")
     p.add_argument("--status-every", type=float, default=0, metavar="SECONDS", help="print the process image periodically")
     p.add_argument("--duration", type=float, default=0, metavar="SECONDS", help="stop by itself after this long")
     p.set_defaults(handler=cmd_run)

@@ -134,9 +134,9 @@ class Node:
             self._run_due(now)
         elif self._dispatch(frame, now) is not QUIET:
             self._run_due(now)
-        else:  # a read: timers as they were, unless one is due already (or none is known)
+        else:  # a read: timers as they were (None: there are none), unless one is due already
             hint = self._deadline_hint
-            if hint is None or hint <= now:
+            if hint is not None and hint <= now:
                 self._run_due(now)
         return self._drain()
 

@@ -80,3 +80,13 @@ def test_an_emcy_raised_from_outside_is_not_held_back_by_quiet_reads(rig):
     out = rig.send(UPLOAD_1000)
     assert out[0] == ANSWER_1000
     assert any(line.startswith("081 00 50") for line in out[1:]), out
+
+
+def test_without_any_timer_a_read_skips_the_timer_pass_and_a_later_timer_still_runs():
+    rig = Rig(seed_node())  # no heartbeat, no guarding: no deadline at all
+    assert rig.node.deadline_after_call is None
+    assert rig.send(UPLOAD_1000) == [ANSWER_1000]
+    assert rig.send("601 2B 17 10 00 64 00 00 00") == ["581 60 17 10 00 00 00 00 00"]  # heartbeat 100 ms: a write
+    assert rig.node.deadline_after_call == pytest.approx(0.1)
+    rig.now = 0.1
+    assert rig.send(UPLOAD_1000) == [ANSWER_1000, "701 7F"]
