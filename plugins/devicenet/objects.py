@@ -1,8 +1,10 @@
 """The CIP objects the slave serves: Identity (1), DeviceNet (3), Assembly (4), Connection (5).
 
 Each object maps ``(instance, attribute)`` to an :class:`Attribute` (a getter returning
-bytes and an optional setter taking bytes and returning the response data). Class-level
-attributes are instance 0. Errors are :class:`~.cip.CipError`.
+bytes, None for a Set-only attribute, and an optional setter taking bytes and returning
+the response data). Class-level attributes are instance 0. Errors are
+:class:`~.cip.CipError`. Identity instance 1 also answers Get_Attributes_All (0x01) and
+Reset (0x05).
 """
 
 from __future__ import annotations
@@ -93,6 +95,9 @@ class CipObject:
         raise CipError(cip.SERVICE_NOT_SUPPORTED)
 
 
+IDENTITY_ALL = (1, 2, 3, 4, 5, 6, 7)  # Get_Attributes_All order
+
+
 class IdentityObject(CipObject):
     class_id, revision = 0x01, 1
 
@@ -109,11 +114,23 @@ class IdentityObject(CipObject):
             10: Attribute(lambda: u8(self.slave.heartbeat_s), self._set_heartbeat),
         }
 
+    def _all_attributes(self, body: bytes) -> bytes:
+        """Get_Attributes_All: vendor, device type, product code, revision, status, serial,
+        product name (attributes 1-7 in the DeviceNet specification's order)."""
+        if body:
+            raise CipError(cip.TOO_MUCH_DATA)
+        table = self.instance_attributes(1)
+        return b"".join(table[attribute].get() for attribute in IDENTITY_ALL)
+
     def _set_heartbeat(self, data: bytes) -> bytes:
         self.slave.set_heartbeat(self.sized.take(data, 1))
         return b""
 
     def service(self, service: int, instance: int, body: bytes, now: float) -> bytes:
+        if instance not in (0, 1):
+            raise CipError(cip.OBJECT_DOES_NOT_EXIST)
+        if service == cip.GET_ATTRIBUTES_ALL and instance == 1:
+            return self._all_attributes(body)
         if service != cip.RESET or instance != 1:
             raise CipError(cip.SERVICE_NOT_SUPPORTED)
         if len(body) > 1:

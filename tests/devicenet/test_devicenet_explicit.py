@@ -43,7 +43,7 @@ def test_unacknowledged_fragment_is_repeated_then_abandoned(rig):
 
 @pytest.mark.parametrize("body, reply", [
     ("4B 01 01 01", "0A 94 08 FF"),  # Allocate on Identity: service not supported
-    ("01 01 01", "0A 94 08 FF"),  # Get_Attributes_All: not offered
+    ("01 01 00", "0A 94 08 FF"),  # Get_Attributes_All on the Identity class: not offered (instance 1 is)
     ("0E 01 01", "0A 94 13 FF"),  # attribute missing
     ("0E 01", "0A 94 13 FF"),
     ("0E 01 01 01 00", "0A 94 15 FF"),  # Get with data
