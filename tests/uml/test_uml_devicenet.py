@@ -229,6 +229,30 @@ def test_devicenet_conformance_profile_passes_over_vcan0(gateway, tmp_path):
     assert gateway.proc.poll() is None, gateway.log()
 
 
+async def test_baud_rate_set_over_the_network_reopens_the_socket_at_reset(gateway):
+    """DeviceNet object attribute 2, then Identity Reset: the front closes its SocketCAN socket and
+    opens a new one (the bus is reopened at the new rate), then serves the network from it."""
+    master = VcanMaster(SLAVE)
+    try:
+        assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
+        assert await master.request(bytes.fromhex("10 03 01 02 01")) == bytes.fromhex("90")  # 250 kbit/s at the next reset
+        assert await master.request(bytes.fromhex("05 01 01")) == bytes.fromhex("85")  # Identity Reset
+        assert await master.expect(master.g2(3)) == bytes.fromhex("0A CE 01 00 01 00 04 00")  # Device Shutdown
+        checks = [await master.expect(master.g2(7)) for _ in range(2)]
+        assert checks == [bytes.fromhex("00 23 03 49 1C 00 00")] * 2  # vendor 803, serial 7241
+        await master.frames(0.2)  # online one check period after the second request
+        assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
+        assert await master.request(bytes.fromhex("0E 03 01 02")) == bytes.fromhex("8E 01")
+        assert await master.request(bytes.fromhex("10 05 02 09 E8 03")) == bytes.fromhex("90 E8 03")
+        assert len(await master.poll_fragmented_reply(b"", 9)) == 9
+    finally:
+        master.close()
+    log = gateway.log()
+    assert "switching the CAN bit rate to 250000 bit/s" in log and "cannot reopen" not in log, log
+    stored = json.loads((gateway.source.parent / "state" / "dnet.devicenet.json").read_text())
+    assert (stored["mac_id"], stored["baud_code"]) == (SLAVE, 1)
+
+
 def test_sigint_stops_the_gateway_with_exit_code_0(gateway):
     assert gateway.proc.poll() is None, gateway.log()
     gateway.proc.send_signal(signal.SIGINT)
