@@ -4,11 +4,13 @@ API for every other part of the front (PDO engine, CiA 401, module health)::
 
     node.emcy.raise_error(0x8210, 0x11, b"\\x09")   # one EMCY per *new* error
     node.emcy.clear_error(0x8210)                  # error reset EMCY when the last clears
+    node.emcy.clear_errors([(0x8130, b"\\x07"), (0x8140, b"\\x08")])  # several at once: one EMCY
 
 An error is identified by its code and manufacturer bytes (two module failures with
 code 0xFF00 are two errors). Raising an active error again sends nothing. When an
 error clears and others remain, an EMCY 0x0000 carrying the remaining error register
-is sent; when the last clears, the all-zero reset. Every EMCY produced is recorded in
+is sent; when the last clears, the all-zero reset; errors cleared together by
+``clear_errors`` give one such EMCY. Every EMCY produced is recorded in
 0x1003 (newest at sub 1; the value is the code plus manufacturer bytes 3-4 in bits
 16-31, as the I-7232D stores it), including resets (value 0). Writing 0 to 0x1003:0
 clears the history, any other write aborts 0609 0030.
@@ -22,6 +24,7 @@ them. Errors and history are kept in every state.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable
 
 from canopen.objectdictionary import datatypes as dt
 
@@ -95,12 +98,20 @@ class EmcyProducer(Service):
     def clear_error(self, code: int, manufacturer: bytes | None = None, now: float | None = None) -> bool:
         """Clear an active error (every error with ``code`` if ``manufacturer`` is None)."""
         keys = [k for k in self.active if k[0] == code and (manufacturer is None or k[1] == bytes(manufacturer[:5]))]
-        if not keys:
-            return False
+        return self._clear(keys, now) > 0
+
+    def clear_errors(self, errors: Iterable[tuple[int, bytes]], now: float | None = None) -> int:
+        """Clear several errors that end together (``(code, manufacturer)`` pairs; inactive
+        ones are skipped) with *one* error-reset EMCY. Returns how many were active."""
+        keys = [k for k in dict.fromkeys((code & 0xFFFF, bytes(m[:5])) for code, m in errors) if k in self.active]
+        return self._clear(keys, now)
+
+    def _clear(self, keys: list[tuple[int, bytes]], now: float | None) -> int:
         for k in keys:
             del self.active[k]
-        self._produce(0x0000, b"", now)
-        return True
+        if keys:
+            self._produce(0x0000, b"", now)
+        return len(keys)
 
     def signal(self, code: int, register: int, manufacturer: bytes = b"", now: float | None = None) -> None:
         """Send (and record) a one-off event EMCY that does not stay active, e.g. the I-7232D's

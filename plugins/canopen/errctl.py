@@ -3,25 +3,39 @@
 * Node guarding: an RTR on 0x700+ID is answered ``[toggle<<7 | state]`` with DLC 1;
   the toggle is 0 in the first answer after boot-up / reset communication. While the
   heartbeat producer time 0x1017 is non-zero, CiA 301 says heartbeat replaces
-  guarding: guard RTRs are then counted and not answered.
+  guarding: guard RTRs are then counted and not answered, and life guarding is off.
 * Life guarding: with guard time 0x100C (ms) and life time factor 0x100D both
   non-zero, the node life time starts at the first guard RTR; when it passes with no
-  further RTR, the master is lost: EMCY ``30 81 11 07 00 00 00 00`` (TV-20) and the
-  node's master listeners are told (the front applies the outputs' error modes). The
-  next guard RTR clears the error (error reset EMCY) and reports the master back.
+  further RTR, the master is lost: EMCY ``30 81 11 07 00 00 00 00`` (TV-20). The next
+  guard RTR clears the error (error reset EMCY) and ends the loss.
 * Heartbeat producer 0x1017 (ms): ``[state]`` on 0x700+ID in every state after the
   boot-up; a write restarts the period.
 * Heartbeat consumer 0x1016:1..N (bits 23-16 node-ID, 15-0 time in ms): monitoring of
   a node starts at its first heartbeat; a timeout is a master-lost event with EMCY
   0x8130 (register 0x11, manufacturer bytes ``07 <node-ID>``); its next heartbeat
-  clears it. Two entries with the same node-ID and non-zero times abort 0604 0043.
+  clears it. Two entries with the same node-ID and non-zero times abort 0604 0043. An
+  entry rewritten with another time restarts that node's monitoring at its next
+  heartbeat; unchanged entries keep running.
 * 0x1029:1 (error behaviour, communication error): on a master-lost event an
   operational node goes to pre-operational (0, the CiA 301 default value), stays as
   it is (1) or stops (2). The front's default is 1 (the I-7232D keeps its state);
   the NA-9161 behaviour is 0.
 * Bus-off (reported by the adapter via :meth:`bus_state`) is a master-lost event;
   the recovery sends EMCY 0x8140 (register 0x11, manufacturer byte 08, as the I-7232D),
-  cleared when the master is heard again.
+  active until the master is heard again (guard RTR, monitored heartbeat).
+
+A monitoring error ends when what it reports can no longer be true (docs/canopen.md,
+"Monitoring switched off"): guarding switched off (0x100C or 0x100D written 0, or
+0x1017 written non-zero) ends the life guarding error; a 0x1016 entry cleared or
+moved to another node ends that node's heartbeat error; reset communication (and
+reset node) ends all of them, the 0x8140 included, with one error-reset EMCY after
+the boot-up. 0x8140 also ends as soon as nothing monitors the master (no guarding,
+no 0x1016 entry): nothing could ever hear it.
+
+Master state: the master is lost while life guarding, a heartbeat consumer or bus-off
+says so; ``node.master_state`` is told each change of that one fact (lost, then ok),
+so the front's ``context.masters`` changes together with the monitoring errors in
+0x1001/0x1003 (bus-off itself has no EMCY: it cannot be sent).
 """
 
 from __future__ import annotations
@@ -38,6 +52,14 @@ BUS_OFF_RECOVERED_CODE = 0x8140
 COMM_REGISTER = 0x11  # generic + communication, as the I-7232D
 ERROR_PRE_OPERATIONAL, ERROR_NO_CHANGE, ERROR_STOPPED = 0, 1, 2
 
+Error = tuple[int, bytes]  # (EMCY code, manufacturer bytes): one error of node.emcy
+LIFE_GUARDING_ERROR: Error = (LIFE_GUARD_CODE, b"\x07")
+BUS_OFF_RECOVERED_ERROR: Error = (BUS_OFF_RECOVERED_CODE, b"\x08")
+
+
+def heartbeat_error(producer: int) -> Error:
+    return (LIFE_GUARD_CODE, bytes([0x07, producer]))
+
 
 class ErrorControl(Service):
     name = "error_control"
@@ -50,11 +72,15 @@ class ErrorControl(Service):
         self.consumers = consumers
         self.toggle = 0
         self.life_deadline: float | None = None
-        self.guard_lost = False
         self.heartbeat_due: float | None = None
+        self.consumer_times: dict[int, int] = {}  # producer node-ID -> consumer time (ms), from 0x1016
         self.watched: dict[int, float | None] = {}  # producer node-ID -> deadline (None: not yet heard)
+        # what the master monitoring says now (each an active EMCY error, bus-off aside)
+        self.guard_lost = False
         self.heartbeat_lost: set[int] = set()
         self.bus_off = False
+        self.bus_off_recovered = False  # EMCY 0x8140 active: the master not heard since
+        self.master_lost = False  # as last told to node.master_state
 
     def attach(self, node) -> None:
         super().attach(node)
@@ -67,21 +93,25 @@ class ErrorControl(Service):
         if self.consumers:
             od.add_array(0x1016, "Consumer heartbeat time", [(i, f"Consumer heartbeat time {i}", dt.UNSIGNED32, "rw", 0, {"maximum": 0x00FFFFFF}) for i in range(1, self.consumers + 1)])
             od.add_validator(0x1016, self._check_consumer)
-            od.on_write(0x1016, lambda *_: self._configure_consumers())
-        od.on_write(0x1017, lambda *_: self._restart_heartbeat(node.now))
-        od.on_write(0x100C, lambda *_: self._rearm_life_guarding(node.now))
-        od.on_write(0x100D, lambda *_: self._rearm_life_guarding(node.now))
+            od.on_write(0x1016, lambda *_: self._consumers_written(node.now))
+        od.on_write(0x1017, lambda *_: self._heartbeat_time_written(node.now))
+        od.on_write(0x100C, lambda *_: self._guarding_written(node.now))
+        od.on_write(0x100D, lambda *_: self._guarding_written(node.now))
 
     # -- life cycle ---------------------------------------------------------------------
     def on_reset_communication(self, now: float) -> None:
         self.toggle = 0
         self.life_deadline = None
-        self._configure_consumers()
         self.heartbeat_due = None
+        self.consumer_times = self._consumer_times()
+        self.watched = dict.fromkeys(self.consumer_times)  # each restarts at its producer's first heartbeat
 
     def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
         if old is NmtState.INITIALISING and new is not NmtState.INITIALISING:
             self._restart_heartbeat(now)
+            # after a reset (the boot-up is out, EMCY may be sent): the monitoring restarted,
+            # so none of its errors holds any more
+            self._end(now, "reset communication", guard=True, producers=self.heartbeat_lost, bus_off_recovered=True)
         elif new is NmtState.INITIALISING:
             self.heartbeat_due = None
 
@@ -112,12 +142,19 @@ class ErrorControl(Service):
         self.node.send(Frame(self.cob_id, bytes([(self.toggle << 7) | int(self.node.state)])))
         self.toggle ^= 1
         self._rearm_life_guarding(now, started=True)
-        if self.guard_lost:
-            self.guard_lost = False
-            self._master_seen(LIFE_GUARD_CODE, bytes([0x07]), "life guarding resumed")
+        if self.guard_lost or self.bus_off_recovered:
+            self._end(now, "life guarding resumed", guard=True, bus_off_recovered=True)
 
     def _life_time_s(self) -> float:
         return self.node.od.get(0x100C) * self.node.od.get(0x100D) / 1000.0
+
+    def guarding_enabled(self) -> bool:
+        """Life guarding configured: guard time and life time factor set, heartbeat producer off."""
+        return self._life_time_s() > 0 and not self.node.od.get(0x1017)
+
+    def monitoring(self) -> bool:
+        """Whether anything here can hear the master: life guarding or a heartbeat consumer entry."""
+        return bool(self.consumer_times) or self.guarding_enabled()
 
     def _rearm_life_guarding(self, now: float, started: bool = False) -> None:
         if not started and self.life_deadline is None:
@@ -130,14 +167,12 @@ class ErrorControl(Service):
             self.counters["heartbeat_malformed"] += 1
             return
         self.counters["heartbeats_consumed"] += 1
-        period = self._consumer_times().get(producer, 0)
         if data[0] == 0x00:  # boot-up: monitoring restarts at its next heartbeat
             self.watched[producer] = None
         else:
-            self.watched[producer] = now + period / 1000.0
-        if producer in self.heartbeat_lost:
-            self.heartbeat_lost.discard(producer)
-            self._master_seen(LIFE_GUARD_CODE, bytes([0x07, producer]), f"heartbeat of node {producer} back")
+            self.watched[producer] = now + self.consumer_times[producer] / 1000.0
+        if producer in self.heartbeat_lost or self.bus_off_recovered:
+            self._end(now, f"heartbeat of node {producer} back", producers=(producer,), bus_off_recovered=True)
 
     # -- timers -------------------------------------------------------------------------
     def deadline(self) -> float | None:
@@ -160,13 +195,13 @@ class ErrorControl(Service):
             self.life_deadline = None
             self.guard_lost = True
             self.counters["life_guarding_events"] += 1
-            self._master_lost(LIFE_GUARD_CODE, bytes([0x07]), "life guarding timeout", now)
+            self._master_lost(LIFE_GUARDING_ERROR, "life guarding timeout", now)
         for producer, due in list(self.watched.items()):
             if due is not None and now >= due:
                 self.watched[producer] = None
                 self.heartbeat_lost.add(producer)
                 self.counters["heartbeat_consumer_timeouts"] += 1
-                self._master_lost(LIFE_GUARD_CODE, bytes([0x07, producer]), f"heartbeat of node {producer} timed out", now)
+                self._master_lost(heartbeat_error(producer), f"heartbeat of node {producer} timed out", now)
 
     def _restart_heartbeat(self, now: float) -> None:
         period = self.node.od.get(0x1017)
@@ -174,6 +209,27 @@ class ErrorControl(Service):
             self.heartbeat_due = now + period / 1000.0
         else:
             self.heartbeat_due = None
+
+    # -- writes to the monitoring objects -------------------------------------------------
+    def _heartbeat_time_written(self, now: float) -> None:
+        self._restart_heartbeat(now)
+        self._guarding_written(now)  # heartbeat on is guarding off, and back
+
+    def _guarding_written(self, now: float) -> None:
+        if self.guarding_enabled():
+            self._rearm_life_guarding(now)
+            return
+        self.life_deadline = None  # a later first RTR starts it again
+        self._end(now, "life guarding switched off", guard=True, bus_off_recovered=not self.monitoring())
+
+    def _consumers_written(self, now: float) -> None:
+        times = self._consumer_times()
+        # a producer whose time changed restarts at its next heartbeat; the others keep running
+        self.watched = {p: self.watched.get(p) if self.consumer_times.get(p) == t else None for p, t in times.items()}
+        self.consumer_times = times
+        dropped = sorted(p for p in self.heartbeat_lost if p not in times)
+        reason = "heartbeat consumer for node " + ", ".join(map(str, dropped)) + " switched off"
+        self._end(now, reason, producers=dropped, bus_off_recovered=not self.monitoring())
 
     # -- heartbeat consumer objects -----------------------------------------------------------
     def _consumer_times(self) -> dict[int, int]:
@@ -184,11 +240,6 @@ class ErrorControl(Service):
             if 1 <= producer <= 127 and period:
                 times[producer] = period
         return times
-
-    def _configure_consumers(self) -> None:
-        times = self._consumer_times() if self.consumers else {}
-        self.watched = {p: self.watched.get(p) if p in self.watched else None for p in times}
-        self.heartbeat_lost &= set(times)
 
     def _check_consumer(self, sub: int, value: int) -> None:
         producer, period = (value >> 16) & 0xFF, value & 0xFFFF
@@ -205,33 +256,54 @@ class ErrorControl(Service):
         if bus_off and not self.bus_off:
             self.bus_off = True
             self.counters["bus_off"] += 1
-            self._master_lost_without_emcy("CAN bus-off", now)
+            self._report_master("CAN bus-off")
+            self._apply_error_behaviour(now)
         elif not bus_off and self.bus_off:
             self.bus_off = False
             if self.node.emcy is not None:
-                self.node.emcy.raise_error(BUS_OFF_RECOVERED_CODE, COMM_REGISTER, bytes([0x08]), now)
-            self.node.master_state(True, "recovered from bus-off")
+                self.node.emcy.raise_error(BUS_OFF_RECOVERED_CODE, COMM_REGISTER, BUS_OFF_RECOVERED_ERROR[1], now)
+                self.bus_off_recovered = True
+            # with nothing to hear the master by, the recovery EMCY is an event: reset at once
+            self._end(now, "recovered from bus-off", bus_off_recovered=not self.monitoring())
 
-    def _master_lost(self, code: int, manufacturer: bytes, reason: str, now: float) -> None:
+    def _master_lost(self, error: Error, reason: str, now: float) -> None:
         if self.node.emcy is not None:
-            self.node.emcy.raise_error(code, COMM_REGISTER, manufacturer, now)
-        self._master_lost_without_emcy(reason, now)
+            self.node.emcy.raise_error(error[0], COMM_REGISTER, error[1], now)
+        self._report_master(reason)
+        self._apply_error_behaviour(now)
 
-    def _master_lost_without_emcy(self, reason: str, now: float) -> None:
-        self.node.master_state(False, reason)
+    def _apply_error_behaviour(self, now: float) -> None:
         behaviour = self.node.od.get(0x1029, 1)
         if behaviour == ERROR_PRE_OPERATIONAL and self.node.state is NmtState.OPERATIONAL:
             self.node.set_state(NmtState.PRE_OPERATIONAL, now)
         elif behaviour == ERROR_STOPPED:
             self.node.set_state(NmtState.STOPPED, now)
 
-    def _master_seen(self, code: int, manufacturer: bytes, reason: str) -> None:
-        if self.node.emcy is not None:
-            self.node.emcy.clear_error(code, manufacturer)
-            if self.node.emcy.is_active(BUS_OFF_RECOVERED_CODE):
-                self.node.emcy.clear_error(BUS_OFF_RECOVERED_CODE)
-        self.node.master_state(True, reason)
+    def _end(self, now: float, reason: str, guard: bool = False, producers=(), bus_off_recovered: bool = False) -> None:
+        """Monitoring errors that no longer hold (master heard, monitoring off, reset): one EMCY."""
+        ended: list[Error] = []
+        if guard and self.guard_lost:
+            self.guard_lost = False
+            ended.append(LIFE_GUARDING_ERROR)
+        for producer in sorted(producers):
+            if producer in self.heartbeat_lost:
+                self.heartbeat_lost.discard(producer)
+                ended.append(heartbeat_error(producer))
+        if bus_off_recovered and self.bus_off_recovered:
+            self.bus_off_recovered = False
+            ended.append(BUS_OFF_RECOVERED_ERROR)
+        if ended and self.node.emcy is not None:
+            self.node.emcy.clear_errors(ended, now)
+        self._report_master(reason)
+
+    def _report_master(self, reason: str) -> None:
+        """Tell the node's master listeners when "master lost" changes, and only then."""
+        lost = self.guard_lost or bool(self.heartbeat_lost) or self.bus_off
+        if lost != self.master_lost:
+            self.master_lost = lost
+            self.node.master_state(not lost, reason)
 
     def status(self) -> dict:
-        return {**self.counters, "guarding": "lost" if self.guard_lost else ("active" if self.life_deadline else "idle"),
-                "heartbeat_lost": sorted(self.heartbeat_lost), "bus_off": self.bus_off}
+        guarding = "lost" if self.guard_lost else ("active" if self.life_deadline else ("armed" if self.guarding_enabled() else "off"))
+        return {**self.counters, "guarding": guarding, "heartbeat_lost": sorted(self.heartbeat_lost), "bus_off": self.bus_off,
+                "bus_off_recovered": self.bus_off_recovered, "master": "lost" if self.master_lost else "ok"}

@@ -127,8 +127,11 @@ def test_bus_off_is_master_lost_and_recovery_emcy(rig):
     ec.bus_state(True, rig.now)
     assert rig.master == [(False, "CAN bus-off")]
     ec.bus_state(False, rig.now)
-    assert [str(f) for f in rig.node.flush()] == ["081 [8] 40 81 11 08 00 00 00 00"]
+    # nothing monitors the master here (no guarding, no 0x1016 entry): the recovery EMCY
+    # is an event, reset at once (with monitoring it waits for the master: test_canopen_errctl_clear)
+    assert [str(f) for f in rig.node.flush()] == ["081 [8] 40 81 11 08 00 00 00 00", "081 [8] 00 00 00 00 00 00 00 00"]
     assert rig.master[-1] == (True, "recovered from bus-off")
+    assert rig.node.od.get(0x1001) == 0
 
 
 def test_unconfigured_node_waits_silently():
