@@ -153,7 +153,11 @@ class Node:
         key = (frame.can_id, frame.rtr)
         cached = self._routes.get(key)
         if cached is not None:
-            taken = self._offer(cached, frame, now)
+            try:
+                taken = cached.on_frame(frame, now)
+            except Exception:
+                self._internal_error(cached, "on_frame", frame)
+                return True  # consumed (by a bug): not offered to the others
             if taken:
                 return taken
         for service in self.services:

@@ -73,7 +73,9 @@ class Dictionary:
         self._setters: dict[tuple[int, int], Setter] = {}
         self._validators: dict[int, list[Validator]] = {}
         self._listeners: dict[int, list[WriteListener]] = {}
-        self.generation = 0
+        self.generation = 0  # +1 on every change of entries, bindings or values: caches compare it
+        self._sources: dict[tuple[int, int], tuple[cod.ODVariable, Getter | None]] = {}  # read()'s cache
+        self._sources_generation = -1
         for var in self.variables():
             self._values[(var.index, var.subindex)] = self.default(var)
 
@@ -191,11 +193,18 @@ class Dictionary:
 
     def read(self, index: int, subindex: int) -> bytes:
         """SDO upload: the encoded value, or SdoAbort."""
-        var = self.variable(index, subindex)
+        key = (index, subindex)
+        if self._sources_generation != self.generation:
+            self._sources.clear()
+            self._sources_generation = self.generation
+        source = self._sources.get(key)
+        if source is None:  # the entry and its getter, looked up once per dictionary change
+            source = self._sources[key] = (self.variable(index, subindex), self._getters.get(key))
+        var, getter = source
         if not var.readable:
             raise SdoAbort(abort.WRITE_ONLY)
         try:
-            return encode(var, self.get(index, subindex))
+            return encode(var, getter() if getter is not None else self._values[key])
         except SdoAbort:
             raise
         except Exception as exc:  # a broken getter must not stop the node
