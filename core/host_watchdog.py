@@ -18,7 +18,8 @@ back join by implementing two small protocols:
   ``(enabled, timeout_ms)`` per module address (``None``: left as the module has it),
   known before the back runs (EDS generation, defaults);
 * the running back, :class:`WatchdogBack`: ``watchdog_settings``, ``watchdog_status``,
-  ``set_watchdog``, ``request_clear_watchdog`` (the dcon back implements both).
+  ``set_watchdog``, ``request_clear_watchdog``, and the back-wide host-OK switch
+  ``host_ok_enabled`` / ``set_host_ok`` (the dcon back implements both).
 
 Fronts translate the exceptions into their protocol's answers: :class:`NoHostWatchdog`
 (the module has none here), ``ValueError`` (a value out of range),
@@ -59,6 +60,11 @@ class WatchdogBack(Protocol):
 
     def request_clear_watchdog(self, address: int) -> Any:
         """Queue the recovery (DCON ``~AA1``) on the line."""
+
+    host_ok_enabled: bool  # the back may send its keep-alive (DCON ``~**``) to the modules
+
+    def set_host_ok(self, enabled: bool) -> None:
+        """Allow or stop the keep-alive: with it off, watchdog-enabled modules time out."""
 
 
 class NoHostWatchdog(LookupError):
@@ -146,6 +152,27 @@ class HostWatchdogs:
     def recover(self, back: str, address: int) -> None:
         """Clear the module's watchdog timeout (DCON ``~AA1``); its outputs are written again."""
         self._call(back, address, lambda b: b.request_clear_watchdog(address))
+
+    # -- the back-wide keep-alive ("host OK") --------------------------------------------------
+    def _running(self) -> list[Any]:
+        return [b for name in sorted(self.capable) if (b := self.backs.get(name)) is not None]
+
+    def host_ok(self) -> bool:
+        """Whether every running capable back may send its keep-alive (True when none runs)."""
+        return all(getattr(b, "host_ok_enabled", True) for b in self._running())
+
+    def set_host_ok(self, enabled: int) -> None:
+        """Allow (1, the default) or stop (0) the keep-alive of every capable back; ValueError otherwise."""
+        if enabled not in (0, 1):
+            raise ValueError("0 = off, 1 = on")
+        running = self._running()
+        if not running:
+            raise NoHostWatchdog("no back with host watchdogs is running")
+        for b in running:
+            try:
+                b.set_host_ok(bool(enabled))
+            except Exception as exc:
+                raise WatchdogUnavailable(str(exc)) from None
 
     def _call(self, back: str, address: int, action) -> None:
         running = self._back(back)

@@ -11,10 +11,13 @@ timeout ignores output writes (answers ``!``) until ``~AA1``: its outputs get qu
 ``watchdog`` and its status says so. Recovery is explicit: :meth:`DconBack.clear_watchdog`
 (or :meth:`request_clear_watchdog` from synchronous code such as an SDO handler).
 
+A front may also switch ``~**`` off altogether (:meth:`set_host_ok`, the I-7241D's
+"Host OK" class attribute): watchdog-enabled modules then time out as on master loss.
+
 Fronts reach all this through ``fieldgate.host_watchdog.HostWatchdogs`` (core), whose
 protocols this back (``watchdog_settings``, ``watchdog_status``, ``set_watchdog``,
-``request_clear_watchdog``) and its config (``DconBackConfig.host_watchdogs``) implement:
-no front imports this plugin.
+``request_clear_watchdog``, ``host_ok_enabled``, ``set_host_ok``) and its config
+(``DconBackConfig.host_watchdogs``) implement: no front imports this plugin.
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ class DconBack(SerialBack):
         self.modules: dict[int, DconModule] = {}
         self.dcon: DconLink | None = None
         self.host_ok_sent = 0
+        self.host_ok_enabled = True  # a front may switch ~** off (the I-7241D's Application class attribute 4)
         self._requests: list[Request] = []
         self._host_ok_running = False
         context.masters.subscribe(self._on_master)
@@ -69,7 +73,7 @@ class DconBack(SerialBack):
 
     def make_module(self, config: DconModuleConfig, specs: list[ChannelSpec]) -> DconModule:
         assert self.dcon is not None
-        module = DconModule(config, specs, self.context.image, self.dcon, watch_status=not self.context.masters.all_ok)
+        module = DconModule(config, specs, self.context.image, self.dcon, watch_status=not self._host_ok_allowed())
         old = self.modules.get(config.address)
         if old is not None:  # a restart keeps what was learnt (identity, watchdog state)
             module.name, module.firmware, module.in_watchdog, module.watchdog_events = old.name, old.firmware, old.in_watchdog, old.watchdog_events
@@ -96,8 +100,11 @@ class DconBack(SerialBack):
             period = min(period or 1e9, min(timeouts) / 3000)
         return period
 
+    def _host_ok_allowed(self) -> bool:
+        return self.host_ok_enabled and self.context.masters.all_ok
+
     def _host_ok_wanted(self) -> bool:
-        wanted = any(m.watchdog_enabled for m in self.modules.values()) and self.context.masters.all_ok
+        wanted = any(m.watchdog_enabled for m in self.modules.values()) and self._host_ok_allowed()
         if wanted != self._host_ok_running:
             self._host_ok_running = wanted
             if wanted:
@@ -110,11 +117,21 @@ class DconBack(SerialBack):
         self.host_ok_sent += 1
 
     def _on_master(self, front: str, ok: bool, reason: str) -> None:
-        all_ok = self.context.masters.all_ok
-        for module in self.modules.values():
-            module.watch_status = not all_ok  # read ~AA0 with the inputs while modules may time out
         if not ok and any(m.watchdog_enabled for m in self.modules.values()):
             log.warning("%s: front %s lost its master (%s): ~** stopped; modules go to their safe values after their watchdog timeouts", self.name, front, reason)
+        self._host_ok_changed()
+
+    def set_host_ok(self, enabled: bool) -> None:
+        """Allow (default) or stop the ``~**`` broadcast: with it off, watchdog-enabled modules time out."""
+        if bool(enabled) != self.host_ok_enabled:
+            log.info("%s: host OK (~**) %s by a front", self.name, "allowed" if enabled else "switched off")
+        self.host_ok_enabled = bool(enabled)
+        self._host_ok_changed()
+
+    def _host_ok_changed(self) -> None:
+        allowed = self._host_ok_allowed()
+        for module in self.modules.values():
+            module.watch_status = not allowed  # read ~AA0 with the inputs while modules may time out
         if self.scheduler is not None:
             self.scheduler.wake()
 
@@ -200,6 +217,6 @@ class DconBack(SerialBack):
 
     def status(self) -> dict:
         status = super().status()
-        status["host_ok"] = {"period_ms": None if self.host_ok_period() is None else round(self.host_ok_period() * 1000), "sending": self._host_ok_running, "sent": self.host_ok_sent}
+        status["host_ok"] = {"enabled": self.host_ok_enabled, "period_ms": None if self.host_ok_period() is None else round(self.host_ok_period() * 1000), "sending": self._host_ok_running, "sent": self.host_ok_sent}
         status["dcon_modules"] = [m.status() for m in sorted(self.modules.values(), key=lambda m: m.address)]
         return status

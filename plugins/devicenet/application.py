@@ -18,6 +18,11 @@ DCON host watchdog (seed-003 §3.6, §5.3, TV-44..51), only on modules of a DCON
 | 0x0A | USINT | Get | watchdog status: 1 = timed out | Set: 0x0E |
 | 0x0B | NULL | Set | clear the status (``~AA1``); the outputs are written again | Get: 0x2C |
 
+Class attribute 4, "Host OK" (BYTE Get/Set, 0/1; served when a DCON module is served):
+whether the DCON backs may send ``~**``. 1 by default (the back sends it by itself while
+a module's watchdog is on and the masters are healthy; the I-7241D starts at 0); 0 stops
+it, so watchdog-enabled modules time out. Class attribute 3 (COM timeout) is not served.
+
 Set data: none 0x13, more than the type 0x15 (tolerated with the front's default
 ``strict_lengths: false``, as for every USINT). A back that cannot take the change now
 (not running) answers 0x10 device state conflict.
@@ -43,6 +48,7 @@ if TYPE_CHECKING:
 KINDS = (Kind.DO, Kind.AO, Kind.DI, Kind.AI)
 LENGTH_ATTR, COUNT_ATTR, DATA_ATTR = 0x0C, 0x10, 0x14
 WATCHDOG_ENABLE, WATCHDOG_TIME, WATCHDOG_STATUS, WATCHDOG_CLEAR = 0x08, 0x09, 0x0A, 0x0B
+HOST_OK = 0x04  # class attribute
 
 ErrorCounter = Callable[[str, int], int]
 
@@ -72,6 +78,13 @@ class ApplicationObject(CipObject):
     def instances(self) -> list[int]:
         return list(range(1, len(self.modules) + 1))
 
+    def class_attributes(self) -> dict[int, Attribute]:
+        table = super().class_attributes()
+        watchdogs = self.slave.host_watchdogs
+        if watchdogs.any((m.back, m.address) for m in self.modules):
+            table[HOST_OK] = Attribute(lambda: u8(watchdogs.host_ok()), self._change(1, watchdogs.set_host_ok))
+        return table
+
     def instance_attributes(self, instance: int) -> dict[int, Attribute]:
         module = self.modules[instance - 1]
         table = {
@@ -91,19 +104,21 @@ class ApplicationObject(CipObject):
             table.update(self._watchdog_attributes(watchdogs, module.back, module.address))
         return table
 
-    def _watchdog_attributes(self, wd: HostWatchdogs, back: str, address: int) -> dict[int, Attribute]:
-        def change(size: int, action: Callable[[int], None]):
-            def write(data: bytes) -> bytes:
-                value = self.sized.take(data, size)
-                try:
-                    action(value)
-                except ValueError:
-                    raise CipError(cip.INVALID_ATTRIBUTE_VALUE) from None
-                except (NoHostWatchdog, WatchdogUnavailable):
-                    raise CipError(cip.DEVICE_STATE_CONFLICT) from None
-                return b""
-            return write
+    def _change(self, size: int, action: Callable[[int], None]):
+        """A watchdog Set: ``size`` data bytes (0 = NULL) -> ``action(value)``, errors as CIP codes."""
+        def write(data: bytes) -> bytes:
+            value = self.sized.take(data, size)
+            try:
+                action(value)
+            except ValueError:
+                raise CipError(cip.INVALID_ATTRIBUTE_VALUE) from None
+            except (NoHostWatchdog, WatchdogUnavailable):
+                raise CipError(cip.DEVICE_STATE_CONFLICT) from None
+            return b""
+        return write
 
+    def _watchdog_attributes(self, wd: HostWatchdogs, back: str, address: int) -> dict[int, Attribute]:
+        change = self._change
         return {
             WATCHDOG_ENABLE: Attribute(lambda: u8(wd.enabled(back, address)), change(1, lambda v: wd.set_enabled(back, address, v))),
             WATCHDOG_TIME: Attribute(lambda: u8(wd.timeout_tenths(back, address)), change(1, lambda v: wd.set_timeout_tenths(back, address, v))),

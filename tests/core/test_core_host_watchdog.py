@@ -50,3 +50,26 @@ def test_values_are_checked_before_the_back_is_asked():
     assert Back.calls == [] and wd.timeout_tenths("b", 1) == 255
     wd.set_timeout_tenths("b", 1, 1)
     assert Back.calls == [(1, True, 100)]
+
+
+def test_host_ok_switch_goes_to_every_running_capable_back():
+    class Back:
+        def __init__(self):
+            self.host_ok_enabled = True
+
+        def set_host_ok(self, enabled):
+            self.host_ok_enabled = enabled
+
+    a, b = Back(), Back()
+    wd = HostWatchdogs({"a": a, "b": b, "other": Back()}, {"a", "b", "c"})
+    assert wd.host_ok() is True
+    wd.set_host_ok(0)
+    assert (a.host_ok_enabled, b.host_ok_enabled, wd.backs["other"].host_ok_enabled) == (False, False, True)
+    assert wd.host_ok() is False
+    b.host_ok_enabled = True
+    assert wd.host_ok() is False  # only when every back may send it
+    with pytest.raises(ValueError):
+        wd.set_host_ok(2)
+    with pytest.raises(NoHostWatchdog):
+        HostWatchdogs({}, {"a"}).set_host_ok(1)
+    assert HostWatchdogs({}, {"a"}).host_ok() is True

@@ -23,6 +23,11 @@ class FakeDconBack:
         self.settings = dict(settings)
         self.expired: set[int] = set()
         self.requests: list[tuple] = []
+        self.host_ok_enabled = True
+
+    def set_host_ok(self, enabled: bool) -> None:
+        self.host_ok_enabled = enabled
+        self.requests.append(("host ok", enabled))
 
     def watchdog_settings(self, address: int) -> tuple[bool, int]:
         return self.settings[address]
@@ -65,6 +70,20 @@ def test_seed_watchdog_vectors():
     assert rig.explicit("10 64 03 0B") == "0A 90"  # TV-50 / TV-51 as intended: clear, no data
     assert back.requests[-1] == ("clear", 3)
     assert rig.explicit("0E 64 03 0A") == "0A 8E 00"
+
+
+def test_seed_host_ok_class_attribute():
+    rig, back = make_rig()
+    assert rig.explicit("0E 64 00 04") == "0A 8E 01"  # the back sends ~** by itself unless told not to
+    assert rig.explicit("10 64 00 04 00") == "0A 90"
+    assert back.host_ok_enabled is False and rig.explicit("0E 64 00 04") == "0A 8E 00"
+    assert rig.explicit("10 64 00 04 01") == "0A 90"  # TV-46 / TV-47
+    assert back.requests == [("host ok", False), ("host ok", True)]
+    assert rig.explicit("10 64 00 04 02") == "0A 94 09 FF"
+    assert rig.explicit("10 64 00 04") == "0A 94 13 FF"
+    assert rig.explicit("0E 64 00 03") == "0A 94 14 FF"  # COM timeout: not served
+    assert rig.explicit("0E 64 00 02") == "0A 8E 04 00"
+    assert len(back.requests) == 2
 
 
 def test_period_and_enable_are_independent():
@@ -121,6 +140,8 @@ def test_back_not_running_answers_configured_values_and_refuses_changes():
     assert rig.explicit("0E 64 02 08") == "0A 8E 00"  # not configured: off
     assert rig.explicit("10 64 01 08 00") == "0A 94 10 FF"  # device state conflict
     assert rig.explicit("10 64 01 0B") == "0A 94 10 FF"
+    assert rig.explicit("0E 64 00 04") == "0A 8E 01"
+    assert rig.explicit("10 64 00 04 00") == "0A 94 10 FF"
 
 
 def test_module_unknown_to_the_back_is_a_device_state_conflict():
@@ -136,6 +157,8 @@ def test_without_dcon_backs_the_attributes_are_not_served():
     rig = Rig(image_with([(1, {Kind.DO: 8})]))  # the engine's default: no host watchdogs
     rig.allocate(0x01)
     assert [rig.explicit(f"0E 64 01 {a:02X}") for a in (0x08, 0x09, 0x0A, 0x0B)] == ["0A 94 14 FF"] * 4
+    assert rig.explicit("0E 64 00 04") == "0A 94 14 FF"
+    assert rig.explicit("10 64 00 04 01") == "0A 94 14 FF"
 
 
 # -- end to end ----------------------------------------------------------------------------------
@@ -187,6 +210,19 @@ async def test_watchdog_through_devicenet_drives_simulated_dcon_modules(tmp_path
         assert await master.request(bytes.fromhex("10 64 01 0B")) == bytes.fromhex("90")
         await wait_for(lambda: not sim.module(1).timed_out and sim.module(1).do_bits == 0x06, master)
         await wait_for(lambda: gw.image["rs485/m1/do1"].quality is Quality.GOOD, master)
+        assert await master.request(bytes.fromhex("0E 64 01 0A")) == bytes.fromhex("8E 00")
+        # Host OK off (class attribute 4, TV-46 with 0): no more ~**, the module times out by itself
+        # after 0.3 s and the back sees it through ~AA0
+        assert await master.request(bytes.fromhex("10 64 00 04 00")) == bytes.fromhex("90")
+        stopped_at = back.host_ok_sent
+        await wait_for(lambda: sim.module(1).timed_out, master)
+        await wait_for(lambda: back.watchdog_status(1), master)
+        assert await master.request(bytes.fromhex("0E 64 01 0A")) == bytes.fromhex("8E 01")
+        assert back.host_ok_sent == stopped_at and sim.module(1).do_bits == 0  # the module's safe value
+        assert gw.status()["backs"]["rs485"]["host_ok"]["enabled"] is False
+        assert await master.request(bytes.fromhex("10 64 00 04 01")) == bytes.fromhex("90")
+        assert await master.request(bytes.fromhex("10 64 01 0B")) == bytes.fromhex("90")
+        await wait_for(lambda: not sim.module(1).timed_out and sim.module(1).do_bits == 0x06 and back.host_ok_sent > stopped_at, master)
         assert await master.request(bytes.fromhex("0E 64 01 0A")) == bytes.fromhex("8E 00")
     finally:
         master.close()
