@@ -30,6 +30,7 @@ import subprocess
 import sys
 import time
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from pathlib import Path
 
 import can
@@ -41,6 +42,7 @@ CHANNEL = "vcan0"
 SLAVE = 5
 REPO = Path(__file__).resolve().parents[2]
 PRODUCT_NAME = "fieldgate DeviceNet on vcan0"  # 27 characters: a fragmented explicit response
+I7241D_EXAMPLE, I7241D_MAC = REPO / "examples" / "i7241d-style.yaml", 1
 
 pytestmark = [
     pytest.mark.uml,
@@ -67,7 +69,7 @@ def topology(state_dir: Path) -> dict:
     return {
         "gateway": {"name": "dnet-uml", "state_dir": str(state_dir)},
         "fronts": [{"name": "dnet", "type": "devicenet", "interface": "socketcan", "channel": CHANNEL, "mac_id": SLAVE,
-                    "baudrate": 500000, "dup_mac_timeout_ms": 50,
+                    "baudrate": 125000, "dup_mac_timeout_ms": 50,  # 125 kbit/s as the i7241d example beside it
                     "identity": {"vendor_id": 803, "serial": 7241, "product_name": PRODUCT_NAME}}],
         "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "baudrate": 115200, "poll_ms": 10, "timeout_ms": 100,
                    "modules": [
@@ -80,18 +82,17 @@ def topology(state_dir: Path) -> dict:
 
 
 class GatewayProcess:
-    """``fieldgate run`` as its own process; its image is printed every 0.1 s on stdout."""
+    """``fieldgate run SOURCE --simulate`` as its own process; its image is printed every 0.1 s on stdout."""
 
-    def __init__(self, workdir: Path):
-        self.source = workdir / "topology.yaml"
-        self.source.write_text(json.dumps(topology(workdir / "state"), indent=1))  # JSON is YAML
+    def __init__(self, workdir: Path, source: Path, mac_id: int, *options: str):
+        self.source, self.mac_id, self.options = source, mac_id, options
         self.status_file, self.log_file = workdir / "status.txt", workdir / "gateway.log"
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> None:
         with self.status_file.open("w") as out, self.log_file.open("w") as err:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "fieldgate", "run", str(self.source), "--simulate", "--status-every", "0.1"],
+                [sys.executable, "-m", "fieldgate", "run", str(self.source), "--simulate", "--status-every", "0.1", *self.options],
                 stdout=out, stderr=err, cwd=REPO,
             )
 
@@ -124,30 +125,49 @@ def ensure_ptmx() -> None:
         ptmx.symlink_to("pts/ptmx")
 
 
-def wait_online(gateway: GatewayProcess, timeout: float) -> bool:
-    """The front's two duplicate MAC ID requests went out (Group 2 message 7 of its MAC)."""
-    dup_mac = 0x400 | SLAVE << 3 | 7
-    seen = 0
+def wait_online(gateways: list[GatewayProcess], timeout: float) -> bool:
+    """Each front sent its two duplicate MAC ID requests (Group 2 message 7 of its MAC)."""
+    left = {0x400 | gw.mac_id << 3 | 7: 2 for gw in gateways}
     with can.Bus(interface="socketcan", channel=CHANNEL) as bus:
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and seen < 2 and gateway.proc.poll() is None:
+        while any(left.values()) and time.monotonic() < deadline and all(gw.proc.poll() is None for gw in gateways):
             msg = bus.recv(0.2)
-            if msg is not None and msg.arbitration_id == dup_mac and msg.data[:1] == b"\x00":
-                seen += 1
+            if msg is not None and left.get(msg.arbitration_id) and msg.data[:1] == b"\x00":
+                left[msg.arbitration_id] -= 1
     time.sleep(0.2)  # online one check period (50 ms) after the second request
-    return seen == 2
+    return not any(left.values())
+
+
+@dataclass
+class Network:
+    bench: GatewayProcess  # MAC 5: the topology above, outputs wired to inputs
+    i7241d: GatewayProcess  # MAC 1: examples/i7241d-style.yaml as written, but on vcan0
 
 
 @pytest.fixture(scope="module")
-def gateway(tmp_path_factory):
+def network(tmp_path_factory):
+    """Two gateway processes, two DeviceNet slaves on one bus, started together (each start costs ~3 s here)."""
     ensure_ptmx()
-    gw = GatewayProcess(tmp_path_factory.mktemp("dnet-uml"))
-    gw.start()
+    bench_dir, example_dir = tmp_path_factory.mktemp("dnet-bench"), tmp_path_factory.mktemp("dnet-i7241d")
+    source = bench_dir / "topology.yaml"
+    source.write_text(json.dumps(topology(bench_dir / "state"), indent=1))  # JSON is YAML
+    bench = GatewayProcess(bench_dir, source, SLAVE)
+    i7241d = GatewayProcess(example_dir, I7241D_EXAMPLE, I7241D_MAC, "--set", f"fronts.dnet.channel={CHANNEL}",
+                            "--set", "fronts.dnet.dup_mac_timeout_ms=50",
+                            "--set", f"gateway.state_dir={example_dir / 'state'}")
     try:
-        assert wait_online(gw, 30), gw.log()
-        yield gw
+        bench.start()
+        i7241d.start()
+        assert wait_online([bench, i7241d], 30), bench.log() + i7241d.log()
+        yield Network(bench, i7241d)
     finally:
-        gw.stop()
+        bench.stop()
+        i7241d.stop()
+
+
+@pytest.fixture
+def gateway(network):
+    return network.bench
 
 
 def bits(byte: int) -> str:
@@ -253,8 +273,35 @@ async def test_baud_rate_set_over_the_network_reopens_the_socket_at_reset(gatewa
     assert (stored["mac_id"], stored["baud_code"]) == (SLAVE, 1)
 
 
-def test_sigint_stops_the_gateway_with_exit_code_0(gateway):
-    assert gateway.proc.poll() is None, gateway.log()
-    gateway.proc.send_signal(signal.SIGINT)
-    assert gateway.proc.wait(20) == 0, gateway.log()
-    assert "Traceback" not in gateway.log(), gateway.log()
+async def test_i7241d_example_serves_its_dcon_modules_beside_the_other_slave(network):
+    """The I-7241D replacement as shipped (socketcan, MAC 1, 125 kbit/s, I-7055 / I-7017 / I-7024 on
+    simulated DCON modules), only its channel changed to vcan0, on one bus with the MAC 5 slave."""
+    example = network.i7241d
+    master = VcanMaster(I7241D_MAC)
+    try:
+        assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
+        assert await master.request(bytes.fromhex("0E 01 01 07")) == b"\x8e\x09fieldgate"  # the default product name
+        assert await master.request(bytes.fromhex("0E 05 02 07")) == bytes.fromhex("8E 11 00")  # produced 17: DI 1 + AI 16
+        assert await master.request(bytes.fromhex("0E 05 02 08")) == bytes.fromhex("8E 09 00")  # consumed 9: DO 1 + AO 8
+        assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex("90 F4 01")
+        for _ in range(100):  # the simulator animates: one DI bit walks, the AIs follow a sine
+            inputs = await master.poll_fragmented_reply(bytes([0x5A]) + bytes(8), 17)
+            if bin(inputs[0]).count("1") == 1 and any(inputs[1:]):
+                break
+            await master.frames(0.02)
+        assert bin(inputs[0]).count("1") == 1 and any(inputs[1:]), inputs.hex(" ")
+        image = await wait_for_image(example, {"rs485/m1 do": bits(0x5A)})
+        assert image.get("rs485/m1 do") == bits(0x5A), image
+        assert await master.poll_fragmented_reply(bytes(9), 17)  # outputs back to zero
+    finally:
+        master.close()
+    assert network.bench.proc.poll() is None and example.proc.poll() is None
+
+
+def test_sigint_stops_both_gateways_with_exit_code_0(network):
+    for gateway in (network.bench, network.i7241d):
+        assert gateway.proc.poll() is None, gateway.log()
+        gateway.proc.send_signal(signal.SIGINT)
+    for gateway in (network.bench, network.i7241d):
+        assert gateway.proc.wait(20) == 0, gateway.log()
+        assert "Traceback" not in gateway.log(), gateway.log()
