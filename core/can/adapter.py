@@ -153,9 +153,9 @@ class CanAdapter:
         now = self.loop.time()
         node = self.node
         frames = node.receive(to_frame(msg), now)
-        if frames:
-            self.transmit(frames, now)
         self._arm(node.deadline_after_call, known=True)
+        if frames:  # last: only returns follow the answer, so the waiting peer runs at once
+            self.transmit(frames, now)
 
     def _receive_other(self, msg: can.Message) -> None:
         if msg.is_error_frame:
