@@ -64,13 +64,13 @@ class VcanMaster(Master):
         self.slave, self.mac = slave, mac
 
 
-def topology(state_dir: Path) -> dict:
+def topology(state_dir: Path, serial: int = 7241) -> dict:
     zero = {"value": 0}
     return {
         "gateway": {"name": "dnet-uml", "state_dir": str(state_dir)},
         "fronts": [{"name": "dnet", "type": "devicenet", "interface": "socketcan", "channel": CHANNEL, "mac_id": SLAVE,
                     "baudrate": 125000, "dup_mac_timeout_ms": 50,  # 125 kbit/s as the i7241d example beside it
-                    "identity": {"vendor_id": 803, "serial": 7241, "product_name": PRODUCT_NAME}}],
+                    "identity": {"vendor_id": 803, "serial": serial, "product_name": PRODUCT_NAME}}],
         "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "baudrate": 115200, "poll_ms": 10, "timeout_ms": 100,
                    "modules": [
                        {"address": 1, "model": "M-7055D", "counts": {"di": 0}, "error_mode": zero},  # 8 DO
@@ -296,6 +296,53 @@ async def test_i7241d_example_serves_its_dcon_modules_beside_the_other_slave(net
     finally:
         master.close()
     assert network.bench.proc.poll() is None and example.proc.poll() is None
+
+
+def collect(bus: can.BusABC, seconds: float, until=lambda frame: False) -> list[tuple[int, bytes]]:
+    """Frames ``(id, data)`` seen for ``seconds``, or up to the first one ``until`` accepts."""
+    seen, end = [], time.monotonic() + seconds
+    while time.monotonic() < end:
+        msg = bus.recv(0.05)
+        if msg is not None:
+            seen.append((msg.arbitration_id, bytes(msg.data)))
+            if until(seen[-1]):
+                break
+    return seen
+
+
+def test_a_second_node_at_the_same_mac_faults_and_is_moved_by_the_offline_connection_set(network, tmp_path):
+    """A third gateway process configured for MAC 5 (serial 9999) joins the bus: the online MAC 5
+    answers its duplicate MAC ID request, so it enters communication fault and goes silent; the
+    Offline Connection Set identifies it and gives it MAC 7, where it checks again and comes online."""
+    topo = topology(tmp_path / "state", serial=9999)
+    topo["fronts"][0]["dup_mac_timeout_ms"] = 300  # time enough for the online node's answer on a busy guest
+    source = tmp_path / "topology.yaml"
+    source.write_text(json.dumps(topo))
+    newcomer = GatewayProcess(tmp_path, source, SLAVE)
+    dup_mac_5, dup_mac_7 = 0x400 | SLAVE << 3 | 7, 0x400 | 7 << 3 | 7
+    ours, theirs = bytes.fromhex("23 03 0F 27 00 00"), bytes.fromhex("23 03 49 1C 00 00")  # vendor 803, serial 9999 / 7241
+    answered = (dup_mac_5, b"\x80" + theirs)
+    with can.Bus(interface="socketcan", channel=CHANNEL) as bus:
+        newcomer.start()
+        try:
+            seen = collect(bus, 30, until=lambda frame: frame == answered)
+            assert seen[-1] == answered and (dup_mac_5, b"\x00" + ours) in seen, seen  # its request, the online node's answer
+            assert [f for f in collect(bus, 0.5) if f[1][1:] == ours] == []  # faulted: no second request, nothing
+            assert "duplicate MAC ID 5" in newcomer.log() and newcomer.proc.poll() is None, newcomer.log()
+            bus.send(can.Message(arbitration_id=0x7ED, data=bytes.fromhex("3F 4B 02"), is_extended_id=False))
+            assert collect(bus, 3, until=lambda f: f[0] == 0x7EC)[-1:] == [(0x7EC, b"\x00" + ours)]  # only the faulted node
+            bus.send(can.Message(arbitration_id=0x7ED, data=b"\x07\x4D" + ours, is_extended_id=False))  # to MAC 7
+            assert [f for f in collect(bus, 1.2) if f[0] == dup_mac_7] == [(dup_mac_7, b"\x00" + ours)] * 2  # online after 0.6 s
+            bus.send(can.Message(arbitration_id=0x43E, data=bytes.fromhex("0A 4B 03 01 01 0A"), is_extended_id=False))
+            assert collect(bus, 3, until=lambda f: f[0] == 0x43B)[-1:] == [(0x43B, bytes.fromhex("0A CB 00"))]
+            bus.send(can.Message(arbitration_id=0x43C, data=bytes.fromhex("0A 0E 03 01 01"), is_extended_id=False))
+            assert collect(bus, 3, until=lambda f: f[0] == 0x43B)[-1:] == [(0x43B, bytes.fromhex("0A 8E 07"))]  # MAC ID 7
+            newcomer.proc.send_signal(signal.SIGINT)
+            assert newcomer.proc.wait(20) == 0, newcomer.log()
+        finally:
+            newcomer.stop()
+    assert json.loads((tmp_path / "state" / "dnet.devicenet.json").read_text())["mac_id"] == 7
+    assert network.bench.proc.poll() is None
 
 
 def test_sigint_stops_both_gateways_with_exit_code_0(network):
