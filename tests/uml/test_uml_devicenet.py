@@ -1,22 +1,30 @@
 """The DeviceNet front over real SocketCAN. Runs inside User-Mode Linux (`.ci/uml/run`), skipped elsewhere.
 
-One gateway runs as its own process (``fieldgate run topology.yaml --simulate``): a
-``devicenet`` front on vcan0 and a ``modbus`` back whose four modules are simulated on a
-pseudo-terminal. The simulator's demo wiring (``animate``, on with ``--simulate``) copies the
-DO module to the DI module and the AO module to the AI module, so the poll consumes
-DO (1 byte) + AO (4 x 2) = 9 bytes and produces DI (1) + AI (4 x 2) = 9 bytes, laid out alike:
-a bench whose outputs come back as its inputs, through the real RS-485 code.
+Two gateways run as their own processes (``fieldgate run ... --simulate``), two DeviceNet
+slaves on vcan0:
+
+* MAC 5, the topology below: a ``modbus`` back of four modules simulated on a pseudo-terminal.
+  The simulator's demo wiring (``animate``, on with ``--simulate``) copies the DO module to the
+  DI module and the AO module to the AI module, so the poll consumes DO (1 byte) + AO (4 x 2) =
+  9 bytes and produces DI (1) + AI (4 x 2) = 9 bytes, laid out alike: a bench whose outputs
+  come back as its inputs, through the real RS-485 code.
+* MAC 1, ``examples/i7241d-style.yaml`` as shipped (simulated DCON modules), only its channel
+  set to vcan0.
+
+Against them:
 
 * tests/devicenet's master (``dnet_master.Master``) on a socketcan bus allocates the
   Predefined Master/Slave Connection Set and polls: first the simulator's moving AI values
   come back, then the polled outputs reach the process image (its ``--status-every`` lines)
   and the simulated output modules, whose wired inputs come back in the poll response; without
   polls the master is lost and the outputs go to their error value 0, on the modules too.
-* The conformance tool's DeviceNet profile runs against it as a separate process
+* The conformance tool's DeviceNet profile runs against MAC 5 as a separate process
   (``python -m fieldgate.conformance --protocol devicenet ... --loopback``): every case passes.
-* SIGINT stops the gateway with exit code 0.
+* A baud rate set over the network and an Identity Reset reopen the front's socket.
+* A third gateway at the same MAC faults and is moved by the Offline Connection Set.
+* SIGINT stops the gateways with exit code 0.
 
-The tests share the one gateway process (each start costs about 3 s in the guest) and run
+The tests share the two gateway processes (each start costs about 3 s in the guest) and run
 in file order: the first one sees the inputs move before anything drove the outputs.
 """
 
@@ -71,7 +79,9 @@ def topology(state_dir: Path, serial: int = 7241) -> dict:
         "fronts": [{"name": "dnet", "type": "devicenet", "interface": "socketcan", "channel": CHANNEL, "mac_id": SLAVE,
                     "baudrate": 125000, "dup_mac_timeout_ms": 50,  # 125 kbit/s as the i7241d example beside it
                     "identity": {"vendor_id": 803, "serial": serial, "product_name": PRODUCT_NAME}}],
-        "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "baudrate": 115200, "poll_ms": 10, "timeout_ms": 100,
+        # poll_ms 50: at 10 ms this process alone takes half the guest's one CPU, and the conformance
+        # tool, a process beside it, then sees answers late
+        "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "baudrate": 115200, "poll_ms": 50, "timeout_ms": 100,
                    "modules": [
                        {"address": 1, "model": "M-7055D", "counts": {"di": 0}, "error_mode": zero},  # 8 DO
                        {"address": 2, "model": "M-7024", "error_mode": zero},  # 4 AO
@@ -92,7 +102,9 @@ class GatewayProcess:
     def start(self) -> None:
         with self.status_file.open("w") as out, self.log_file.open("w") as err:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "fieldgate", "run", str(self.source), "--simulate", "--status-every", "0.1", *self.options],
+                # -X faulthandler: SIGABRT dumps every thread's stack into the log (see interrupt())
+                [sys.executable, "-X", "faulthandler", "-m", "fieldgate", "run", str(self.source), "--simulate", "--status-every", "0.1",
+                 *self.options],
                 stdout=out, stderr=err, cwd=REPO,
             )
 
@@ -105,6 +117,16 @@ class GatewayProcess:
         if not lines:
             return {}
         return dict(part.split("=", 1) for part in lines[-1].split(" | "))
+
+    def interrupt(self, timeout: float = 20) -> int | None:
+        """SIGINT, as Ctrl-C: the exit code, or None if still running after ``timeout`` (then its stacks go to the log)."""
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.send_signal(signal.SIGABRT)
+            self.proc.wait(10)
+            return None
 
     def stop(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
@@ -337,8 +359,7 @@ def test_a_second_node_at_the_same_mac_faults_and_is_moved_by_the_offline_connec
             assert collect(bus, 3, until=lambda f: f[0] == 0x43B)[-1:] == [(0x43B, bytes.fromhex("0A CB 00"))]
             bus.send(can.Message(arbitration_id=0x43C, data=bytes.fromhex("0A 0E 03 01 01"), is_extended_id=False))
             assert collect(bus, 3, until=lambda f: f[0] == 0x43B)[-1:] == [(0x43B, bytes.fromhex("0A 8E 07"))]  # MAC ID 7
-            newcomer.proc.send_signal(signal.SIGINT)
-            assert newcomer.proc.wait(20) == 0, newcomer.log()
+            assert newcomer.interrupt() == 0, newcomer.log()
         finally:
             newcomer.stop()
     assert json.loads((tmp_path / "state" / "dnet.devicenet.json").read_text())["mac_id"] == 7
@@ -348,7 +369,5 @@ def test_a_second_node_at_the_same_mac_faults_and_is_moved_by_the_offline_connec
 def test_sigint_stops_both_gateways_with_exit_code_0(network):
     for gateway in (network.bench, network.i7241d):
         assert gateway.proc.poll() is None, gateway.log()
-        gateway.proc.send_signal(signal.SIGINT)
-    for gateway in (network.bench, network.i7241d):
-        assert gateway.proc.wait(20) == 0, gateway.log()
+        assert gateway.interrupt() == 0, gateway.log()
         assert "Traceback" not in gateway.log(), gateway.log()
