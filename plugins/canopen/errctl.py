@@ -32,10 +32,18 @@ reset node) ends all of them, the 0x8140 included, with one error-reset EMCY aft
 the boot-up. 0x8140 also ends as soon as nothing monitors the master (no guarding,
 no 0x1016 entry): nothing could ever hear it.
 
+Other services' errors that a reset ends (the SYNC loss) are gathered here after the
+boot-up, from every service with a ``reset_ends_errors()`` method, so that one
+error-reset EMCY reports everything the reset ended.
+
 Master state: the master is lost while life guarding, a heartbeat consumer or bus-off
-says so; ``node.master_state`` is told each change of that one fact (lost, then ok),
+says so, or while it has not been heard since :meth:`ErrorControl.assume_master_lost`
+(the front restarted while its master was lost; docs/canopen.md "After a front
+restart"); ``node.master_state`` is told each change of that one fact (lost, then ok),
 so the front's ``context.masters`` changes together with the monitoring errors in
-0x1001/0x1003 (bus-off itself has no EMCY: it cannot be sent).
+0x1001/0x1003 (bus-off itself has no EMCY: it cannot be sent). The master is *heard*
+by a guard RTR, a heartbeat of a monitored node, an NMT command (a state change this
+service did not make) or a write to 0x100C/0x100D/0x1016/0x1017.
 """
 
 from __future__ import annotations
@@ -80,6 +88,8 @@ class ErrorControl(Service):
         self.heartbeat_lost: set[int] = set()
         self.bus_off = False
         self.bus_off_recovered = False  # EMCY 0x8140 active: the master not heard since
+        self.unheard = False  # lost until heard (assume_master_lost); no EMCY: this node detected nothing
+        self._own_state_change = False  # 0x1029 at work: an NMT state change that is not the master's
         self.master_lost = False  # as last told to node.master_state
 
     def attach(self, node) -> None:
@@ -107,13 +117,36 @@ class ErrorControl(Service):
         self.watched = dict.fromkeys(self.consumer_times)  # each restarts at its producer's first heartbeat
 
     def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
+        if not self._own_state_change:
+            self.unheard = False  # an NMT command, or a reset (NMT, LSS): the master is there
         if old is NmtState.INITIALISING and new is not NmtState.INITIALISING:
             self._restart_heartbeat(now)
             # after a reset (the boot-up is out, EMCY may be sent): the monitoring restarted,
-            # so none of its errors holds any more
-            self._end(now, "reset communication", guard=True, producers=self.heartbeat_lost, bus_off_recovered=True)
+            # so none of its errors holds any more, nor do the other services' (SYNC loss)
+            self._end(now, "reset communication", guard=True, producers=self.heartbeat_lost, bus_off_recovered=True, others=self._ended_elsewhere())
         elif new is NmtState.INITIALISING:
             self.heartbeat_due = None
+        else:
+            self._report_master(f"NMT {new.label}")
+
+    def _ended_elsewhere(self) -> list[Error]:
+        """The errors other services give up at a reset (``reset_ends_errors()``)."""
+        ended: list[Error] = []
+        for service in self.node.services:
+            hook = getattr(service, "reset_ends_errors", None)
+            if service is not self and hook is not None:
+                ended += hook()
+        return ended
+
+    def assume_master_lost(self, reason: str) -> None:
+        """Count the master as lost until it is heard (see the module docstring)."""
+        self.unheard = True
+        self._report_master(reason)
+
+    def _heard(self, reason: str) -> None:
+        if self.unheard:
+            self.unheard = False
+            self._report_master(reason)
 
     @property
     def cob_id(self) -> int:
@@ -127,9 +160,11 @@ class ErrorControl(Service):
             if not frame.rtr:
                 self.counters["foreign_frames_on_own_id"] += 1
                 return True
+            self._heard("guard request")
             self._guard_request(now)
             return True
         if 0x701 <= frame.can_id <= 0x77F and not frame.rtr and frame.can_id - 0x700 in self.watched:
+            self._heard(f"heartbeat of node {frame.can_id - 0x700}")
             self._heartbeat_from(frame.can_id - 0x700, frame.data, now)
             return True
         return False
@@ -216,6 +251,7 @@ class ErrorControl(Service):
         self._guarding_written(now)  # heartbeat on is guarding off, and back
 
     def _guarding_written(self, now: float) -> None:
+        self._heard("monitoring configured")
         if self.guarding_enabled():
             self._rearm_life_guarding(now)
             return
@@ -223,6 +259,7 @@ class ErrorControl(Service):
         self._end(now, "life guarding switched off", guard=True, bus_off_recovered=not self.monitoring())
 
     def _consumers_written(self, now: float) -> None:
+        self._heard("monitoring configured")
         times = self._consumer_times()
         # a producer whose time changed restarts at its next heartbeat; the others keep running
         self.watched = {p: self.watched.get(p) if self.consumer_times.get(p) == t else None for p, t in times.items()}
@@ -274,14 +311,18 @@ class ErrorControl(Service):
 
     def _apply_error_behaviour(self, now: float) -> None:
         behaviour = self.node.od.get(0x1029, 1)
-        if behaviour == ERROR_PRE_OPERATIONAL and self.node.state is NmtState.OPERATIONAL:
-            self.node.set_state(NmtState.PRE_OPERATIONAL, now)
-        elif behaviour == ERROR_STOPPED:
-            self.node.set_state(NmtState.STOPPED, now)
+        self._own_state_change = True
+        try:
+            if behaviour == ERROR_PRE_OPERATIONAL and self.node.state is NmtState.OPERATIONAL:
+                self.node.set_state(NmtState.PRE_OPERATIONAL, now)
+            elif behaviour == ERROR_STOPPED:
+                self.node.set_state(NmtState.STOPPED, now)
+        finally:
+            self._own_state_change = False
 
-    def _end(self, now: float, reason: str, guard: bool = False, producers=(), bus_off_recovered: bool = False) -> None:
+    def _end(self, now: float, reason: str, guard: bool = False, producers=(), bus_off_recovered: bool = False, others: list[Error] = ()) -> None:
         """Monitoring errors that no longer hold (master heard, monitoring off, reset): one EMCY."""
-        ended: list[Error] = []
+        ended: list[Error] = list(others)
         if guard and self.guard_lost:
             self.guard_lost = False
             ended.append(LIFE_GUARDING_ERROR)
@@ -298,7 +339,7 @@ class ErrorControl(Service):
 
     def _report_master(self, reason: str) -> None:
         """Tell the node's master listeners when "master lost" changes, and only then."""
-        lost = self.guard_lost or bool(self.heartbeat_lost) or self.bus_off
+        lost = self.guard_lost or bool(self.heartbeat_lost) or self.bus_off or self.unheard
         if lost != self.master_lost:
             self.master_lost = lost
             self.node.master_state(not lost, reason)
@@ -306,4 +347,4 @@ class ErrorControl(Service):
     def status(self) -> dict:
         guarding = "lost" if self.guard_lost else ("active" if self.life_deadline else ("armed" if self.guarding_enabled() else "off"))
         return {**self.counters, "guarding": guarding, "heartbeat_lost": sorted(self.heartbeat_lost), "bus_off": self.bus_off,
-                "bus_off_recovered": self.bus_off_recovered, "master": "lost" if self.master_lost else "ok"}
+                "bus_off_recovered": self.bus_off_recovered, "master_unheard": self.unheard, "master": "lost" if self.master_lost else "ok"}

@@ -16,11 +16,12 @@ What it does on the node:
   state changes, timers, and process-image events;
 * RPDO too short: EMCY 0x8210 (register 0x11, manufacturer byte 09), cleared by the next
   good RPDO; module offline: EMCY 0xFF00 ``0B <address>``;
-* master lost (``node.on_master``: life guarding, heartbeat consumer, bus-off) and, when
-  ``error_on_stopped`` (the NA-9161), NMT Stopped: ``masters.lost(front, reason, outputs)``
-  drives every output with an error mode to its error value; the master's return (or
-  leaving Stopped) reports ``masters.ok``. Outputs keep their error values until new
-  data is written (NA-9161 §9.7.3).
+* with ``master_events`` (a standalone device; the canopen front owns it itself), the
+  master state (:class:`~.master_state.MasterState`): master lost (``node.on_master``:
+  life guarding, heartbeat consumer, bus-off) or, when ``error_on_stopped`` (the
+  NA-9161), NMT Stopped: ``masters.lost(front, reason, outputs)`` drives every output
+  with an error mode to its error value; ``masters.ok`` when neither holds any more.
+  Outputs keep their error values until new data is written (NA-9161 §9.7.3).
 
 Frames produced between node calls (a DI change from a back) are queued with
 ``node.send`` and ``wakeup()`` is called so the adapter flushes the node.
@@ -34,12 +35,14 @@ from typing import Any, Literal
 
 from fieldgate.health import HealthRegistry
 from fieldgate.image import Channel, ProcessImage
+from fieldgate.masters import MasterMonitor
 
 from .entries import BOOLEAN, Directory, ObjectDef
 from .frame import Frame, NmtState
 from .iostore import IoStore
 from .layouts import STYLE_PDO_COUNT, IoLayout, Style, build_layout, default_pdos
 from .manufacturer import ManufacturerObjects
+from .master_state import MasterState
 from .pdo import PdoEngine
 from .profile401 import Profile401
 from .service import Service
@@ -95,17 +98,17 @@ class IoDevice(Service):
         self.settings = settings
         self.image = image
         self.front = front or origin
-        self.masters = masters
         self.layout: IoLayout = build_layout(channels, settings.style, compressed=settings.compressed, models=models)
         self.defaults = default_pdos(self.layout, settings.style, count=settings.count, mapping_closed=settings.mapping_closed)
         self.profile = Profile401(image, self.layout, origin)
         self.manufacturer = ManufacturerObjects(self.layout, health or HealthRegistry(), style=settings.style, backs=backs, dcon_backs=dcon_backs, module_emcy=module_emcy, watchdogs=watchdogs)
-        self.master_events = master_events  # False: the front reports node.on_master to the masters itself
+        # the master-state owner, unless the front owns it (master_events False)
+        self.master_state = MasterState(masters if masters is not None else MasterMonitor(image), self.front, self.profile.output_ids,
+                                        stopped_is_error=settings.stopped_is_error) if master_events else None
         self.directory = Directory(self.profile.objects() + self.manufacturer.objects())
         self.engine: PdoEngine | None = None
         self.store = IoStore(self)
         self.wakeup: Callable[[], None] | None = None
-        self.master_lost = False
 
     @property
     def device_type(self) -> int:
@@ -135,8 +138,8 @@ class IoDevice(Service):
                 lambda code, reg, mfr: self._outside(lambda: emcy.raise_error(code, reg, mfr)),
                 lambda code, mfr: self._outside(lambda: emcy.clear_error(code, mfr)),
             )
-        if self.master_events:
-            node.on_master(self._master_state)
+        if self.master_state is not None:
+            self.master_state.attach(node)
 
     def detach(self) -> None:
         self.profile.detach()
@@ -157,17 +160,11 @@ class IoDevice(Service):
         if self.engine is None:
             return
         self._send(self.engine.set_operational(new == NmtState.OPERATIONAL, now))
-        if self.settings.stopped_is_error:
-            if new == NmtState.STOPPED:
-                self._lost("NMT Stopped")
-            elif old == NmtState.STOPPED:
-                self._ok("left NMT Stopped")
 
     def on_reset_communication(self, now: float) -> None:
         if self.engine is not None:
             self.engine.reset(self.node.node_id if self.node.configured else 0)
             self.store.load_communication()
-            self._lost_cleared_by_reset()
 
     def on_reset_application(self, now: float) -> None:
         if self.engine is not None:
@@ -181,7 +178,8 @@ class IoDevice(Service):
             self._send(self.engine.on_timer(now))
 
     def status(self) -> dict:
-        return {**dict(self.counters), **(self.engine.status() if self.engine else {}), "master_lost": self.master_lost}
+        master = {"master_lost": self.master_state.lost} if self.master_state is not None else {}
+        return {**dict(self.counters), **(self.engine.status() if self.engine else {}), **master}
 
     # -- glue ---------------------------------------------------------------------------------
     def _send(self, frames: list[tuple[int, bytes]]) -> None:
@@ -206,31 +204,6 @@ class IoDevice(Service):
             emcy.raise_error(LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES)
         else:
             emcy.clear_error(LENGTH_ERROR_CODE)
-
-    def _master_state(self, ok: bool, reason: str) -> None:
-        if ok:
-            self._ok(reason)
-        else:
-            self._lost(reason)
-
-    def _lost(self, reason: str) -> None:
-        self.master_lost = True
-        self.counters["master_lost"] += 1
-        if self.masters is not None:
-            self.masters.lost(self.front, reason, self.profile.output_ids())
-        else:
-            self.image.apply_error_modes(self.profile.output_ids(), origin=f"{self.front}:master-lost")
-
-    def _ok(self, reason: str) -> None:
-        if not self.master_lost:
-            return
-        self.master_lost = False
-        if self.masters is not None:
-            self.masters.ok(self.front, reason)
-
-    def _lost_cleared_by_reset(self) -> None:
-        if self.master_lost and self.node.state != NmtState.STOPPED:
-            self._ok("reset communication")
 
 
 def bind_object(od, obj: ObjectDef) -> None:

@@ -3,8 +3,9 @@
 Start-up order: build the node (identity, EMCY, error control, SYNC, SDO, store), add
 LSS, run the *node extensions* (the PDO engine and CiA 401 objects register one with
 :func:`add_node_extension`), load the store, open the bus, boot. Master loss (life
-guarding, heartbeat consumer, bus-off) goes to ``context.masters.lost`` with the
-outputs this front serves; module health (offline / back online) raises and clears
+guarding, heartbeat consumer, bus-off, and NMT Stopped with ``error_on_stopped``)
+goes to ``context.masters.lost`` with the outputs this front serves, through one
+owner (:class:`~.master_state.MasterState`); module health (offline / back online) raises and clears
 the EMCY ``00 FF 81 0B <address> 00 00 00``.
 """
 
@@ -27,10 +28,11 @@ from fieldgate.topology.model import StrictModel
 from fieldgate.can.adapter import CanAdapter, open_bus
 from .cobid import restricted
 from .eds import register_command as register_eds_command
-from .front401 import IoFrontOptions
+from .front401 import IoFrontOptions, io_settings
 from .front401 import install as install_io_device
 from .layouts import device_type as io_device_type
 from .lss import LssService, LssStore
+from .master_state import MasterState
 from .node import Node
 from .slave import Identity, NodeSettings, build_node
 
@@ -100,6 +102,7 @@ class CanopenFront(Front):
         self.node: Node | None = None
         self.adapter: CanAdapter | None = None
         self.outputs: list[str] = []
+        self.master: MasterState | None = None
         self._modules: set[tuple[str, int]] = set()
         self._health_subscribed = False
         self._failed: asyncio.Future | None = None
@@ -137,7 +140,8 @@ class CanopenFront(Front):
         node.service("store").load()
         self.outputs = [c.id for c in channels if c.kind.is_output]
         self._modules = {(c.source.back, c.source.module) for c in channels}
-        node.on_master(self._master_state)
+        self.master = MasterState(self.context.masters, self.name, self.outputs, stopped_is_error=io_settings(cfg).stopped_is_error)
+        self.master.attach(node)
         return node
 
     # -- life cycle ---------------------------------------------------------------------
@@ -169,13 +173,7 @@ class CanopenFront(Front):
             self.adapter.close()
             self.adapter = None
 
-    # -- master state and module health ------------------------------------------------
-    def _master_state(self, ok: bool, reason: str) -> None:
-        if ok:
-            self.context.masters.ok(self.name, reason)
-        else:
-            self.context.masters.lost(self.name, reason, self.outputs)
-
+    # -- module health ------------------------------------------------------------------
     def _module_health(self, health: ModuleHealth, event: HealthEvent) -> None:
         if self.node is None or self.node.emcy is None or health.key not in self._modules or not 0 <= health.address <= 255:
             return
@@ -192,7 +190,7 @@ class CanopenFront(Front):
     def status(self) -> dict:
         if self.node is None:
             return {}
-        return {**self.node.status(), "bus": self.adapter.status() if self.adapter else None,
+        return {**self.node.status(), "master": self.master.status() if self.master else None, "bus": self.adapter.status() if self.adapter else None,
                 "interface": self.config.interface, "channel": self.config.channel}
 
 

@@ -5,8 +5,18 @@
   ``on_sync`` (the PDO engine uses it). Only in pre-operational and operational.
 * SYNC loss: with 0x1006 (communication cycle period, us) non-zero, a SYNC missing for
   1.5 periods after the first one raises EMCY 0x8100 (register 0x11, manufacturer
-  byte 0x02, the NA-9161/Beckhoff "SYNC" bit); the next SYNC clears it. (CiA 301 does
-  not fix the tolerance; 1.5 periods is what CANopenNode uses.)
+  byte 0x02, the NA-9161/Beckhoff "SYNC" bit). (CiA 301 does not fix the tolerance;
+  1.5 periods is what CANopenNode uses.) The error ends (error-reset EMCY, 0x1001
+  drops its bits; docs/canopen.md "Monitoring switched off") when
+
+  - the next SYNC of the right length is consumed (as CANopenNode's CO_SYNC_process);
+  - SYNC supervision is switched off: 0x1006 written 0, or 0x1005 bit 30 set with a
+    period (the node produces SYNC itself and supervises nothing);
+  - reset communication or reset node, after the boot-up. Error control gathers the
+    errors every reset ends (:meth:`SyncService.reset_ends_errors`) into one EMCY.
+
+  A new non-zero period or a new COB-ID keeps it: supervision restarts at the first
+  SYNC, which ends it. NMT Stopped keeps it too (no SYNC is consumed there).
 * Producer (test benches): 0x1005 bit 30 set and 0x1006 non-zero sends SYNC every
   period, with a counter 1..0x1019 when 0x1019 > 1; the node consumes its own SYNC.
 * 0x1019 may be written only while 0x1006 is 0 (else 0800 0022); values 1 and
@@ -21,10 +31,12 @@ from canopen.objectdictionary import datatypes as dt
 from . import abort
 from .abort import SdoAbort
 from .cobid import check_cob_id
-from .frame import Frame
+from .frame import Frame, NmtState
 from .service import COMMUNICATING, Service
 
 SYNC_LOSS_CODE = 0x8100
+SYNC_LOSS_REGISTER = 0x11  # generic + communication
+SYNC_LOSS_ERROR = (SYNC_LOSS_CODE, b"\x02")  # (EMCY code, manufacturer bytes), as errctl's Error
 PRODUCER_BIT = 1 << 30
 LOSS_TOLERANCE = 1.5
 
@@ -62,24 +74,45 @@ class SyncService(Service):
     def _producer(self) -> bool:
         return bool(self.node.od.get(0x1005) & PRODUCER_BIT) and self.node.od.get(0x1006) > 0
 
+    def supervising(self) -> bool:
+        """SYNC loss is watched: a communication cycle period, and the SYNC comes from elsewhere."""
+        return self.node.od.get(0x1006) > 0 and not self._producer()
+
     def _configure(self, now: float) -> None:
-        self.loss_deadline = None
+        self.loss_deadline = None  # supervision (re)starts at the first SYNC
         self.counter = 0
         if self._producer() and self.node.state in COMMUNICATING:
             self.produce_due = self.produce_due if self.produce_due is not None else now + self._period_s()
         else:
             self.produce_due = None
+        if not self.supervising():
+            self._end_loss(now)
 
     def on_reset_communication(self, now: float) -> None:
-        self.produce_due = None
-        self.lost = False
+        self.produce_due = None  # the loss error ends after the boot-up (on_nmt_state)
 
     def on_nmt_state(self, old, new, now) -> None:
+        if old is NmtState.INITIALISING and new is not NmtState.INITIALISING:
+            self._end_loss(now)  # unless error control already ended it with its own (one EMCY)
         if new in COMMUNICATING:
             self._configure(now)
         else:
             self.produce_due = None
             self.loss_deadline = None
+
+    def reset_ends_errors(self) -> list[tuple[int, bytes]]:
+        """Called by error control after a reset's boot-up: the errors the reset ends, now forgotten
+        here; error control clears them with its own in one error-reset EMCY."""
+        if not self.lost:
+            return []
+        self.lost = False
+        return [SYNC_LOSS_ERROR]
+
+    def _end_loss(self, now: float) -> None:
+        if self.lost:
+            self.lost = False
+            if self.node.emcy is not None:
+                self.node.emcy.clear_errors([SYNC_LOSS_ERROR], now)
 
     # -- consumer --------------------------------------------------------------------------
     def on_frame(self, frame: Frame, now: float) -> bool:
@@ -96,10 +129,7 @@ class SyncService(Service):
         self.counters["received"] += 1
         period = self._period_s()
         self.loss_deadline = now + LOSS_TOLERANCE * period if period and not self._producer() else None
-        if self.lost:
-            self.lost = False
-            if self.node.emcy is not None:
-                self.node.emcy.clear_error(SYNC_LOSS_CODE, bytes([0x02]), now)
+        self._end_loss(now)
         self.node.sync(counter, now)
 
     # -- timers ------------------------------------------------------------------------------
@@ -128,7 +158,7 @@ class SyncService(Service):
                 self.lost = True
                 self.counters["sync_loss"] += 1
                 if self.node.emcy is not None:
-                    self.node.emcy.raise_error(SYNC_LOSS_CODE, 0x11, bytes([0x02]), now)
+                    self.node.emcy.raise_error(SYNC_LOSS_CODE, SYNC_LOSS_REGISTER, SYNC_LOSS_ERROR[1], now)
 
     # -- validators --------------------------------------------------------------------------
     def _check_cob_id(self, sub: int, value: int) -> None:

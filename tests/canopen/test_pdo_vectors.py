@@ -110,7 +110,7 @@ def test_tv20_tv23_life_guarding_drives_outputs_to_their_error_values():
     b2.write(0x6206, 1, 0x31, 1)
     b2.write(0x6207, 1, 0xF8, 1)
     b2.rx(0x201, "FF")
-    b2.io._lost("bus-off")
+    b2.node.service("error_control").bus_state(True, b2.clock.t)
     assert do_byte(b2) == 0xFE
 
 
