@@ -2,10 +2,12 @@
 
 The front's configuration gains the :class:`IoFrontOptions` fields; :func:`install` is
 the node extension that adds an :class:`~.iodevice.IoDevice` to every canopen front's
-node before it boots. The front itself reports master loss (``node.on_master``) and
-the module-offline EMCY, so the I/O device only adds what is its own: the PDO engine,
-the CiA 401 and manufacturer objects, NMT Stopped as an error event (``na9161``) and
-the acknowledgement of a module error by clearing its 0x2000 counter.
+node before it boots. The front itself owns the master state (error control's
+monitoring and, with ``error_on_stopped``, NMT Stopped: :mod:`.master_state`) and the
+module-offline EMCY, so the I/O device only adds what is its own: the PDO engine, the
+CiA 401 and manufacturer objects (0x2001-0x2003 through the gateway's
+``HostWatchdogs.from_context``) and the acknowledgement of a module error by clearing
+its 0x2000 counter.
 
 YAML::
 
@@ -25,6 +27,7 @@ from typing import Any, Literal
 
 from pydantic import Field
 
+from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.topology.model import StrictModel
 
 from .iodevice import IoDevice, IoSettings
@@ -49,13 +52,10 @@ def io_settings(options: Any) -> IoSettings:
 def io_device(front: Any) -> IoDevice:
     """The I/O device of a canopen front (``front.config``, ``front.context``)."""
     cfg, ctx = front.config, front.context
-    topology = ctx.topology
-    models = {(b.name, m.address): m.model or "" for b in topology.backs for m in b.modules}
-    dcon = {b.name for b in topology.backs if b.type == "dcon"}
-    watchdogs = {(b.name, m.address): (bool(m.watchdog.enabled), int(m.watchdog.timeout_ms)) for b in topology.backs if b.type == "dcon" for m in b.modules if getattr(m, "watchdog", None) is not None}
+    models = {(b.name, m.address): m.model or "" for b in ctx.topology.backs for m in b.modules}
     return IoDevice(
         io_settings(cfg), ctx.image, ctx.front_channels(cfg), origin=front.name, health=ctx.health, masters=ctx.masters,
-        front=front.name, backs=getattr(ctx, "backs", {}), dcon_backs=dcon, models=models, master_events=False, module_emcy=False, watchdogs=watchdogs,
+        front=front.name, host_watchdogs=HostWatchdogs.from_context(ctx), models=models, master_events=False, module_emcy=False,
     )
 
 

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from fieldgate.health import HealthRegistry
+from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
 
@@ -87,12 +88,10 @@ class IoDevice(Service):
         health: HealthRegistry | None = None,
         masters: Any = None,
         front: str | None = None,
-        backs: dict[str, Any] | None = None,
-        dcon_backs: set[str] | None = None,
+        host_watchdogs: HostWatchdogs | None = None,
         models: dict[tuple[str, int], str] | None = None,
         master_events: bool = True,
         module_emcy: bool = True,
-        watchdogs: dict[tuple[str, int], tuple[bool, int]] | None = None,
     ):
         super().__init__()
         self.settings = settings
@@ -101,7 +100,7 @@ class IoDevice(Service):
         self.layout: IoLayout = build_layout(channels, settings.style, compressed=settings.compressed, models=models)
         self.defaults = default_pdos(self.layout, settings.style, count=settings.count, mapping_closed=settings.mapping_closed)
         self.profile = Profile401(image, self.layout, origin)
-        self.manufacturer = ManufacturerObjects(self.layout, health or HealthRegistry(), style=settings.style, backs=backs, dcon_backs=dcon_backs, module_emcy=module_emcy, watchdogs=watchdogs)
+        self.manufacturer = ManufacturerObjects(self.layout, health or HealthRegistry(), style=settings.style, host_watchdogs=host_watchdogs, module_emcy=module_emcy)
         # the master-state owner, unless the front owns it (master_events False)
         self.master_state = MasterState(masters if masters is not None else MasterMonitor(image), self.front, self.profile.output_ids,
                                         stopped_is_error=settings.stopped_is_error) if master_events else None

@@ -54,13 +54,14 @@ def module_emcy_bytes(address: int) -> bytes:
 
 
 class ManufacturerObjects:
-    def __init__(self, layout: IoLayout, health: HealthRegistry, *, style: str = "icpdas", backs: dict[str, Any] | None = None, dcon_backs: set[str] | None = None, module_emcy: bool = True, watchdogs: dict[tuple[str, int], tuple[bool, int]] | None = None):
+    def __init__(self, layout: IoLayout, health: HealthRegistry, *, style: str = "icpdas", host_watchdogs: HostWatchdogs | None = None, module_emcy: bool = True):
         self.layout = layout
         self.module_emcy = module_emcy  # False: the front raises/clears the offline EMCY itself
         self.health = health
         self.style = style
-        # DCON host watchdogs: the running backs, which are DCON, the configured (enabled, timeout ms) before they run
-        self.host_watchdogs = HostWatchdogs(backs if backs is not None else {}, dcon_backs or (), watchdogs)
+        # the gateway's host watchdogs (HostWatchdogs.from_context: which backs have them, the
+        # configured settings, the running backs); none: no 0x2001-0x2003
+        self.host_watchdogs = host_watchdogs if host_watchdogs is not None else HostWatchdogs()
         self._raise: Raise | None = None
         self._clear: Clear | None = None
         self._keys = {(m.back, m.address) for m in layout.modules}

@@ -143,6 +143,7 @@ def test_restart_with_the_master_lost_stays_lost_until_a_guard_request():
     assert rig.boot == ["701 00"]  # no EMCY: this node detected nothing
     ec = rig.node.service("error_control")
     assert ec.status()["master_unheard"] and rig.state.lost and not rig.masters.is_ok(FRONT)
+    assert rig.state.reason == RESTART_REASON
     assert rig.events == []  # already lost in masters: nobody told again
     assert rig.advance(5.0) == [] and not rig.masters.is_ok(FRONT)
     assert rig.send("701 RTR") == ["701 7F"]
