@@ -48,6 +48,8 @@ service did not make) or a write to 0x100C/0x100D/0x1016/0x1017.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 from canopen.objectdictionary import datatypes as dt
 
 from . import abort
@@ -320,7 +322,7 @@ class ErrorControl(Service):
         finally:
             self._own_state_change = False
 
-    def _end(self, now: float, reason: str, guard: bool = False, producers=(), bus_off_recovered: bool = False, others: list[Error] = ()) -> None:
+    def _end(self, now: float, reason: str, guard: bool = False, producers=(), bus_off_recovered: bool = False, others: Iterable[Error] = ()) -> None:
         """Monitoring errors that no longer hold (master heard, monitoring off, reset): one EMCY."""
         ended: list[Error] = list(others)
         if guard and self.guard_lost:
