@@ -154,3 +154,5 @@ class DeviceNetFront(Front):
 @hookimpl
 def fieldgate_register(registry) -> None:
     registry.add_front("devicenet", DeviceNetFrontConfig, DeviceNetFront, "DeviceNet Group 2 Only slave on any python-can bus")
+    from .eds import register_command
+    register_command(registry)

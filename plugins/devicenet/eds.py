@@ -1,0 +1,395 @@
+"""DeviceNet EDS of exactly the slave a devicenet front serves.
+
+``fieldgate devicenet eds TOPOLOGY [--front NAME] [-o FILE]`` builds the front's slave the
+way the running gateway does (same assemblies, same identity settings) without opening a
+bus, and reads what the EDS states from the slave's own CIP objects:
+
+* ``[Device]``: Identity attributes 1-4 and 7 through the Identity object's getters, so
+  the EDS names the device a scanner finds on the bus (VendCode, ProdType, ProdCode,
+  MajRev/MinRev, ProdName);
+* ``[IO_Info]``: the produced/consumed sizes of the poll, bit-strobe and COS/cyclic
+  connections as the engine sets them when it opens them (Connection attributes 7/8);
+  the combination masks follow the Allocate rules (COS and cyclic exclude each other);
+* ``[ParamClass]``/``[Params]``: the attributes a configurator may set (heartbeat, BOI,
+  and with DCON modules Host OK and each module's host watchdog), with their paths.
+
+The poll produces every input assembly and consumes every output assembly, concatenated
+(docs/devicenet.md, "Assembly layout"). With one assembly on a side, Input1/Output1 carry
+its path ``20 04 24 <instance> 30 03``; with several, no single instance holds the
+connection's data, so the path is empty (as the Connection object's produced/consumed
+connection path attributes 14/16 answer) and the help string lists the member instances.
+The I-7241D utility "creates the EDS file to match the setting result" (seed-003 §6):
+so does this command, from the topology.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from fieldgate.plugin import GatewayContext, Registry, load_registry
+from fieldgate.topology import TopologyError, load_topology
+
+from .application import HOST_OK, WATCHDOG_ENABLE, WATCHDOG_TIME
+from .assembly import Assembly
+from .connection import COS_CYCLIC, POLL, STROBE
+from .engine import DeviceNetSlave
+
+IDENTITY, DEVICENET, ASSEMBLY, CONNECTION, APPLICATION = 0x01, 0x03, 0x04, 0x05, 0x64
+# I/O type mask bits (PollInfo, Input/Output entries)
+POLL_BIT, STROBE_BIT, COS_BIT, CYCLIC_BIT = 0x0001, 0x0002, 0x0004, 0x0008
+# CIP device profiles (Identity attribute 2) by name; others are written by number
+DEVICE_TYPES = {0x00: "Generic Device", 0x07: "General Purpose Discrete I/O", 0x0C: "Communications Adapter",
+                0x2B: "Generic Device (keyable)"}
+VENDOR_NAMES = {803: "ICP DAS"}  # seed-003 §3.1 (the I-7241D's statement of compliance)
+# EDS parameter data types and descriptor bits
+BOOL, USINT = 0xC1, 0xC6
+ENUMERATED, READ_ONLY = 0x0002, 0x0010
+WATCHDOG_DEFAULT_TENTHS = 50  # a module whose watchdog time was never set: the seed's 5.0 s
+
+
+class EdsError(Exception):
+    """The topology has no such devicenet front (one line, for the command's error)."""
+
+
+@dataclass
+class IoEntry:
+    """One ``InputN``/``OutputN`` entry: the data one or more connection types carry."""
+    size: int
+    mask: int
+    name: str
+    path: bytes
+    help: str
+
+
+@dataclass
+class Param:
+    name: str
+    path: bytes
+    data_type: int
+    minimum: int
+    maximum: int
+    default: int
+    help: str
+    units: str = ""
+    enum: dict[int, str] = field(default_factory=dict)
+
+    @property
+    def descriptor(self) -> int:
+        return ENUMERATED if self.enum else 0
+
+
+@dataclass
+class Description:
+    """Everything the EDS states, read from one slave."""
+    front: str
+    gateway: str
+    vendor_id: int
+    device_type: int
+    product_code: int
+    major_revision: int
+    minor_revision: int
+    product_name: str
+    inputs: list[IoEntry]
+    outputs: list[IoEntry]
+    defaults: dict[str, tuple[int, int]]  # connection type -> (default InputN, default OutputN), 0 = none
+    params: list[Param]
+    groups: list[tuple[str, list[int]]]
+
+
+# -- what the slave serves ------------------------------------------------------------------
+def attribute(slave: DeviceNetSlave, class_id: int, instance: int, attr: int) -> bytes:
+    """What a Get_Attribute_Single of this attribute answers."""
+    return slave.objects[class_id].attribute(instance, attr).get()
+
+
+def number(data: bytes) -> int:
+    return int.from_bytes(data, "little")
+
+
+def assembly_path(instance: int) -> bytes:
+    return bytes([0x20, ASSEMBLY, 0x24, instance, 0x30, 0x03])
+
+
+def attribute_path(class_id: int, instance: int, attr: int) -> bytes:
+    return bytes([0x20, class_id, 0x24, instance, 0x30, attr])
+
+
+def members(assemblies: Sequence[Assembly]) -> str:
+    return " + ".join(f"{a.kind.value.upper()} assembly 0x{a.instance:02X} ({a.size} byte{'s' if a.size != 1 else ''})"
+                      for a in assemblies)
+
+
+def io_entry(assemblies: Sequence[Assembly], size: int, mask: int, name: str, note: str = "") -> IoEntry:
+    """The data of ``assemblies`` concatenated (its first ``size`` bytes)."""
+    whole = sum(a.size for a in assemblies)
+    path = assembly_path(assemblies[0].instance) if len(assemblies) == 1 and size == whole else b""
+    return IoEntry(size, mask, name, path, members(assemblies) + note)
+
+
+def connection_sizes(slave: DeviceNetSlave) -> dict[int, tuple[int, int]]:
+    """(produced, consumed) of each I/O connection, as the engine sets them when it opens it.
+
+    ``slave`` is a throwaway slave that never saw a bus; the connections are opened on it only
+    to read Connection attributes 7 and 8.
+    """
+    sizes = {}
+    for instance in (POLL, STROBE, COS_CYCLIC):
+        slave.open_connection(instance, 0.0)
+        sizes[instance] = (number(attribute(slave, CONNECTION, instance, 7)), number(attribute(slave, CONNECTION, instance, 8)))
+    return sizes
+
+
+def io_entries(slave: DeviceNetSlave) -> tuple[list[IoEntry], list[IoEntry], dict[str, tuple[int, int]]]:
+    sizes = connection_sizes(slave)
+    ins, outs = slave.assemblies.inputs, slave.assemblies.outputs
+    (poll_in, poll_out), (strobe_in, _), (cos_in, _) = sizes[POLL], sizes[STROBE], sizes[COS_CYCLIC]
+    inputs: list[IoEntry] = []
+    outputs: list[IoEntry] = []
+    strobe_input = 0
+    if poll_in:
+        mask = POLL_BIT | (COS_BIT | CYCLIC_BIT if cos_in == poll_in else 0) | (STROBE_BIT if strobe_in == poll_in else 0)
+        inputs.append(io_entry(ins, poll_in, mask, "Input data"))
+        strobe_input = 1 if strobe_in == poll_in else 0
+    if strobe_in and not strobe_input:
+        inputs.append(io_entry(ins, strobe_in, STROBE_BIT, "Strobe input data", f": the first {strobe_in} bytes"))
+        strobe_input = len(inputs)
+    if poll_out:
+        outputs.append(io_entry(outs, poll_out, POLL_BIT, "Output data"))
+    first_in, first_out = (1 if inputs else 0), (1 if outputs else 0)
+    cos_input = first_in if cos_in else 0
+    defaults = {"Poll": (first_in, first_out), "Strobe": (strobe_input, 0), "COS": (cos_input, 0), "Cyclic": (cos_input, 0)}
+    return inputs, outputs, defaults
+
+
+def parameters(slave: DeviceNetSlave) -> tuple[list[Param], list[tuple[str, list[int]]]]:
+    """The attributes a configurator may set, with the values the slave starts with."""
+    params = [
+        Param("Heartbeat interval", attribute_path(IDENTITY, 1, 10), USINT, 0, 255, number(attribute(slave, IDENTITY, 1, 10)),
+              "Identity heartbeat message interval; 0 = no heartbeat", units="s"),
+        Param("Bus-off interrupt", attribute_path(DEVICENET, 1, 3), BOOL, 0, 1, number(attribute(slave, DEVICENET, 1, 3)),
+              "What the node does on CAN bus-off", enum={0: "Hold in bus-off", 1: "Reset and continue"}),
+    ]
+    groups = [("DeviceNet", [1, 2])]
+    application = slave.objects[APPLICATION]
+    dcon = [(instance, module) for instance, module in enumerate(application.modules, start=1)
+            if slave.host_watchdogs.has(module.back, module.address)]
+    if dcon:
+        on_off = {0: "Off", 1: "On"}
+        params.append(Param("Host OK", attribute_path(APPLICATION, 0, HOST_OK), USINT, 0, 1,
+                            number(attribute(slave, APPLICATION, 0, HOST_OK)),
+                            "DCON backs may send the host-OK broadcast (~**); 0 lets watchdog-enabled modules time out",
+                            enum=on_off))
+        watchdog = [len(params)]
+        for instance, module in dcon:
+            tenths = number(attribute(slave, APPLICATION, instance, WATCHDOG_TIME)) or WATCHDOG_DEFAULT_TENTHS
+            label = f"Module {module.address} ({module.back})"
+            params.append(Param(f"{label} watchdog", attribute_path(APPLICATION, instance, WATCHDOG_ENABLE), USINT, 0, 1,
+                                number(attribute(slave, APPLICATION, instance, WATCHDOG_ENABLE)),
+                                f"DCON host watchdog of module {module.address}", enum=on_off))
+            params.append(Param(f"{label} watchdog time", attribute_path(APPLICATION, instance, WATCHDOG_TIME), USINT, 1, 255,
+                                tenths, f"DCON host watchdog time of module {module.address}", units="x0.1 s"))
+            watchdog += [len(params) - 1, len(params)]
+        groups.append(("DCON host watchdog", watchdog))
+    return params, groups
+
+
+def describe(front: Any, slave: DeviceNetSlave) -> Description:
+    vendor, device_type, product_code = (number(attribute(slave, IDENTITY, 1, a)) for a in (1, 2, 3))
+    major, minor = attribute(slave, IDENTITY, 1, 4)
+    name = attribute(slave, IDENTITY, 1, 7)
+    params, groups = parameters(slave)
+    inputs, outputs, defaults = io_entries(slave)
+    return Description(front.name, front.context.topology.gateway.name or "fieldgate", vendor, device_type, product_code, major, minor,
+                       name[1:1 + name[0]].decode("latin-1"), inputs, outputs, defaults, params, groups)
+
+
+# -- the EDS text -----------------------------------------------------------------------------
+def quoted(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def hex_path(path: bytes) -> str:
+    return quoted(path.hex(" ").upper())
+
+
+def entry(key: str, fields: Sequence[tuple[str, str]]) -> list[str]:
+    """``key =`` then one field per line with its comment, the last one ending with ``;``."""
+    lines = [f"        {key} ="]
+    for n, (value, comment) in enumerate(fields):
+        text = value + (";" if n == len(fields) - 1 else ",")
+        lines.append(f"                {text:<23} $ {comment}" if comment else f"                {text}")
+    return lines
+
+
+def single(key: str, value: str, comment: str = "") -> str:
+    text = f"        {key} = {value};"
+    return f"{text:<39} $ {comment}" if comment else text
+
+
+def io_lines(key: str, io: IoEntry) -> list[str]:
+    return entry(key, [
+        (str(io.size), "size in bytes"),
+        ("0", "significant bits (0 = all)"),
+        (f"0x{io.mask:04X}", "I/O type mask"),
+        (quoted(io.name), "name"),
+        (str(len(io.path)), "path size"),
+        (hex_path(io.path), "path" if io.path else "path: none (several assemblies)"),
+        (quoted(io.help), "help"),
+    ])
+
+
+def param_lines(number_: int, p: Param) -> list[str]:
+    lines = entry(f"Param{number_}", [
+        ("0", "reserved, shall equal 0"),
+        (f"{len(p.path)},{hex_path(p.path)}", "link path size, link path"),
+        (f"0x{p.descriptor:04X}", "descriptor"),
+        (f"0x{p.data_type:02X}", "data type"),
+        ("1", "data size in bytes"),
+        (quoted(p.name), "name"),
+        (quoted(p.units), "units"),
+        (quoted(p.help), "help string"),
+        (f"{p.minimum},{p.maximum},{p.default}", "min, max, default"),
+        (",,,", "mult, div, base, offset scaling"),
+        (",,,", "mult, div, base, offset links"),
+        ("", "decimal places"),
+    ])
+    if p.enum:
+        lines += entry(f"Enum{number_}", [(f"{value},{quoted(text)}", "") for value, text in p.enum.items()])
+    return lines
+
+
+def eds_text(d: Description, now: datetime | None = None, vendor_name: str | None = None) -> str:
+    now = now or datetime.now(timezone.utc)
+    vendor_name = vendor_name or VENDOR_NAMES.get(d.vendor_id, "fieldgate")
+    type_name = DEVICE_TYPES.get(d.device_type, "Vendor Specific" if 100 <= d.device_type <= 199 else f"Device type {d.device_type}")
+    lines = [
+        f"$ DeviceNet EDS of fieldgate front {d.front!r} (gateway {d.gateway!r}), written by `fieldgate devicenet eds`.",
+        "$ It describes this topology's I/O sizes: regenerate it when the modules change, and change",
+        "$ product_code or major_revision with them so a scanner never mixes two layouts.",
+        "",
+        "[File]",
+        single("DescText", quoted(f"fieldgate DeviceNet front {d.front} ({d.gateway})")),
+        single("CreateDate", now.strftime("%m-%d-%Y"), "mm-dd-yyyy"),
+        single("CreateTime", now.strftime("%H:%M:%S"), "hh:mm:ss"),
+        single("ModDate", now.strftime("%m-%d-%Y")),
+        single("ModTime", now.strftime("%H:%M:%S")),
+        single("Revision", "1.0", "EDS file revision"),
+        "",
+        "[Device]",
+        single("VendCode", str(d.vendor_id), "Identity attribute 1"),
+        single("VendName", quoted(vendor_name)),
+        single("ProdType", str(d.device_type), "Identity attribute 2"),
+        single("ProdTypeStr", quoted(type_name)),
+        single("ProdCode", str(d.product_code), "Identity attribute 3"),
+        single("MajRev", str(d.major_revision), "Identity attribute 4"),
+        single("MinRev", str(d.minor_revision)),
+        single("ProdName", quoted(d.product_name), "Identity attribute 7"),
+        single("Catalog", quoted(d.front)),
+        "",
+        "[IO_Info]",
+        "        $ I/O type mask: 0x0001 poll, 0x0002 bit-strobe, 0x0004 change of state, 0x0008 cyclic",
+        single("Default", f"0x{POLL_BIT:04X}", "poll"),
+    ]
+    combine = {"Poll": POLL_BIT | STROBE_BIT | COS_BIT | CYCLIC_BIT, "Strobe": POLL_BIT | STROBE_BIT | COS_BIT | CYCLIC_BIT,
+               "COS": POLL_BIT | STROBE_BIT | COS_BIT, "Cyclic": POLL_BIT | STROBE_BIT | CYCLIC_BIT}
+    for kind, mask in combine.items():
+        default_in, default_out = d.defaults[kind]
+        lines += entry(f"{kind}Info", [(f"0x{mask:04X}", "may be combined with"),
+                                       (str(default_in), "default input (0 = none)"),
+                                       (str(default_out), "default output (0 = none)")])
+    for n, io in enumerate(d.inputs, start=1):
+        lines += io_lines(f"Input{n}", io)
+    for n, io in enumerate(d.outputs, start=1):
+        lines += io_lines(f"Output{n}", io)
+    lines += ["", "[ParamClass]",
+              single("MaxInst", "0", "no Parameter object: configurators use the link paths"),
+              single("Descriptor", "0x0000"),
+              single("CfgAssembly", "0", "no configuration assembly"),
+              "", "[Params]"]
+    for n, p in enumerate(d.params, start=1):
+        lines += param_lines(n, p)
+    lines += ["", "[Groups]"]
+    for n, (name, numbers) in enumerate(d.groups, start=1):
+        lines += entry(f"Group{n}", [(quoted(name), "name"), (str(len(numbers)), "number of parameters"),
+                                     (",".join(map(str, numbers)), "parameters")])
+    return "\n".join(lines) + "\n"
+
+
+# -- topology -> EDS ------------------------------------------------------------------------
+def front_slave(topology_source: str | Path | dict, front_name: str | None = None, registry: Registry | None = None,
+                overrides: dict | None = None) -> tuple[Any, DeviceNetSlave]:
+    """The devicenet front and a slave built as the gateway builds it (no bus, no clock)."""
+    registry = registry or load_registry()
+    topology = load_topology(topology_source, registry, overrides)
+    if front_name is not None:
+        named = [f for f in topology.fronts if f.name == front_name]
+        if not named:
+            known = ", ".join(f"{f.name} ({f.type})" for f in topology.fronts) or "none"
+            raise EdsError(f"no front named {front_name!r} (fronts: {known})")
+        if named[0].type != "devicenet":
+            raise EdsError(f"front {front_name!r} is a {named[0].type} front, not devicenet"
+                           + (" (its EDS: fieldgate eds)" if named[0].type == "canopen" else ""))
+        cfg = named[0]
+    else:
+        fronts = [f for f in topology.fronts if f.type == "devicenet"]
+        if not fronts:
+            raise EdsError("no devicenet front in the topology")
+        cfg = fronts[0]
+    context = GatewayContext.build(topology)
+    front = registry.lookup("front", cfg.type).factory(cfg, context)
+    return front, front.build()
+
+
+def write_eds(topology_source: str | Path | dict, front_name: str | None = None, dest: str | Path | None = None,
+              registry: Registry | None = None, now: datetime | None = None, vendor_name: str | None = None,
+              overrides: dict | None = None) -> str:
+    front, slave = front_slave(topology_source, front_name, registry, overrides)
+    text = eds_text(describe(front, slave), now, vendor_name)
+    if dest is not None:
+        from fieldgate.persist import write_atomic
+        write_atomic(Path(dest), text.encode("latin-1", "replace"))
+    return text
+
+
+# -- CLI ---------------------------------------------------------------------------------------
+USAGE_ERROR = 2
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("topology", help="topology YAML file")
+    parser.add_argument("--front", help="devicenet front name (default: the first devicenet front)")
+    parser.add_argument("-o", "--output", help="EDS file to write (default: standard output)")
+    parser.add_argument("--vendor-name", help="VendName (default: ICP DAS for vendor 803, else fieldgate)")
+    parser.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
+                        help="override a topology field as `fieldgate run --set` does, e.g. fronts.dnet.identity.product_code=7")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        from fieldgate.cli import parse_overrides
+        text = write_eds(args.topology, args.front, args.output, vendor_name=args.vendor_name, overrides=parse_overrides(args.set))
+    except TopologyError as exc:
+        for issue in exc.issues:
+            print(issue, file=sys.stderr)
+        return USAGE_ERROR
+    except EdsError as exc:
+        print(f"{args.topology}: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    except OSError as exc:
+        print(f"{args.output}: cannot write the EDS: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    if args.output is None:
+        sys.stdout.write(text)
+    else:
+        print(f"{args.output}: EDS written", file=sys.stderr)
+    return 0
+
+
+def register_command(registry: Registry) -> None:
+    registry.add_command(("devicenet", "eds"), "write the DeviceNet EDS of a devicenet front", configure, run)
