@@ -281,13 +281,19 @@ def run(requests: int, rounds: int, loop: str) -> int:
                     for client in clients.values():
                         measure(client.upload, 200)  # warm up
                     times = {"ours": [], "peer": []}
+                    round_ratios = []  # LocalNode p50 / ours p50 of each round: the spread within the run
                     for _ in range(rounds):
+                        p50 = {}
                         for side in ("ours", "peer"):
-                            times[side] += measure(clients[side].upload, requests // rounds)
+                            sample = measure(clients[side].upload, requests // rounds)
+                            times[side] += sample
+                            p50[side] = statistics.median(sample)
+                        round_ratios.append(p50["peer"] / p50["ours"])
                 finally:
                     for client in clients.values():
                         client.close()
                 results[client_type.label] = {side: summary(t) for side, t in times.items()}
+                results[client_type.label]["rounds"] = sorted(round_ratios)
         finally:
             for server in servers.values():
                 server.stop()
@@ -316,6 +322,8 @@ def report(work: dict, wakeups: dict, results: dict, servers: dict) -> int:
         worst = min(worst, rps_ratio)
         print(f"{client:<20} ratio: LocalNode p50 / ours p50 = {rtt_ratio:.2f}, "
               f"ours req/s / LocalNode req/s = {rps_ratio:.2f}  (>= 1: ours at least as fast)")
+        spread = by_side["rounds"]
+        print(f"{'':<20} p50 ratio per round: min {spread[0]:.2f}, median {statistics.median(spread):.2f}, max {spread[-1]:.2f} ({len(spread)} rounds)")
     print("target met" if worst >= 1.0 else "target NOT met: slower than LocalNode")
     return 0
 
