@@ -370,24 +370,26 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="override a topology field as `fieldgate run --set` does, e.g. fronts.dnet.identity.product_code=7")
 
 
+def to_stderr(*lines: str, code: int = USAGE_ERROR) -> int:
+    """Print ``lines`` on standard error; the command's exit code."""
+    print("\n".join(lines), file=sys.stderr)
+    return code
+
+
 def run(args: argparse.Namespace) -> int:
+    from fieldgate.cli import parse_overrides
+
     try:
-        from fieldgate.cli import parse_overrides
         text = write_eds(args.topology, args.front, args.output, vendor_name=args.vendor_name, overrides=parse_overrides(args.set))
     except TopologyError as exc:
-        for issue in exc.issues:
-            print(issue, file=sys.stderr)
-        return USAGE_ERROR
+        return to_stderr(*map(str, exc.issues))
     except EdsError as exc:
-        print(f"{args.topology}: {exc}", file=sys.stderr)
-        return USAGE_ERROR
+        return to_stderr(f"{args.topology}: {exc}")
     except OSError as exc:
-        print(f"{args.output}: cannot write the EDS: {exc.strerror or exc}", file=sys.stderr)
-        return 1
-    if args.output is None:
-        sys.stdout.write(text)
-    else:
-        print(f"{args.output}: EDS written", file=sys.stderr)
+        return to_stderr(f"{args.output}: cannot write the EDS: {exc.strerror or exc}", code=1)
+    if args.output is not None:
+        return to_stderr(f"{args.output}: EDS written for {args.front or 'the first devicenet front'}", code=0)
+    sys.stdout.write(text)
     return 0
 
 

@@ -122,6 +122,7 @@ async def test_eds_states_what_the_running_front_answers(tmp_path, caplog, regis
         poll_in, poll_out = number(await get(master, 5, 2, 7)), number(await get(master, 5, 2, 8))
         strobe_in, cos_in = number(await get(master, 5, 3, 7)), number(await get(master, 5, 4, 7))
         assert (poll_in, poll_out) == sizes
+        assert value(eds, "IO_Info", "Output1", 5) == ("20 04 24 64 30 03" if poll_out == 1 else "")  # DO 0x64 alone
         assert value(eds, "IO_Info", "PollInfo", 1) == 1 and value(eds, "IO_Info", "PollInfo", 2) == 1
         assert value(eds, "IO_Info", "Input1") == poll_in == cos_in and value(eds, "IO_Info", "Output1") == poll_out
         assert value(eds, "IO_Info", "Input1", 2) == 0x000D  # poll, COS, cyclic: the strobe answers fewer bytes
@@ -129,6 +130,11 @@ async def test_eds_states_what_the_running_front_answers(tmp_path, caplog, regis
         assert strobe == 2 and value(eds, "IO_Info", f"Input{strobe}") == strobe_in == 8
         assert value(eds, "IO_Info", f"Input{strobe}", 2) == 0x0002
         assert value(eds, "IO_Info", "COSInfo", 1) == 1 and value(eds, "IO_Info", "COSInfo", 2) == 0  # COS consumes nothing
+        for key in ("Input1", "Input2", "Output1"):  # a path names the one assembly that holds the data
+            if value(eds, "IO_Info", key, 4):
+                path = bytes.fromhex(value(eds, "IO_Info", key, 5))
+                assert path[:2] == b"\x20\x04" and path[4:] == b"\x30\x03"
+                assert len(await get(master, 4, path[3], 3)) == value(eds, "IO_Info", key)
         # a poll of Output1's size is answered with Input1's size
         assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex("90 F4 01")
         assert len(await master.poll_fragmented_reply(bytes(poll_out), 17)) == poll_in
