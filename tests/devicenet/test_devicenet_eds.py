@@ -246,3 +246,11 @@ def test_standard_output_without_o(tmp_path, capsys):
     text = capsys.readouterr().out
     assert CIP_EDS(text).get_value("Device", "VendName") == 'Acme \\"Fieldbus\\" Ltd'  # eds_pie keeps the escape
     assert text.startswith("$ ") and "\n[File]\n" in text
+
+
+def test_unwritable_output_exits_1_with_one_line(tmp_path, capsys):
+    topology = write_topology(tmp_path, [dnet_front()])
+    out = topology / "x.eds"  # below a regular file
+    assert cli_main(["devicenet", "eds", str(topology), "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"{out}: cannot write the EDS: ") and err.count("\n") == 1
