@@ -42,7 +42,9 @@ def front_node(topology_source: str | Path | dict, front_name: str | None = None
     topology = load_topology(topology_source, registry)
     fronts = [f for f in topology.fronts if f.type == "canopen" and (front_name is None or f.name == front_name)]
     if not fronts:
-        raise EdsError(f"no canopen front{f' named {front_name!r}' if front_name else ''} in the topology")
+        others = sorted({f.type for f in topology.fronts if front_name is None or f.name == front_name} - {"canopen"})
+        hint = f" (it has a {' and a '.join(others)} front; for DeviceNet: fieldgate devicenet eds)" if others else ""
+        raise EdsError(f"no canopen front{f' named {front_name!r}' if front_name else ''} in the topology{hint}")
     cfg = fronts[0]
     context = GatewayContext.build(topology)
     ctype = registry.lookup("front", cfg.type)

@@ -129,3 +129,10 @@ async def test_dcon_watchdog_objects_in_the_eds_match_the_running_gateway(tmp_pa
         assert_served_as_described(eds, gw.component("plc").node)
     finally:
         await gw.stop()
+
+
+def test_cli_on_a_devicenet_topology_points_to_the_devicenet_command(capsys):
+    example = Path(__file__).resolve().parents[2] / "examples" / "i7241d-style.yaml"
+    assert cli_main(["eds", str(example)]) == 1
+    err = capsys.readouterr().err
+    assert "no canopen front in the topology (it has a devicenet front; for DeviceNet: fieldgate devicenet eds)" in err
