@@ -241,3 +241,57 @@ class LengthError:
 def require_abort(exc: SdoAbort, codes: tuple[int, ...], what: str) -> None:
     if exc.code not in codes:
         raise Fail(f"{what}: wrong abort code", expected=" or ".join(abort_text(c) for c in codes), seen=abort_text(exc.code))
+
+
+# -- errors that end -----------------------------------------------------------------------
+EMCY_ERROR_RESET = 0x0000
+REGISTER_GENERIC, REGISTER_COMMUNICATION = 0x01, 0x10
+
+
+def error_register(ctx: Context) -> int | None:
+    """0x1001 now, or None if the EDS does not list it."""
+    return ctx.device.read(0x1001, 0) if ctx.device.has(0x1001) else None
+
+
+def quiet_register(ctx: Context) -> int | None:
+    """0x1001 before a case raises a communication error; SKIP if one is already active."""
+    register = error_register(ctx)
+    if register is not None and register & REGISTER_COMMUNICATION:
+        raise Skip(f"0x1001 = 0x{register:02X} already shows a communication error before the case")
+    return register
+
+
+def log_mark(ctx: Context) -> int:
+    """A position in the case's frame log: :func:`expect_error_reset` looks at frames after it."""
+    ctx.device.link.flush()
+    return len(ctx.device.link.log)
+
+
+def expect_error_reset(ctx: Context, mark: int, after, what: str, before: int | None):
+    """The error-reset EMCY (code 0000) that must follow the frame matching ``after(direction, frame)``
+    logged after ``mark`` (the tester's command, or the boot-up): it may have come while the tester
+    waited for something else (an SDO response), so the log is searched first. CiA 301 §7.2.7.1:
+    when an error ends the device sends EMCY 0000 with the error register of the errors that remain;
+    §7.5.2.2: 0x1001 drops the error's bits. ``before`` is 0x1001 before the error was raised."""
+    link = ctx.device.link
+    cob = emcy_cob(ctx.device)
+    link.flush()
+    found, started = None, False
+    for _, direction, frame in link.log[mark:]:
+        if not started:
+            started = after(direction, frame)
+        elif direction == "←" and frame.cob == cob and not frame.rtr and emcy_code(frame) == EMCY_ERROR_RESET:
+            found = frame
+            break
+    if found is None and started:
+        found = expect_emcy(ctx, EMCY_ERROR_RESET)
+    if found is None:
+        raise Fail(f"the error did not end when {what}", expected="EMCY 00 00 <error register left> ... (error reset)", seen="no error-reset EMCY")
+    register = error_register(ctx)
+    if register is None:
+        return found
+    if len(found.data) < 3 or found.data[2] != register:
+        raise Fail(f"error-reset EMCY after {what}: byte 2 must be the error register left", expected=f"00 00 {register:02X} ... (0x1001 = 0x{register:02X})", seen=str(found))
+    if register & REGISTER_COMMUNICATION or (before is not None and register != before):
+        raise Fail(f"0x1001 after {what}", expected=f"0x{before if before is not None else 0:02X} (the communication bit 4 cleared)", seen=f"0x{register:02X}")
+    return found

@@ -1,0 +1,150 @@
+"""Monitoring errors that end (CiA 301 v4.2.0): life guarding and heartbeat-consumer events
+(EMCY 0x8130) and SYNC loss (EMCY 81xx) are active only while the monitoring that raised them
+runs. When the master switches it off, or resets communication, the error is gone, and the
+EMCY state machine (§7.2.7.1) sends the error-reset EMCY 0000 with the error register of the
+errors that remain; 0x1001 (§7.5.2.2) drops the communication bit.
+
+Each case raises the error first (SKIP when the device does not offer the monitoring), then
+ends it one way and checks the error-reset EMCY and 0x1001.
+"""
+
+from __future__ import annotations
+
+import time
+
+from ..device import NMT_RESET_COMM
+from ..framework import Context, Fail, Skip, case
+from .common import (EMCY_LIFE_GUARD, REGISTER_GENERIC, emcy_code, expect_emcy, expect_error_reset, log_mark, operational,
+                     quiet_register)
+from .errctl import ERROR, life_guard, require_guarding, resume
+
+SYNC_PRODUCER_BIT = 0x40000000
+
+
+def sent(direction: str, _frame) -> bool:
+    """``after`` for :func:`expect_error_reset`: the tester's command (an SDO request, a SYNC)."""
+    return direction == "→"
+
+
+def end_by_reset(ctx: Context, before: int | None) -> None:
+    """NMT reset communication (§7.3.2) restarts every monitoring: the error ends after the boot-up
+    (EMCY cannot be sent in Initialisation)."""
+    mark = log_mark(ctx)
+    boot = ctx.device.reset(NMT_RESET_COMM)
+    if boot is None:
+        raise Fail("no boot-up after reset communication", expected=f"{0x700 + ctx.device.node_id:03X} [1] 00", seen="nothing")
+    expect_error_reset(ctx, mark, lambda direction, frame: frame == boot, "reset communication (after the boot-up)", before)
+
+
+# -- life guarding -----------------------------------------------------------------------
+def raise_life_guarding(ctx: Context) -> int | None:
+    """Node guarding with guard time = --heartbeat-ms and factor 2, then no RTR: EMCY 0x8130.
+    Returns 0x1001 from before the event."""
+    require_guarding(ctx)
+    ctx.device.require(0x1014, why="EMCY shows the life guarding event and its end")
+    before = quiet_register(ctx)
+    frame, _, life = life_guard(ctx, ctx.timing.heartbeat_ms, 2)
+    if frame is None or emcy_code(frame) != EMCY_LIFE_GUARD:
+        raise Fail("no life guarding event to end", expected=f"EMCY 0x8130 about {life * 1000:.0f} ms after the last RTR", seen=str(frame) if frame else "nothing")
+    return before
+
+
+@case("errctl", "guard_off_ends_error",
+      "life guarding error (0x8130) ended by 0x100C = 0: EMCY 0000 with the register left, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.1, §7.5.2.2)")
+def life_guarding_off_ends_error(ctx: Context) -> None:
+    before = raise_life_guarding(ctx)
+    mark = log_mark(ctx)
+    ctx.device.write(0x100C, 0, 0)
+    expect_error_reset(ctx, mark, sent, "0x100C (guard time) was written 0", before)
+
+
+@case("errctl", "guard_reset_ends_error",
+      "life guarding error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2, §7.5.2.2)")
+def life_guarding_reset_ends_error(ctx: Context) -> None:
+    end_by_reset(ctx, raise_life_guarding(ctx))
+
+
+# -- heartbeat consumer --------------------------------------------------------------------
+def raise_consumer_error(ctx: Context) -> int | None:
+    """0x1016:1 watches a spare node-ID at 2 × --heartbeat-ms; one heartbeat starts the
+    supervision (§7.2.8.3.2.2), then silence: EMCY 0x8130. Returns 0x1001 from before."""
+    dev = ctx.device
+    dev.require(0x1016, 1, why="heartbeat consumer")
+    dev.require(0x1014, why="EMCY shows the consumer event and its end")
+    before = quiet_register(ctx)
+    other = ctx.options.lss_spare_node_id or dev.node_id % 127 + 1
+    consumer_ms = 2 * ctx.timing.heartbeat_ms
+    dev.write(0x1016, 1, other << 16 | consumer_ms)
+    ctx.cleanup(lambda: dev.reset(NMT_RESET_COMM))
+    ctx.cleanup(lambda: dev.write(0x1016, 1, 0))
+    ctx.cleanup(lambda: resume(ctx, lambda: dev.link.send(0x700 + other, b"\x05")))  # the producer comes back first
+    dev.link.send(0x700 + other, b"\x05")
+    wait = consumer_ms / 1000 + ctx.timing.slack(consumer_ms / 1000) + ctx.timing.response
+    frame = expect_emcy(ctx, ERROR, wait)
+    if frame is None or emcy_code(frame) != EMCY_LIFE_GUARD:
+        raise Fail("no heartbeat-consumer event to end", expected=f"EMCY 0x8130 about {consumer_ms} ms after the heartbeat of node {other}", seen=str(frame) if frame else "nothing")
+    return before
+
+
+@case("errctl", "consumer_off_ends_error",
+      "heartbeat-consumer error (0x8130) ended by its 0x1016 entry = 0: EMCY 0000, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.2, §7.5.2.19)")
+def heartbeat_consumer_off_ends_error(ctx: Context) -> None:
+    before = raise_consumer_error(ctx)
+    mark = log_mark(ctx)
+    ctx.device.write(0x1016, 1, 0)
+    expect_error_reset(ctx, mark, sent, "0x1016:1 (consumer heartbeat time) was written 0", before)
+
+
+@case("errctl", "consumer_reset_ends_error",
+      "heartbeat-consumer error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2)")
+def heartbeat_consumer_reset_ends_error(ctx: Context) -> None:
+    end_by_reset(ctx, raise_consumer_error(ctx))
+
+
+# -- SYNC loss -------------------------------------------------------------------------------
+def raise_sync_loss(ctx: Context) -> tuple[int | None, int, bytes]:
+    """0x1006 = --heartbeat-ms, Operational, three SYNCs one period apart, then none: the SYNC
+    consumer misses SYNC (§7.2.5, §7.5.2.6) and reports it with a communication EMCY (81xx).
+    Returns (0x1001 from before, SYNC CAN-ID, SYNC data)."""
+    dev = ctx.device
+    dev.require(0x1005, why="SYNC consumer")
+    dev.require(0x1006, why="communication cycle period: SYNC loss supervision")
+    dev.require(0x1014, why="EMCY shows the SYNC loss and its end")
+    cob_id = dev.read(0x1005, 0)
+    if cob_id & SYNC_PRODUCER_BIT:
+        raise Skip("the device produces SYNC itself (0x1005 bit 30): there is no SYNC to lose")
+    before = quiet_register(ctx)
+    overflow = dev.read(0x1019, 0) if dev.has(0x1019) else 0
+    sync = (cob_id & 0x7FF, bytes([1]) if overflow > 1 else b"")
+    period = ctx.timing.heartbeat_ms / 1000
+    ctx.cleanup(lambda: dev.reset(NMT_RESET_COMM))
+    dev.patch(ctx, 0x1006, 0, ctx.timing.heartbeat_ms * 1000)
+    operational(ctx)
+    for _ in range(3):
+        dev.link.send(*sync)
+        time.sleep(period)
+    wait = 3 * period + ctx.timing.slack(period) + ctx.timing.response
+    frame = expect_emcy(ctx, ERROR, wait)
+    if frame is None:
+        raise Skip(f"no EMCY within {wait * 1000:.0f} ms after SYNC stopped (0x1006 = {ctx.timing.heartbeat_ms} ms): the device does not report SYNC loss")
+    if emcy_code(frame) >> 8 != 0x81 or len(frame.data) < 3 or not frame.data[2] & REGISTER_GENERIC:
+        raise Fail("SYNC loss EMCY", expected="[8] xx 81 <register with bit 0> ... (81xx communication; CANopenNode and fieldgate send 8100)", seen=str(frame))
+    return before, *sync
+
+
+@case("sync-pdo", "sync_loss_ends_on_sync",
+      "SYNC loss (EMCY 81xx with 0x1006 set and SYNC stopped) ended by the next SYNC: EMCY 0000, 0x1001 as before (CiA 301 §7.2.5, §7.2.7.1, §7.5.2.6)")
+def sync_loss_ends_on_sync(ctx: Context) -> None:
+    before, cob, data = raise_sync_loss(ctx)
+    mark = log_mark(ctx)
+    ctx.device.link.send(cob, data)
+    expect_error_reset(ctx, mark, sent, "a SYNC came again", before)
+
+
+@case("sync-pdo", "sync_loss_ends_period_0",
+      "SYNC loss (EMCY 81xx) ended by 0x1006 = 0 (no SYNC expected): EMCY 0000, 0x1001 as before (CiA 301 §7.2.7.1, §7.5.2.6)")
+def sync_loss_ends_period_off(ctx: Context) -> None:
+    before, _, _ = raise_sync_loss(ctx)
+    mark = log_mark(ctx)
+    ctx.device.write(0x1006, 0, 0)
+    expect_error_reset(ctx, mark, sent, "0x1006 (communication cycle period) was written 0", before)
