@@ -129,7 +129,18 @@ def test_fragments_with_wrong_counts_fail(device, monkeypatch):
     real_split = engine.split
     monkeypatch.setattr(engine, "split", lambda payload, chunk: [(frag & 0xC0, data) for frag, data in real_split(payload, chunk)])  # count stuck at 0
     results = run(device, ["fragmented", "identity"])
-    assert failed(results) == ["devicenet.identity", "devicenet.fragmented_response"]
+    assert failed(results) == ["devicenet.identity", "devicenet.identity_get_all", "devicenet.fragmented_response"]  # Get_Attributes_All is fragmented too
+
+
+def test_get_attributes_all_in_the_wrong_order_fails(device, monkeypatch):
+    from fieldgate.plugins.devicenet import objects
+
+    monkeypatch.setattr(objects, "IDENTITY_ALL", (1, 2, 3, 4, 6, 5, 7))  # serial number before status
+    results = run(device, ["identity"])
+    assert {r.case.id: r.verdict for r in results} == {"devicenet.identity": Verdict.PASS, "devicenet.identity_get_all": Verdict.FAIL}
+    bad = results[1]
+    assert "vendor ID, device type, product code, revision, status, serial number, product name" in bad.reason
+    assert bad.seen != bad.expected and sorted(bad.seen) == sorted(bad.expected)
 
 
 def test_cli_devicenet_exit_codes_and_junit(device, tmp_path, monkeypatch):
@@ -137,7 +148,7 @@ def test_cli_devicenet_exit_codes_and_junit(device, tmp_path, monkeypatch):
     args = ["--protocol", "devicenet", "--interface", "virtual", "--channel", device, "--mac-id", str(MAC_ID), "--timeout", "0.3", "--silence", "0.15"]
     assert conformance_main(args + ["-k", "identity", "-k", "error_", "--junit", str(junit)]) == 0
     suite = next(ET.parse(junit).getroot().iter("testsuite"))
-    assert suite.get("tests") == "5" and suite.get("failures") == "0"
+    assert suite.get("tests") == "6" and suite.get("failures") == "0"
     properties = {p.get("name"): p.get("value") for p in suite.iter("property")}
     assert properties["mac-id"] == "5" and properties["product name"] == "fieldgate conformance"
     monkeypatch.setattr(Allocation, "release", lambda self, choice, now: b"")

@@ -50,7 +50,8 @@ def test_every_case_passes_or_is_a_documented_skip(results):
 def test_the_suite_really_exercised_the_gateway(results):
     passed = {r.case.id for r in results if r.verdict is Verdict.PASS}
     assert len(passed) >= 100
-    for cid in ("sdo.block_download_crc", "lss.fastscan", "sync-pdo.sync_type_n", "cia401.error_mode_do", "seed.tv19_emcy_length_error", "store.save_across_reset"):
+    for cid in ("sdo.block_download_crc", "lss.fastscan", "sync-pdo.sync_type_n", "cia401.error_mode_do", "seed.tv19_emcy_length_error", "store.save_across_reset",
+                "errctl.guard_off_ends_error", "errctl.consumer_reset_ends_error", "sync-pdo.sync_loss_ends_on_sync", "sync-pdo.sync_loss_ends_period_0"):
         assert cid in passed
 
 

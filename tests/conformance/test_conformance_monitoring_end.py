@@ -1,0 +1,83 @@
+"""The cases for monitoring errors that end (life guarding, heartbeat consumer, SYNC loss) against
+fieldgate's canopen front in-process with one injected fault at a time: each fault (the front
+patched in the test, as the DeviceNet front's broken variants) fails exactly its cases, while the
+same error ended another way still passes. The healthy front passes them in
+test_conformance_gateway.py (whole suite)."""
+
+from __future__ import annotations
+
+import uuid
+
+import can
+import pytest
+from conformance_gateway import NODE_ID, GatewayThread, front_unavailable, topology, write_eds
+
+from fieldgate.conformance import SuiteConfig, Timing, Verdict, failed, run_suite
+from fieldgate.conformance.report import text_report
+
+TIMING = Timing(response=0.3, silence=0.1, heartbeat_ms=50, bootup=1.0, sdo_server_timeout=1.0)
+
+# fault: (class, method that must end the error, the call inside it that is dropped), the cases it
+# fails, and the cases run with it: the same error ended another way must still pass
+FAULTS = {
+    "guard_off_keeps_error": (("errctl", "ErrorControl"), "_guarding_written", "_end", {"errctl.guard_off_ends_error"}, "errctl.guard_*"),
+    "consumer_off_keeps_error": (("errctl", "ErrorControl"), "_consumers_written", "_end", {"errctl.consumer_off_ends_error"}, "errctl.consumer_*"),
+    "reset_keeps_errors": (("errctl", "ErrorControl"), "on_nmt_state", "_end",
+                           {"errctl.guard_reset_ends_error", "errctl.consumer_reset_ends_error"}, "errctl.*_ends_error"),
+    "sync_keeps_loss": (("sync", "SyncService"), "_consume", "_end_loss", {"sync-pdo.sync_loss_ends_on_sync"}, "sync-pdo.sync_loss_*"),
+    "period_0_keeps_loss": (("sync", "SyncService"), "_configure", "_end_loss", {"sync-pdo.sync_loss_ends_period_0"}, "sync-pdo.sync_loss_*"),
+}
+
+
+@pytest.fixture(scope="module")
+def gateway(tmp_path_factory):
+    """One front for every test here (the faults patch its classes while it runs): (channel, EDS)."""
+    reason = front_unavailable()
+    if reason:
+        pytest.skip(reason)
+    work = tmp_path_factory.mktemp("monitoring")
+    channel = f"gw-mon-{uuid.uuid4().hex[:8]}"
+    topo = topology(work / "state", channel)
+    eds = write_eds(topo, work)
+    with GatewayThread(topo):
+        yield channel, str(eds)
+
+
+def run(gateway, patterns: list[str]) -> dict:
+    channel, eds = gateway
+    bus = can.Bus(interface="virtual", channel=channel)
+    try:
+        results = run_suite(SuiteConfig(NODE_ID, eds, patterns=patterns, timing=TIMING), bus=bus)
+    finally:
+        bus.shutdown()
+    return {r.case.id: r for r in results}
+
+
+def break_front(monkeypatch, fault: str) -> None:
+    """The front's ``method`` runs with ``inner`` doing nothing: the error it should end stays."""
+    import importlib
+
+    (module, cls_name), method, inner, _, _ = FAULTS[fault]
+    cls = getattr(importlib.import_module(f"fieldgate.plugins.canopen.{module}"), cls_name)
+    original = getattr(cls, method)
+
+    def without_inner(self, *args, **kwargs):
+        setattr(self, inner, lambda *a, **k: None)
+        try:
+            return original(self, *args, **kwargs)
+        finally:
+            delattr(self, inner)
+
+    monkeypatch.setattr(cls, method, without_inner)
+
+
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_each_fault_fails_exactly_its_cases(gateway, monkeypatch, fault):
+    *_, fails, pattern = FAULTS[fault]
+    break_front(monkeypatch, fault)
+    results = run(gateway, [pattern])
+    report = text_report(list(results.values()))
+    assert set(failed(list(results.values()))) == fails and len(results) > len(fails), report
+    assert all(r.verdict is Verdict.PASS for cid, r in results.items() if cid not in fails), report
+    for cid in fails:
+        assert results[cid].expected.startswith("EMCY 00 00") and results[cid].seen == "no error-reset EMCY", report
