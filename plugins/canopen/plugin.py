@@ -82,6 +82,7 @@ class CanopenFrontConfig(FrontConfig, IoFrontOptions):
     sdo_timeout_ms: int = Field(1000, ge=10, le=60_000, description="server-side SDO transfer timeout")
     sdo_block_size: int = Field(127, ge=1, le=127, description="block size the SDO server offers")
     sdo_zero_extend: bool = Field(False, description="accept expedited writes shorter than an unsigned object and zero-extend them (NA-9161 masters); default: abort 0607 0013")
+    sdo_servers: int = Field(1, ge=1, le=128, description="SDO server channels: 1 = only 0x1200; N adds 0x1201..0x1200+N-1, each invalid until its COB-IDs are written")
     store_file: str | None = Field(None, description="0x1010/0x1011 store file (relative to the state dir); default <front name>.canopen.json")
     lss_table: Literal["cia", "i7232d"] = Field("cia", description="LSS bit-timing table: CiA 305, or the I-7232D's own")
     lss_store_file: str | None = Field(None, description="LSS store file (relative to the state dir); default <front name>.lss.json")
@@ -129,7 +130,7 @@ class CanopenFront(Front):
             heartbeat_ms=cfg.heartbeat_ms, guard_time_ms=cfg.guard_time_ms, life_time_factor=cfg.life_time_factor,
             heartbeat_consumers=cfg.heartbeat_consumers, emcy_history=cfg.emcy_history, emcy_on_nmt_reset=cfg.emcy_on_nmt_reset,
             error_behaviour=("pre-operational", "no-change", "stopped").index(cfg.on_master_lost),
-            sdo_timeout_s=cfg.sdo_timeout_ms / 1000.0, sdo_block_size=cfg.sdo_block_size, sdo_zero_extend=cfg.sdo_zero_extend, sync_cob_id=cfg.sync_cob_id,
+            sdo_timeout_s=cfg.sdo_timeout_ms / 1000.0, sdo_block_size=cfg.sdo_block_size, sdo_zero_extend=cfg.sdo_zero_extend, sdo_servers=cfg.sdo_servers, sync_cob_id=cfg.sync_cob_id,
             store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),
             fingerprint=self.fingerprint(channels),
         )

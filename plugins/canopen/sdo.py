@@ -1,7 +1,9 @@
 """SDO server (CiA 301 §7.2.4): expedited, segmented and block transfers, both ways.
 
 One transfer at a time, as CiA 301 defines for one SDO channel. Every answer is
-computed from the object dictionary in the same call (no back-end waits).
+computed from the object dictionary in the same call (no back-end waits). This class
+serves the default channel 0x1200; each further channel (0x1201-0x127F, the front's
+``sdo_servers`` option) is its own instance of the subclass in :mod:`.sdo_channel`.
 
 Choices where CiA 301 leaves one (see docs/canopen.md):
 
@@ -79,11 +81,15 @@ class SdoServer(Service):
 
     def attach(self, node) -> None:
         super().attach(node)
-        node.od.add_record(0x1200, "SDO server parameter", [
+        self._add_parameter_object(node.od)
+        self._load_cob_ids()
+
+    def _add_parameter_object(self, od) -> None:
+        """0x1200, the default channel; further channels (0x1201-0x127F) are :class:`.sdo_channel.SdoChannel`."""
+        od.add_record(0x1200, "SDO server parameter", [
             (1, "COB-ID client to server", dt.UNSIGNED32, "ro", 0x600, {"relative": True}),
             (2, "COB-ID server to client", dt.UNSIGNED32, "ro", 0x580, {"relative": True}),
         ])
-        self._load_cob_ids()
 
     def _load_cob_ids(self) -> None:
         """0x1200 is read-only: its COB-IDs change only with the node-ID (reset communication)."""

@@ -1,7 +1,8 @@
 """Assemble a CANopen slave Node with the CiA 301 communication services.
 
 ``build_node(settings)`` gives a :class:`~.node.Node` with identity objects, the SDO
-server, EMCY producer, error control, SYNC and store/restore. The front (and tests)
+server, EMCY producer, error control, SYNC, store/restore, the TIME consumer and the
+additional SDO server channels (``settings.sdo_servers``). The front (and tests)
 add further services (LSS, PDO engine, CiA 401 objects) with ``node.add_service``,
 then call ``node.service("store").load()`` and ``node.boot(now)``.
 """
@@ -17,9 +18,11 @@ from .emcy import EmcyProducer
 from .errctl import ErrorControl
 from .node import Node
 from .sdo import SdoServer
+from .sdo_channel import SdoChannel, channel_indices
 from .service import ALL_STATES, Service
 from .store import StoreService
 from .sync import SyncService
+from .timestamp import TimeConsumer
 
 
 @dataclass
@@ -47,6 +50,7 @@ class NodeSettings:
     sdo_timeout_s: float = 1.0
     sdo_block_size: int = 127
     sdo_zero_extend: bool = False
+    sdo_servers: int = 1  # SDO server channels in all: 0x1200, then 0x1201.. (see .sdo_channel)
     emcy_on_nmt_reset: bool = False
     sync_cob_id: int = 0x80
     store_path: Path | None = None
@@ -87,4 +91,7 @@ def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
     node.add_service(SyncService(settings.sync_cob_id))
     node.add_service(SdoServer(settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend))
     node.add_service(StoreService(settings.store_path, settings.fingerprint))
+    node.add_service(TimeConsumer())
+    for index in channel_indices(settings.sdo_servers):
+        node.add_service(SdoChannel(index, settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend))
     return node
