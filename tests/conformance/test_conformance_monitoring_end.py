@@ -81,3 +81,22 @@ def test_each_fault_fails_exactly_its_cases(gateway, monkeypatch, fault):
     assert all(r.verdict is Verdict.PASS for cid, r in results.items() if cid not in fails), report
     for cid in fails:
         assert results[cid].expected.startswith("EMCY 00 00") and results[cid].seen == "no error-reset EMCY", report
+
+
+def test_an_error_reset_with_the_old_register_fails(gateway, monkeypatch):
+    """The error-reset EMCY comes, but its byte 2 still shows the ended error (0x1001 is right)."""
+    from fieldgate.plugins.canopen.emcy import EmcyProducer
+
+    def stale_register(self, keys, now):
+        register = self.register
+        for key in keys:
+            del self.active[key]
+        if keys:
+            self._produce(0x0000, b"", now, register)
+        return len(keys)
+
+    monkeypatch.setattr(EmcyProducer, "_clear", stale_register)
+    results = run(gateway, ["errctl.guard_off_ends_error"])
+    bad = results["errctl.guard_off_ends_error"]
+    assert bad.verdict is Verdict.FAIL and "byte 2 must be the error register left" in bad.reason, text_report(list(results.values()))
+    assert bad.expected.startswith("00 00 00") and bad.seen.endswith("[8] 00 00 11 00 00 00 00 00")

@@ -49,21 +49,6 @@ def raise_life_guarding(ctx: Context) -> int | None:
     return before
 
 
-@case("errctl", "guard_off_ends_error",
-      "life guarding error (0x8130) ended by 0x100C = 0: EMCY 0000 with the register left, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.1, §7.5.2.2)")
-def life_guarding_off_ends_error(ctx: Context) -> None:
-    before = raise_life_guarding(ctx)
-    mark = log_mark(ctx)
-    ctx.device.write(0x100C, 0, 0)
-    expect_error_reset(ctx, mark, sent, "0x100C (guard time) was written 0", before)
-
-
-@case("errctl", "guard_reset_ends_error",
-      "life guarding error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2, §7.5.2.2)")
-def life_guarding_reset_ends_error(ctx: Context) -> None:
-    end_by_reset(ctx, raise_life_guarding(ctx))
-
-
 # -- heartbeat consumer --------------------------------------------------------------------
 def raise_consumer_error(ctx: Context) -> int | None:
     """0x1016:1 watches a spare node-ID at 2 × --heartbeat-ms; one heartbeat starts the
@@ -86,26 +71,18 @@ def raise_consumer_error(ctx: Context) -> int | None:
     return before
 
 
-@case("errctl", "consumer_off_ends_error",
-      "heartbeat-consumer error (0x8130) ended by its 0x1016 entry = 0: EMCY 0000, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.2, §7.5.2.19)")
-def heartbeat_consumer_off_ends_error(ctx: Context) -> None:
-    before = raise_consumer_error(ctx)
-    mark = log_mark(ctx)
-    ctx.device.write(0x1016, 1, 0)
-    expect_error_reset(ctx, mark, sent, "0x1016:1 (consumer heartbeat time) was written 0", before)
-
-
-@case("errctl", "consumer_reset_ends_error",
-      "heartbeat-consumer error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2)")
-def heartbeat_consumer_reset_ends_error(ctx: Context) -> None:
-    end_by_reset(ctx, raise_consumer_error(ctx))
-
-
 # -- SYNC loss -------------------------------------------------------------------------------
-def raise_sync_loss(ctx: Context) -> tuple[int | None, int, bytes]:
+def sync_frame(ctx: Context) -> tuple[int, bytes]:
+    """The SYNC the device consumes: CAN-ID from 0x1005, a counter byte if 0x1019 > 1."""
+    dev = ctx.device
+    overflow = dev.read(0x1019, 0) if dev.has(0x1019) else 0
+    return dev.read(0x1005, 0) & 0x7FF, bytes([1]) if overflow > 1 else b""
+
+
+def raise_sync_loss(ctx: Context) -> int | None:
     """0x1006 = --heartbeat-ms, Operational, three SYNCs one period apart, then none: the SYNC
     consumer misses SYNC (§7.2.5, §7.5.2.6) and reports it with a communication EMCY (81xx).
-    Returns (0x1001 from before, SYNC CAN-ID, SYNC data)."""
+    Returns 0x1001 from before."""
     dev = ctx.device
     dev.require(0x1005, why="SYNC consumer")
     dev.require(0x1006, why="communication cycle period: SYNC loss supervision")
@@ -114,8 +91,7 @@ def raise_sync_loss(ctx: Context) -> tuple[int | None, int, bytes]:
     if cob_id & SYNC_PRODUCER_BIT:
         raise Skip("the device produces SYNC itself (0x1005 bit 30): there is no SYNC to lose")
     before = quiet_register(ctx)
-    overflow = dev.read(0x1019, 0) if dev.has(0x1019) else 0
-    sync = (cob_id & 0x7FF, bytes([1]) if overflow > 1 else b"")
+    sync = sync_frame(ctx)
     period = ctx.timing.heartbeat_ms / 1000
     ctx.cleanup(lambda: dev.reset(NMT_RESET_COMM))
     dev.patch(ctx, 0x1006, 0, ctx.timing.heartbeat_ms * 1000)
@@ -129,22 +105,43 @@ def raise_sync_loss(ctx: Context) -> tuple[int | None, int, bytes]:
         raise Skip(f"no EMCY within {wait * 1000:.0f} ms after SYNC stopped (0x1006 = {ctx.timing.heartbeat_ms} ms): the device does not report SYNC loss")
     if emcy_code(frame) >> 8 != 0x81 or len(frame.data) < 3 or not frame.data[2] & REGISTER_GENERIC:
         raise Fail("SYNC loss EMCY", expected="[8] xx 81 <register with bit 0> ... (81xx communication; CANopenNode and fieldgate send 8100)", seen=str(frame))
-    return before, *sync
+    return before
 
 
-@case("sync-pdo", "sync_loss_ends_on_sync",
-      "SYNC loss (EMCY 81xx with 0x1006 set and SYNC stopped) ended by the next SYNC: EMCY 0000, 0x1001 as before (CiA 301 §7.2.5, §7.2.7.1, §7.5.2.6)")
-def sync_loss_ends_on_sync(ctx: Context) -> None:
-    before, cob, data = raise_sync_loss(ctx)
+# -- the cases: each error, ended each way ----------------------------------------------------
+def by_write(index: int, sub: int, what: str):
+    """End the error with an SDO write of 0 to ``index:sub``."""
+    def end(ctx: Context, before: int | None) -> None:
+        mark = log_mark(ctx)
+        ctx.device.write(index, sub, 0)
+        expect_error_reset(ctx, mark, sent, f"0x{index:04X}:{sub} ({what}) was written 0", before)
+    return end
+
+
+def by_sync(ctx: Context, before: int | None) -> None:
+    """End the SYNC loss with one SYNC."""
+    sync = sync_frame(ctx)
     mark = log_mark(ctx)
-    ctx.device.link.send(cob, data)
+    ctx.device.link.send(*sync)
     expect_error_reset(ctx, mark, sent, "a SYNC came again", before)
 
 
-@case("sync-pdo", "sync_loss_ends_period_0",
-      "SYNC loss (EMCY 81xx) ended by 0x1006 = 0 (no SYNC expected): EMCY 0000, 0x1001 as before (CiA 301 §7.2.7.1, §7.5.2.6)")
-def sync_loss_ends_period_off(ctx: Context) -> None:
-    before, _, _ = raise_sync_loss(ctx)
-    mark = log_mark(ctx)
-    ctx.device.write(0x1006, 0, 0)
-    expect_error_reset(ctx, mark, sent, "0x1006 (communication cycle period) was written 0", before)
+CASES = (
+    ("errctl", "guard_off_ends_error", raise_life_guarding, by_write(0x100C, 0, "guard time"),
+     "life guarding error (0x8130) ended by 0x100C = 0: EMCY 0000 with the register left, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.1, §7.5.2.2)"),
+    ("errctl", "guard_reset_ends_error", raise_life_guarding, end_by_reset,
+     "life guarding error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2, §7.5.2.2)"),
+    ("errctl", "consumer_off_ends_error", raise_consumer_error, by_write(0x1016, 1, "consumer heartbeat time"),
+     "heartbeat-consumer error (0x8130) ended by its 0x1016 entry = 0: EMCY 0000, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.2, §7.5.2.19)"),
+    ("errctl", "consumer_reset_ends_error", raise_consumer_error, end_by_reset,
+     "heartbeat-consumer error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2)"),
+    ("sync-pdo", "sync_loss_ends_on_sync", raise_sync_loss, by_sync,
+     "SYNC loss (EMCY 81xx with 0x1006 set and SYNC stopped) ended by the next SYNC: EMCY 0000, 0x1001 as before (CiA 301 §7.2.5, §7.2.7.1, §7.5.2.6)"),
+    ("sync-pdo", "sync_loss_ends_period_0", raise_sync_loss, by_write(0x1006, 0, "communication cycle period"),
+     "SYNC loss (EMCY 81xx) ended by 0x1006 = 0 (no SYNC expected): EMCY 0000, 0x1001 as before (CiA 301 §7.2.7.1, §7.5.2.6)"),
+)
+
+for profile, name, raise_error, end, title in CASES:
+    case(profile, name, title)(lambda ctx, raise_error=raise_error, end=end: end(ctx, raise_error(ctx)))
+
+
