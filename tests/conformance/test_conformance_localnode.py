@@ -24,6 +24,7 @@ PROBE_GAPS = {
     "nmt.bootup_reset_comm": "no boot-up after reset communication",
     "nmt.sdo_gated": "SDO still served in STOPPED",
     "errctl.guarding_state": "remote frames dropped: no node guarding reply",
+    "errctl.guard_off_ends_error": "no node guarding reply, so no life guarding error to end",
     "sdo.block_upload": "block upload falls back to a normal upload",
     "sdo.block_download": "no block download",
     "od.value_range": "LowLimit/HighLimit not checked",
@@ -68,6 +69,7 @@ def test_suite_passes_what_localnode_does_well(results):
 
 def test_features_outside_its_eds_are_skipped(results):
     assert "0x1016" in results["errctl.heartbeat_consumer"].reason
+    assert "0x1016" in results["errctl.consumer_off_ends_error"].reason and "0x1006" in results["sync-pdo.sync_loss_ends_on_sync"].reason
     assert results["lss.fastscan"].verdict is Verdict.SKIP
 
 
