@@ -4,8 +4,12 @@ The second channel in these tests: client -> server 0x681, server -> client 0x6A
 (outside the restricted CAN-IDs; node 1's 0x1200 channel is 0x601 / 0x581).
 """
 
+import random
+
 import pytest
 from canopen_rig import Rig, seed_node
+
+from fieldgate.can.frame import Frame
 
 from fieldgate.plugins.canopen.sdo_channel import SdoChannel, channel_indices
 
@@ -183,3 +187,36 @@ def test_reset_communication_reloads_stored_channel_parameters(tmp_path):
     assert fresh.sdo("23 11 10 02 6C 6F 61 64") == "60 11 10 02 00 00 00 00"  # restore defaults
     assert fresh.send("000 82 01") == ["701 00"]
     assert fresh.send("681 40 00 10 00 00 00 00 00") == []
+
+
+def test_random_requests_on_every_channel_never_raise_and_keep_the_rules():
+    rng = random.Random(1201)
+    r = configured()
+    mux = [b"\x01\x12", b"\x02\x12", b"\x00\x12", b"\x12\x10", b"\x08\x10", b"\x02\x21"]
+    ids = [0x601, 0x681, 0x682, 0x6A1, 0x100, 0x7FF]
+    for i in range(5_000):
+        can_id = rng.choice(ids)
+        if rng.random() < 0.8:
+            command = rng.choice([0x23, 0x2B, 0x2F, 0x40, 0x60, 0x70, 0x00, 0x10, 0x80, 0xA0, 0xA1, 0xC0, 0xC4])
+            value = rng.choice([0x681, 0x682, 0x6A1, 0x6A2, 0x605, 0x80000682, 0x20000681, 0x40000682, rng.randrange(1 << 32)])
+            data = bytes([command]) + rng.choice(mux) + bytes([rng.randrange(4)]) + value.to_bytes(4, "little")
+        else:
+            data = bytes(rng.randrange(256) for _ in range(rng.randrange(9)))
+        out = r.node.receive(Frame(can_id, data), r.now)
+        if i % 25 == 0:
+            r.now += 0.3
+            out += r.node.tick(r.now)
+        for f in out:
+            assert 0 <= f.can_id <= 0x7FF and len(f.data) <= 8
+    assert r.node.counters["internal_errors"] == 0
+    assert r.node.service("sdo_1201").counters["requests"] > 100 and r.node.service("time").counters["bad_length"] > 0
+    in_use = []
+    for index in (0x1201, 0x1202):
+        for sub in (1, 2):
+            cob = r.node.od.get(index, sub)
+            assert not cob & 0x3FFFF800  # bit 29 and bits 11-28 never taken
+            if not cob & 0x80000000:
+                in_use.append(cob & 0x7FF)
+    assert len(in_use) == len(set(in_use)) and not any(0x601 <= c <= 0x67F or 0x581 <= c <= 0x5FF for c in in_use)
+    r.advance(2.0)  # open transfers time out
+    assert r.sdo("40 00 10 00 00 00 00 00") == "43 00 10 00 91 01 0F 00"  # 0x1200 still serves
