@@ -92,7 +92,8 @@ class TimeConsumer(Service):
         self._listeners.append(listener)
 
     def current(self, now: float | None = None) -> datetime | None:
-        """The network time now: the last TIME plus the node time elapsed since (None before one)."""
+        """The network time at ``now`` (the adapter's clock, ``loop.time()``): the last TIME plus the
+        time elapsed since it arrived; None before one. Without ``now``: the node's last step."""
         if self.last is None or self.received_at is None:
             return None
         elapsed = (self.node.now if now is None else now) - self.received_at
