@@ -31,6 +31,7 @@ in file order: the first one sees the inputs move before anything drove the outp
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import json
 import os
 import signal
@@ -364,6 +365,32 @@ def test_a_second_node_at_the_same_mac_faults_and_is_moved_by_the_offline_connec
             newcomer.stop()
     assert json.loads((tmp_path / "state" / "dnet.devicenet.json").read_text())["mac_id"] == 7
     assert network.bench.proc.poll() is None
+
+
+UVLOOP = importlib.util.find_spec("uvloop") is not None  # `fieldgate run --loop auto` (the default) then runs on it
+
+
+@pytest.mark.xfail(UVLOOP, strict=True, reason=(
+    "on uvloop the front's SocketCAN reader (fieldgate.can.busrx.ReaderReceiver, loop.add_reader) is called once "
+    "with ENETDOWN when the interface goes down and never again: the front stays deaf after the interface is up"))
+def test_the_front_hears_the_bus_again_after_the_interface_restarts(network):
+    """``ip link set can0 down`` / ``up``, as when an interface's bit rate is changed (SocketCAN sets it
+    only while the interface is down) or an adapter recovers: the running front hears the bus again.
+    Checked with a duplicate MAC ID request from another node, which an online node answers whatever
+    its connections."""
+    assert network.bench.proc.poll() is None
+    try:
+        subprocess.run(["ip", "link", "set", CHANNEL, "down"], check=True)
+        time.sleep(0.3)
+    finally:
+        subprocess.run(["ip", "link", "set", CHANNEL, "up"], check=True)
+    time.sleep(0.2)
+    dup_mac = 0x400 | SLAVE << 3 | 7
+    with can.Bus(interface="socketcan", channel=CHANNEL) as bus:
+        bus.send(can.Message(arbitration_id=dup_mac, data=bytes.fromhex("00 23 03 D2 04 00 00"), is_extended_id=False))  # serial 1234
+        seen = collect(bus, 2, until=lambda f: f[0] == dup_mac)
+    assert network.bench.proc.poll() is None, network.bench.log()
+    assert seen[-1:] == [(dup_mac, bytes.fromhex("80 23 03 49 1C 00 00"))], network.bench.log()[-2000:]
 
 
 def test_sigint_stops_both_gateways_with_exit_code_0(network):
