@@ -5,6 +5,7 @@ I-7055 (8 DI + 8 DO) at 1, I-7017 (8 AI) at 2, I-7024 (4 AO) at 3: the poll cons
 directions are I/O-fragmented (seed-003 §2.4).
 """
 
+import asyncio
 import uuid
 from pathlib import Path
 
@@ -72,19 +73,22 @@ async def test_devicenet_modbus_example_on_simulated_modbus_modules(tmp_path):
     master = Master(channel, slave=5)
     await gw.start()
     try:
-        sim = gw.bench.simulator("rs485")
-        sim.set_input("rs485/m1/di6", True)
-        sim.set_input("rs485/m2/ai7", -2)
-        await master.wait_online()
-        assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
-        assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex("90 F4 01")
-        for _ in range(100):
-            inputs = await master.poll_fragmented_reply(bytes([0x81]), 17)
-            if inputs[0] == 0x40 and inputs[15:17] == bytes.fromhex("FE FF") and sim.get_output("rs485/m1/do7"):
-                break
-            await master.frames(0.03)
-        assert inputs[0] == 0x40 and inputs[15:17] == bytes.fromhex("FE FF")
-        assert sim.get_output("rs485/m1/do0") and sim.get_output("rs485/m1/do7") and not sim.get_output("rs485/m1/do1")
+        # A bound of our own: a stall shows where it happened (the await in the traceback),
+        # where pytest-timeout could only show the idle event loop (seen once in CI under load).
+        async with asyncio.timeout(60):
+            sim = gw.bench.simulator("rs485")
+            sim.set_input("rs485/m1/di6", True)
+            sim.set_input("rs485/m2/ai7", -2)
+            await master.wait_online()
+            assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
+            assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex("90 F4 01")
+            for _ in range(100):
+                inputs = await master.poll_fragmented_reply(bytes([0x81]), 17)
+                if inputs[0] == 0x40 and inputs[15:17] == bytes.fromhex("FE FF") and sim.get_output("rs485/m1/do7"):
+                    break
+                await master.frames(0.03)
+            assert inputs[0] == 0x40 and inputs[15:17] == bytes.fromhex("FE FF")
+            assert sim.get_output("rs485/m1/do0") and sim.get_output("rs485/m1/do7") and not sim.get_output("rs485/m1/do1")
     finally:
         master.close()
         await gw.stop()
