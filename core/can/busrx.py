@@ -113,10 +113,23 @@ class ReaderReceiver(Receiver):
                 self.errors += 1
                 if self.errors == 1 or self.errors % 1000 == 0:
                     log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
+                self._watch_again()
                 return
             if msg is None:
                 return
             self.on_message(msg)
+
+    def _watch_again(self) -> None:
+        """Register the socket again after a receive error (ENETDOWN: the interface went down).
+
+        uvloop (libuv) stops watching a descriptor that reported an error, so the front
+        would stay deaf once the interface is up again; asyncio's loop keeps watching.
+        Registering again gives both the same behaviour: frames are heard as soon as the
+        interface is back, and a socket that keeps failing keeps being counted.
+        """
+        if self.active:
+            self.loop.remove_reader(self._fd)
+            self.loop.add_reader(self._fd, self._readable)
 
     def stop(self) -> None:
         self.active = False

@@ -184,3 +184,69 @@ async def test_other_buses_use_a_notifier_thread_and_hop_to_the_loop():
     receiver.stop()
     bus.shutdown()
     tx.shutdown()
+
+
+class ErroringSocketBus(can.BusABC):
+    """A descriptor that reports a kernel error (EPOLLERR), as SocketCAN does with ENETDOWN when
+    its interface goes down: a UDP socket on 127.0.0.1 connected to a port nobody listens on,
+    so its first datagram comes back as "connection refused"."""
+
+    def __init__(self, **kw):
+        closed = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        closed.bind(("127.0.0.1", 0))
+        self.peer_address = closed.getsockname()
+        closed.close()
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.connect(self.peer_address)
+        self.sock.setblocking(False)
+        super().__init__(channel="udp", **kw)
+
+    def fileno(self):
+        return self.sock.fileno()
+
+    def _recv_internal(self, timeout):
+        try:
+            data = self.sock.recv(8)  # the pending error is raised here once (ConnectionRefusedError)
+        except BlockingIOError:
+            return None, False
+        return can.Message(arbitration_id=0x181, data=data, is_extended_id=False), False
+
+    def send(self, msg, timeout=None):
+        pass
+
+    def shutdown(self):
+        super().shutdown()
+        self.sock.close()
+
+
+@pytest.mark.parametrize("loop_name", ["asyncio", "uvloop"])
+def test_a_descriptor_that_reported_an_error_is_still_heard_afterwards(loop_name):
+    """uvloop stops watching a descriptor after an error event; the receiver registers it again."""
+    factory = asyncio.new_event_loop if loop_name == "asyncio" else pytest.importorskip("uvloop").new_event_loop
+
+    async def scenario():
+        loop = asyncio.get_running_loop()
+        bus = ErroringSocketBus()
+        got, heard = [], asyncio.Event()
+        receiver = start_receiver(bus, loop, lambda msg: (got.append(bytes(msg.data)), heard.set()))
+        assert receiver.mode == "add-reader"
+        bus.sock.send(b"lost")  # -> ICMP port unreachable -> an error on our socket
+        for _ in range(200):
+            if receiver.errors:
+                break
+            await asyncio.sleep(0.005)
+        assert receiver.errors == 1
+        peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # now somebody is there
+        peer.bind(bus.peer_address)
+        peer.sendto(b"\x05", bus.sock.getsockname())
+        try:
+            await asyncio.wait_for(heard.wait(), 2.0)
+        finally:
+            peer.close()
+            receiver.stop()
+            bus.shutdown()
+        assert got == [b"\x05"]
+
+    with asyncio.Runner(loop_factory=factory) as runner:
+        runner.run(scenario())
