@@ -25,6 +25,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
+from .cancellation import raise_if_cancelled
 from .health import ErrorKind, LineStats, ModuleHealth
 from .image import Change, ChannelSpec, ProcessImage, Quality
 from .plugin import Back, GatewayContext
@@ -182,6 +183,7 @@ class LineScheduler:
         try:
             while True:
                 deadline = await self.step()
+                raise_if_cancelled()  # pymodbus may have swallowed ours (see fieldgate.cancellation)
                 if deadline is None:
                     await asyncio.sleep(0)  # a step that did no real I/O must not starve the loop
                     continue

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from .cancellation import raise_if_cancelled
 from .image import Quality
 from .simulation import SimulationBench
 from .plugin import Component, GatewayContext, PluginStartError, Registry, load_registry
@@ -28,6 +29,8 @@ from .topology import Topology, load_topology
 log = logging.getLogger("fieldgate.runtime")
 
 MAX_BACKOFF = 60.0
+CANCEL_GRACE_S = 0.5  # how long a cancelled component task may take before it is cancelled again
+CANCEL_ATTEMPTS = 10
 
 
 class GatewayStartError(Exception):
@@ -106,6 +109,7 @@ class Gateway:
         while True:
             try:
                 await comp.run()
+                raise_if_cancelled()  # a run() that ended because it swallowed our cancellation
                 cause = "run() returned while the gateway was running"
             except asyncio.CancelledError:
                 raise
@@ -159,13 +163,26 @@ class Gateway:
         log.info("gateway %s stopped", self.topology.gateway.name)
 
     async def _cancel(self, comp: Component) -> None:
+        """Cancel a component's task and wait for it, cancelling again while it goes on.
+
+        A cancellation can be lost inside a library (Python 3.11's ``asyncio.wait_for``
+        drops one that arrives together with the awaited result; pymodbus waits that way),
+        and a stop must never hang on it: the task is cancelled again every
+        ``CANCEL_GRACE_S`` and, after ``CANCEL_ATTEMPTS``, left behind with an error.
+        """
         task = self._tasks.pop(comp.name, None)
-        if task is not None:
+        if task is None:
+            return
+        for attempt in range(1, CANCEL_ATTEMPTS + 1):
             task.cancel()
-            try:
-                await task
-            except (asyncio.CancelledError, Exception):
-                pass
+            done, _ = await asyncio.wait({task}, timeout=CANCEL_GRACE_S)
+            if done:
+                if not task.cancelled():
+                    task.exception()  # retrieved: a failure while stopping is not worth a warning at exit
+                return
+            log.warning("%s %s: still running %.1f s after being cancelled (attempt %d); cancelling again",
+                        comp.kind, comp.name, CANCEL_GRACE_S * attempt, attempt)
+        log.error("%s %s does not stop when cancelled; leaving its task behind", comp.kind, comp.name)
 
     async def _stop_components(self) -> None:
         for comp in self.fronts + self.backs:

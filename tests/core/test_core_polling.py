@@ -254,3 +254,41 @@ async def test_run_yields_to_the_loop_even_when_polls_do_no_io():
     await asyncio.wait_for(other_task(), 2)
     task.cancel()
     assert len(ticks) == 5
+
+
+class SwallowingModule(ScriptedModule):
+    """Its read swallows a cancellation, as Python 3.11's asyncio.wait_for inside pymodbus can
+    when the reply arrives together with the cancellation."""
+
+    def __init__(self, *args, **kw):
+        import asyncio
+
+        super().__init__(*args, **kw)
+        self.swallowed = 0
+        self.waiting = asyncio.Event()  # set while the read waits for its "reply"
+
+    async def read_inputs(self):
+        import asyncio
+
+        self.waiting.set()
+        try:
+            await asyncio.sleep(0.05)
+        except asyncio.CancelledError:
+            self.swallowed += 1
+        self.waiting.clear()
+        return await super().read_inputs()
+
+
+async def test_a_cancellation_swallowed_inside_a_transaction_still_stops_the_line():
+    import asyncio
+
+    clock, image = Clock(), ProcessImage()
+    module = SwallowingModule(1, image)
+    line = LineScheduler("line", [module], image, {1: ModuleHealth("line", 1)}, poll_period=0.0,
+                         offline_probe_period=5.0, clock=clock)
+    task = asyncio.create_task(line.run())
+    await asyncio.wait_for(module.waiting.wait(), 2.0)
+    task.cancel()
+    done, _ = await asyncio.wait({task}, timeout=2.0)
+    assert done and task.cancelled()  # without the check the line would poll on
+    assert module.swallowed == 1

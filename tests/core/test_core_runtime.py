@@ -169,3 +169,57 @@ async def test_simulated_lines_drop_parity_a_pty_cannot_carry(registry):
         assert topo.backs[0].parity == "N" and topo.backs[0].port.startswith("/dev/pts/")
     finally:
         await bench.stop()
+
+
+async def test_stop_cancels_again_a_component_that_swallows_its_cancellation(registry, topology_dict, monkeypatch, caplog):
+    """Gateway.stop() never hangs on a task that lost a cancellation (asyncio.wait_for in 3.11 can)."""
+    from fieldgate import runtime
+
+    monkeypatch.setattr(runtime, "CANCEL_GRACE_S", 0.02)
+    swallowed = 0
+
+    async def stubborn_run(self):
+        nonlocal swallowed
+        while True:
+            try:
+                await asyncio.sleep(3600)
+            except asyncio.CancelledError:
+                if swallowed == 3:
+                    raise
+                swallowed += 1
+
+    monkeypatch.setattr(registry.lookup("back", "loopback").factory, "run", stubborn_run)
+    gw = Gateway.load(topology_dict(), registry=registry)
+    await gw.start()
+    await asyncio.sleep(0.01)
+    async with asyncio.timeout(5):
+        await gw.stop()
+    assert swallowed == 3 and not gw.running
+    assert sum("still running" in r.getMessage() and "back io" in r.getMessage() for r in caplog.records) == 3
+
+
+async def test_stop_gives_up_on_a_component_that_never_stops_and_says_so(registry, topology_dict, monkeypatch, caplog):
+    from fieldgate import runtime
+
+    monkeypatch.setattr(runtime, "CANCEL_GRACE_S", 0.01)
+    monkeypatch.setattr(runtime, "CANCEL_ATTEMPTS", 3)
+    release = asyncio.Event()
+
+    async def deaf_run(self):
+        while not release.is_set():
+            try:
+                await asyncio.sleep(3600)
+            except asyncio.CancelledError:
+                pass
+
+    monkeypatch.setattr(registry.lookup("back", "loopback").factory, "run", deaf_run)
+    gw = Gateway.load(topology_dict(), registry=registry)
+    await gw.start()
+    await asyncio.sleep(0.01)
+    async with asyncio.timeout(5):
+        await gw.stop()
+    assert not gw.running
+    assert any("back io does not stop when cancelled" in r.getMessage() for r in caplog.records)
+    release.set()  # let the abandoned task end so that the test's loop can close
+    for task in [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]:
+        task.cancel()
