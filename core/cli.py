@@ -130,12 +130,13 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
     except GatewayStartError as exc:
         log.error("cannot start: %s", exc)
         return 2
-    if args.status_every:
-        asyncio.create_task(_print_status(gateway, args.status_every))
+    status = asyncio.create_task(_print_status(gateway, args.status_every)) if args.status_every else None
     if args.duration:
         loop.call_later(args.duration, stop.set)
     await stop.wait()
     log.info("stopping")
+    if status is not None:
+        status.cancel()
     await gateway.stop()
     return 0
 

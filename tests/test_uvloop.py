@@ -63,3 +63,9 @@ def test_auto_and_uvloop_give_uvloop_when_installed():
 def test_unknown_loop_is_refused():
     result = run("run", str(EXAMPLE), "--loop", "trio")
     assert result.returncode == 2 and "invalid choice: 'trio'" in result.stderr
+
+
+def test_a_run_with_status_lines_ends_without_asyncio_complaints(tmp_path):
+    result = run_demo(tmp_path, "--loop", "asyncio")
+    assert_demo_ran(result)
+    assert "Task was destroyed but it is pending" not in result.stderr, result.stderr

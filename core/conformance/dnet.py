@@ -214,10 +214,13 @@ class DnetDevice:
 
     # -- between cases ---------------------------------------------------------------------
     def settle(self) -> None:
-        """Release every connection the tester may hold; answers (errors for what was not held) dropped."""
+        """Release every connection the tester may hold, each Release after the previous one's answer.
+
+        The answers (errors for what was not held) are dropped. Waiting for each one, not a
+        fixed pause, keeps a late answer from being read as the next case's (seen under load).
+        """
         for choice in (CHOICE_POLL, CHOICE_STROBE, CHOICE_COS, CHOICE_EXPLICIT):
-            self.link.send(self.g2(G2_UNCONNECTED), bytes([self.master_mac, RELEASE, 0x03, 0x01, choice]))
-        time.sleep(0.02)
+            self.unconnected(RELEASE, bytes([choice]))
         self.link.flush()
 
     def wait_online(self, within: float) -> bool:
