@@ -36,6 +36,7 @@ log = logging.getLogger("fieldgate.devicenet")
 
 BAUD_RATES = (125_000, 250_000, 500_000)
 DUP_MAC_INTERVAL_S = 1.0
+BIT_RATE_SWITCH_S = 0.01  # after a baud change at Reset: the adapter reopens the bus (at once) before the first duplicate MAC request
 FRAGMENT_ACK_TIMEOUT_S = 1.0
 FRAGMENT_RETRIES = 2
 SHUTDOWN_CODE = 0x0004
@@ -145,9 +146,13 @@ class DeviceNetSlave:
         self._start_dup_check(now)
         return self._done()
 
-    def _start_dup_check(self, now: float) -> None:
+    def _start_dup_check(self, now: float, delay: float = 0.0) -> None:
+        """Send the first duplicate MAC ID request now, or after ``delay`` (step 0 until then)."""
         self._now = now
         self.state = "dup-mac-check"
+        if delay > 0:
+            self._dup_step, self._dup_at = 0, now + delay
+            return
         self._dup_step = 1
         self._dup_at = now + self.settings.dup_mac_interval_s
         self._send_dup_mac(response=False)
@@ -208,7 +213,9 @@ class DeviceNetSlave:
         self._send(ids.group2_id(self.mac_id, ids.G2_DUP_MAC), self._dup_mac_payload(response))
 
     def _dup_mac_step(self, now: float) -> None:
-        if self._dup_step == 1:
+        if self._dup_step == 0:  # a delayed start (after a bit-rate switch)
+            self._start_dup_check(now)
+        elif self._dup_step == 1:
             self._dup_step = 2
             self._dup_at = now + self.settings.dup_mac_interval_s
             self._send_dup_mac(response=False)
@@ -438,12 +445,14 @@ class DeviceNetSlave:
         if self._new_mac is not None:
             self.mac_id, self._new_mac = self._new_mac, None
         self._heartbeat_at = None
+        delay = 0.0
         if self.pending_baud_code is not None and self.pending_baud_code != self.baud_code:
             self.baud_code = self.pending_baud_code
             if self._bit_timing is not None:
                 self._bit_timing(self.bitrate, 0.0)
+                delay = BIT_RATE_SWITCH_S  # the shutdown answer leaves at the old rate, the check at the new
         self.pending_baud_code = None
-        self._start_dup_check(now)
+        self._start_dup_check(now, delay)
 
     def write_assembly(self, assembly: Assembly, data: bytes) -> None:
         assembly.write(self.assemblies.image, data, self.assemblies.origin)

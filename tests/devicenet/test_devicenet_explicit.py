@@ -139,9 +139,11 @@ def test_seed_baud_change_waits_for_reset(rig):
     assert rig.explicit("10 03 01 02 01 00") == "0A 90"  # TV-29 / TV-30
     assert rig.explicit("0E 03 01 02") == "0A 8E 01"
     assert switched == [] and rig.slave.bitrate == 125_000
-    assert rig.send("44C 0A 05 01 01 00") == [  # TV-32..35
-        "44B 0A 85", "44B 0A CE 01 00 01 00 04 00", "44F 00 23 03 01 00 00 00"]
+    assert rig.send("44C 0A 05 01 01 00") == [  # TV-32..34: answered at the old rate
+        "44B 0A 85", "44B 0A CE 01 00 01 00 04 00"]
     assert switched == [250_000] and rig.slave.bitrate == 250_000
+    # TV-35, the duplicate MAC ID check, once the bus runs at the new rate (the adapter switches at once)
+    assert rig.advance(0.01) == ["44F 00 23 03 01 00 00 00"]
     assert rig.slave.allocation_choice == 0 and rig.slave.master_mac == 0xFF
 
 

@@ -149,3 +149,35 @@ async def test_offline_module_shows_in_the_identity_status(rig):
     assert await master.request(bytes.fromhex("0E 01 01 05")) == bytes.fromhex("8E 01 01")
     health.record_success()
     assert await master.request(bytes.fromhex("0E 01 01 05")) == bytes.fromhex("8E 01 00")
+
+
+async def test_a_baud_change_at_reset_answers_at_the_old_rate_and_checks_the_mac_at_the_new(rig):
+    """Identity Reset with a new baud rate pending: the answers leave on the old bus, the duplicate
+    MAC ID check on the reopened one (the adapter switches before the check's first request)."""
+    gateway, master = rig
+    adapter = gateway.component("dnet").adapter
+    sent = []  # (bit rate of the bus in use, CAN-ID)
+    real_transmit = adapter.transmit
+
+    def recording_transmit(frames, now=None):
+        sent.extend((adapter.bus_bitrate, f.can_id) for f in frames)
+        real_transmit(frames, now)
+
+    adapter.bus_bitrate = 500_000
+    real_reopen = adapter._reopen
+
+    def reopen(rate):
+        adapter.bus_bitrate = rate
+        return real_reopen(rate)
+
+    adapter._reopen, adapter.transmit = reopen, recording_transmit
+    assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
+    assert await master.request(bytes.fromhex("10 03 01 02 00")) == bytes.fromhex("90")  # baud 125k, pending
+    assert await master.request(bytes.fromhex("05 01 01 00")) == bytes.fromhex("85")  # Identity Reset
+    await master.frames(0.1)
+    dup_mac = 0x400 | SLAVE << 3 | 7
+    explicit_response = 0x400 | SLAVE << 3 | 3
+    assert (500_000, explicit_response) in sent
+    dup_mac_rates = [rate for rate, can_id in sent if can_id == dup_mac]
+    assert dup_mac_rates and set(dup_mac_rates) == {125_000}, sent
+    assert adapter.counters["bit_timing_switches"] == 1
