@@ -171,6 +171,17 @@ async def test_simulated_lines_drop_parity_a_pty_cannot_carry(registry):
         await bench.stop()
 
 
+async def run_and_stop_with_back_run(run, registry, topology_dict, monkeypatch) -> Gateway:
+    """Start a gateway whose loopback back runs ``run``, then stop it within 5 s (or fail)."""
+    monkeypatch.setattr(registry.lookup("back", "loopback").factory, "run", run)
+    gw = Gateway.load(topology_dict(), registry=registry)
+    await gw.start()
+    await asyncio.sleep(0.01)
+    async with asyncio.timeout(5):
+        await gw.stop()
+    return gw
+
+
 async def test_stop_cancels_again_a_component_that_swallows_its_cancellation(registry, topology_dict, monkeypatch, caplog):
     """Gateway.stop() never hangs on a task that lost a cancellation (asyncio.wait_for in 3.11 can)."""
     from fieldgate import runtime
@@ -188,12 +199,7 @@ async def test_stop_cancels_again_a_component_that_swallows_its_cancellation(reg
                     raise
                 swallowed += 1
 
-    monkeypatch.setattr(registry.lookup("back", "loopback").factory, "run", stubborn_run)
-    gw = Gateway.load(topology_dict(), registry=registry)
-    await gw.start()
-    await asyncio.sleep(0.01)
-    async with asyncio.timeout(5):
-        await gw.stop()
+    gw = await run_and_stop_with_back_run(stubborn_run, registry, topology_dict, monkeypatch)
     assert swallowed == 3 and not gw.running
     assert sum("still running" in r.getMessage() and "back io" in r.getMessage() for r in caplog.records) == 3
 
@@ -212,12 +218,7 @@ async def test_stop_gives_up_on_a_component_that_never_stops_and_says_so(registr
             except asyncio.CancelledError:
                 pass
 
-    monkeypatch.setattr(registry.lookup("back", "loopback").factory, "run", deaf_run)
-    gw = Gateway.load(topology_dict(), registry=registry)
-    await gw.start()
-    await asyncio.sleep(0.01)
-    async with asyncio.timeout(5):
-        await gw.stop()
+    gw = await run_and_stop_with_back_run(deaf_run, registry, topology_dict, monkeypatch)
     assert not gw.running
     assert any("back io does not stop when cancelled" in r.getMessage() for r in caplog.records)
     release.set()  # let the abandoned task end so that the test's loop can close
