@@ -2,16 +2,23 @@
 
 * Any python-can interface works: ``interface``, ``channel``, ``bitrate`` and extra
   options go to ``can.Bus`` unchanged (socketcan, virtual, pcan, kvaser, slcan, ...).
-* Received messages reach the node on the event loop (one thread, no locks) through
-  :func:`~.busrx.start_receiver`: pushed straight from the sender on the virtual bus,
-  ``add_reader`` on SocketCAN, a :class:`can.Notifier` thread hopping with
-  ``loop.call_soon_threadsafe`` on other interfaces.
+* Received messages reach the node on the event loop through
+  :func:`~.busrx.start_receiver`: ``add_reader`` on SocketCAN (no thread), a
+  receive thread hopping with ``loop.call_soon_threadsafe`` on other interfaces (and on
+  the virtual bus when the engine answers quickly, below), pushed straight from the
+  sender on the virtual bus otherwise.
+* Quick answers: an engine with ``quick_answer(can_id, data, now)`` (the CANopen node:
+  SDO reads) answers those on the receive thread, without waking the loop. Everything the
+  loop does with the engine (frames, timers, ``pump``, ``tick``, bus-state changes) holds
+  :attr:`CanAdapter.engine_lock`, and the receive thread only *tries* the lock, only
+  when every earlier frame has been handled; otherwise the frame goes to the loop. So
+  the engine still sees one call at a time, in frame order.
 * Timers: after every call into the node, one ``loop.call_at`` is armed for the node's
   next deadline. ``now`` is ``loop.time()`` (monotonic seconds).
 * Bus-off: SocketCAN error frames (``CAN_ERR_BUSOFF`` / ``CAN_ERR_RESTARTED``) and
   interfaces that report ``bus.state == ERROR`` (checked once a second) are passed to
   ``on_bus_state``. Send failures are counted, never raised.
-* Receiving that has died (the Notifier thread ended on a driver exception, or the
+* Receiving that has died (the receive thread ended on a driver exception, or the
   reader failed ``RX_ERRORS_FATAL`` times within one poll) sets :attr:`CanAdapter.failed`;
   the front's ``run()`` raises and the runtime restarts the front with back-off.
 * Remote frames keep their DLC; 29-bit frames are counted and dropped (the node uses
@@ -22,6 +29,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import threading
 from collections import Counter
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -30,7 +38,7 @@ import can
 
 from fieldgate.plugin import PluginStartError
 
-from .busrx import start_receiver
+from .busrx import Receiver, start_receiver
 from .frame import Frame
 
 log = logging.getLogger("fieldgate.can.adapter")
@@ -108,19 +116,23 @@ class CanAdapter:
         self._timer: asyncio.TimerHandle | None = None
         self._armed_at = 0.0
         self._state_timer: asyncio.TimerHandle | None = None
-        self._notifier: can.Notifier | None = None
+        self._receiver: Receiver | None = None
         self._bus_off = False
         self._state_bus_off = False
         self._rx_errors_seen = 0
         self.closed = False
+        self.engine_lock = threading.RLock()  # the loop holds it while it calls the engine (re-entered when a
+        # process-image event raised inside an engine call pumps again); see the module notes
+        self.quick_answers = 0
         self.failed: asyncio.Future = loop.create_future()  # set when receiving is dead: run() raises
 
     # -- life cycle ------------------------------------------------------------------
     def start(self, boot: bool = True) -> None:
-        self._notifier = start_receiver(self.bus, self.loop, self._receive)
-        if boot:
-            self.transmit(self.node.boot(self.now))
-        self._arm()
+        self._receiver = self._start_receiver()
+        with self.engine_lock:
+            if boot:
+                self._send(self.node.boot(self.now))
+            self._arm()
         self._state_timer = self.loop.call_later(STATE_POLL_S, self._poll_bus_state)
         self.node.on_bit_timing(self._bit_timing)
 
@@ -129,9 +141,9 @@ class CanAdapter:
         for handle in (self._timer, self._state_timer):
             if handle is not None:
                 handle.cancel()
-        if self._notifier is not None:
-            self._notifier.stop()
-            self._notifier = None
+        if self._receiver is not None:
+            self._receiver.stop()
+            self._receiver = None
         try:
             self.bus.shutdown()
         except Exception as exc:  # a broken driver must not stop the gateway's shutdown
@@ -142,20 +154,50 @@ class CanAdapter:
         return self.loop.time()
 
     # -- receive -----------------------------------------------------------------------
+    def _start_receiver(self):
+        quick = self._quick if hasattr(self.node, "quick_answer") else None
+        return start_receiver(self.bus, self.loop, self._receive, quick)
+
     def _receive(self, msg: can.Message) -> None:
         """One received message: the node's answers go out before anything else happens."""
         if self.closed:
             return
-        if msg.is_error_frame or msg.is_extended_id or msg.is_fd:
-            self._receive_other(msg)
-            return
-        self.rx_frames += 1
-        now = self.loop.time()
-        node = self.node
-        frames = node.receive(to_frame(msg), now)
-        self._arm(node.deadline_after_call, known=True)
-        if frames:  # last: only returns follow the answer, so the waiting peer runs at once
-            self.transmit(frames, now)
+        with self.engine_lock:
+            if msg.is_error_frame or msg.is_extended_id or msg.is_fd:
+                self._receive_other(msg)
+                return
+            self.rx_frames += 1
+            now = self.loop.time()
+            node = self.node
+            frames = node.receive(to_frame(msg), now)
+            self._arm(node.deadline_after_call, known=True)
+            if frames:  # last: only returns follow the answer, so the waiting peer runs at once
+                self._send(frames, now)
+
+    def _quick(self, msg: can.Message) -> bool:
+        """On the receive thread: answer ``msg`` at once if the engine can (True), else False.
+
+        Never blocks (the lock is only tried) and never raises (the receive thread would end).
+        """
+        if msg.is_remote_frame or msg.is_error_frame or msg.is_extended_id or msg.is_fd:
+            return False
+        lock = self.engine_lock
+        if not lock.acquire(False):
+            return False
+        try:
+            if self.closed:
+                return False
+            answer = self.node.quick_answer(msg.arbitration_id, msg.data, self.loop.time())
+            if answer is None:
+                return False
+            self.rx_frames += 1
+            self.quick_answers += 1
+            self._send((answer,))
+            return True
+        except Exception:  # the loop's path handles (and logs) whatever went wrong here
+            return False
+        finally:
+            lock.release()
 
     def _receive_other(self, msg: can.Message) -> None:
         if msg.is_error_frame:
@@ -180,20 +222,20 @@ class CanAdapter:
             state = self.bus.state
         except Exception:
             state = None
-        if state is can.BusState.ERROR:
-            self._state_bus_off = True
-            self._set_bus_off(True)
-        elif state is not None and self._state_bus_off:
-            self._state_bus_off = False
-            self._set_bus_off(False)
+        with self.engine_lock:
+            if state is can.BusState.ERROR:
+                self._state_bus_off = True
+                self._set_bus_off(True)
+            elif state is not None and self._state_bus_off:
+                self._state_bus_off = False
+                self._set_bus_off(False)
         self._check_receiver()
         self._state_timer = self.loop.call_later(STATE_POLL_S, self._poll_bus_state)
 
     def _check_receiver(self) -> None:
-        """A dead Notifier thread, or a reader failing on every call, fails the adapter."""
-        receiver = self._notifier
-        notifier = getattr(receiver, "_notifier", None)
-        exc = getattr(notifier, "exception", None)
+        """A dead receive thread, or a reader failing on every call, fails the adapter."""
+        receiver = self._receiver
+        exc = getattr(receiver, "exception", None)
         errors = getattr(receiver, "errors", 0)
         if exc is None and isinstance(errors, int) and errors - self._rx_errors_seen >= RX_ERRORS_FATAL:
             exc = can.CanOperationError(f"{errors - self._rx_errors_seen} receive errors in {STATE_POLL_S:g} s")
@@ -214,10 +256,11 @@ class CanAdapter:
         self.counters["bus_off_events" if bus_off else "bus_off_recoveries"] += 1
         if self.on_bus_state is not None:
             self.on_bus_state(bus_off, self.now)
-        self.transmit(self.node.flush())
+        self._send(self.node.flush())
 
     # -- transmit and timers ---------------------------------------------------------------
-    def transmit(self, frames: list[Frame], now: float | None = None) -> None:
+    def _send(self, frames: list[Frame] | tuple[Frame, ...], now: float | None = None) -> None:
+        """Send the engine's frames (the caller holds :attr:`engine_lock`)."""
         if not frames:
             return
         now = self.loop.time() if now is None else now
@@ -233,10 +276,21 @@ class CanAdapter:
                 if self.counters["tx_errors"] == 1 or self.counters["tx_errors"] % 1000 == 0:
                     log.warning("CAN send failed (%d so far): %s", self.counters["tx_errors"], _one_line(exc))
 
-    def pump(self) -> None:
-        """Send frames queued by calls from outside the engine (EMCY API) and re-arm timers."""
-        self.transmit(self.node.flush())
-        self._arm()
+    def pump(self, action: Callable[[], object] | None = None) -> None:
+        """Run ``action`` on the engine from outside its frame and timer calls (raise an EMCY,
+        note changed inputs), then send what the engine queued and re-arm timers."""
+        with self.engine_lock:
+            if action is not None:
+                action()
+            self._send(self.node.flush())
+            self._arm()
+
+    def run_engine(self) -> None:
+        """Let the engine act now (a process-image event changed its inputs): tick, send, re-arm."""
+        with self.engine_lock:
+            self._send(self.node.tick(self.now))
+            self._send(self.node.flush())
+            self._arm()
 
     def _arm(self, deadline: float | None = None, known: bool = False) -> None:
         """Have ``_tick`` run by the node's next deadline.
@@ -261,8 +315,9 @@ class CanAdapter:
         self._timer = None
         if self.closed:
             return
-        self.transmit(self.node.tick(self.now))
-        self._arm(self.node.deadline_after_call, known=True)
+        with self.engine_lock:
+            self._send(self.node.tick(self.now))
+            self._arm(self.node.deadline_after_call, known=True)
 
     # -- LSS bit timing ---------------------------------------------------------------------
     def _bit_timing(self, bitrate: int, delay_s: float) -> None:
@@ -275,8 +330,8 @@ class CanAdapter:
         if self.closed:
             return
         log.info("switching the CAN bit rate to %d bit/s", bitrate)
-        if self._notifier is not None:
-            self._notifier.stop()
+        if self._receiver is not None:
+            self._receiver.stop()
         try:
             self.bus.shutdown()
             self.bus = self._reopen(bitrate)
@@ -284,8 +339,9 @@ class CanAdapter:
             log.error("cannot reopen the CAN bus at %d bit/s: %s", bitrate, exc)
             self.counters["bit_timing_failures"] += 1
             return
-        self._notifier = start_receiver(self.bus, self.loop, self._receive)
+        self._receiver = self._start_receiver()
         self.counters["bit_timing_switches"] += 1
 
     def status(self) -> dict:
-        return {"rx": self.rx_frames, "tx": self.tx_frames, **self.counters, "bus_off": self._bus_off}
+        return {"rx": self.rx_frames, "tx": self.tx_frames, "quick_answers": self.quick_answers, **self.counters,
+                "bus_off": self._bus_off}

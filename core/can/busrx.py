@@ -1,24 +1,35 @@
 """Receive CAN messages on the event loop with as few thread hops as the bus allows.
 
-``start_receiver(bus, loop, on_message)`` calls ``on_message(msg)`` on the event loop's
-thread for every message the bus receives, in order:
+``start_receiver(bus, loop, on_message, quick=None)`` calls ``on_message(msg)`` on the
+event loop's thread for every message the bus receives, in order:
 
-* python-can's in-process ``virtual`` bus: the sender's thread hands each message straight
-  to the loop (``call_soon_threadsafe``) through a stand-in for the bus's receive queue,
-  so no receive thread sits in between (python-can 4.6 keeps one ``queue.Queue`` per bus
-  in the channel's list and ``send`` calls ``put`` on each; the stand-in has ``put``);
 * buses with a file descriptor (SocketCAN): ``loop.add_reader``, reading until the socket
-  is empty, again without a thread;
-* every other interface: a :class:`can.Notifier` thread that hops to the loop.
+  is empty, without a thread;
+* every other interface (pcan, kvaser, ixxat, ... and python-can's ``virtual`` when a
+  ``quick`` answerer is given): a receive thread blocked in ``bus.recv`` that hops to
+  the loop (``call_soon_threadsafe``); a driver exception ends it and is kept in
+  :attr:`Receiver.exception` (the adapter fails the front, which restarts);
+* python-can's in-process ``virtual`` bus without ``quick``: the sender's thread hands
+  each message straight to the loop (``call_soon_threadsafe``) through a stand-in for the
+  bus's receive queue, so no receive thread sits in between (python-can 4.6 keeps one
+  ``queue.Queue`` per bus in the channel's list and ``send`` calls ``put`` on each; the
+  stand-in has ``put``).
 
-A receive thread costs one extra thread wake-up per frame, which dominates an SDO round
-trip in Python (bench/canopen_sdo.py measures it against canopen's LocalNode).
+``quick(msg) -> bool``, given, runs on the receive thread first and returns True when it
+has handled the message completely (the CANopen front answers SDO reads there, see
+:meth:`fieldgate.plugins.canopen.node.Node.quick_answer`). It is asked only when every
+message handed to the loop before has been handled (:attr:`Receiver.idle`), so the
+answers keep the order of the requests; anything it declines goes to the loop.
+
+A receive thread costs one extra thread wake-up per frame that goes to the loop; an SDO
+read answered on it costs none, like canopen's LocalNode (bench/canopen_sdo.py).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import threading
 from collections.abc import Callable
 
 import can
@@ -27,32 +38,65 @@ from can.interfaces import virtual
 log = logging.getLogger("fieldgate.can.busrx")
 
 OnMessage = Callable[[can.Message], None]
+Quick = Callable[[can.Message], bool]
+RECV_TIMEOUT_S = 0.1  # how often the receive thread looks at whether it should stop
 
 
 class Receiver:
     """A running receive path; :meth:`stop` before shutting the bus down."""
 
     mode = "thread"
+    handed_over = 0  # messages handed to the loop, counted by the receiving thread only
+    handled = 0  # ... and handled there, counted by the loop only
 
-    def __init__(self, bus: can.BusABC, loop: asyncio.AbstractEventLoop, on_message: OnMessage):
-        self.bus, self.loop, self.on_message = bus, loop, on_message
+    def __init__(self, bus: can.BusABC, loop: asyncio.AbstractEventLoop, on_message: OnMessage,
+                 quick: Quick | None = None):
+        self.bus, self.loop, self.on_message, self.quick = bus, loop, on_message, quick
         self.active = True
-        self._notifier = can.Notifier(bus, [self._from_thread], timeout=0.1)
+        self.exception: BaseException | None = None  # what ended the receive thread, if anything did
+        self._thread = threading.Thread(target=self._receive_thread, name=f"can-rx {bus.channel_info}", daemon=True)
+        self._thread.start()
+
+    def _receive_thread(self) -> None:
+        recv, handle = self.bus.recv, self._from_thread
+        try:
+            while self.active:
+                msg = recv(RECV_TIMEOUT_S)
+                if msg is not None:
+                    handle(msg)
+        except Exception as exc:  # a failing driver ends the thread; the adapter's state poll reports it
+            if self.active:
+                self.exception = exc
+                log.error("CAN receive thread ended: %s", exc)
+
+    @property
+    def idle(self) -> bool:
+        """Every message handed to the loop has been handled."""
+        return self.handed_over == self.handled
 
     def _from_thread(self, msg: can.Message) -> None:
-        if self.active:
-            try:
-                self.loop.call_soon_threadsafe(self._deliver, msg)
-            except RuntimeError:  # loop closed during shutdown
-                pass
+        if not self.active:
+            return
+        quick = self.quick
+        if quick is not None and self.idle and quick(msg):
+            return
+        self.handed_over += 1
+        try:
+            self.loop.call_soon_threadsafe(self._deliver, msg)
+        except RuntimeError:  # loop closed during shutdown
+            pass
 
     def _deliver(self, msg: can.Message) -> None:
-        if self.active:
-            self.on_message(msg)
+        try:
+            if self.active:
+                self.on_message(msg)
+        finally:
+            self.handled += 1
 
     def stop(self) -> None:
         self.active = False
-        self._notifier.stop()
+        if self._thread is not threading.current_thread():
+            self._thread.join(5 * RECV_TIMEOUT_S)
 
 
 class _LoopQueue:
@@ -149,11 +193,12 @@ def _fileno(bus: can.BusABC) -> int | None:
     return fd if isinstance(fd, int) and fd >= 0 else None
 
 
-def start_receiver(bus: can.BusABC, loop: asyncio.AbstractEventLoop, on_message: OnMessage) -> Receiver:
+def start_receiver(bus: can.BusABC, loop: asyncio.AbstractEventLoop, on_message: OnMessage,
+                   quick: Quick | None = None) -> Receiver:
     """Deliver the bus's messages to ``on_message`` on ``loop`` (call from the loop's thread)."""
-    if _usable_virtual(bus):
-        return VirtualReceiver(bus, loop, on_message)
     fd = _fileno(bus)
     if fd is not None:
         return ReaderReceiver(bus, loop, on_message, fd)
-    return Receiver(bus, loop, on_message)
+    if quick is None and _usable_virtual(bus):
+        return VirtualReceiver(bus, loop, on_message)
+    return Receiver(bus, loop, on_message, quick)

@@ -73,8 +73,7 @@ def install(front: Any, node: Any) -> None:
         scheduled = False
         adapter = getattr(front, "adapter", None)
         if adapter is not None and getattr(front, "node", None) is node:
-            adapter.transmit(node.tick(adapter.now))
-            adapter.pump()
+            adapter.run_engine()
 
     def wakeup() -> None:
         # Coalesce the events of one loop turn (a back updating a module's channels), but

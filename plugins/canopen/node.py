@@ -8,6 +8,7 @@ returns the frames to send::
     out = node.boot(now)                   # [boot-up frame]
     out = node.receive(frame, now)         # answers to one received frame
     out = node.tick(now)                   # timers (heartbeat, life guarding, SDO timeout...)
+    out = node.quick_answer(can_id, data, now)  # a read answered from a receive thread, or None
     when = node.next_deadline()            # call tick() again at this time (or None)
 
 Public hooks for other services and the front:
@@ -139,6 +140,31 @@ class Node:
             if hint is not None and hint <= now:
                 self._run_due(now)
         return self._drain()
+
+    def quick_answer(self, can_id: int, data: bytes | bytearray, now: float) -> Frame | None:
+        """The answer to a data frame that only reads (an SDO expedited upload), or None.
+
+        For a CAN receive thread (:mod:`fieldgate.can.busrx`), so the answer leaves without
+        waiting for the event loop; the adapter calls it with its engine lock held and only
+        when every earlier frame has been handled. It answers only what :meth:`receive`
+        would answer the same way and changes nothing but counters: the COB-ID must be
+        routed to a service already (the route is forgotten on every NMT state change and
+        dictionary write, so the service was active and its COB-ID is current), no timer
+        may be due, and the service's :meth:`~.service.Service.answer_read` must accept it.
+        None means: give the frame to :meth:`receive`.
+        """
+        if self._routes_generation != self.od.generation:
+            return None
+        service = self._routes.get((can_id, False))
+        if service is None:
+            return None
+        hint = self._deadline_hint
+        if hint is not None and hint <= now:
+            return None
+        answer = service.answer_read(data)
+        if answer is not None:
+            self.frames_received += 1
+        return answer
 
     def _dispatch(self, frame: Frame, now: float) -> object:
         """Offer the frame to the services in add order until one takes it.

@@ -178,15 +178,17 @@ class CanopenFront(Front):
     def _module_health(self, health: ModuleHealth, event: HealthEvent) -> None:
         if self.node is None or self.node.emcy is None or health.key not in self._modules or not 0 <= health.address <= 255:
             return
-        manufacturer = bytes([0x0B, health.address])
+        manufacturer, emcy = bytes([0x0B, health.address]), self.node.emcy
         if event is HealthEvent.OFFLINE:
-            self.node.emcy.raise_error(MODULE_FAILURE_CODE, MODULE_FAILURE_REGISTER, manufacturer)
+            action = lambda: emcy.raise_error(MODULE_FAILURE_CODE, MODULE_FAILURE_REGISTER, manufacturer)  # noqa: E731
         elif event is HealthEvent.ONLINE:
-            self.node.emcy.clear_error(MODULE_FAILURE_CODE, manufacturer)
+            action = lambda: emcy.clear_error(MODULE_FAILURE_CODE, manufacturer)  # noqa: E731
         else:
             return
         if self.adapter is not None:
-            self.adapter.pump()
+            self.adapter.pump(action)
+        else:
+            action()
 
     def status(self) -> dict:
         if self.node is None:

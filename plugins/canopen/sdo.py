@@ -138,9 +138,12 @@ class SdoServer(Service):
         if len(frame.data) != 8:
             self.counters["bad_dlc_dropped"] += 1
             return True
-        if frame.data[0] == 0x40 and self.phase is Phase.IDLE and self._expedited_upload(frame.data):
-            self.expedited_uploads += 1  # a request and a transfer; status() adds them in
-            return QUIET
+        if frame.data[0] == 0x40 and self.phase is Phase.IDLE:
+            answer = self._expedited_upload(frame.data)
+            if answer is not None:
+                self.expedited_uploads += 1  # a request and a transfer; status() adds them in
+                self.node.send(answer)
+                return QUIET
         self.counters["requests"] += 1
         self.last_deadline = now + self.timeout_s
         try:
@@ -255,23 +258,34 @@ class SdoServer(Service):
         self.toggle ^= 1
 
     # -- expedited / segmented upload ----------------------------------------------------
-    def _expedited_upload(self, d: bytes) -> bool:
-        """An upload request outside a transfer, for a value of 1 to 4 bytes: answered here.
+    def answer_read(self, data: bytes | bytearray) -> Frame | None:
+        """An expedited upload outside a transfer, answered from the CAN receive thread (see :class:`.service.Service`)."""
+        if len(data) != 8 or data[0] != 0x40 or self.phase is not Phase.IDLE:
+            return None
+        try:
+            answer = self._expedited_upload(data)
+        except Exception:  # a getter's bug: the event loop's path logs it and aborts
+            return None
+        if answer is not None:
+            self.expedited_uploads += 1
+        return answer
+
+    def _expedited_upload(self, d: bytes | bytearray) -> Frame | None:
+        """The answer to an upload request outside a transfer for a value of 1 to 4 bytes.
 
         The most frequent request there is (a master reading a value). It leaves the
         transfer state and every timer as they were; anything else (a longer value, an
-        abort) returns False and takes the general path, which reads again and answers.
+        abort) gives None and takes the general path, which reads again and answers.
         """
         index, subindex = d[1] | (d[2] << 8), d[3]
         try:
             value = self.node.od.read(index, subindex)
         except SdoAbort:
-            return False
-        size = len(value)
-        if not 0 < size <= 4:
-            return False
-        self.node.send(Frame(self.tx_cob, EXPEDITED_UPLOAD.pack(0x43 | ((4 - size) << 2), index, subindex, value)))
-        return True
+            return None
+        return self._expedited_frame(index, subindex, value) if 0 < len(value) <= 4 else None
+
+    def _expedited_frame(self, index: int, subindex: int, value: bytes) -> Frame:
+        return Frame(self.tx_cob, EXPEDITED_UPLOAD.pack(0x43 | ((4 - len(value)) << 2), index, subindex, value))
 
     def _initiate_upload(self, d: bytes) -> None:
         self._begin(d, Phase.IDLE)
@@ -279,7 +293,7 @@ class SdoServer(Service):
 
     def _answer_upload(self, value: bytes) -> None:
         if 0 < len(value) <= 4:  # expedited: nothing of the transfer state was touched
-            self.node.send(Frame(self.tx_cob, EXPEDITED_UPLOAD.pack(0x43 | ((4 - len(value)) << 2), self.index, self.subindex, value)))
+            self.node.send(self._expedited_frame(self.index, self.subindex, value))
             self.counters["transfers"] += 1
             self.index = self.subindex = 0
             return

@@ -41,6 +41,11 @@ Rules:
   timer, changed no dictionary value and no NMT state (the SDO server's expedited
   upload: a read). The node then skips its timer pass after that frame unless a timer
   is already due. Returning True is always correct; QUIET is only an optimisation.
+* ``answer_read``: a service may answer a request that only reads (the SDO server's
+  expedited upload) without the event loop: :meth:`Node.quick_answer` calls it from the
+  CAN receive thread, with the adapter's engine lock held, for a COB-ID the service took
+  before. It returns the answer or None (then the frame goes the normal way); it changes
+  nothing but its own counters and never raises.
 * ``active_states``: the NMT states in which the node passes frames to ``on_frame``.
   The default is pre-operational and operational (SDO, SYNC, EMCY per CiA 301); a PDO
   service sets ``{NmtState.OPERATIONAL}``, error control and LSS set all states.
@@ -88,6 +93,9 @@ class Service:
 
     def on_frame(self, frame: Frame, now: float) -> bool:
         return False
+
+    def answer_read(self, data: bytes | bytearray) -> Frame | None:
+        return None
 
     def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
         pass

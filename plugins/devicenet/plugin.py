@@ -116,8 +116,8 @@ class DeviceNetFront(Front):
 
     def _input_changed(self, change: Change) -> None:
         if self.adapter is not None and change.value_changed:
-            self.slave.inputs_changed(self.adapter.now)
-            self.adapter.pump()
+            adapter = self.adapter
+            adapter.pump(lambda: self.slave.inputs_changed(adapter.now))
 
     def _bus_state(self, bus_off: bool, now: float) -> None:
         if bus_off:

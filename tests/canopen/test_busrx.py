@@ -1,4 +1,4 @@
-"""Receive paths onto the event loop: virtual push, add_reader on a descriptor, Notifier thread."""
+"""Receive paths onto the event loop: virtual push, add_reader on a descriptor, a receive thread (with quick answers)."""
 
 from __future__ import annotations
 
@@ -169,7 +169,7 @@ class ThreadOnlyBus(can.BusABC):
         self.inner.shutdown()
 
 
-async def test_other_buses_use_a_notifier_thread_and_hop_to_the_loop():
+async def test_other_buses_use_a_receive_thread_and_hop_to_the_loop():
     ch = channel()
     bus = ThreadOnlyBus(ch)
     tx = can.Bus(interface="virtual", channel=ch)
@@ -250,3 +250,70 @@ def test_a_descriptor_that_reported_an_error_is_still_heard_afterwards(loop_name
 
     with asyncio.Runner(loop_factory=factory) as runner:
         runner.run(scenario())
+
+
+# -- quick answers on the receive thread ----------------------------------------------------
+
+
+async def test_with_a_quick_answerer_the_virtual_bus_gets_a_receive_thread_that_asks_it_first():
+    ch = channel()
+    rx = can.Bus(interface="virtual", channel=ch)
+    tx = can.Bus(interface="virtual", channel=ch)
+    loop = asyncio.get_running_loop()
+    quick_threads, answered, on_loop = set(), [], []
+
+    def quick(msg):  # even numbers are answered on the receive thread
+        quick_threads.add(threading.get_ident())
+        n = int.from_bytes(msg.data, "little")
+        if n % 2:
+            return False
+        answered.append(n)
+        return True
+
+    receiver = start_receiver(rx, loop, lambda msg: on_loop.append(int.from_bytes(msg.data, "little")), quick)
+    assert receiver.mode == "thread"
+    for n in range(40):
+        tx.send(message(n))
+        for _ in range(500):  # until the message is through, either way
+            if len(answered) + len(on_loop) == n + 1:
+                break
+            await asyncio.sleep(0.002)
+    receiver.stop()
+    assert answered == list(range(0, 40, 2)) and on_loop == list(range(1, 40, 2))
+    assert quick_threads and threading.get_ident() not in quick_threads
+    assert receiver.idle
+    rx.shutdown()
+    tx.shutdown()
+
+
+async def test_the_quick_answerer_is_not_asked_while_an_earlier_message_waits_for_the_loop():
+    """Answers keep the order of requests: nothing overtakes a message handed to the loop."""
+    bus = ThreadOnlyBus(channel())
+    loop = asyncio.get_running_loop()
+    asked, on_loop = [], []
+    receiver = start_receiver(bus, loop, lambda msg: on_loop.append(msg.data[0]),
+                              lambda msg: asked.append(msg.data[0]) or msg.data[0] != 1)
+    try:
+        one, two, three = (can.Message(arbitration_id=0x601, data=[n]) for n in (1, 2, 3))
+        receiver._from_thread(one)  # declined: handed to the loop, which has not run since
+        assert not receiver.idle
+        receiver._from_thread(two)  # would be answered quickly, but must wait behind 1
+        assert asked == [1] and not receiver.idle
+        await asyncio.sleep(0)  # the loop handles 1, then 2
+        await asyncio.sleep(0)
+        assert on_loop == [1, 2] and receiver.idle
+        receiver._from_thread(three)
+        assert asked == [1, 3] and on_loop == [1, 2]  # 3 answered on the "receive thread"
+    finally:
+        receiver.stop()
+        bus.shutdown()
+
+
+async def test_a_bus_with_a_descriptor_keeps_its_reader_even_with_a_quick_answerer():
+    bus = ErroringSocketBus()
+    receiver = start_receiver(bus, asyncio.get_running_loop(), lambda msg: None, lambda msg: True)
+    try:
+        assert receiver.mode == "add-reader"
+    finally:
+        receiver.stop()
+        bus.shutdown()

@@ -13,6 +13,7 @@ from canopen_rig import seed_node
 from fieldgate.plugin import PluginStartError
 from fieldgate.can import adapter as adapter_mod
 from fieldgate.can.adapter import CanAdapter, open_bus
+from fieldgate.can.busrx import start_receiver
 from fieldgate.can.frame import Frame
 
 
@@ -80,19 +81,28 @@ def test_open_bus_errors_are_one_line():
 
 
 
+class RaisingBus(can.BusABC):
+    """An interface whose driver fails on receive (no descriptor: a receive thread reads it)."""
+
+    def __init__(self):
+        super().__init__(channel="raising")
+
+    def _recv_internal(self, timeout):
+        raise can.CanOperationError("interface went down")
+
+    def send(self, msg, timeout=None):
+        pass
+
+
 async def test_dead_receiver_fails_the_adapter(setup):
     adapter, peer, _ = setup
 
-    class DeadThread:
-        exception = can.CanOperationError("interface went down")
-
     class FailingReader:
         errors = 0
-        _notifier = None
 
-    real = adapter._notifier
+    real = adapter._receiver
     try:
-        adapter._notifier = FailingReader()
+        adapter._receiver = FailingReader()
         adapter._check_receiver()
         FailingReader.errors = 5
         adapter._check_receiver()
@@ -102,13 +112,20 @@ async def test_dead_receiver_fails_the_adapter(setup):
         assert adapter.failed.done()
         with pytest.raises(RuntimeError, match="CAN receive failed: 100 receive errors"):
             adapter.failed.result()
+
         adapter.failed = asyncio.get_running_loop().create_future()
-        adapter._notifier = type("Threaded", (), {"_notifier": DeadThread()})()
+        bus = RaisingBus()
+        adapter._receiver = receiver = start_receiver(bus, asyncio.get_running_loop(), lambda msg: None)
+        assert receiver.mode == "thread"
+        receiver._thread.join(2)
+        assert not receiver._thread.is_alive() and isinstance(receiver.exception, can.CanOperationError)
         adapter._check_receiver()
         with pytest.raises(RuntimeError, match="interface went down"):
             adapter.failed.result()
+        receiver.stop()
+        bus.shutdown()
     finally:
-        adapter._notifier = real
+        adapter._receiver = real
 
 
 async def test_pump_on_every_loop_turn_does_not_postpone_the_timers(setup):

@@ -139,6 +139,48 @@ async def test_status_shows_counters(gw):
     json.loads(json.dumps(gateway.status()))  # the CLI and embedding code serialise it
 
 
+READ_1000 = bytes.fromhex("4000100000000000")
+
+
+async def test_sdo_reads_are_answered_on_the_receive_thread_and_counted(gw):
+    gateway, peer = gw
+    for _ in range(20):
+        peer.send(0x600 + NODE, READ_1000)
+        assert (await peer.expect(0x580 + NODE))[:4] == bytes.fromhex("43001000")
+    bus = gateway.status()["fronts"]["plc"]["bus"]
+    assert bus["quick_answers"] >= 10  # the first read routes the COB-ID on the loop; a due timer may take one
+    assert bus["rx"] >= 20 and bus["tx"] >= 21  # boot-up and answers, whichever thread sent them
+
+
+async def test_a_read_right_behind_an_nmt_stop_is_never_answered(gw):
+    """The receive thread never overtakes a frame the loop has not handled yet."""
+    gateway, peer = gw
+    for _ in range(25):
+        peer.send(0x600 + NODE, READ_1000)
+        await peer.expect(0x580 + NODE)  # routed: the next read could be answered quickly
+        peer.send(0x000, bytes([0x02, NODE]))  # stop, then at once a read
+        peer.send(0x600 + NODE, READ_1000)
+        got = await peer.quiet(0.04)
+        assert [m for m in got if m.arbitration_id == 0x580 + NODE] == []
+        peer.send(0x000, bytes([0x80, NODE]))
+    peer.send(0x600 + NODE, READ_1000)
+    await peer.expect(0x580 + NODE)  # pre-operational again: answered
+    assert gateway.status()["fronts"]["plc"]["counters"]["ignored"] >= 25  # the reads in Stopped
+
+
+async def test_the_receive_thread_never_waits_for_the_loop(gw):
+    gateway, peer = gw
+    adapter = gateway.component("plc").adapter
+    request = can.Message(arbitration_id=0x600 + NODE, data=READ_1000, is_extended_id=False)
+    peer.send(0x600 + NODE, READ_1000)
+    await peer.expect(0x580 + NODE)
+    assert await asyncio.to_thread(adapter._quick, request)  # answered on another thread
+    assert (await peer.expect(0x580 + NODE))[:4] == bytes.fromhex("43001000")
+    with adapter.engine_lock:  # the loop is busy with the engine: declined at once, not waited for
+        assert not await asyncio.wait_for(asyncio.to_thread(adapter._quick, request), 1.0)
+    assert all(m.arbitration_id != 0x580 + NODE for m in await peer.quiet(0.05))
+
+
 async def test_dead_bus_restarts_the_front(tmp_path, registry):
     channel = f"front-{uuid.uuid4().hex[:8]}"
     peer = Peer(channel)

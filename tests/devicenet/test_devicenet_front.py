@@ -157,11 +157,11 @@ async def test_a_baud_change_at_reset_answers_at_the_old_rate_and_checks_the_mac
     gateway, master = rig
     adapter = gateway.component("dnet").adapter
     sent = []  # (bit rate of the bus in use, CAN-ID)
-    real_transmit = adapter.transmit
+    real_send = adapter._send
 
-    def recording_transmit(frames, now=None):
+    def recording_send(frames, now=None):
         sent.extend((adapter.bus_bitrate, f.can_id) for f in frames)
-        real_transmit(frames, now)
+        real_send(frames, now)
 
     adapter.bus_bitrate = 500_000
     real_reopen = adapter._reopen
@@ -170,7 +170,7 @@ async def test_a_baud_change_at_reset_answers_at_the_old_rate_and_checks_the_mac
         adapter.bus_bitrate = rate
         return real_reopen(rate)
 
-    adapter._reopen, adapter.transmit = reopen, recording_transmit
+    adapter._reopen, adapter._send = reopen, recording_send
     assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
     assert await master.request(bytes.fromhex("10 03 01 02 00")) == bytes.fromhex("90")  # baud 125k, pending
     assert await master.request(bytes.fromhex("05 01 01 00")) == bytes.fromhex("85")  # Identity Reset

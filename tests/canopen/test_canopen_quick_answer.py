@@ -1,0 +1,112 @@
+"""``Node.quick_answer``: SDO reads answered from the CAN receive thread.
+
+It must answer exactly what ``receive()`` would answer, change nothing but counters, and
+decline (None) everything else so that the frame takes the event loop's path.
+"""
+
+from __future__ import annotations
+
+import pytest
+from canopen_rig import Rig, frame, seed_node, show
+
+UPLOAD_1000 = "601 40 00 10 00 00 00 00 00"
+ANSWER_1000 = "581 43 00 10 00 91 01 0F 00"
+
+
+def quick(rig: Rig, text: str) -> list[str] | None:
+    f = frame(text)
+    answer = rig.node.quick_answer(f.can_id, f.data, rig.now)
+    return None if answer is None else show([answer])
+
+
+@pytest.fixture
+def rig():
+    rig = Rig(seed_node(heartbeat_ms=100))
+    assert quick(rig, UPLOAD_1000) is None  # the COB-ID is not routed yet: the loop's path first
+    assert rig.send(UPLOAD_1000) == [ANSWER_1000]
+    return rig
+
+
+def test_a_routed_read_gets_the_answer_receive_gives(rig):
+    assert quick(rig, UPLOAD_1000) == [ANSWER_1000]
+    for request in ("601 40 00 14 02 00 00 00 00", "601 40 17 10 00 00 00 00 00", "601 40 18 10 01 00 00 00 00"):
+        assert quick(rig, request) == rig.send(request)
+
+
+def test_it_changes_nothing_but_counters(rig):
+    sdo = rig.node.service("sdo")
+    deadline, requests, rx = rig.node.next_deadline(), sdo.status()["requests"], rig.node.status()["counters"]["rx"]
+    assert quick(rig, UPLOAD_1000) == [ANSWER_1000]
+    assert rig.node.next_deadline() == deadline and rig.node.deadline_after_call == deadline
+    assert sdo.status()["phase"] == "idle" and rig.node.flush() == []
+    assert sdo.status()["requests"] == requests + 1 and sdo.status()["transfers"] == requests + 1
+    assert rig.node.status()["counters"]["rx"] == rx + 1
+
+
+@pytest.mark.parametrize("request_", [
+    "601 40 00 20 00 00 00 00 00",  # no such object: the abort is the loop's
+    "601 40 00 10 01 00 00 00 00",  # no such sub-index
+    "601 40 03 21 00 00 00 00 00",  # write-only
+    "601 40 08 10 00 00 00 00 00",  # 0x1008 is 9 bytes: segmented
+    "601 2B 17 10 00 C8 00 00 00",  # a write
+    "601 A0 00 10 00 7F 00 00 00",  # block upload initiate
+    "601 40 00 10 00 00 00 00",  # DLC 7
+    "601 E0 00 10 00 00 00 00 00",  # unknown command specifier
+    "602 40 00 10 00 00 00 00 00",  # another node's SDO
+    "000 01 00",  # NMT
+])
+def test_anything_but_a_plain_expedited_read_is_declined(rig, request_):
+    sdo = rig.node.service("sdo")
+    before = sdo.status()
+    assert quick(rig, request_) is None
+    assert sdo.status() == before
+
+
+def test_nothing_is_answered_in_stopped_nor_after_the_state_changes_until_routed_again(rig):
+    assert rig.send("000 02 01") == []  # stop
+    assert quick(rig, UPLOAD_1000) is None
+    assert rig.send(UPLOAD_1000) == []  # no SDO in Stopped (CiA 301)
+    assert quick(rig, UPLOAD_1000) is None
+    assert rig.send("000 80 01") == []  # pre-operational
+    assert quick(rig, UPLOAD_1000) is None  # routes are forgotten on a state change
+    assert rig.send(UPLOAD_1000) == [ANSWER_1000]
+    assert quick(rig, UPLOAD_1000) == [ANSWER_1000]
+
+
+def test_declined_while_a_transfer_is_open(rig):
+    assert rig.send("601 40 08 10 00 00 00 00 00")[0].startswith("581 41")  # segmented upload open
+    assert quick(rig, UPLOAD_1000) is None
+    assert rig.node.service("sdo").status()["phase"] == "upload"
+
+
+def test_declined_when_a_timer_is_due(rig):
+    rig.now = 0.15  # the heartbeat (every 100 ms) is due: the loop's path sends it with the answer
+    assert quick(rig, UPLOAD_1000) is None
+    assert rig.send(UPLOAD_1000) == [ANSWER_1000, "701 7F"]
+    assert quick(rig, UPLOAD_1000) == [ANSWER_1000]
+
+
+def test_declined_after_a_dictionary_write_until_routed_again(rig):
+    assert rig.send("601 2B 17 10 00 C8 00 00 00") == ["581 60 17 10 00 00 00 00 00"]
+    assert quick(rig, UPLOAD_1000) is None
+    assert rig.send("601 40 17 10 00 00 00 00 00") == ["581 4B 17 10 00 C8 00 00 00"]
+    assert quick(rig, "601 40 17 10 00 00 00 00 00") == ["581 4B 17 10 00 C8 00 00 00"]
+
+
+def test_a_failing_getter_is_declined_and_the_loop_path_aborts(rig):
+    def broken():
+        raise RuntimeError("back end bug")
+
+    rig.node.od.bind(0x1017, 0, getter=broken)
+    rig.send(UPLOAD_1000)  # route again after the binding
+    assert quick(rig, "601 40 17 10 00 00 00 00 00") is None
+    assert rig.send("601 40 17 10 00 00 00 00 00") == ["581 80 17 10 00 00 00 06 06"]  # hardware error
+
+
+def test_extra_sdo_channels_answer_quickly_too():
+    rig = Rig(seed_node(sdo_servers=2))
+    for sub, value in ((1, 0x690), (2, 0x6A0)):
+        request = f"601 23 01 12 {sub:02X} " + value.to_bytes(4, "little").hex(" ").upper()
+        assert rig.send(request) == [f"581 60 01 12 {sub:02X} 00 00 00 00"]
+    assert rig.send("690 40 00 10 00 00 00 00 00") == ["6A0 43 00 10 00 91 01 0F 00"]
+    assert quick(rig, "690 40 00 10 00 00 00 00 00") == ["6A0 43 00 10 00 91 01 0F 00"]
