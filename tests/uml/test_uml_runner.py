@@ -52,3 +52,11 @@ def test_a_hung_guest_times_out_with_124_and_leaves_nothing_behind(tmp_path):
     leftovers = subprocess.run(["pgrep", "-f", f"init={tmp_path}"], capture_output=True, text=True)
     assert leftovers.stdout == ""
     assert list(tmp_path.iterdir()) == []  # the work directory is gone
+
+
+def test_install_only_boots_no_guest(tmp_path):
+    done = run("--install", tmpdir=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == ""
+    assert "command exit code" not in done.stderr  # no guest ran a command
+    assert list(tmp_path.iterdir()) == []  # no work directory was made
