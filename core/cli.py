@@ -8,12 +8,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import logging
 import signal
 import sys
 from collections.abc import Callable
-from pathlib import Path
 
 from . import __version__
 from .plugin import Registry, load_registry

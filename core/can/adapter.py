@@ -12,9 +12,11 @@
   loop does with the engine (frames, timers, ``pump``, ``tick``, bus-state changes) holds
   :attr:`CanAdapter.engine_lock`, and the receive thread only *tries* the lock, only
   when every earlier frame has been handled; otherwise the frame goes to the loop. So
-  the engine still sees one call at a time, in frame order.
+  the engine still sees one call at a time, in frame order. Closing and reopening the
+  bus (bit-rate switch) stop quick answers under the lock first.
 * Timers: after every call into the node, one ``loop.call_at`` is armed for the node's
-  next deadline. ``now`` is ``loop.time()`` (monotonic seconds).
+  next deadline. ``now`` is ``loop.time()`` (monotonic seconds); the receive thread reads
+  ``time.monotonic()``, the same clock, never behind the loop's.
 * Bus-off: SocketCAN error frames (``CAN_ERR_BUSOFF`` / ``CAN_ERR_RESTARTED``) and
   interfaces that report ``bus.state == ERROR`` (checked once a second) are passed to
   ``on_bus_state``. Send failures are counted, never raised.
@@ -30,6 +32,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import threading
+import time
 from collections import Counter
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -121,6 +124,7 @@ class CanAdapter:
         self._state_bus_off = False
         self._rx_errors_seen = 0
         self.closed = False
+        self._switching = False  # the bus is being reopened at a new bit rate
         self.engine_lock = threading.RLock()  # the loop holds it while it calls the engine (re-entered when a
         # process-image event raised inside an engine call pumps again); see the module notes
         self.quick_answers = 0
@@ -137,7 +141,8 @@ class CanAdapter:
         self.node.on_bit_timing(self._bit_timing)
 
     def close(self) -> None:
-        self.closed = True
+        with self.engine_lock:  # a read being answered on the receive thread finishes first; none after
+            self.closed = True
         for handle in (self._timer, self._state_timer):
             if handle is not None:
                 handle.cancel()
@@ -185,17 +190,25 @@ class CanAdapter:
         if not lock.acquire(False):
             return False
         try:
-            if self.closed:
+            if self.closed or self._switching:
                 return False
-            answer = self.node.quick_answer(msg.arbitration_id, msg.data, self.loop.time())
+            # the monotonic clock the loop's time is read from (never behind it, so a timer
+            # due by the loop's clock is due here too); uvloop's time() is the loop thread's
+            now = time.monotonic()
+            try:
+                answer = self.node.quick_answer(msg.arbitration_id, msg.data, now)
+            except Exception:  # the loop's path handles (and logs) whatever went wrong here
+                return False
             if answer is None:
                 return False
             self.rx_frames += 1
             self.quick_answers += 1
-            self._send((answer,))
+            try:
+                self._send((answer,), now)
+            except Exception as exc:  # answered and counted: the loop must not answer again
+                self.counters["tx_errors"] += 1
+                log.warning("CAN send failed: %s", _one_line(exc))
             return True
-        except Exception:  # the loop's path handles (and logs) whatever went wrong here
-            return False
         finally:
             lock.release()
 
@@ -330,6 +343,8 @@ class CanAdapter:
         if self.closed:
             return
         log.info("switching the CAN bit rate to %d bit/s", bitrate)
+        with self.engine_lock:  # no read is answered on the receive thread until the new bus is up
+            self._switching = True
         if self._receiver is not None:
             self._receiver.stop()
         try:
@@ -340,6 +355,7 @@ class CanAdapter:
             self.counters["bit_timing_failures"] += 1
             return
         self._receiver = self._start_receiver()
+        self._switching = False
         self.counters["bit_timing_switches"] += 1
 
     def status(self) -> dict:

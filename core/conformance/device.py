@@ -322,7 +322,7 @@ class StateProbe:
 
 def expect_cs(frame: Frame, cs: int, what: str) -> None:
     if frame.data[0] >> 5 != cs:
-        raise Fail(f"unexpected SDO command specifier", expected=what, seen=str(frame))
+        raise Fail("unexpected SDO command specifier", expected=what, seen=str(frame))
 
 
 def expect_mux(frame: Frame, index: int, sub: int) -> None:

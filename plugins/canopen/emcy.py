@@ -65,13 +65,13 @@ class EmcyProducer(Service):
         super().attach(node)
         od = node.od
         od.add_variable(0x1001, "Error register", dt.UNSIGNED8, "ro", 0)
-        od.bind(0x1001, 0, getter=lambda: self.register)
+        od.bind(0x1001, 0, getter=lambda: self.register, thread_safe=True)
         od.add_array(0x1003, "Pre-defined error field", [(i, f"Standard error field {i}", dt.UNSIGNED32, "ro", 0) for i in range(1, self.depth + 1)])
         od.variable(0x1003, 0).access_type = "rw"
-        od.bind(0x1003, 0, getter=lambda: len(self.history), setter=self._write_history_count)
+        od.bind(0x1003, 0, getter=lambda: len(self.history), setter=self._write_history_count, thread_safe=True)
         od.add_validator(0x1003, self._check_history_write)
         for sub in range(1, self.depth + 1):
-            od.bind(0x1003, sub, getter=lambda sub=sub: self._history_entry(sub))
+            od.bind(0x1003, sub, getter=lambda sub=sub: self._history_entry(sub), thread_safe=True)
         od.add_variable(0x1014, "COB-ID EMCY", dt.UNSIGNED32, "rw", 0x80, relative=True)
         od.add_validator(0x1014, self._check_cob_id)
         od.add_variable(0x1015, "Inhibit time EMCY", dt.UNSIGNED16, "rw", 0)
@@ -79,10 +79,11 @@ class EmcyProducer(Service):
     # -- API ---------------------------------------------------------------------------
     @property
     def register(self) -> int:
+        active = tuple(self.active.values())  # one snapshot: the receive thread reads 0x1001 too
         bits = 0
-        for b in self.active.values():
+        for b in active:
             bits |= b
-        return (bits | GENERIC) if self.active else 0
+        return (bits | GENERIC) if active else 0
 
     def raise_error(self, code: int, register_bits: int = GENERIC, manufacturer: bytes = b"", now: float | None = None) -> bool:
         """Record a new error and send its EMCY. False (and no frame) if already active."""

@@ -187,11 +187,13 @@ class IoDevice(Service):
 
     def _engine_wakeup(self) -> None:
         """A process-image event outside any node call: the adapter should tick the node."""
+        self.node.wake()
         if self.wakeup is not None:
             self.wakeup()
 
     def _outside(self, action: Callable[[], Any]) -> None:
         action()
+        self.node.wake()
         if self.wakeup is not None:
             self.wakeup()
 

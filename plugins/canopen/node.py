@@ -108,6 +108,12 @@ class Node:
         """Queue a frame; the caller of receive()/tick()/boot()/flush() gets it back."""
         self._outbox.append(frame)
 
+    def wake(self) -> None:
+        """Work was queued from outside the engine's calls (a process-image event for a
+        TPDO, an EMCY): the next call runs the timer pass, and :meth:`quick_answer` leaves
+        every frame to the event loop until then, so no answer overtakes that work."""
+        self._deadline_hint = self.now
+
     def flush(self) -> list[Frame]:
         """Frames queued by calls from outside the engine (e.g. ``node.emcy.raise_error``).
 
@@ -150,10 +156,11 @@ class Node:
         would answer the same way and changes nothing but counters: the COB-ID must be
         routed to a service already (the route is forgotten on every NMT state change and
         dictionary write, so the service was active and its COB-ID is current), no timer
-        may be due, and the service's :meth:`~.service.Service.answer_read` must accept it.
-        None means: give the frame to :meth:`receive`.
+        may be due, nothing may wait in the outbox or since :meth:`wake`, and the service's
+        :meth:`~.service.Service.answer_read` must accept it. None means: give the frame
+        to :meth:`receive`.
         """
-        if self._routes_generation != self.od.generation:
+        if self._routes_generation != self.od.generation or self._outbox:
             return None
         service = self._routes.get((can_id, False))
         if service is None:

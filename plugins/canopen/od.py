@@ -9,7 +9,9 @@ needs on top of it:
   reload: the communication area (0x1000-0x1FFF) on reset communication, everything on
   reset node;
 * bindings: an entry can be served by a getter (process image inputs) and/or a
-  setter (outputs), so SDO answers never wait on a back end;
+  setter (outputs), so SDO answers never wait on a back end; a getter bound with
+  ``thread_safe=True`` may also be called from the CAN receive thread
+  (:meth:`read_quick`), any other getter only from the event loop;
 * validators per index (``add_validator``) that veto a write with an abort code, and
   write listeners (``on_write``) that react after a write took effect (an SDO write or
   :meth:`set`; reloads at a reset do not call them);
@@ -71,10 +73,11 @@ class Dictionary:
         self._stored: dict[tuple[int, int], Value] = {}
         self._getters: dict[tuple[int, int], Getter] = {}
         self._setters: dict[tuple[int, int], Setter] = {}
+        self._thread_safe: set[tuple[int, int]] = set()  # getters read_quick may call
         self._validators: dict[int, list[Validator]] = {}
         self._listeners: dict[int, list[WriteListener]] = {}
         self.generation = 0  # +1 on every change of entries, bindings or values: caches compare it
-        self._sources: dict[tuple[int, int], tuple[cod.ODVariable, Getter | None]] = {}  # read()'s cache
+        self._sources: dict[tuple[int, int], tuple[cod.ODVariable, Getter | None, bool]] = {}  # read()'s cache
         self._sources_generation = -1
         for var in self.variables():
             self._values[(var.index, var.subindex)] = self.default(var)
@@ -160,11 +163,22 @@ class Dictionary:
         return var.default if var.default is not None else _zero(var)
 
     # -- hooks ---------------------------------------------------------------------
-    def bind(self, index: int, subindex: int, getter: Getter | None = None, setter: Setter | None = None) -> None:
-        """Serve (index, subindex) from ``getter`` and/or pass accepted writes to ``setter``."""
+    def bind(self, index: int, subindex: int, getter: Getter | None = None, setter: Setter | None = None, *,
+             thread_safe: bool = False) -> None:
+        """Serve (index, subindex) from ``getter`` and/or pass accepted writes to ``setter``.
+
+        ``thread_safe``: the getter gives a consistent value when called from another
+        thread while the event loop runs (it reads one attribute, or a constant), so
+        :meth:`read_quick` may call it. Process-image getters are not: they may read
+        several channels, or clear what they read.
+        """
         self.variable(index, subindex)
         if getter is not None:
             self._getters[(index, subindex)] = getter
+            if thread_safe:
+                self._thread_safe.add((index, subindex))
+            else:
+                self._thread_safe.discard((index, subindex))
         if setter is not None:
             self._setters[(index, subindex)] = setter
         self.generation += 1
@@ -191,16 +205,32 @@ class Dictionary:
         encode(var, value)
         self._store_value(var, value, notify)
 
-    def read(self, index: int, subindex: int) -> bytes:
-        """SDO upload: the encoded value, or SdoAbort."""
-        key = (index, subindex)
+    def _source(self, key: tuple[int, int]) -> tuple[cod.ODVariable, Getter | None, bool]:
+        """The entry, its getter and whether read_quick may serve it, looked up once per dictionary change."""
         if self._sources_generation != self.generation:
             self._sources.clear()
             self._sources_generation = self.generation
         source = self._sources.get(key)
-        if source is None:  # the entry and its getter, looked up once per dictionary change
-            source = self._sources[key] = (self.variable(index, subindex), self._getters.get(key))
-        var, getter = source
+        if source is None:
+            getter = self._getters.get(key)
+            source = self._sources[key] = (self.variable(*key), getter, getter is None or key in self._thread_safe)
+        return source
+
+    def read_quick(self, index: int, subindex: int) -> bytes | None:
+        """:meth:`read` for a thread other than the event loop's: the encoded value, or None
+        where it cannot answer (a getter not bound ``thread_safe``, any abort, any error)."""
+        try:
+            var, getter, quick = self._source((index, subindex))
+            if not quick or not var.readable:
+                return None
+            return encode(var, getter() if getter is not None else self._values[(index, subindex)])
+        except Exception:  # the event loop's read() answers it (with its abort)
+            return None
+
+    def read(self, index: int, subindex: int) -> bytes:
+        """SDO upload: the encoded value, or SdoAbort."""
+        key = (index, subindex)
+        var, getter, _ = self._source(key)
         if not var.readable:
             raise SdoAbort(abort.WRITE_ONLY)
         try:

@@ -45,7 +45,8 @@ Rules:
   expedited upload) without the event loop: :meth:`Node.quick_answer` calls it from the
   CAN receive thread, with the adapter's engine lock held, for a COB-ID the service took
   before. It returns the answer or None (then the frame goes the normal way); it changes
-  nothing but its own counters and never raises.
+  nothing but its own counters, never raises, and reads the dictionary only with
+  ``od.read_quick`` (plain values and getters bound ``thread_safe``).
 * ``active_states``: the NMT states in which the node passes frames to ``on_frame``.
   The default is pre-operational and operational (SDO, SYNC, EMCY per CiA 301); a PDO
   service sets ``{NmtState.OPERATIONAL}``, error control and LSS set all states.

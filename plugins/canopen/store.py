@@ -89,7 +89,8 @@ class StoreService(Service):
             od.add_array(index, name, [(s, ("all", "communication", "application")[s - 1], dt.UNSIGNED32, "rw", 1) for s in AREAS])
             od.add_validator(index, lambda sub, value, sig=sig: self._check_signature(sig, value))
             for sub in AREAS:
-                od.bind(index, sub, getter=lambda: 1, setter=(lambda v, sub=sub: self.save(sub)) if sig == SAVE else (lambda v, sub=sub: self.restore(sub)))
+                od.bind(index, sub, getter=lambda: 1, setter=(lambda v, sub=sub: self.save(sub)) if sig == SAVE else (lambda v, sub=sub: self.restore(sub)),
+                        thread_safe=True)
 
     @property
     def fingerprint(self) -> str:

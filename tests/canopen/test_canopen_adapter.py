@@ -166,3 +166,51 @@ def test_frames_become_the_same_messages_as_with_keyword_arguments(frame):
             assert getattr(got, field) == getattr(expected, field), field
     assert type(got.data) is bytearray
     assert adapter_mod.to_frame(got) == frame
+
+
+READ_1014 = can.Message(arbitration_id=0x601, data=bytes.fromhex("4014100000000000"), is_extended_id=False)
+
+
+async def _routed(adapter, peer) -> None:
+    """One read through the loop's path, so the node has routed its SDO COB-ID."""
+    peer.send(READ_1014)
+    assert bytes((await _recv(peer, 0x581)).data)[:4] == bytes.fromhex("43141000")
+    assert adapter._quick(READ_1014)
+
+
+async def test_quick_answers_stop_while_the_bus_is_reopened_and_after_close(setup):
+    adapter, peer, _ = setup
+    peer.send(can.Message(arbitration_id=0x601, data=bytes.fromhex("2B17100000000000"), is_extended_id=False))
+    assert bytes((await _recv(peer, 0x581)).data)[:1] == b"\x60"  # heartbeat off: no timer falls due
+    await _routed(adapter, peer)
+    during = []
+    reopen = adapter._reopen
+
+    def reopening(rate):
+        would = adapter.node.quick_answer(0x601, READ_1014.data, adapter.now) is not None
+        during.append((would, adapter._quick(READ_1014)))  # the receive thread of the old bus, late
+        return reopen(rate)
+
+    adapter._reopen = reopening
+    adapter.node.request_bit_timing(250000, 0.0)
+    await asyncio.sleep(0.05)
+    assert during == [(True, False)] and adapter.counters["bit_timing_switches"] == 1
+    assert adapter._quick(READ_1014)  # the new bus's receive thread answers again
+    adapter.close()
+    answered = adapter.quick_answers
+    assert not adapter._quick(READ_1014) and adapter.quick_answers == answered
+
+
+async def test_a_quick_answer_whose_send_fails_is_not_answered_again(setup):
+    adapter, peer, _ = setup
+    await _routed(adapter, peer)
+
+    def broken_send(msg, timeout=None):
+        raise TypeError("driver bug")
+
+    rx, answered, uploads = adapter.rx_frames, adapter.quick_answers, adapter.node.service("sdo").expedited_uploads
+    adapter.bus.send = broken_send
+    assert adapter._quick(READ_1014)  # handled: the loop must not read and count it again
+    assert (adapter.rx_frames, adapter.quick_answers) == (rx + 1, answered + 1)
+    assert adapter.node.service("sdo").expedited_uploads == uploads + 1
+    assert adapter.counters["tx_errors"] == 1

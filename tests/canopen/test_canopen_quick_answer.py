@@ -110,3 +110,74 @@ def test_extra_sdo_channels_answer_quickly_too():
         assert rig.send(request) == [f"581 60 01 12 {sub:02X} 00 00 00 00"]
     assert rig.send("690 40 00 10 00 00 00 00 00") == ["6A0 43 00 10 00 91 01 0F 00"]
     assert quick(rig, "690 40 00 10 00 00 00 00 00") == ["6A0 43 00 10 00 91 01 0F 00"]
+
+
+# -- what may be read on the receive thread -------------------------------------------------
+# Process-image getters are the event loop's (the image has no locks): a read of 8 DI
+# channels packed in 0x6000 could mix two updates, and 0x6422 clears what it reads.
+
+def io_quick(b, index: int, sub: int) -> str | None:
+    answer = b.node.quick_answer(0x601, bytes([0x40, index & 0xFF, index >> 8, sub, 0, 0, 0, 0]), b.clock.t)
+    return None if answer is None else answer.data.hex(" ").upper()
+
+
+@pytest.fixture
+def io():
+    from io_bench import demo_7232d
+
+    b = demo_7232d()
+    b.start()
+    for index, sub in ((0x1000, 0), (0x6000, 1), (0x6401, 1), (0x6422, 1), (0x1001, 0), (0x1003, 0), (0x1010, 1)):
+        b.read(index, sub)  # routes the SDO server and fills the read cache
+    return b
+
+
+@pytest.mark.parametrize("index, sub", [(0x6000, 1), (0x6401, 1), (0x6422, 1), (0x6200, 1)])
+def test_process_image_entries_are_left_to_the_loop(io, index, sub):
+    assert io_quick(io, index, sub) is None
+    assert io.read(index, sub).startswith(("4F", "4B", "43"))  # the loop's path answers them
+
+
+def test_a_read_and_clear_entry_is_never_read_on_the_receive_thread(io):
+    profile = io.io.profile
+    calls = []
+    original = profile._read_source
+
+    def counting(*args):
+        calls.append(args)
+        return original(*args)
+
+    profile._read_source = counting
+    io.node.od.generation += 1  # the read cache holds the getter it looked up
+    io.read(0x6000, 1)  # route again
+    assert io_quick(io, 0x6422, 1) is None
+    assert calls == []
+
+
+def test_plain_values_and_thread_safe_getters_are_read_on_the_receive_thread(io):
+    assert io_quick(io, 0x1000, 0) == io.read(0x1000, 0)
+    assert io_quick(io, 0x1010, 1) == "43 10 10 01 01 00 00 00"
+    assert io_quick(io, 0x1001, 0) == "4F 01 10 00 00 00 00 00"
+    io.node.emcy.raise_error(0x8130, 0x10)
+    io.flush()
+    io.read(0x1000, 0)  # route again (raising an error changed no dictionary value: still routed)
+    assert io_quick(io, 0x1001, 0) == "4F 01 10 00 11 00 00 00"  # communication + generic
+    assert io_quick(io, 0x1003, 0) == "4F 03 10 00 01 00 00 00"
+    assert io_quick(io, 0x1003, 1) == io.read(0x1003, 1)
+
+
+def test_an_input_change_outside_a_call_is_never_overtaken_by_a_quick_answer(io):
+    """A DI change queues a TPDO (sent when the loop runs the engine): an SDO read that
+    arrives after it must not be answered first."""
+    assert io_quick(io, 0x1000, 0) is not None
+    io.image.update_input("bus/m1/di0", True)  # a back's poll result, on the loop
+    assert io_quick(io, 0x1000, 0) is None
+    assert io.flush() == ["181 [1] 01"]  # what the loop's wake-up does: the TPDO goes first
+    assert io_quick(io, 0x1000, 0) == io.read(0x1000, 0)
+
+
+def test_a_frame_waiting_in_the_outbox_is_never_overtaken(io):
+    io.node.emcy.raise_error(0x5000)  # from outside a call: waits in the outbox
+    assert io_quick(io, 0x1000, 0) is None
+    assert [f.split(" ")[0] for f in io.flush()] == ["081"]
+    assert io_quick(io, 0x1000, 0) is not None

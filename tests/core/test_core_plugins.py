@@ -4,7 +4,6 @@ import importlib.metadata
 import subprocess
 import sys
 
-import pytest
 
 from fieldgate import hookimpl, load_registry
 from fieldgate.plugin import ENTRY_POINT_GROUP

@@ -1,7 +1,6 @@
 """Gateway life cycle: start order, stop with shutdown values, start failures, run-time restarts."""
 
 import asyncio
-import os
 import signal
 import subprocess
 import sys

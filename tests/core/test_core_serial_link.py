@@ -1,7 +1,6 @@
 """Serial ports over pseudo-terminal pairs: the real pyserial code path."""
 
 import asyncio
-import os
 
 import pytest
 

@@ -349,7 +349,6 @@ def tv19(ctx: Context) -> None:
 
 @case("seed", "tv20_guarding", "TV-20 / TV-G01: guard 250 ms × 4; RTR → 7F, toggle; then EMCY 30 81 11 07 after ~1 s")
 def tv20(ctx: Context) -> None:
-    dev = ctx.device
     require_objects(ctx, 0x100C, 0x100D, 0x1014)
     frame, delay, life = life_guard(ctx, 250, 4)
     if frame is None:
