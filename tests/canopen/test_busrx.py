@@ -317,3 +317,28 @@ async def test_a_bus_with_a_descriptor_keeps_its_reader_even_with_a_quick_answer
     finally:
         receiver.stop()
         bus.shutdown()
+
+
+async def test_a_handler_that_raises_on_the_loop_does_not_stop_quick_answers():
+    """The loop's handler failing must still count the message as handled, or the receive
+    thread would wait for it forever and never answer quickly again."""
+    bus = ThreadOnlyBus(channel())
+    loop = asyncio.get_running_loop()
+    errors = []
+    loop.set_exception_handler(lambda loop, context: errors.append(context.get("exception")))
+    asked = []
+
+    def on_message(msg):
+        raise RuntimeError("handler bug")
+
+    receiver = start_receiver(bus, loop, on_message, lambda msg: asked.append(msg.data[0]) or msg.data[0] != 1)
+    try:
+        receiver._from_thread(can.Message(arbitration_id=0x601, data=[1]))  # declined: to the loop, which raises
+        await asyncio.sleep(0)
+        assert isinstance(errors[0], RuntimeError) and receiver.idle
+        receiver._from_thread(can.Message(arbitration_id=0x601, data=[2]))
+        assert asked == [1, 2]  # asked again: the failed message no longer holds the thread back
+    finally:
+        loop.set_exception_handler(None)
+        receiver.stop()
+        bus.shutdown()
