@@ -44,8 +44,9 @@ def topology(state_dir: Path, node_id: int = 5, **front) -> dict:
 class InProcessDut:
     """The gateway on its own event loop in a thread of the test process."""
 
-    def __init__(self, topo: dict, interface: str, channel: str):
+    def __init__(self, topo: dict, interface: str, channel: str, loop_factory=asyncio.new_event_loop):
         self.topo = {**topo, "fronts": [{**topo["fronts"][0], "interface": interface, "channel": channel}]}
+        self.loop_factory = loop_factory  # what ``fieldgate run --loop`` would run
         self.gateway = None
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -54,7 +55,7 @@ class InProcessDut:
         from fieldgate import Gateway, load_registry
 
         ready, errors = threading.Event(), []
-        self._loop = asyncio.new_event_loop()
+        self._loop = self.loop_factory()
 
         def run() -> None:
             asyncio.set_event_loop(self._loop)
