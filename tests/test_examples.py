@@ -30,3 +30,14 @@ def test_example_validates_or_needs_only_a_missing_plugin(path):
     for issue, type_name in zip(info.value.issues, missing):
         assert f"no installed plugin provides front type '{type_name}'" in issue.message
         assert issue.line is not None
+
+
+def test_the_readme_topology_reference_validates(tmp_path):
+    """The reference sample in README.md is a topology that loads, as written."""
+    readme = (Path(__file__).parent.parent / "README.md").read_text()
+    section = readme.split("## Topology file reference", 1)[1]
+    sample = section.split("```yaml\n", 1)[1].split("```", 1)[0]
+    path = tmp_path / "readme.yaml"
+    path.write_text(sample)
+    topology = load_topology(path, REGISTRY)
+    assert topology.channel_specs

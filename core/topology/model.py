@@ -91,7 +91,7 @@ class SerialBackConfig(BackConfig):
     parity: Literal["N", "E", "O"] = "N"
     stopbits: Literal[1, 2] = 1
     timeout_ms: int = Field(200, ge=1, le=60_000, description="reply timeout per transaction")
-    retries: int = Field(0, ge=0, le=10, description="immediate retries of a failed transaction before it counts as failed")
+    retries: int = Field(0, ge=0, le=10, description="immediate retries of a failed transaction; each failed attempt counts toward fail_threshold and the error counter")
     poll_ms: int = Field(100, ge=0, le=3_600_000, description="default poll period of each module; 0 = as fast as the line allows")
     fail_threshold: int = Field(3, ge=0, le=100, description="a module is offline when its consecutive failures exceed this")
     offline_probe_ms: int = Field(5000, ge=10, le=3_600_000, description="re-probe period of an offline module")
