@@ -29,9 +29,30 @@ from .topology import Topology, load_topology
 log = logging.getLogger("fieldgate.runtime")
 
 MAX_BACKOFF = 60.0
+STABLE_RUN_S = 60.0  # a component that ran this long before failing restarts after the first delay again
 CANCEL_GRACE_S = 0.5  # how long a cancelled component task may take before it is cancelled again
 CANCEL_ATTEMPTS = 10
 
+
+
+class Backoff:
+    """Restart delays of one component: the topology's first delay, doubling on each
+    failure up to MAX_BACKOFF (or the first delay, when that is longer), and back to the
+    first after a run of STABLE_RUN_S without failure."""
+
+    def __init__(self, first: float):
+        self.first = self.delay = first
+        self.cap = max(first, MAX_BACKOFF)
+
+    def ran(self, seconds: float) -> None:
+        """The component ran this long before it failed."""
+        if seconds >= STABLE_RUN_S:
+            self.delay = self.first
+
+    def next(self) -> float:
+        """The delay before the next restart attempt."""
+        delay, self.delay = self.delay, min(self.delay * 2, self.cap)
+        return delay
 
 class GatewayStartError(Exception):
     """A component could not start; the message names it and the cause in one line."""
@@ -105,8 +126,10 @@ class Gateway:
         comp.started = True  # type: ignore[attr-defined]
 
     async def _supervise(self, comp: Component) -> None:
-        backoff = comp.config.restart_backoff_s
+        backoff = Backoff(comp.config.restart_backoff_s)
+        loop = asyncio.get_running_loop()
         while True:
+            started = loop.time()
             try:
                 await comp.run()
                 raise_if_cancelled()  # a run() that ended because it swallowed our cancellation
@@ -117,12 +140,13 @@ class Gateway:
                 cause = f"{type(exc).__name__}: {exc}"
                 log.debug("%s %s failed", comp.kind, comp.name, exc_info=True)
             self._restarts[comp.name] = self._restarts.get(comp.name, 0) + 1
-            log.error("%s %s failed: %s; restarting in %.1f s", comp.kind, comp.name, cause, backoff)
+            backoff.ran(loop.time() - started)
+            delay = backoff.next()
+            log.error("%s %s failed: %s; restarting in %.1f s", comp.kind, comp.name, cause, delay)
             self.image.set_quality(comp.channel_ids(), Quality.COMM_FAULT, origin=comp.name)
             await self._safe_stop(comp)
             while True:
-                await asyncio.sleep(backoff)
-                backoff = min(backoff * 2, MAX_BACKOFF)
+                await asyncio.sleep(delay)
                 try:
                     await comp.start()
                     log.info("%s %s restarted", comp.kind, comp.name)
@@ -130,7 +154,8 @@ class Gateway:
                 except asyncio.CancelledError:
                     raise
                 except Exception as exc:
-                    log.error("%s %s restart failed: %s; next try in %.1f s", comp.kind, comp.name, exc, backoff)
+                    delay = backoff.next()
+                    log.error("%s %s restart failed: %s; next try in %.1f s", comp.kind, comp.name, exc, delay)
                     await self._safe_stop(comp)
 
     async def _safe_stop(self, comp: Component) -> None:

@@ -47,7 +47,7 @@ class GatewaySection(StrictModel):
 class ComponentConfig(StrictModel):
     name: Identifier
     type: str
-    restart_backoff_s: float = Field(1.0, gt=0, le=300, description="first delay before restarting after a run-time failure; doubles up to 60 s")
+    restart_backoff_s: float = Field(1.0, gt=0, le=300, description="first delay before restarting after a run-time failure; doubles up to 60 s, back to this after a minute without failure")
 
 
 class FrontConfig(ComponentConfig):

@@ -223,3 +223,16 @@ async def test_stop_gives_up_on_a_component_that_never_stops_and_says_so(registr
     release.set()  # let the abandoned task end so that the test's loop can close
     for task in [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]:
         task.cancel()
+
+
+def test_restart_delays_double_up_to_a_minute_and_start_over_after_a_stable_run():
+    from fieldgate.runtime import Backoff
+
+    b = Backoff(1.0)
+    assert [b.next() for _ in range(8)] == [1, 2, 4, 8, 16, 32, 60, 60]
+    b.ran(59.0)  # failed again within the minute: still backing off
+    assert b.next() == 60
+    b.ran(60.0)  # ran a minute: the next failure is a new story
+    assert [b.next() for _ in range(2)] == [1, 2]
+    long_first = Backoff(300.0)  # a first delay above the cap is never shortened
+    assert [long_first.next() for _ in range(3)] == [300, 300, 300]
