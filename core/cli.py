@@ -139,7 +139,12 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
     return 0
 
 
+STATUS_LEGEND = ("status lines: per module and kind, digital channels as bits with channel 0 first (leftmost), "
+                 "analog channels as raw values; '!quality' when not every channel of the group is good")
+
+
 async def _print_status(gateway: Gateway, period: float) -> None:
+    print(STATUS_LEGEND, flush=True)
     while True:
         await asyncio.sleep(period)
         print(format_image(gateway.image), flush=True)
@@ -165,11 +170,28 @@ def format_image(image) -> str:
     return " | ".join(parts)
 
 
+LOG_LEVELS = ["debug", "info", "warning", "error"]
+
+
+def seconds(text: str) -> float:
+    """An argparse type: a number of seconds, 0 or more."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not value >= 0:  # also NaN
+        raise argparse.ArgumentTypeError(f"expected 0 or more seconds, got {text!r}")
+    return value
+
+
 def build_parser(registry: Registry) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fieldgate", description="Fieldbus gateway: fieldbus slave fronts, RS-485 poller backs, one YAML topology.")
     parser.add_argument("--version", action="version", version=f"fieldgate {__version__}")
-    parser.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"], help="log verbosity (default info)")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    parser.add_argument("--log-level", default="info", choices=LOG_LEVELS, help="log verbosity (default info)")
+    # the same option after the command too (`fieldgate run x.yaml --log-level debug`)
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--log-level", default=argparse.SUPPRESS, choices=LOG_LEVELS, help="log verbosity (default info)")
+    sub = _with_parents(parser.add_subparsers(dest="command", metavar="COMMAND", required=True), common)
 
     p = sub.add_parser("validate", help="check a topology file; print every error with file:line:column")
     p.add_argument("file")
@@ -181,8 +203,8 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="override a field, e.g. fronts.can.interface=virtual")
     p.add_argument("--simulate", action="store_true", help="serve every back from simulated modules on pseudo-terminals (no hardware)")
     p.add_argument("--loop", choices=LOOP_CHOICES, default="auto", help="event loop: auto (default: uvloop when installed, else asyncio), uvloop, or asyncio's standard loop")
-    p.add_argument("--status-every", type=float, default=0, metavar="SECONDS", help="print the process image periodically")
-    p.add_argument("--duration", type=float, default=0, metavar="SECONDS", help="stop by itself after this long")
+    p.add_argument("--status-every", type=seconds, default=0, metavar="SECONDS", help="print the process image periodically (0, the default: never)")
+    p.add_argument("--duration", type=seconds, default=0, metavar="SECONDS", help="stop by itself after this long (0, the default: run until stopped)")
     p.set_defaults(handler=cmd_run)
 
     p = sub.add_parser("plugins", help="list installed plugins with what they provide and their version")
@@ -195,12 +217,23 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
             key = " ".join(command.path[: depth + 1])
             if key not in groups:
                 group_parser = parent.add_parser(word, help=f"{word} commands from plugins")
-                groups[key] = group_parser.add_subparsers(dest=f"sub{depth}", metavar="NAME", required=True)
+                groups[key] = _with_parents(group_parser.add_subparsers(dest=f"sub{depth}", metavar="NAME", required=True), common)
             parent = groups[key]
         cp = parent.add_parser(command.path[-1], help=f"{command.help} [{command.plugin}]")
         command.configure(cp)
         cp.set_defaults(handler=lambda a, r, run=command.run: run(a))
     return parser
+
+
+def _with_parents(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> argparse._SubParsersAction:
+    """Every parser added to ``subparsers`` also takes ``common``'s options."""
+    add_parser = subparsers.add_parser
+
+    def add_with_parents(name: str, **kwargs) -> argparse.ArgumentParser:
+        return add_parser(name, parents=[common, *kwargs.pop("parents", [])], **kwargs)
+
+    subparsers.add_parser = add_with_parents  # type: ignore[method-assign]
+    return subparsers
 
 
 def main(argv: list[str] | None = None) -> int:
