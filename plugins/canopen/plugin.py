@@ -31,7 +31,7 @@ from .eds import register_command as register_eds_command
 from .front401 import IoFrontOptions, io_settings
 from .front401 import install as install_io_device
 from .layouts import device_type as io_device_type
-from .lss import LssService, LssStore
+from .lss import BIT_TIMING_TABLES, LssService, LssStore
 from .master_state import MasterState
 from .node import Node
 from .slave import Identity, NodeSettings, build_node
@@ -64,11 +64,14 @@ class IdentitySettings(StrictModel):
     software_version: str = Field(f"fieldgate {__version__}", max_length=255, description="0x100A")
 
 
+CIA_BITRATES = tuple(sorted(set().union(*(table.values() for table in BIT_TIMING_TABLES.values()))))
+
+
 class CanopenFrontConfig(FrontConfig, IoFrontOptions):
     type: Literal["canopen"] = "canopen"
     interface: str = Field("socketcan", description="python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...")
     channel: str | None = Field("can0", description="python-can channel (can0, vcan0, PCAN_USBBUS1, a virtual channel name, ...)")
-    bitrate: int | None = Field(125_000, gt=0, description="CAN bit rate in bit/s (passed to can.Bus; LSS may change it)")
+    bitrate: int | None = Field(125_000, description="CAN bit rate in bit/s, one of CiA 301's (passed to can.Bus; LSS may change it); null for an interface configured outside fieldgate")
     bus_options: dict[str, Any] = Field(default_factory=dict, description="extra keyword arguments for can.Bus")
     node_id: int | None = Field(1, ge=1, le=127, description="node-ID 1..127; null = unconfigured, wait for LSS")
     heartbeat_ms: int = Field(0, ge=0, le=65535, description="0x1017 producer heartbeat time (0 = off)")
@@ -88,6 +91,14 @@ class CanopenFrontConfig(FrontConfig, IoFrontOptions):
     lss_store_file: str | None = Field(None, description="LSS store file (relative to the state dir); default <front name>.lss.json")
     module_emcy: bool = Field(True, description="send EMCY 00 FF 81 0B <address> when a served module goes offline")
     identity: IdentitySettings = Field(default_factory=IdentitySettings)
+
+    @field_validator("bitrate")
+    @classmethod
+    def _standard_bitrate(cls, value: int | None) -> int | None:
+        if value is not None and value not in CIA_BITRATES:
+            raise ValueError(f"expected one of the CiA 301 bit rates {', '.join(map(str, CIA_BITRATES))} bit/s, "
+                             f"or null when the interface's own configuration sets it")
+        return value
 
     @field_validator("sync_cob_id")
     @classmethod
