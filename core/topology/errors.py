@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import re
 import types
 import typing
 from dataclasses import dataclass
@@ -32,6 +33,55 @@ class TopologyError(Exception):
     def __init__(self, issues: list[ConfigIssue]):
         self.issues = issues
         super().__init__("\n".join(str(i) for i in issues))
+
+
+def char_position(text: str, offset: int) -> tuple[int, int]:
+    """1-based (line, column) of a character offset in ``text``."""
+    return text.count("\n", 0, offset) + 1, offset - text.rfind("\n", 0, offset)
+
+
+def byte_position(raw: bytes, offset: int) -> tuple[int, int]:
+    """1-based (line, column in characters) of a byte offset in UTF-8 ``raw`` (valid up to ``offset``)."""
+    start = raw.rfind(b"\n", 0, offset) + 1
+    return raw.count(b"\n", 0, offset) + 1, len(raw[start:offset].decode("utf-8", "replace")) + 1
+
+
+MAPPING_EXPECTED = "the file must be a mapping with keys gateway, fronts, backs"
+
+
+def _ini_hint(text: str) -> str:
+    """``; is it an INI or TOML file?`` when ``text`` has ``[section]`` or ``key = value`` parts."""
+    return "; is it an INI or TOML file?" if re.search(r"(^|\s)(\[[^\]\n]*\](\s|$)|[\w.-]+\s*=)", text) else ""
+
+
+def not_a_mapping(data: Any) -> str:
+    """The message for a document whose top level is not a mapping."""
+    if data is None:
+        got = "an empty file"
+    elif isinstance(data, str):
+        got = f"text{_ini_hint(data)}"
+    elif isinstance(data, list):
+        got = "a list"
+    else:
+        got = repr(data)
+    return f"not a YAML mapping: {MAPPING_EXPECTED} (got {got})"
+
+
+def yaml_problem(exc: Any, text: str) -> str:
+    """A ruamel ``MarkedYAMLError`` as one readable message, with hints for the usual causes."""
+    problem = (exc.problem or "invalid YAML").strip()
+    problem = re.sub(r"\('([^']*)',\)", r"\1", problem)  # ruamel prints some tokens as 1-tuples
+    if "duplicate key" in problem:
+        start = exc.context_mark
+        return f"YAML syntax: {problem.split(' with value')[0]} in the mapping that starts on line {start.line + 1}; each key may appear once"
+    if problem.startswith("expected '<document start>'"):
+        return f"not a YAML mapping: {MAPPING_EXPECTED}; this line cannot continue the value the file starts with{_ini_hint(text)}"
+    mark = exc.problem_mark
+    if "'\\t'" in problem and mark is not None:
+        lines = text.splitlines()
+        before = lines[mark.line][: mark.column] if mark.line < len(lines) else ""
+        problem += " (YAML indents with spaces, not tabs)" if not before.strip() else " (YAML separates with spaces, not tabs)"
+    return f"YAML syntax: {problem}"
 
 
 def dotted(loc: tuple) -> str:
@@ -145,6 +195,14 @@ def allowed_keys(model: type[BaseModel], loc: tuple) -> list[str]:
 def suggest(word: str, choices: list[str]) -> str:
     close = difflib.get_close_matches(word, choices, n=1, cutoff=0.6)
     return f"; did you mean '{close[0]}'?" if close else ""
+
+
+def error_loc(err: dict) -> tuple:
+    """Where a pydantic error is: its ``loc``, and below it the ``loc`` tuple of the error's
+    context if any. A model validator that checks one field among several raises
+    ``PydanticCustomError(kind, message, {"loc": ("counts", "di")})`` to be reported there."""
+    extra = (err.get("ctx") or {}).get("loc")
+    return tuple(err["loc"]) + (tuple(extra) if isinstance(extra, (tuple, list)) else ())
 
 
 def describe_pydantic_error(err: dict, model: type[BaseModel], raw_loc: tuple) -> str:

@@ -18,9 +18,23 @@ from typing import Any
 from pydantic import Field, ValidationError
 from ruamel.yaml import YAML
 from ruamel.yaml.error import MarkedYAMLError, YAMLError
+from ruamel.yaml.reader import ReaderError
 
 from ..image import ChannelSpec
-from .errors import ConfigIssue, TopologyError, data_loc, describe_pydantic_error, dotted, position, suggest
+from .errors import (
+    ConfigIssue,
+    TopologyError,
+    byte_position,
+    char_position,
+    data_loc,
+    describe_pydantic_error,
+    dotted,
+    error_loc,
+    not_a_mapping,
+    position,
+    suggest,
+    yaml_problem,
+)
 from .model import BackConfig, FrontConfig, GatewaySection, StrictModel
 
 
@@ -74,93 +88,163 @@ def _by_name(items: list, name: str, what: str):
 
 
 def read_yaml(path: str | Path) -> Any:
-    """Parse a YAML file keeping positions; syntax errors and duplicate keys become TopologyError."""
+    """Parse a YAML file keeping positions; bytes that are not UTF-8, syntax errors and
+    duplicate keys become TopologyError."""
     file = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8")
+        raw = Path(path).read_bytes()
     except OSError as exc:
         raise TopologyError([ConfigIssue(file, None, None, "", f"cannot read file: {exc.strerror or exc}")]) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line, col = byte_position(raw, exc.start)
+        raise TopologyError([ConfigIssue(file, line, col, "", f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); save the file as UTF-8")]) from None
     yaml = YAML(typ="rt")
     try:
         return yaml.load(text)
     except MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
-        problem = (exc.problem or "invalid YAML").strip()
-        if "duplicate key" in problem:
-            start = exc.context_mark
-            problem = f"{problem.split(' with value')[0]} in the mapping that starts on line {start.line + 1}; each key may appear once"
         line, col = (mark.line + 1, mark.column + 1) if mark else (None, None)
-        raise TopologyError([ConfigIssue(file, line, col, "", f"YAML syntax: {problem}")]) from None
+        raise TopologyError([ConfigIssue(file, line, col, "", yaml_problem(exc, text))]) from None
+    except ReaderError as exc:  # a control character such as NUL; its position is an offset in the text
+        line, col = char_position(text, exc.position)
+        char = exc.character if isinstance(exc.character, int) else ord(exc.character)
+        raise TopologyError([ConfigIssue(file, line, col, "", f"YAML syntax: character U+{char:04X} is not allowed in YAML text (is this a binary file?)")]) from None
     except YAMLError as exc:
-        raise TopologyError([ConfigIssue(file, None, None, "", f"YAML syntax: {exc}")]) from None
+        raise TopologyError([ConfigIssue(file, None, None, "", f"YAML syntax: {' '.join(str(exc).split())}")]) from None
 
 
-def apply_overrides(data: Any, overrides: dict[str, Any]) -> Any:
+def apply_overrides(data: Any, overrides: dict[str, Any], origins: dict[tuple, str] | None = None) -> Any:
     """Set fields by dotted path before validation: ``fronts.can.interface`` or ``backs.0.port``.
 
-    A list element is addressed by index or by its ``name``.
+    A list element is addressed by index or by its ``name``. A path that addresses nothing
+    raises KeyError with the message. ``origins``, if given, receives for each override the
+    location it set (the first key it created, or the one it replaced) and its ``--set`` text.
     """
     for dotted_path, value in overrides.items():
+        where = f"--set {dotted_path}={_show_value(value)}"
         parts = dotted_path.split(".")
         node = data
+        loc: tuple = ()
+        created: tuple | None = None
         for i, part in enumerate(parts):
             last = i == len(parts) - 1
             if isinstance(node, list):
-                index = _list_index(node, part, dotted_path)
+                index = _list_index(node, part, ".".join(parts[:i]), where)
+                loc += (index,)
                 if last:
                     node[index] = value
                 else:
                     node = node[index]
             elif isinstance(node, dict):
+                loc += (part,)
+                if part not in node and created is None:
+                    created = loc
                 if last:
                     node[part] = value
                 else:
                     node = node.setdefault(part, {})
             else:
-                raise KeyError(f"override {dotted_path!r}: {'.'.join(parts[:i])} is not a mapping or list")
+                raise KeyError(f"{where}: {'.'.join(parts[:i])} is not a mapping or list")
+        if origins is not None:
+            origins[created or loc] = where
     return data
 
 
-def _list_index(items: list, part: str, dotted_path: str) -> int:
-    if part.isdigit():
-        return int(part)
+def _show_value(value: Any) -> str:
+    """A --set value as it would be typed: YAML scalars, flow collections."""
+    if value is True or value is False:
+        return "true" if value else "false"
+    if value is None:
+        return "null"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_show_value(k)}: {_show_value(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_show_value(v) for v in value) + "]"
+    return str(value)
+
+
+def _list_index(items: list, part: str, where_list: str, where: str) -> int:
+    n = len(items)
+    entries = f"{where_list} has {'no entries' if not n else '1 entry (index 0)' if n == 1 else f'{n} entries (index 0..{n - 1})'}"
+    if part.removeprefix("-").isdigit():
+        index = int(part)
+        if not 0 <= index < n:
+            raise KeyError(f"{where}: {entries}")
+        return index
+    names = [item.get("name") for item in items if isinstance(item, dict) and isinstance(item.get("name"), str)]
     for i, item in enumerate(items):
         if isinstance(item, dict) and item.get("name") == part:
             return i
-    raise KeyError(f"override {dotted_path!r}: no list entry named {part!r}")
+    named = f", named {', '.join(repr(name) for name in names)}" if names else ""
+    raise KeyError(f"{where}: no list entry named {part!r}; {entries}{named}{suggest(part, names)}")
 
 
 def load_topology(source: str | Path | dict, registry, overrides: dict[str, Any] | None = None) -> Topology:
-    """Load and validate a topology from a YAML file or a dict. Raises TopologyError."""
+    """Load and validate a topology from a YAML file or a dict. Raises TopologyError.
+
+    An error at a field that an override set, or inside it, ends with ``(from --set PATH=VALUE)``.
+    """
     if isinstance(source, dict):
         data, file, base_dir = copy.deepcopy(source), "<dict>", Path.cwd()
     else:
         data, file, base_dir = read_yaml(source), str(source), Path(source).resolve().parent
-    if overrides:
-        try:
-            data = apply_overrides(data, overrides)
-        except KeyError as exc:
-            raise TopologyError([ConfigIssue(file, None, None, "", str(exc.args[0]))]) from None
-    return validate(data, registry, file, base_dir)
+    origins: dict[tuple, str] = {}
+    if overrides and isinstance(data, dict):
+        wrong = []
+        for path, value in overrides.items():
+            try:
+                apply_overrides(data, {path: value}, origins)
+            except KeyError as exc:
+                wrong.append(ConfigIssue(file, None, None, "", str(exc.args[0])))
+        if wrong:
+            raise TopologyError(wrong)
+    try:
+        return validate(data, registry, file, base_dir)
+    except TopologyError as exc:
+        if not origins:
+            raise
+        raise TopologyError([_from_override(issue, origins) for issue in exc.issues]) from None
+
+
+def _from_override(issue: ConfigIssue, origins: dict[tuple, str]) -> ConfigIssue:
+    for loc, where in origins.items():
+        path = dotted(loc)
+        if issue.path == path or issue.path.startswith((path + ".", path + "[")):
+            return ConfigIssue(issue.file, issue.line, issue.column, issue.path, f"{issue.message} (from {where})")
+    return issue
 
 
 def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = None) -> Topology:
+    """Validate parsed YAML (ruamel nodes keep positions) or a plain dict; report every error.
+
+    Field errors of every section are collected first; names and module addresses are checked
+    for uniqueness alongside them. What needs the whole topology valid (channel ids,
+    ``expose`` patterns) is checked last, only when nothing else is wrong.
+    """
     issues: list[ConfigIssue] = []
     if not isinstance(data, dict):
-        raise TopologyError([ConfigIssue(file, 1, 1, "", "the file must be a mapping with keys gateway, fronts, backs")])
+        raise TopologyError([ConfigIssue(file, 1, 1, "", not_a_mapping(data))])
+    root = None
     try:
         root = _Root.model_validate(data)
     except ValidationError as exc:
         issues.extend(_issues_from(exc, _Root, data, (), file))
-        raise TopologyError(_dedupe(issues)) from None
 
     fronts: list[FrontConfig] = []
     backs: list[BackConfig] = []
-    for role, entries, out in (("front", root.fronts, fronts), ("back", root.backs, backs)):
+    checked_backs: dict[int, BackConfig | None] = {}  # None: its own fields are wrong, not the back as a whole
+    for role, out in (("front", fronts), ("back", backs)):
         section = f"{role}s"
-        for i, entry in enumerate(data[section]):
+        entries = data.get(section)
+        if not isinstance(entries, list):
+            continue  # reported above
+        for i, entry in enumerate(entries):
+            if not isinstance(entry, dict):
+                continue  # reported above
             base = (section, i)
-            type_name = entry.get("type") if isinstance(entry, dict) else None
+            type_name = entry.get("type")
             if not isinstance(type_name, str):
                 line, col = position(data, base)
                 issues.append(ConfigIssue(file, line, col, dotted(base + ("type",)), f"required field is missing: the {role} type, one of: {', '.join(registry.type_names(role)) or '(none installed)'}"))
@@ -173,10 +257,18 @@ def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = 
                 issues.append(ConfigIssue(file, line, col, dotted(base + ("type",)), f"no installed plugin provides {role} type '{type_name}'{hint} (installed {role} types: {installed}); is the plugin installed?"))
                 continue
             try:
-                out.append(ctype.model.model_validate(dict(entry)))
+                config = ctype.model.model_validate(dict(entry))
             except ValidationError as exc:
-                issues.extend(_issues_from(exc, ctype.model, data, base, file))
-    if issues:
+                found = _issues_from(exc, ctype.model, data, base, file)
+                issues.extend(found)
+                if role == "back" and all(issue.path != dotted(base) for issue in found):
+                    checked_backs[i] = None
+            else:
+                out.append(config)
+                if role == "back":
+                    checked_backs[i] = config
+    issues.extend(_unique_checks(data, checked_backs, file))
+    if issues or root is None:
         raise TopologyError(_dedupe(issues))
 
     topology = Topology(root.gateway, fronts, backs, file, base_dir or Path.cwd())
@@ -189,7 +281,7 @@ def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = 
 def _issues_from(exc: ValidationError, model, data: Any, base: tuple, file: str) -> list[ConfigIssue]:
     out = []
     for err in exc.errors(include_url=False):
-        raw_loc = tuple(err["loc"])
+        raw_loc = error_loc(err)
         full = base + data_loc(_at(data, base), raw_loc)
         line, col = position(data, full, key=err["type"] == "extra_forbidden")
         out.append(ConfigIssue(file, line, col, dotted(full), describe_pydantic_error(err, model, raw_loc)))
@@ -216,7 +308,14 @@ def _dedupe(issues: list[ConfigIssue]) -> list[ConfigIssue]:
     return sorted(merged.values(), key=lambda i: (i.line or 0, i.column or 0, i.path))
 
 
-def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]:
+def _unique_checks(data: dict, checked_backs: dict[int, BackConfig | None], file: str) -> list[ConfigIssue]:
+    """Names unique across fronts and backs, module addresses unique on each back.
+
+    Run on the data as written, so that they are reported with the field errors. A back
+    whose model validated gives its modules' addresses as validated; one whose fields are
+    wrong gives the addresses that are integers; a back refused as a whole is left out
+    (its plugin's check, e.g. DCON's own address check, said why).
+    """
     issues: list[ConfigIssue] = []
 
     def issue(loc: tuple, message: str) -> None:
@@ -224,23 +323,48 @@ def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]
         issues.append(ConfigIssue(file, line, col, dotted(loc), message))
 
     seen: dict[str, tuple] = {}
-    for section, items in (("fronts", topology.fronts), ("backs", topology.backs)):
-        for i, item in enumerate(items):
-            if item.name in seen:
-                first = seen[item.name]
-                issue((section, i, "name"), f"name '{item.name}' is already used by {dotted(first)}; names must be unique across fronts and backs")
+    for section in ("fronts", "backs"):
+        entries = data.get(section)
+        for i, entry in enumerate(entries if isinstance(entries, list) else []):
+            name = entry.get("name") if isinstance(entry, dict) else None
+            if not isinstance(name, str):
+                continue
+            if name in seen:
+                issue((section, i, "name"), f"name '{name}' is already used by {dotted(seen[name])}; names must be unique across fronts and backs")
             else:
-                seen[item.name] = (section, i)
+                seen[name] = (section, i)
+
+    for b_index, back in checked_backs.items():
+        if back is not None:
+            addresses = [module.address for module in back.modules]
+        else:
+            modules = data["backs"][b_index].get("modules")
+            addresses = [_address(m) for m in modules] if isinstance(modules, list) else []
+        first: dict[int, int] = {}
+        for m_index, address in enumerate(addresses):
+            if address is None:
+                continue
+            if address in first:
+                issue(("backs", b_index, "modules", m_index, "address"), f"address {address} is already used by modules[{first[address]}] on this line")
+            else:
+                first[address] = m_index
+    return issues
+
+
+def _address(module: Any) -> int | None:
+    address = module.get("address") if isinstance(module, dict) else None
+    return address if isinstance(address, int) and not isinstance(address, bool) else None
+
+
+def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]:
+    """What needs every section valid: the backs' channels, and the fronts' ``expose`` patterns."""
+    issues: list[ConfigIssue] = []
+
+    def issue(loc: tuple, message: str) -> None:
+        line, col = position(data, loc)
+        issues.append(ConfigIssue(file, line, col, dotted(loc), message))
 
     for b_index, back in enumerate(topology.backs):
-        addresses: dict[int, int] = {}
-        for m_index, module in enumerate(back.modules):
-            if module.address in addresses:
-                issue(("backs", b_index, "modules", m_index, "address"), f"address {module.address} is already used by modules[{addresses[module.address]}] on this line")
-            else:
-                addresses[module.address] = m_index
-        if issues:
-            continue
         try:
             topology.channel_specs.extend(back.channel_specs())
         except ValueError as exc:

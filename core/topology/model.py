@@ -8,9 +8,9 @@ same common fields.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, StringConstraints, Tag
 
 from ..image import ChannelSpec, ErrorMode, Kind
 
@@ -27,7 +27,20 @@ class ValueMode(StrictModel):
     value: bool | int | float = Field(description="value the output goes to")
 
 
-ErrorModeSpec = Literal["hold"] | ValueMode
+def _error_mode_kind(spec: Any) -> str | None:
+    if spec == "hold":
+        return "hold"
+    if isinstance(spec, (dict, ValueMode)):
+        return "ValueMode"  # a class name: the error report leaves it out of field paths
+    return None
+
+
+# ``hold`` or ``{value: X}``; anything else is one error saying so (not one per union member),
+# and a mapping's errors name its own fields (``error_mode.valu: ... did you mean 'value'?``).
+ErrorModeSpec = Annotated[
+    Union[Annotated[Literal["hold"], Tag("hold")], Annotated[ValueMode, Tag("ValueMode")]],
+    Discriminator(_error_mode_kind, custom_error_type="error_mode", custom_error_message="expected 'hold' or {value: X}"),
+]
 
 
 def to_error_mode(spec: ErrorModeSpec | None) -> ErrorMode | None:

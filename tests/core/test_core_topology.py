@@ -81,7 +81,7 @@ BROKEN = {
     "duplicate-names": (VALID.replace("  - name: io", "  - name: plc"), 8, "backs[0].name", "already used by fronts[0]"),
     "duplicate-address": (VALID.replace("      - address: 1\n", "      - address: 3\n"), 17, "backs[0].modules[1].address", "address 3 is already used by modules[0]"),
     "expose-matches-nothing": (VALID.replace('"io/m3/ao0"', '"io/m3/ao9"'), 6, "fronts[0].expose[1]", "'io/m3/ao9' matches no channel"),
-    "bad-error-mode": (VALID.replace("error_mode: {value: 1}", "error_mode: {valu: 1}"), 14, "backs[0].modules[0].error_mode", "'hold'"),
+    "bad-error-mode": (VALID.replace("error_mode: {value: 1}", "error_mode: {valu: 1}"), 14, "backs[0].modules[0].error_mode.valu", "unknown field 'valu'; did you mean 'value'?"),
     "bad-name": (VALID.replace("name: bench", "name: 9bench"), 2, "gateway.name", "should match pattern"),
     "missing-type": (VALID.replace("    type: loopback\n", ""), 8, "backs[0].type", "required field is missing: the back type, one of: "),
     "empty-fronts": ("gateway:\n  name: g\nfronts: []\nbacks:\n  - {name: io, type: loopback, modules: [{address: 1, digital: 1}]}\n", 3, "fronts", "at least 1 item"),
