@@ -38,9 +38,10 @@ class Table(StrEnum):
         return {Table.COILS: 1, Table.DISCRETE_INPUTS: 2, Table.HOLDING_REGISTERS: 3, Table.INPUT_REGISTERS: 4}[self]
 
 
-def _invalid(message: str) -> PydanticCustomError:
-    """A validation error whose message is ours alone (no "Value error," prefix)."""
-    return PydanticCustomError("modbus_config", message.replace("{", "{{").replace("}", "}}"))
+def _invalid(message: str, loc: tuple = ()) -> PydanticCustomError:
+    """A validation error whose message is ours alone (no "Value error," prefix); ``loc``
+    names the field below the validated object it is about (core reports it there)."""
+    return PydanticCustomError("modbus_config", message.replace("{", "{{").replace("}", "}}"), {"loc": loc} if loc else None)
 
 
 # Which tables each channel kind may live in.
@@ -107,7 +108,7 @@ class ModbusModuleConfig(ModuleConfig):
     model: str | None = Field(None, description=f"preset: {', '.join(presets.names())}")
     channels: list[ChannelGroup] = Field(default_factory=list, description="channel groups (after the preset's, if any)")
     counts: dict[Literal["di", "do", "ai", "ao"], int] = Field(
-        default_factory=dict, description="use only the first N channels of a kind from the preset, e.g. {ai: 1}"
+        default_factory=dict, description="use only the first N channels of a kind from the preset, e.g. {ai: 1}; at most what the preset has"
     )
     max_read_registers: int = Field(MAX_READ_REGISTERS, ge=1, le=MAX_READ_REGISTERS, description="largest coalesced register read")
     max_read_bits: int = Field(MAX_READ_BITS, ge=1, le=MAX_READ_BITS, description="largest coalesced bit read")
@@ -124,11 +125,22 @@ class ModbusModuleConfig(ModuleConfig):
     def _complete(self) -> ModbusModuleConfig:
         if self.model is None and not self.channels:
             raise _invalid("a module needs a model preset or a channels list")
-        for kind, n in self.counts.items():
-            if n < 0:
-                raise _invalid(f"counts.{kind} must be 0 or more")
+        self._check_counts()
         _check_output_overlap(self.groups())
         return self
+
+    def _check_counts(self) -> None:
+        """``counts`` keeps the first N channels of a kind of the preset: 0 up to what it has."""
+        preset = presets.find(self.model) if self.model else None
+        for kind, n in self.counts.items():
+            if n < 0:
+                raise _invalid(f"must be 0 or more (got {n})", ("counts", kind))
+            if preset is None:
+                raise _invalid("counts applies to a model preset's channels; this module has no model", ("counts", kind))
+            have = sum(g["count"] for g in preset.groups if g["kind"] == kind)
+            if n > have:
+                has = f"{have} {kind.upper()}" if have else f"no {kind.upper()}, only {preset.description}"
+                raise _invalid(f"{preset.model} has {has} (got {n})", ("counts", kind))
 
     def groups(self) -> list[ChannelGroup]:
         """Preset groups (cut to ``counts``) followed by the declared ones."""

@@ -48,6 +48,37 @@ def test_counts_cut_a_preset_like_the_i7232d_demo(registry):
     assert sorted(got) == sorted([f"rs485/m3/do{i}" for i in range(8)] + ["rs485/m5/ai0"])
 
 
+@pytest.mark.parametrize("module, issue", [
+    ({"address": 3, "model": "M-7055D", "counts": {"di": 9}}, "backs[0].modules[0].counts.di: M-7055D has 8 DI (got 9)"),
+    ({"address": 1, "model": "M-7052D", "counts": {"ai": 2, "do": 3}}, "backs[0].modules[0].counts.ai: M-7052D has no AI, only 8 DI (got 2)"),
+    ({"address": 1, "model": "M-7052D", "counts": {"do": 3}}, "backs[0].modules[0].counts.do: M-7052D has no DO, only 8 DI (got 3)"),
+    ({"address": 4, "model": "M-7024", "counts": {"ao": -1}}, "backs[0].modules[0].counts.ao: must be 0 or more (got -1)"),
+    ({"address": 4, "channels": [{"kind": "ao", "table": "holding_registers", "address": 0}], "counts": {"ao": 1}},
+     "backs[0].modules[0].counts.ao: counts applies to a model preset's channels; this module has no model"),
+])
+def test_counts_beyond_the_preset_are_refused_at_the_field(registry, module, issue):
+    assert errors(registry, [module]) == [issue]
+
+
+def test_counts_up_to_the_preset_are_kept(registry):
+    got = specs(registry, [{"address": 3, "model": "M-7055D", "counts": {"di": 8, "do": 2}}, {"address": 1, "model": "M-7052D", "counts": {"ai": 0}}])
+    assert sum(1 for c in got if c.startswith("rs485/m3/di")) == 8
+    assert sorted(c for c in got if c.startswith("rs485/m3/do")) == ["rs485/m3/do0", "rs485/m3/do1"]
+    assert sum(1 for c in got if c.startswith("rs485/m1/")) == 8
+
+
+def test_a_counts_error_names_the_line_of_the_count(registry, tmp_path):
+    path = tmp_path / "t.yaml"
+    path.write_text(
+        "gateway: {name: t}\nfronts: [{name: plc, type: memory}]\nbacks:\n  - name: rs485\n    type: modbus\n    port: /dev/null\n"
+        "    modules:\n      - address: 3\n        model: M-7055D\n        counts:\n          do: 2\n          di: 9\n"
+    )
+    with pytest.raises(TopologyError) as info:
+        load_topology(path, registry)
+    (issue,) = info.value.issues
+    assert str(issue) == f"{path}:12:15: backs[0].modules[0].counts.di: M-7055D has 8 DI (got 9)"
+
+
 def test_declared_channels_follow_the_preset_and_number_on(registry):
     got = specs(registry, [{"address": 7, "model": "M-7052D", "channels": [
         {"kind": "di", "table": "holding_registers", "address": 100, "count": 3, "first_bit": 2},
