@@ -215,6 +215,8 @@ def describe_pydantic_error(err: dict, model: type[BaseModel], raw_loc: tuple) -
     if kind == "missing":
         return "required field is missing"
     message = err["msg"]
+    if kind == "value_error":  # a validator's own message: pydantic's "Value error, " prefix says nothing
+        message = message.removeprefix("Value error, ")
     if "input" in err and not isinstance(err["input"], (dict, list)):
         message += f" (got {err['input']!r})"
     return message
