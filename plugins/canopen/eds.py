@@ -52,7 +52,8 @@ def front_node(topology_source: str | Path | dict, front_name: str | None = None
     return front, front.build()
 
 
-def eds_text(front: Any, node: Any) -> str:
+def eds_text(front: Any, node: Any, file_name: str | None = None) -> str:
+    """The EDS; ``[FileInfo] FileName`` is ``file_name`` (the output's name), else ``<front>.eds``."""
     od = node.od.model
     ident = front.config.identity
     info = od.device_information
@@ -80,7 +81,7 @@ def eds_text(front: Any, node: Any) -> str:
             var.default_raw = f"$NODEID+0x{var.default:X}"
     now = datetime.now(timezone.utc)
     file_info = {
-        "FileName": f"{front.name}.eds",
+        "FileName": file_name or f"{front.name}.eds",
         "FileVersion": 1,
         "FileRevision": 0,
         "EDSVersion": "4.0",
@@ -118,11 +119,13 @@ def _replace_file_info(text: str, file_info: dict) -> str:
 
 
 def write_eds(topology_source: str | Path | dict, front_name: str | None = None, dest: str | Path | None = None, registry: Registry | None = None) -> str:
+    """The EDS text, also written to ``dest`` when given (OSError when it cannot be: the
+    folder must exist, a directory is refused)."""
     front, node = front_node(topology_source, front_name, registry)
-    text = eds_text(front, node)
+    text = eds_text(front, node, Path(dest).name if dest is not None else None)
     if dest is not None:
         from fieldgate.persist import write_atomic
-        write_atomic(Path(dest), text.encode())
+        write_atomic(Path(dest), text.encode(), make_parents=False)
     return text
 
 
@@ -142,6 +145,9 @@ def run(args: argparse.Namespace) -> int:
         return 1
     except EdsError as exc:
         print(f"{args.topology}: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"{args.output}: cannot write the EDS: {exc.strerror or exc}", file=sys.stderr)
         return 1
     if args.output is None:
         sys.stdout.write(text)

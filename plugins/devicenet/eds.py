@@ -349,18 +349,17 @@ def front_slave(topology_source: str | Path | dict, front_name: str | None = Non
 def write_eds(topology_source: str | Path | dict, front_name: str | None = None, dest: str | Path | None = None,
               registry: Registry | None = None, now: datetime | None = None, vendor_name: str | None = None,
               overrides: dict | None = None) -> str:
+    """The EDS text, also written to ``dest`` when given (OSError when it cannot be: the
+    folder must exist, a directory is refused)."""
     front, slave = front_slave(topology_source, front_name, registry, overrides)
     text = eds_text(describe(front, slave), now, vendor_name)
     if dest is not None:
         from fieldgate.persist import write_atomic
-        write_atomic(Path(dest), text.encode("latin-1", "replace"))
+        write_atomic(Path(dest), text.encode("latin-1", "replace"), make_parents=False)
     return text
 
 
 # -- CLI ---------------------------------------------------------------------------------------
-USAGE_ERROR = 2
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("topology", help="topology YAML file")
     parser.add_argument("--front", help="devicenet front name (default: the first devicenet front)")
@@ -370,8 +369,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                         help="override a topology field as `fieldgate run --set` does, e.g. fronts.dnet.identity.product_code=7")
 
 
-def to_stderr(*lines: str, code: int = USAGE_ERROR) -> int:
-    """Print ``lines`` on standard error; the command's exit code."""
+def to_stderr(*lines: str, code: int = 1) -> int:
+    """Print ``lines`` on standard error; the command's exit code (1: an invalid topology, no
+    such front, an output that cannot be written; as ``fieldgate eds`` and ``validate``)."""
     print("\n".join(lines), file=sys.stderr)
     return code
 
@@ -386,7 +386,7 @@ def run(args: argparse.Namespace) -> int:
     except EdsError as exc:
         return to_stderr(f"{args.topology}: {exc}")
     except OSError as exc:
-        return to_stderr(f"{args.output}: cannot write the EDS: {exc.strerror or exc}", code=1)
+        return to_stderr(f"{args.output}: cannot write the EDS: {exc.strerror or exc}")
     if args.output is not None:
         return to_stderr(f"{args.output}: EDS written for {args.front or 'the first devicenet front'}", code=0)
     sys.stdout.write(text)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -81,6 +82,29 @@ def test_cli_with_an_unknown_front_fails_with_a_message(tmp_path, capsys):
     assert cli_main(["eds", str(path), "--front", "nosuch"]) == 1
     assert "no canopen front named 'nosuch'" in capsys.readouterr().err
     assert not (tmp_path / "plc.eds").exists()
+
+
+@pytest.mark.parametrize("output, reason", [("no/such/dir/x.eds", "No such file or directory"), ("outdir", "Is a directory")])
+def test_an_output_that_cannot_be_written_is_one_line_and_exit_1(tmp_path, capsys, output, reason):
+    path = write_topology(tmp_path)
+    (tmp_path / "outdir").mkdir()
+    out = tmp_path / output
+    assert cli_main(["eds", str(path), "-o", str(out)]) == 1
+    assert capsys.readouterr().err == f"{out}: cannot write the EDS: {reason}\n"
+    assert not (tmp_path / "no").exists() and not any((tmp_path / "outdir").iterdir())  # no folder made, no temporary left
+
+
+def test_the_eds_file_gets_the_umask_mode_and_its_own_file_name(tmp_path, capsys):
+    path = write_topology(tmp_path)
+    out = tmp_path / "my.eds"
+    old = os.umask(0o022)
+    try:
+        assert cli_main(["eds", str(path), "-o", str(out)]) == 0
+    finally:
+        os.umask(old)
+    assert out.stat().st_mode & 0o777 == 0o644
+    assert "\nFileName=my.eds\n" in out.read_text()
+    assert cli_main(["eds", str(path)]) == 0 and "\nFileName=plc.eds\n" in capsys.readouterr().out  # standard output: the front's name
 
 
 def assert_served_as_described(eds: canopen.ObjectDictionary, node) -> None:

@@ -49,3 +49,38 @@ def test_missing_is_none_and_corrupt_is_reported(tmp_path):
     bad.write_bytes(b'{"v": 1')  # torn by something other than us
     with pytest.raises(persist.CorruptStore, match="bad.json"):
         persist.read_json(bad)
+
+
+@pytest.fixture
+def umask_022():
+    old = os.umask(0o022)
+    yield
+    os.umask(old)
+
+
+def test_a_new_file_follows_the_umask_and_an_existing_one_keeps_its_mode(tmp_path, umask_022):
+    path = tmp_path / "out.eds"
+    persist.write_atomic(path, b"one")
+    assert path.stat().st_mode & 0o777 == 0o644  # not mkstemp's 0600
+    os.umask(0o027)
+    persist.write_atomic(tmp_path / "other", b"x")
+    assert (tmp_path / "other").stat().st_mode & 0o777 == 0o640
+    path.chmod(0o600)
+    persist.write_atomic(path, b"two")
+    assert path.read_bytes() == b"two" and path.stat().st_mode & 0o777 == 0o600
+    persist.write_json_atomic(tmp_path / "state" / "store.json", {"v": 1})  # state files: same rule
+    assert (tmp_path / "state" / "store.json").stat().st_mode & 0o777 == 0o640
+
+
+def test_without_make_parents_a_missing_folder_is_an_error_and_nothing_is_created(tmp_path):
+    path = tmp_path / "no" / "such" / "x.eds"
+    with pytest.raises(FileNotFoundError):
+        persist.write_atomic(path, b"x", make_parents=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_directory_target_is_refused_and_leaves_nothing_behind(tmp_path):
+    (tmp_path / "outdir").mkdir()
+    with pytest.raises(IsADirectoryError):
+        persist.write_atomic(tmp_path / "outdir", b"x")
+    assert [p.name for p in tmp_path.iterdir()] == ["outdir"] and not any((tmp_path / "outdir").iterdir())

@@ -5,6 +5,7 @@ parameters whose link paths answer with their defaults."""
 from __future__ import annotations
 
 import logging
+import os
 import uuid
 from pathlib import Path
 
@@ -218,26 +219,27 @@ def test_a_topology_without_outputs_has_no_output_entry(tmp_path, caplog):
     (["--front", "nosuch"], "no front named 'nosuch' (fronts: plc (canopen), dnet (devicenet))"),
     (["--front", "plc"], "front 'plc' is a canopen front, not devicenet (its EDS: fieldgate eds)"),
 ])
-def test_bad_front_is_one_line_and_exit_code_2(tmp_path, capsys, args, message):
+def test_bad_front_is_one_line_and_exit_code_1(tmp_path, capsys, args, message):
     canopen = {"name": "plc", "type": "canopen", "interface": "virtual", "channel": "unused", "node_id": 5}
     topology = write_topology(tmp_path, [canopen, dnet_front()])
     out = tmp_path / "x.eds"
-    assert cli_main(["devicenet", "eds", str(topology), *args, "-o", str(out)]) == 2
+    assert cli_main(["devicenet", "eds", str(topology), *args, "-o", str(out)]) == 1
     err = capsys.readouterr().err
     assert err == f"{topology}: {message}\n" and not out.exists()
     # the canopen command is still there beside it
     assert cli_main(["eds", str(topology), "--front", "plc", "-o", str(out)]) == 0 and "[DeviceInfo]" in out.read_text()
 
 
-def test_no_devicenet_front_and_invalid_topology_exit_2(tmp_path, capsys):
+def test_no_devicenet_front_and_invalid_topology_exit_1_as_fieldgate_eds_and_validate(tmp_path, capsys):
     canopen = {"name": "plc", "type": "canopen", "interface": "virtual", "channel": "unused", "node_id": 5}
     topology = write_topology(tmp_path, [canopen])
-    assert cli_main(["devicenet", "eds", str(topology)]) == 2
+    assert cli_main(["devicenet", "eds", str(topology)]) == 1
     assert capsys.readouterr().err == f"{topology}: no devicenet front in the topology\n"
     bad = write_topology(tmp_path, [dnet_front(mac_id=64)])
-    assert cli_main(["devicenet", "eds", str(bad)]) == 2
+    assert cli_main(["devicenet", "eds", str(bad)]) == 1
     err = capsys.readouterr().err
     assert "mac_id" in err and "Traceback" not in err
+    assert cli_main(["eds", str(bad)]) == cli_main(["validate", str(bad)]) == 1
 
 
 def test_standard_output_without_o(tmp_path, capsys):
@@ -254,3 +256,24 @@ def test_unwritable_output_exits_1_with_one_line(tmp_path, capsys):
     assert cli_main(["devicenet", "eds", str(topology), "-o", str(out)]) == 1
     err = capsys.readouterr().err
     assert err.startswith(f"{out}: cannot write the EDS: ") and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("output, reason", [("no/such/dir/x.eds", "No such file or directory"), ("outdir", "Is a directory")])
+def test_a_missing_folder_or_a_directory_is_one_line_and_exit_1(tmp_path, capsys, output, reason):
+    topology = write_topology(tmp_path, [dnet_front()])
+    (tmp_path / "outdir").mkdir()
+    out = tmp_path / output
+    assert cli_main(["devicenet", "eds", str(topology), "-o", str(out)]) == 1
+    assert capsys.readouterr().err == f"{out}: cannot write the EDS: {reason}\n"
+    assert not (tmp_path / "no").exists() and not any((tmp_path / "outdir").iterdir())  # no folder made, no temporary left
+
+
+def test_the_eds_file_gets_the_umask_mode(tmp_path):
+    topology = write_topology(tmp_path, [dnet_front()])
+    out = tmp_path / "slave.eds"
+    old = os.umask(0o022)
+    try:
+        assert cli_main(["devicenet", "eds", str(topology), "-o", str(out)]) == 0
+    finally:
+        os.umask(old)
+    assert out.stat().st_mode & 0o777 == 0o644
