@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import signal
 import sys
+from collections.abc import Iterator
 
 from fieldgate.plugin import PluginStartError
 from fieldgate.serial_link import AsyncSerial, PtyPair
@@ -99,17 +102,48 @@ async def _simulate(args: argparse.Namespace, modules: list[tuple]) -> int:
     pair = PtyPair() if args.pty else None
     port = pair.b if pair else args.port
     sim = DconSimulator.from_modules(port, modules, checksum=args.checksum, baudrate=args.baud, animate=args.animate)
-    await sim.start()
-    try:
-        for m in sim.bus.modules.values():
-            print(f"module {m.address:3d}: {m.profile.model} ({m.profile.description}), type 0x{m.type_code:02X}, {m.data_format.name.lower()}", flush=True)
-        print(f"serving on {pair.a if pair else port} (connect the gateway there)", flush=True)
-        if args.duration:
-            await asyncio.sleep(args.duration)
-        else:
-            await asyncio.Event().wait()
-    finally:
-        await sim.stop()
-        if pair:
-            pair.close()
+    with stopped_by_signals() as stop:
+        await sim.start()
+        try:
+            for m in sim.bus.modules.values():
+                print(f"module {m.address:3d}: {m.profile.model} ({m.profile.description}), type 0x{m.type_code:02X}, {m.data_format.name.lower()}", flush=True)
+            print(f"serving on {pair.a if pair else port} (connect the gateway there)", flush=True)
+            await wait_until(stop, args.duration)
+        finally:
+            await sim.stop()
+            if pair:
+                pair.close()
     return 0
+
+
+@contextlib.contextmanager
+def stopped_by_signals() -> Iterator[asyncio.Event]:
+    """An event that SIGINT and SIGTERM set, while the block runs (in the running loop).
+
+    Ctrl-C (or a service manager's SIGTERM) is how a simulator is normally stopped: the
+    caller cleans up and exits 0, with no traceback. Where the loop cannot take signal
+    handlers (Windows), Ctrl-C raises KeyboardInterrupt, which the command turns into 0.
+    (Both simulate commands have this helper: plugins do not import each other.)
+    """
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    handled = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, stop.set)
+        except (NotImplementedError, RuntimeError):
+            continue
+        handled.append(sig)
+    try:
+        yield stop
+    finally:
+        for sig in handled:
+            loop.remove_signal_handler(sig)
+
+
+async def wait_until(stop: asyncio.Event, duration: float | None) -> None:
+    """Until ``stop`` is set or ``duration`` seconds have passed (None or 0: no limit)."""
+    try:
+        await asyncio.wait_for(stop.wait(), duration or None)
+    except TimeoutError:
+        pass

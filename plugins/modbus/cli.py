@@ -8,13 +8,19 @@ reads commands from stdin::
     set rs485/m1/di0 1        drive an input      get rs485/m3/do0    read any channel
     show                      every channel        fault 3 no_answer [COUNT] [code=N] [delay=S] [address=N]
     clear [ADDRESS]           remove faults        quit
+
+Ctrl-C (SIGINT) or SIGTERM stops it with exit code 0, as ``quit`` does.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 
 from pydantic import ValidationError
 
@@ -44,7 +50,10 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, KeyError) as exc:
         print(f"fieldgate simulate modbus: {exc}", file=sys.stderr)
         return 2
-    return asyncio.run(_serve(config, args))
+    try:
+        return asyncio.run(_serve(config, args))
+    except KeyboardInterrupt:  # before the signal handlers are in place, or where there are none
+        return 0
 
 
 def build_config(args: argparse.Namespace) -> ModbusBackConfig:
@@ -80,6 +89,11 @@ def build_config(args: argparse.Namespace) -> ModbusBackConfig:
 
 
 async def _serve(config: ModbusBackConfig, args: argparse.Namespace) -> int:
+    with stopped_by_signals() as stop:
+        return await _serve_until(stop, config, args)
+
+
+async def _serve_until(stop: asyncio.Event, config: ModbusBackConfig, args: argparse.Namespace) -> int:
     pair = None
     port = args.port
     if args.pty:
@@ -101,7 +115,7 @@ async def _serve(config: ModbusBackConfig, args: argparse.Namespace) -> int:
     addresses = ", ".join(f"{m.address}{' (' + m.model + ')' if m.model else ''}" for m in config.modules)
     print(f"simulating modules {addresses} on {port}" + (f"; point the gateway at {pair.a}" if pair else ""), flush=True)
     try:
-        await _command_loop(sim, args.duration)
+        await _command_loop(sim, stop, args.duration)
     finally:
         await sim.stop()
         if pair:
@@ -109,23 +123,72 @@ async def _serve(config: ModbusBackConfig, args: argparse.Namespace) -> int:
     return 0
 
 
-async def _command_loop(sim: ModbusSimulator, duration: float | None) -> None:
+async def _command_loop(sim: ModbusSimulator, stop: asyncio.Event, duration: float | None) -> None:
+    """Commands from stdin until ``quit`` or ``stop`` (SIGINT/SIGTERM) or ``duration``; a
+    closed stdin leaves the modules served."""
+    lines: asyncio.Queue[str] = asyncio.Queue()
+    _read_stdin(asyncio.get_running_loop(), lines)
+
+    async def commands() -> None:
+        while True:
+            reply = execute(sim, await lines.get())
+            if reply == "quit":
+                stop.set()
+                return
+            if reply:
+                print(reply, flush=True)
+
+    task = asyncio.create_task(commands())
+    try:
+        await wait_until(stop, duration)
+    finally:
+        task.cancel()
+
+
+def _read_stdin(loop: asyncio.AbstractEventLoop, lines: asyncio.Queue[str]) -> None:
+    """Feed stdin's lines to ``lines`` from a daemon thread: a read blocked on a terminal
+    must not keep the process alive once it is stopped (asyncio.to_thread's worker would)."""
+    def read() -> None:
+        for line in sys.stdin or ():
+            try:
+                loop.call_soon_threadsafe(lines.put_nowait, line)
+            except RuntimeError:  # the loop is closed: stopping
+                return
+
+    threading.Thread(target=read, name="simulate-modbus-stdin", daemon=True).start()
+
+
+@contextlib.contextmanager
+def stopped_by_signals() -> Iterator[asyncio.Event]:
+    """An event that SIGINT and SIGTERM set, while the block runs (in the running loop).
+
+    Ctrl-C (or a service manager's SIGTERM) is how a simulator is normally stopped: the
+    caller cleans up and exits 0, with no traceback. Where the loop cannot take signal
+    handlers (Windows), Ctrl-C raises KeyboardInterrupt, which the command turns into 0.
+    (Both simulate commands have this helper: plugins do not import each other.)
+    """
+    stop = asyncio.Event()
     loop = asyncio.get_running_loop()
-    deadline = None if duration is None else loop.time() + duration
-    while deadline is None or loop.time() < deadline:
-        remaining = None if deadline is None else max(0.0, deadline - loop.time())
+    handled = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
         try:
-            line = await asyncio.wait_for(asyncio.to_thread(sys.stdin.readline), remaining)
-        except TimeoutError:
-            return
-        if not line:  # stdin closed: keep serving until the duration ends or Ctrl-C
-            await asyncio.sleep(remaining if remaining is not None else 3600)
+            loop.add_signal_handler(sig, stop.set)
+        except (NotImplementedError, RuntimeError):
             continue
-        reply = execute(sim, line)
-        if reply == "quit":
-            return
-        if reply:
-            print(reply, flush=True)
+        handled.append(sig)
+    try:
+        yield stop
+    finally:
+        for sig in handled:
+            loop.remove_signal_handler(sig)
+
+
+async def wait_until(stop: asyncio.Event, duration: float | None) -> None:
+    """Until ``stop`` is set or ``duration`` seconds have passed (None or 0: no limit)."""
+    try:
+        await asyncio.wait_for(stop.wait(), duration or None)
+    except TimeoutError:
+        pass
 
 
 def execute(sim: ModbusSimulator, line: str) -> str:

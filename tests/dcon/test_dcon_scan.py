@@ -1,6 +1,8 @@
 """Scanning a line for modules: in process against the simulator, and the two CLI commands together."""
 
 import os
+import pty
+import signal
 import subprocess
 import sys
 
@@ -99,3 +101,24 @@ def test_cli_errors_are_one_line():
     assert result.returncode == 2 and "cannot open serial port /dev/does-not-exist" in result.stderr and "Traceback" not in result.stderr
     result = subprocess.run([exe, "simulate", "dcon", "--pty", "--module", "3:I-7999"], capture_output=True, text=True, timeout=30)
     assert result.returncode == 2 and "unknown DCON module" in result.stderr
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_simulate_stops_with_exit_0_on_ctrl_c_and_sigterm(sig):
+    exe = os.path.join(os.path.dirname(sys.executable), "fieldgate")
+    master, terminal = pty.openpty()
+    sim = subprocess.Popen([exe, "simulate", "dcon", "--pty", "--module", "3:I-7060"], stdin=terminal,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert any(line.startswith("serving on ") for line in iter(sim.stdout.readline, ""))
+        sim.send_signal(sig)
+        assert sim.wait(timeout=20) == 0
+        assert "Traceback" not in sim.stderr.read()
+    finally:
+        if sim.poll() is None:
+            sim.kill()
+            sim.wait()
+        sim.stdout.close()
+        sim.stderr.close()
+        os.close(master)
+        os.close(terminal)

@@ -3,7 +3,10 @@
 import argparse
 import asyncio
 import os
+import pty
 import re
+import signal
+import subprocess
 import sys
 
 import pytest
@@ -124,6 +127,29 @@ async def test_fieldgate_simulate_modbus_serves_a_pty(tmp_path):
         if proc.returncode is None:
             proc.kill()
             await proc.wait()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_fieldgate_simulate_modbus_stops_with_exit_0_on_ctrl_c_and_sigterm(sig):
+    """Ctrl-C is how a simulator is stopped: exit 0, no traceback, even while stdin is a
+    terminal with a read pending (it used to hang there, or exit 130)."""
+    master, terminal = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "fieldgate", "simulate", "modbus", "--pty", "--module", "1:M-7055D"],
+                            stdin=terminal, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert proc.stdout.readline().startswith("simulating modules 1 (M-7055D)")
+        proc.send_signal(sig)
+        assert proc.wait(timeout=20) == 0
+        assert "Traceback" not in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+        os.close(master)
+        os.close(terminal)
 
 
 def test_cli_fault_limited_to_an_address():
