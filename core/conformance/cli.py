@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ..plugin import hookimpl
+from ..plugin import PluginStartError, hookimpl
 from .framework import DEVICENET_PROFILES, OPT_IN, PROFILES, PROTOCOL_PROFILES, Options, Timing, Verdict
 from .report import line, details, summary, write_junit
 from .runner import DeviceSilent, SuiteConfig, run_suite
 
 HELP = "run the CANopen conformance suite against a device (black box: bus + EDS)"
+VIRTUAL_HINT = ("; note: python-can's virtual bus exists only inside one process, so a gateway started in another"
+                " process is not on it (use socketcan with a vcan channel, or a real adapter)")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -96,7 +98,10 @@ def _run_and_report(args: argparse.Namespace, properties: dict[str, str], start)
 
     try:
         results = start(progress, on_start)
-    except (OSError, ValueError, DeviceSilent) as exc:
+    except DeviceSilent as exc:
+        print(f"conformance: cannot start: {exc}{VIRTUAL_HINT if args.interface == 'virtual' else ''}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError, PluginStartError) as exc:  # the bus (one line from open_bus) or the EDS
         print(f"conformance: cannot start: {exc}", file=sys.stderr)
         return 2
     print()

@@ -54,10 +54,11 @@ class Link:
 
     @classmethod
     def open(cls, interface: str, channel: str, bitrate: int | None = None) -> Link:
-        kwargs = {"interface": interface, "channel": channel}
-        if bitrate:
-            kwargs["bitrate"] = bitrate
-        return cls(can.Bus(**kwargs), own_bus=True)
+        """Open the bus as ``fieldgate run`` does: a bad interface, channel or driver is one
+        line (PluginStartError), e.g. ``unknown CAN interface 'pcann' (python-can knows: ...)``."""
+        from fieldgate.can.adapter import open_bus
+
+        return cls(open_bus(interface, channel, bitrate or None), own_bus=True)
 
     def close(self) -> None:
         self.network.disconnect() if self._own_bus else self._stop_notifier()
