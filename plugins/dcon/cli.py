@@ -20,17 +20,23 @@ from .simulator import DconSimulator
 # -- scan --------------------------------------------------------------------------------
 def configure_scan(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", required=True, help="serial device or pyserial URL")
-    parser.add_argument("--baud", default="9600", help="baud rate, or several separated by commas (e.g. 9600,19200,115200)")
+    parser.add_argument("--baudrate", default="9600", metavar="RATE[,RATE...]", help="baud rate, or several separated by commas (e.g. 9600,19200,115200; default 9600)")
+    add_baud_alias(parser)
     parser.add_argument("--addresses", default="0-255", help="addresses to probe, e.g. 1-15 or 1,2,8 (default 0-255)")
     parser.add_argument("--checksum", action="store_true", help="send and expect DCON checksums")
     parser.add_argument("--timeout-ms", type=int, default=100, help="reply timeout per address (default 100)")
     parser.add_argument("--name", default="rs485", help="back name in the printed topology")
 
 
+def add_baud_alias(parser: argparse.ArgumentParser, **kwargs) -> None:
+    """``--baud``, the older name of ``--baudrate`` (the topology's key): still accepted, not in the help."""
+    parser.add_argument("--baud", dest="baudrate", default=argparse.SUPPRESS, help=argparse.SUPPRESS, **kwargs)
+
+
 def run_scan(args: argparse.Namespace) -> int:
     try:
         addresses = parse_addresses(args.addresses)
-        bauds = [int(b) for b in args.baud.split(",")]
+        bauds = [int(b) for b in args.baudrate.split(",")]
     except ValueError as exc:
         print(f"fieldgate scan dcon: {exc}", file=sys.stderr)
         return 2
@@ -64,7 +70,8 @@ def configure_simulate(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--pty", action="store_true", help="create a pseudo-terminal pair and print the end to connect to")
     parser.add_argument("--module", action="append", default=[], metavar="ADDR:MODEL[:TYPE[:FORMAT]]", help="a simulated module, e.g. 1:I-7043 or 4:I-7012:0x08:hex (repeat)")
     parser.add_argument("--checksum", action="store_true", help="modules expect and send checksums")
-    parser.add_argument("--baud", type=int, default=9600)
+    parser.add_argument("--baudrate", type=int, default=9600, help="baud rate (default 9600)")
+    add_baud_alias(parser, type=int)
     parser.add_argument("--animate", action="store_true", help="inputs change by themselves (walking DI bit, AI sine)")
     parser.add_argument("--duration", type=float, default=0, help="stop after this many seconds (default: until Ctrl-C)")
 
@@ -101,7 +108,7 @@ def run_simulate(args: argparse.Namespace) -> int:
 async def _simulate(args: argparse.Namespace, modules: list[tuple]) -> int:
     pair = PtyPair() if args.pty else None
     port = pair.b if pair else args.port
-    sim = DconSimulator.from_modules(port, modules, checksum=args.checksum, baudrate=args.baud, animate=args.animate)
+    sim = DconSimulator.from_modules(port, modules, checksum=args.checksum, baudrate=args.baudrate, animate=args.animate)
     with stopped_by_signals() as stop:
         await sim.start()
         try:

@@ -39,6 +39,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--module", action="append", default=[], metavar="ADDR:MODEL", help="a module by preset, e.g. 3:M-7055D (repeatable)")
     parser.add_argument("--name", default="rs485", help="back name used in channel ids with --module (default rs485)")
     parser.add_argument("--baudrate", type=int, help="baud rate (default: the topology's, or 9600)")
+    # --baud, the name simulate dcon used to take: accepted everywhere, not in the help
+    parser.add_argument("--baud", type=int, dest="baudrate", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     parser.add_argument("--animate", action="store_true", help="move unwired inputs and wire DO->DI, AO->AI like the I-7232D demo")
     parser.add_argument("--set", action="append", default=[], metavar="CHANNEL=VALUE", help="initial input value (repeatable)")
     parser.add_argument("--duration", type=float, help="stop after this many seconds (default: until quit or Ctrl-C)")

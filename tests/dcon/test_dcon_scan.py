@@ -75,7 +75,8 @@ def test_parse_addresses_rejects_out_of_range():
 
 def test_simulate_and_scan_commands_together():
     exe = os.path.join(os.path.dirname(sys.executable), "fieldgate")
-    sim = subprocess.Popen([exe, "simulate", "dcon", "--pty", "--module", "3:I-7060", "--module", "7:I-7012:0x0A:percent", "--duration", "20"],
+    sim = subprocess.Popen([exe, "simulate", "dcon", "--pty", "--module", "3:I-7060", "--module", "7:I-7012:0x0A:percent", "--duration", "20",
+                            "--baudrate", "19200"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         port = None
@@ -84,11 +85,12 @@ def test_simulate_and_scan_commands_together():
                 port = line.split()[2]
                 break
         assert port and port.startswith("/dev/")
-        scan = subprocess.run([exe, "scan", "dcon", "--port", port, "--addresses", "0-9", "--timeout-ms", "100"], capture_output=True, text=True, timeout=30)
+        scan = subprocess.run([exe, "scan", "dcon", "--port", port, "--addresses", "0-9", "--timeout-ms", "100", "--baudrate", "19200"],
+                              capture_output=True, text=True, timeout=30)
         assert scan.returncode == 0, scan.stderr
         assert "10/10 addresses, 2 module(s) found" in scan.stderr
         backs = YAML(typ="safe").load(scan.stdout)["backs"]
-        assert [(m["address"], m["model"]) for m in backs[0]["modules"]] == [(3, "I-7060"), (7, "I-7012")]
+        assert [(m["address"], m["model"]) for m in backs[0]["modules"]] == [(3, "I-7060"), (7, "I-7012")] and backs[0]["baudrate"] == 19200
         assert backs[0]["modules"][1]["type_code"] == 0x0A and backs[0]["modules"][1]["data_format"] == "percent"
     finally:
         sim.terminate()
@@ -122,3 +124,19 @@ def test_simulate_stops_with_exit_0_on_ctrl_c_and_sigterm(sig):
         sim.stderr.close()
         os.close(master)
         os.close(terminal)
+
+
+@pytest.mark.parametrize("command, value", [(["scan", "dcon", "--port", "/dev/ttyS0"], "19200,115200"), (["simulate", "dcon", "--pty"], "19200")])
+def test_baudrate_as_in_the_topology_and_baud_still_accepted(capsys, command, value):
+    from fieldgate import load_registry
+    from fieldgate.cli import build_parser
+
+    parser = build_parser(load_registry())
+    expected = value if "," in value else int(value)
+    assert parser.parse_args([*command, "--baudrate", value]).baudrate == expected
+    assert parser.parse_args([*command, "--baud", value]).baudrate == expected  # the older name, kept
+    assert parser.parse_args(command).baudrate in ("9600", 9600)
+    with pytest.raises(SystemExit):
+        parser.parse_args([*command, "--help"])
+    usage = capsys.readouterr().out
+    assert "--baudrate" in usage and "--baud " not in usage

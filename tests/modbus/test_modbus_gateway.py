@@ -152,6 +152,20 @@ def test_fieldgate_simulate_modbus_stops_with_exit_0_on_ctrl_c_and_sigterm(sig):
         os.close(terminal)
 
 
+def test_simulate_modbus_takes_baud_as_an_alias_of_baudrate(capsys):
+    from fieldgate import load_registry
+    from fieldgate.cli import build_parser
+
+    parser = build_parser(load_registry())
+    command = ["simulate", "modbus", "--pty", "--module", "1:M-7055D"]
+    assert parser.parse_args([*command, "--baud", "19200"]).baudrate == parser.parse_args([*command, "--baudrate", "19200"]).baudrate == 19200
+    assert parser.parse_args(command).baudrate is None  # the topology's, or 9600
+    with pytest.raises(SystemExit):
+        parser.parse_args([*command, "--help"])
+    usage = capsys.readouterr().out
+    assert "--baudrate" in usage and "--baud " not in usage
+
+
 def test_cli_fault_limited_to_an_address():
     sim = ModbusSimulator(ModbusBackConfig(name="rs485", port="unused", modules=I7232D_MODULES), "unused")
     assert execute(sim, "fault 5 exception code=2 address=0") == "module 5: exception on requests touching address 0 until cleared"
