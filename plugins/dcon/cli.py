@@ -34,33 +34,60 @@ def add_baud_alias(parser: argparse.ArgumentParser, **kwargs) -> None:
 
 
 def run_scan(args: argparse.Namespace) -> int:
+    """Exit 0 when modules were found, 1 when none, 2 on errors, 130 when interrupted (Ctrl-C):
+    then the modules found so far are printed all the same, and where the scan stopped."""
     try:
         addresses = parse_addresses(args.addresses)
         bauds = [int(b) for b in args.baudrate.split(",")]
     except ValueError as exc:
         print(f"fieldgate scan dcon: {exc}", file=sys.stderr)
         return 2
+    found: list = []
     try:
-        found = asyncio.run(_scan(args, addresses, bauds))
+        interrupted = asyncio.run(_scan(args, addresses, bauds, found))
     except PluginStartError as exc:
         print(f"fieldgate scan dcon: {exc}", file=sys.stderr)
         return 2
+    if interrupted:
+        print(f"fieldgate scan dcon: interrupted {interrupted}; the modules found so far:", file=sys.stderr)
     sys.stdout.write(topology_yaml(found, args.port, args.checksum, args.name))
+    if interrupted:
+        return INTERRUPTED
     return 0 if found else 1
 
 
-async def _scan(args: argparse.Namespace, addresses: list[int], bauds: list[int]) -> list:
-    found = []
-    for baud in bauds:
-        print(f"scanning {args.port} at {baud} bit/s, checksum {'on' if args.checksum else 'off'}", file=sys.stderr)
-        serial = await AsyncSerial.open(args.port, baud)
+INTERRUPTED = 130  # 128 + SIGINT, as the shell reports a command stopped by Ctrl-C: the result is partial
+
+
+async def _scan(args: argparse.Namespace, addresses: list[int], bauds: list[int], found: list) -> str | None:
+    """Scan at each baud rate, appending to ``found``. None when done; where it stopped when
+    Ctrl-C interrupted it (asyncio.run cancels this task on SIGINT)."""
+    for n, baud in enumerate(bauds):
+        done = 0
+        bar = progress_bar()
+
+        def progress(count: int, total: int, modules: int) -> None:
+            nonlocal done
+            done = count
+            bar(count, total, modules)
+
         try:
-            # every scan reply carries its address, so a late one cannot be mistaken: no settling
-            link = DconLink(serial, args.checksum, args.timeout_ms / 1000, settle_after_timeout=False)
-            found += await scan_line(link, addresses, baud, progress_bar())
-        finally:
-            await serial.close()
-    return found
+            print(f"scanning {args.port} at {baud} bit/s, checksum {'on' if args.checksum else 'off'}", file=sys.stderr)
+            serial = await AsyncSerial.open(args.port, baud)
+            try:
+                # every scan reply carries its address, so a late one cannot be mistaken: no settling
+                link = DconLink(serial, args.checksum, args.timeout_ms / 1000, settle_after_timeout=False)
+                await scan_line(link, addresses, baud, progress, found)
+            finally:
+                await serial.close()
+        except asyncio.CancelledError:
+            if 0 < done < len(addresses):
+                print(file=sys.stderr)  # end the progress bar's line
+            where = (f"at address {addresses[done]} at {baud} bit/s (it and the addresses after it were not probed)"
+                     if done < len(addresses) else f"after the last address at {baud} bit/s")
+            rest = bauds[n + 1:]
+            return where + (f", {', '.join(map(str, rest))} bit/s not scanned" if rest else "")
+    return None
 
 
 # -- simulate ------------------------------------------------------------------------------

@@ -37,10 +37,17 @@ class Found:
 Progress = Callable[[int, int, int], None]  # (done, total, found)
 
 
-async def scan_line(link: DconLink, addresses: Iterable[int], baudrate: int, progress: Progress | None = None) -> list[Found]:
-    """Probe each address; modules that answer ``$AA2`` are identified. Silence = nobody there."""
+async def scan_line(link: DconLink, addresses: Iterable[int], baudrate: int, progress: Progress | None = None,
+                    found: list[Found] | None = None) -> list[Found]:
+    """Probe each address; modules that answer ``$AA2`` are identified. Silence = nobody there.
+
+    The modules are appended to ``found`` (a new list by default) as they are identified,
+    so a caller that cancels the scan (Ctrl-C) still has the ones found so far; the
+    progress callback tells how many addresses were done. Returns ``found``.
+    """
     addresses = list(addresses)
-    found: list[Found] = []
+    found = [] if found is None else found
+    count = len(found)
     for done, address in enumerate(addresses, 1):
         try:
             config = codec.parse_config(await link.transact(codec.command("$", address, "2")), address)
@@ -52,7 +59,7 @@ async def scan_line(link: DconLink, addresses: Iterable[int], baudrate: int, pro
         else:
             found.append(Found(address, baudrate, name, firmware, config, find_profile(name)))
         if progress is not None:
-            progress(done, len(addresses), len(found))
+            progress(done, len(addresses), len(found) - count)
     return found
 
 

@@ -2,9 +2,12 @@
 
 import os
 import pty
+import re
+import select
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 from ruamel.yaml import YAML
@@ -140,3 +143,33 @@ def test_baudrate_as_in_the_topology_and_baud_still_accepted(capsys, command, va
         parser.parse_args([*command, "--help"])
     usage = capsys.readouterr().out
     assert "--baudrate" in usage and "--baud " not in usage
+
+
+def test_ctrl_c_during_a_scan_prints_what_it_found_and_where_it_stopped():
+    exe = os.path.join(os.path.dirname(sys.executable), "fieldgate")
+    sim = subprocess.Popen([exe, "simulate", "dcon", "--pty", "--module", "3:I-7060", "--module", "7:I-7012:0x0A:percent", "--duration", "60"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    scan = None
+    try:
+        port = next(line.split()[2] for line in sim.stdout if line.startswith("serving on "))
+        scan = subprocess.Popen([exe, "scan", "dcon", "--port", port, "--baudrate", "9600,19200", "--timeout-ms", "50"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        progress, deadline = b"", time.monotonic() + 30
+        while b"2 module(s) found" not in progress and time.monotonic() < deadline:  # addresses 0-255: ~13 s to go
+            if select.select([scan.stderr], [], [], 0.5)[0]:
+                progress += os.read(scan.stderr.fileno(), 4096)
+        assert b"2 module(s) found" in progress
+        scan.send_signal(signal.SIGINT)
+        out, err = scan.communicate(timeout=20)
+        err = (progress + err).decode()
+        assert scan.returncode == 130 and "Traceback" not in err
+        stopped = re.search(r"interrupted at address (\d+) at 9600 bit/s \(it and the addresses after it were not probed\), "
+                            r"19200 bit/s not scanned; the modules found so far:\n$", err)
+        assert stopped and 7 < int(stopped.group(1)) < 255, err[-300:]
+        backs = YAML(typ="safe").load(out)["backs"]
+        assert [(m["address"], m["model"]) for m in backs[0]["modules"]] == [(3, "I-7060"), (7, "I-7012")]
+    finally:
+        for proc in (scan, sim):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
