@@ -9,13 +9,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
-import signal
 import sys
 from collections.abc import Callable
 
 from . import __version__
 from .plugin import Registry, load_registry
 from .runtime import Gateway, GatewayStartError
+from .stopping import stopped_by_signals, wait_until
 from .topology import TopologyError, load_topology
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
@@ -118,24 +118,19 @@ def _runner(choice: str) -> asyncio.Runner:
 
 async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
     log = logging.getLogger("fieldgate")
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
-    log.info("event loop: %s", loop_name(loop))
-    try:
-        await gateway.start()
-    except GatewayStartError as exc:
-        log.error("cannot start: %s", exc)
-        return 2
-    status = asyncio.create_task(_print_status(gateway, args.status_every)) if args.status_every else None
-    if args.duration:
-        loop.call_later(args.duration, stop.set)
-    await stop.wait()
-    log.info("stopping")
-    if status is not None:
-        status.cancel()
-    await gateway.stop()
+    with stopped_by_signals() as stop:
+        log.info("event loop: %s", loop_name(asyncio.get_running_loop()))
+        try:
+            await gateway.start()
+        except GatewayStartError as exc:
+            log.error("cannot start: %s", exc)
+            return 2
+        status = asyncio.create_task(_print_status(gateway, args.status_every)) if args.status_every else None
+        await wait_until(stop, args.duration)
+        log.info("stopping")
+        if status is not None:
+            status.cancel()
+        await gateway.stop()
     return 0
 
 

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
-import signal
 import sys
-from collections.abc import Iterator
 
 from fieldgate.plugin import PluginStartError
+from fieldgate.stopping import stopped_by_signals, wait_until
 from fieldgate.serial_link import AsyncSerial, PtyPair
 
 from .link import DconLink
@@ -150,34 +148,3 @@ async def _simulate(args: argparse.Namespace, modules: list[tuple]) -> int:
     return 0
 
 
-@contextlib.contextmanager
-def stopped_by_signals() -> Iterator[asyncio.Event]:
-    """An event that SIGINT and SIGTERM set, while the block runs (in the running loop).
-
-    Ctrl-C (or a service manager's SIGTERM) is how a simulator is normally stopped: the
-    caller cleans up and exits 0, with no traceback. Where the loop cannot take signal
-    handlers (Windows), Ctrl-C raises KeyboardInterrupt, which the command turns into 0.
-    (Both simulate commands have this helper: plugins do not import each other.)
-    """
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    handled = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        try:
-            loop.add_signal_handler(sig, stop.set)
-        except (NotImplementedError, RuntimeError):
-            continue
-        handled.append(sig)
-    try:
-        yield stop
-    finally:
-        for sig in handled:
-            loop.remove_signal_handler(sig)
-
-
-async def wait_until(stop: asyncio.Event, duration: float | None) -> None:
-    """Until ``stop`` is set or ``duration`` seconds have passed (None or 0: no limit)."""
-    try:
-        await asyncio.wait_for(stop.wait(), duration or None)
-    except TimeoutError:
-        pass

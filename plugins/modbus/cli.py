@@ -16,15 +16,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
-import signal
 import sys
 import threading
-from collections.abc import Iterator
 
 from pydantic import ValidationError
 
 from fieldgate.plugin import PluginStartError
+from fieldgate.stopping import stopped_by_signals, wait_until
 
 from .config import ModbusBackConfig
 from .simulator import FAULT_KINDS, Fault, ModbusSimulator
@@ -158,39 +156,6 @@ def _read_stdin(loop: asyncio.AbstractEventLoop, lines: asyncio.Queue[str]) -> N
                 return
 
     threading.Thread(target=read, name="simulate-modbus-stdin", daemon=True).start()
-
-
-@contextlib.contextmanager
-def stopped_by_signals() -> Iterator[asyncio.Event]:
-    """An event that SIGINT and SIGTERM set, while the block runs (in the running loop).
-
-    Ctrl-C (or a service manager's SIGTERM) is how a simulator is normally stopped: the
-    caller cleans up and exits 0, with no traceback. Where the loop cannot take signal
-    handlers (Windows), Ctrl-C raises KeyboardInterrupt, which the command turns into 0.
-    (Both simulate commands have this helper: plugins do not import each other.)
-    """
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    handled = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        try:
-            loop.add_signal_handler(sig, stop.set)
-        except (NotImplementedError, RuntimeError):
-            continue
-        handled.append(sig)
-    try:
-        yield stop
-    finally:
-        for sig in handled:
-            loop.remove_signal_handler(sig)
-
-
-async def wait_until(stop: asyncio.Event, duration: float | None) -> None:
-    """Until ``stop`` is set or ``duration`` seconds have passed (None or 0: no limit)."""
-    try:
-        await asyncio.wait_for(stop.wait(), duration or None)
-    except TimeoutError:
-        pass
 
 
 def execute(sim: ModbusSimulator, line: str) -> str:

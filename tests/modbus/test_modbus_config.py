@@ -67,15 +67,19 @@ def test_counts_up_to_the_preset_are_kept(registry):
     assert sum(1 for c in got if c.startswith("rs485/m1/")) == 8
 
 
-def test_a_counts_error_names_the_line_of_the_count(registry, tmp_path):
+def only_issue(registry, tmp_path, modules_yaml: str):
+    """The one error of a Modbus back with these modules (YAML lines after ``modules:``, from line 8)."""
     path = tmp_path / "t.yaml"
-    path.write_text(
-        "gateway: {name: t}\nfronts: [{name: plc, type: memory}]\nbacks:\n  - name: rs485\n    type: modbus\n    port: /dev/null\n"
-        "    modules:\n      - address: 3\n        model: M-7055D\n        counts:\n          do: 2\n          di: 9\n"
-    )
+    path.write_text("gateway: {name: t}\nfronts: [{name: plc, type: memory}]\nbacks:\n  - name: rs485\n    type: modbus\n"
+                    "    port: /dev/null\n    modules:\n" + modules_yaml)
     with pytest.raises(TopologyError) as info:
         load_topology(path, registry)
     (issue,) = info.value.issues
+    return path, issue
+
+
+def test_a_counts_error_names_the_line_of_the_count(registry, tmp_path):
+    path, issue = only_issue(registry, tmp_path, "      - address: 3\n        model: M-7055D\n        counts:\n          do: 2\n          di: 9\n")
     assert str(issue) == f"{path}:12:15: backs[0].modules[0].counts.di: M-7055D has 8 DI (got 9)"
 
 
@@ -125,14 +129,8 @@ def test_duplicate_module_addresses_are_refused(registry):
 
 
 def test_yaml_errors_name_the_line(registry, tmp_path):
-    path = tmp_path / "t.yaml"
-    path.write_text(
-        "gateway: {name: t}\nfronts: [{name: plc, type: memory}]\nbacks:\n  - name: rs485\n    type: modbus\n    port: /dev/null\n"
-        "    modules:\n      - address: 3\n        model: M-7055D\n      - address: 4\n        channels:\n          - {kind: ao, table: coils, address: 0}\n"
-    )
-    with pytest.raises(TopologyError) as info:
-        load_topology(path, registry)
-    (issue,) = info.value.issues
+    _, issue = only_issue(registry, tmp_path, "      - address: 3\n        model: M-7055D\n      - address: 4\n        channels:\n"
+                                              "          - {kind: ao, table: coils, address: 0}\n")
     assert issue.line == 12 and "ao channels cannot live in coils" in issue.message
 
 
