@@ -25,6 +25,12 @@ def setup_logging(level: str) -> None:
     logging.basicConfig(level=getattr(logging, level.upper()), format=LOG_FORMAT, stream=sys.stderr, force=True)
 
 
+def add_overrides_argument(parser: argparse.ArgumentParser, example: str = "fronts.can.interface=virtual") -> None:
+    """``--set PATH=VALUE`` (repeatable), read with :func:`parse_overrides`: every command that loads a topology."""
+    parser.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
+                        help=f"override a topology field before validation, e.g. {example}")
+
+
 def parse_overrides(items: list[str]) -> dict:
     """``--set fronts.can.interface=virtual`` pairs; values are parsed as YAML scalars."""
     from ruamel.yaml import YAML
@@ -190,12 +196,12 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
 
     p = sub.add_parser("validate", help="check a topology file; print every error with file:line:column")
     p.add_argument("file")
-    p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="override a field, e.g. fronts.can.interface=virtual")
+    add_overrides_argument(p)
     p.set_defaults(handler=cmd_validate)
 
     p = sub.add_parser("run", help="run a gateway until SIGINT/SIGTERM")
     p.add_argument("file")
-    p.add_argument("--set", action="append", default=[], metavar="PATH=VALUE", help="override a field, e.g. fronts.can.interface=virtual")
+    add_overrides_argument(p)
     p.add_argument("--simulate", action="store_true", help="serve every back from simulated modules on pseudo-terminals (no hardware)")
     p.add_argument("--loop", choices=LOOP_CHOICES, default="auto", help="event loop: auto (default: uvloop when installed, else asyncio), uvloop, or asyncio's standard loop")
     p.add_argument("--status-every", type=seconds, default=0, metavar="SECONDS", help="print the process image periodically (0, the default: never)")

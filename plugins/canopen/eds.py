@@ -36,10 +36,11 @@ class EdsError(Exception):
     """The topology has no such canopen front (or none at all)."""
 
 
-def front_node(topology_source: str | Path | dict, front_name: str | None = None, registry: Registry | None = None) -> tuple[Any, Any]:
+def front_node(topology_source: str | Path | dict, front_name: str | None = None, registry: Registry | None = None,
+               overrides: dict | None = None) -> tuple[Any, Any]:
     """The front object and its booted-free node, as the gateway would build them."""
     registry = registry or load_registry()
-    topology = load_topology(topology_source, registry)
+    topology = load_topology(topology_source, registry, overrides)
     fronts = [f for f in topology.fronts if f.type == "canopen" and (front_name is None or f.name == front_name)]
     if not fronts:
         others = sorted({f.type for f in topology.fronts if front_name is None or f.name == front_name} - {"canopen"})
@@ -118,10 +119,11 @@ def _replace_file_info(text: str, file_info: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def write_eds(topology_source: str | Path | dict, front_name: str | None = None, dest: str | Path | None = None, registry: Registry | None = None) -> str:
+def write_eds(topology_source: str | Path | dict, front_name: str | None = None, dest: str | Path | None = None, registry: Registry | None = None,
+              overrides: dict | None = None) -> str:
     """The EDS text, also written to ``dest`` when given (OSError when it cannot be: the
-    folder must exist, a directory is refused)."""
-    front, node = front_node(topology_source, front_name, registry)
+    folder must exist, a directory is refused); ``overrides`` as ``--set``."""
+    front, node = front_node(topology_source, front_name, registry, overrides)
     text = eds_text(front, node, Path(dest).name if dest is not None else None)
     if dest is not None:
         from fieldgate.persist import write_atomic
@@ -131,14 +133,19 @@ def write_eds(topology_source: str | Path | dict, front_name: str | None = None,
 
 # -- CLI ---------------------------------------------------------------------------------
 def configure(parser: argparse.ArgumentParser) -> None:
+    from fieldgate.cli import add_overrides_argument
+
     parser.add_argument("topology", help="topology YAML file")
+    add_overrides_argument(parser, "fronts.can.node_id=5")
     parser.add_argument("--front", help="canopen front name (default: the first canopen front)")
     parser.add_argument("-o", "--output", help="EDS file to write (default: standard output)")
 
 
 def run(args: argparse.Namespace) -> int:
+    from fieldgate.cli import parse_overrides
+
     try:
-        text = write_eds(args.topology, args.front, args.output)
+        text = write_eds(args.topology, args.front, args.output, overrides=parse_overrides(args.set))
     except TopologyError as exc:
         for issue in exc.issues:
             print(issue, file=sys.stderr)

@@ -361,12 +361,13 @@ def write_eds(topology_source: str | Path | dict, front_name: str | None = None,
 
 # -- CLI ---------------------------------------------------------------------------------------
 def configure(parser: argparse.ArgumentParser) -> None:
+    from fieldgate.cli import add_overrides_argument
+
     parser.add_argument("topology", help="topology YAML file")
     parser.add_argument("--front", help="devicenet front name (default: the first devicenet front)")
     parser.add_argument("-o", "--output", help="EDS file to write (default: standard output)")
     parser.add_argument("--vendor-name", help="VendName (default: ICP DAS for vendor 803, else fieldgate)")
-    parser.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
-                        help="override a topology field as `fieldgate run --set` does, e.g. fronts.dnet.identity.product_code=7")
+    add_overrides_argument(parser, "fronts.dnet.identity.product_code=7")
 
 
 def to_stderr(*lines: str, code: int = 1) -> int:

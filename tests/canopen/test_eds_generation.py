@@ -107,6 +107,14 @@ def test_the_eds_file_gets_the_umask_mode_and_its_own_file_name(tmp_path, capsys
     assert cli_main(["eds", str(path)]) == 0 and "\nFileName=plc.eds\n" in capsys.readouterr().out  # standard output: the front's name
 
 
+def test_set_overrides_the_topology_as_run_does(tmp_path, capsys):
+    path = write_topology(tmp_path)
+    assert cli_main(["eds", str(path), "--set", "fronts.plc.identity.product_code=77"]) == 0
+    assert "\nProductNumber=77\n" in capsys.readouterr().out
+    assert cli_main(["eds", str(path), "--set", "fronts.plc.node_id=200"]) == 1
+    assert "(from --set fronts.plc.node_id=200)" in capsys.readouterr().err
+
+
 def assert_served_as_described(eds: canopen.ObjectDictionary, node) -> None:
     in_eds = set()
     for obj in eds.values():
