@@ -43,8 +43,11 @@ def run_scan(args: argparse.Namespace) -> int:
     found: list = []
     try:
         interrupted = asyncio.run(_scan(args, addresses, bauds, found))
-    except PluginStartError as exc:
+    except PluginStartError as exc:  # the port would not open (at a later baud rate: keep what the earlier ones found)
         print(f"fieldgate scan dcon: {exc}", file=sys.stderr)
+        if found:
+            print("fieldgate scan dcon: the modules found before that:", file=sys.stderr)
+            sys.stdout.write(topology_yaml(found, args.port, args.checksum, args.name))
         return 2
     if interrupted:
         print(f"fieldgate scan dcon: interrupted {interrupted}; the modules found so far:", file=sys.stderr)

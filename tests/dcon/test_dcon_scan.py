@@ -1,5 +1,6 @@
 """Scanning a line for modules: in process against the simulator, and the two CLI commands together."""
 
+import argparse
 import os
 import pty
 import re
@@ -173,3 +174,36 @@ def test_ctrl_c_during_a_scan_prints_what_it_found_and_where_it_stopped():
             if proc is not None and proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+def test_a_port_that_fails_at_a_later_baud_rate_keeps_the_earlier_finds(monkeypatch, capsys):
+    from fieldgate.plugin import PluginStartError
+    from fieldgate.plugins.dcon import cli
+
+    opened = []
+
+    class Port:
+        async def close(self):
+            pass
+
+    async def open_port(port, baud):
+        opened.append(baud)
+        if len(opened) > 1:
+            raise PluginStartError(f"cannot open {port} at {baud} bit/s: device disconnected")
+        return Port()
+
+    async def scan_line(link, addresses, baud, progress, found):
+        found.append(f"module at {baud}")
+        return found
+
+    monkeypatch.setattr(cli.AsyncSerial, "open", open_port)
+    monkeypatch.setattr(cli, "scan_line", scan_line)
+    monkeypatch.setattr(cli, "topology_yaml", lambda found, port, checksum, name: f"{found}\n")
+    parser = argparse.ArgumentParser()
+    cli.configure_scan(parser)
+    args = parser.parse_args(["--port", "/dev/ttyUSB0", "--baudrate", "9600,115200"])
+    assert cli.run_scan(args) == 2
+    out, err = capsys.readouterr()
+    assert opened == [9600, 115200]
+    assert out == "['module at 9600']\n"
+    assert "cannot open /dev/ttyUSB0 at 115200 bit/s" in err and "the modules found before that" in err
