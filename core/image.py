@@ -86,6 +86,11 @@ class DataType(StrEnum):
         return value
 
 
+def integer_range(dtype: DataType) -> tuple[int, int]:
+    """(lowest, highest) value of an integer data type."""
+    return _INT_RANGES[dtype]
+
+
 _INT_RANGES = {
     DataType.INT16: (-0x8000, 0x7FFF),
     DataType.UINT16: (0, 0xFFFF),

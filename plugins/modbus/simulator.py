@@ -25,7 +25,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from fieldgate.image import DataType, Kind
+from fieldgate.image import DataType, Kind, integer_range
 from fieldgate.plugin import Simulator
 from fieldgate.serial_link import PortServer, cancel_task, char_time
 
@@ -137,11 +137,25 @@ class SimModule:
             return read_bits_response(self.address, fc, [cells[a] for a in span])
         if fc in (3, 4):
             return read_registers_response(self.address, fc, [cells[a] for a in span])
+        before = {a: cells[a] for a in span}
         for a, v in zip(span, req.values):
             cells[a] = bool(v) if table.is_bits else v
+        if not self._values_valid(table, span):  # e.g. a float32 pair that is NaN: refused, as a module would
+            cells.update(before)
+            return exception_response(self.address, fc, ExceptionCode.ILLEGAL_DATA_VALUE)
         if self.on_write is not None:
             self.on_write(self)
         return write_response(req)
+
+    def _values_valid(self, table: Table, span: range) -> bool:
+        """Every point the write touched still holds a value of its type."""
+        for p in self.points:
+            if p.table is table and p.address < span.stop and span.start < p.end:
+                try:
+                    self.get_point(p)
+                except ValueError:
+                    return False
+        return True
 
     def take_fault(self, req: Request) -> Fault | None:
         for fault in self.faults:
@@ -347,7 +361,8 @@ class ModbusSimulator(Simulator):
             value = self.get(src)
             _, dst_point = self._lookup(dst)
             if dst_point.dtype is not DataType.BOOL and dst_point.dtype is not DataType.FLOAT32:
-                value = max(-0x8000, min(0xFFFF if dst_point.dtype is DataType.UINT16 else 0x7FFF, int(value)))
+                low, high = integer_range(dst_point.dtype)
+                value = max(low, min(high, int(value)))
             self.set_input(dst, value)
         for cid, (module, p) in self.channels.items():
             if p.kind.is_output:

@@ -148,3 +148,21 @@ async def test_animated_inputs_move_until_the_gateway_drives_them():
             assert sim.get("rs485/m1/di0") is False  # wired to do0, which is off
         finally:
             await sim.stop()
+
+
+def test_a_write_that_is_not_a_value_of_the_point_gets_illegal_data_value_and_changes_nothing():
+    r = RtuResponder({8: SimModule(8, config([{"address": 8, "channels": [
+        {"kind": "ao", "table": "holding_registers", "address": 10, "type": "float32"}]}]).points()[8])}, gap=0.01)
+    def ask(pdu: str, now: float) -> list[bytes]:
+        return [reply.frame for reply in r.feed(codec.frame(8, bytes.fromhex(pdu)), now=now)]
+
+    assert ask("06 00 0A 7F C0", 0.0) == [codec.frame(8, bytes.fromhex("86 03"))]  # the high word of a NaN
+    assert ask("03 00 0A 00 02", 1.0) == [codec.frame(8, bytes.fromhex("03 04 00 00 00 00"))]  # nothing was written
+
+
+def test_wiring_clamps_to_the_target_type_range():
+    sim = ModbusSimulator(config([{"address": 4, "model": "M-7024", "counts": {"ao": 1}},
+                                  {"address": 10, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "type": "uint16"}]}]),
+                          "unused", animate=True)
+    assert sim.responder.feed(Request(4, 6, 0, 1, (0xFFFB,)).encode(), now=0.0)  # -5 on an int16 AO: answered
+    assert sim.get("rs485/m10/ai0") == 0  # a uint16 input cannot go below 0
