@@ -159,7 +159,14 @@ def parse_hex_word(text: str, signed: bool) -> int:
 
 
 def text_to_raw(text: str, fmt: DataFormat, tr: TypeRange) -> tuple[int, Quality]:
-    """One AI value as the module sent it -> (raw, quality)."""
+    """One AI value as the module sent it -> (raw, quality); CommError for text that is not one."""
+    try:
+        return _text_to_raw(text, fmt, tr)
+    except (ValueError, OverflowError) as exc:  # a number no module sends: 300 digits, an RTD value off every curve
+        raise CommError(ErrorKind.GARBAGE, f"not a value of {tr.describe()}: {text[:20]!r}{'...' if len(text) > 20 else ''}") from exc
+
+
+def _text_to_raw(text: str, fmt: DataFormat, tr: TypeRange) -> tuple[int, Quality]:
     if fmt is DataFormat.HEX:
         return clamp(parse_hex_word(text, tr.signed), tr)
     number = parse_number(text)

@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from fieldgate.polling import CommError
+
 from . import codec
 from .formats import DataFormat, ao_text_to_raw, engineering_to_raw, raw_to_engineering, raw_to_text
 from .profiles import AIDIO, AO_SINGLE, DIO, Profile
@@ -82,7 +84,7 @@ class SimModule:
         try:
             handler = {"$": self._dollar, "#": self._hash, "@": self._at, "~": self._tilde, "%": self._percent}[lead]
             return handler(body, now)
-        except (ValueError, IndexError):
+        except (ValueError, IndexError, OverflowError, CommError):
             return None  # malformed data: a real module stays silent
 
     def _ok(self, data: str = "") -> str:

@@ -168,3 +168,15 @@ def test_every_table_row_is_consistent():
             assert rng.fmin < rng.fmax and rng.hmin < rng.hmax
             assert engineering_to_raw(rng.fmax, rng)[0] == rng.hmax
             assert engineering_to_raw(rng.fmin, rng)[0] == rng.hmin
+
+
+@pytest.mark.parametrize("text, fmt, rng", [
+    ("-" + "9" * 155, DataFormat.OHMS, RTD.get(0x20)),  # an RTD resistance off every curve (was NaN -> ValueError)
+    ("-1" + "0" * 202, DataFormat.OHMS, RTD.get(0x20)),  # was OverflowError
+    ("+1" + "0" * 310, DataFormat.ENGINEERING, A.get(0x08)),  # inf
+    ("+1" + "0" * 310, DataFormat.PERCENT, A.get(0x08)),
+])
+def test_a_number_no_module_sends_is_garbage_not_a_crash(text, fmt, rng):
+    with pytest.raises(CommError) as err:
+        text_to_raw(text, fmt, rng)
+    assert err.value.kind is ErrorKind.GARBAGE

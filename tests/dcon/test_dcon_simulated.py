@@ -200,3 +200,12 @@ def test_animation_changes_inputs_visibly():
     rng = b.modules[2].range
     assert all(rng.hmin < v < rng.hmax for v in first[1] + second[1])  # stays inside the range
     assert b.modules[3].do_bits == 0  # outputs are never animated
+
+
+@pytest.mark.parametrize("model, command", [("I-7021", "#035P"), ("I-7024", "#060+1x")])
+def test_a_malformed_analog_output_value_is_silence_not_a_crash(model, command):
+    address = int(command[1:3], 16)
+    fmt = DataFormat.HEX if model == "I-7021" else DataFormat.ENGINEERING
+    b = bus((address, model, {"data_format": fmt}))
+    assert ask(b, command) is None
+    assert ask(b, f"${address:02X}M") == f"!{address:02X}{model[2:]}"  # still answering
