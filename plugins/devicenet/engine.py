@@ -496,6 +496,9 @@ class DeviceNetSlave:
         c = self.connections[instance]
         was_running = c.is_io and c.state is State.ESTABLISHED
         c.close()
+        if instance == EXPLICIT and self.outgoing is not None:  # a fragmented answer dies with its connection
+            self.counters["tx_fragments_dropped"] += 1
+            self.outgoing = None
         bits = dict(CONNECTION_BITS)[instance]
         self.allocation_choice &= ~bits
         if instance == COS_CYCLIC:

@@ -196,3 +196,12 @@ def test_application_object_serves_each_module():
     assert rig.explicit("0E 64 01 15") == "0A 94 14 FF"  # module 1 has no AO
     assert rig.explicit("0E 64 01 08") == "0A 94 14 FF"  # DCON watchdog attributes: not served
     assert rig.explicit("0E 64 04 02") == "0A 94 16 FF"
+
+
+def test_a_fragmented_answer_is_not_resent_after_its_connection_is_released():
+    rig = Rig()
+    assert rig.send("44E 0A 4B 03 01 01 0A") == ["44B 0A CB 00"]  # allocate explicit
+    assert rig.send("44C 0A 0E 01 01 07") == ["44B 8A 00 8E 0D 49 43 50 44"]  # product name: first fragment
+    assert rig.send("44E 0A 4C 03 01 01") == ["44B 0A CC"]  # released before the fragment was acknowledged
+    assert rig.advance(1.0) == [] and rig.advance(2.0) == []  # nothing on a connection that is gone
+    assert rig.slave.counters["tx_fragments_dropped"] == 1
