@@ -134,6 +134,7 @@ class PdoCounters:
     rpdo_write_refused: int = 0
     tpdo_sent: int = 0
     rtr_answered: int = 0
+    frames_ignored: int = 0  # a remote request for an RPDO, or data on a TPDO's COB-ID (another node's?)
 
 
 class PdoEngine:
@@ -228,10 +229,14 @@ class PdoEngine:
                         data_out = pdo.sample if pdo.trans_type == 252 and pdo.sample is not None else self._build(pdo)
                         self._outbox.append((pdo.can_id, data_out))
                         self.counters.rtr_answered += 1
+                    else:
+                        self.counters.frames_ignored += 1
                 else:
                     pdo = self._rx.get(can_id)
                     if pdo is not None:
                         self._receive(pdo, bytes(data))
+                    else:
+                        self.counters.frames_ignored += 1
         return self.take_frames()
 
     def on_sync(self, now: float, counter: int | None = None) -> list[Frame]:

@@ -145,3 +145,12 @@ def test_float_analog_input_is_rounded_clamped_and_never_breaks_a_tpdo():
     assert b.rx(0x281, rtr=True) == ["281 [4] 0D 00 FF 7F"]
     image.update_input("bus/m1/ai0", float("nan"))
     assert b.rx(0x281, rtr=True) == ["281 [4] 00 00 FF 7F"]
+
+
+def test_pdo_frames_that_cannot_be_served_are_counted():
+    b = demo_7232d()
+    b.start()
+    engine = b.io.engine
+    assert b.rx(0x181, "01 02") == []  # data on our own TPDO1's COB-ID: another node's frame
+    assert b.rx(0x201, rtr=True) == []  # a remote request for an RPDO
+    assert engine.counters.frames_ignored == 2 and b.io.status()["frames_ignored"] == 2
