@@ -2,7 +2,6 @@
 
 import argparse
 import os
-import pty
 import re
 import select
 import signal
@@ -110,24 +109,9 @@ def test_cli_errors_are_one_line():
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_simulate_stops_with_exit_0_on_ctrl_c_and_sigterm(sig):
-    exe = os.path.join(os.path.dirname(sys.executable), "fieldgate")
-    master, terminal = pty.openpty()
-    sim = subprocess.Popen([exe, "simulate", "dcon", "--pty", "--module", "3:I-7060"], stdin=terminal,
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert any(line.startswith("serving on ") for line in iter(sim.stdout.readline, ""))
-        sim.send_signal(sig)
-        assert sim.wait(timeout=20) == 0
-        assert "Traceback" not in sim.stderr.read()
-    finally:
-        if sim.poll() is None:
-            sim.kill()
-            sim.wait()
-        sim.stdout.close()
-        sim.stderr.close()
-        os.close(master)
-        os.close(terminal)
+def test_simulate_stops_with_exit_0_on_ctrl_c_and_sigterm(stopped_by_signal, sig):
+    code, stderr = stopped_by_signal(["simulate", "dcon", "--pty", "--module", "3:I-7060"], "serving on ", sig)
+    assert code == 0 and "Traceback" not in stderr
 
 
 @pytest.mark.parametrize("command, value", [(["scan", "dcon", "--port", "/dev/ttyS0"], "19200,115200"), (["simulate", "dcon", "--pty"], "19200")])

@@ -3,10 +3,8 @@
 import argparse
 import asyncio
 import os
-import pty
 import re
 import signal
-import subprocess
 import sys
 
 import pytest
@@ -130,26 +128,11 @@ async def test_fieldgate_simulate_modbus_serves_a_pty(tmp_path):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_fieldgate_simulate_modbus_stops_with_exit_0_on_ctrl_c_and_sigterm(sig):
+def test_fieldgate_simulate_modbus_stops_with_exit_0_on_ctrl_c_and_sigterm(stopped_by_signal, sig):
     """Ctrl-C is how a simulator is stopped: exit 0, no traceback, even while stdin is a
     terminal with a read pending (it used to hang there, or exit 130)."""
-    master, terminal = pty.openpty()
-    proc = subprocess.Popen([sys.executable, "-m", "fieldgate", "simulate", "modbus", "--pty", "--module", "1:M-7055D"],
-                            stdin=terminal, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    try:
-        assert proc.stdout.readline().startswith("simulating modules 1 (M-7055D)")
-        proc.send_signal(sig)
-        assert proc.wait(timeout=20) == 0
-        assert "Traceback" not in proc.stderr.read()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
-        os.close(master)
-        os.close(terminal)
+    code, stderr = stopped_by_signal(["simulate", "modbus", "--pty", "--module", "1:M-7055D"], "simulating modules 1 (M-7055D)", sig)
+    assert code == 0 and "Traceback" not in stderr
 
 
 def test_simulate_modbus_takes_baud_as_an_alias_of_baudrate(capsys):

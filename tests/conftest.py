@@ -1,0 +1,36 @@
+"""Fixtures shared by the test directories."""
+
+from __future__ import annotations
+
+import os
+import pty
+import subprocess
+import sys
+
+import pytest
+
+
+@pytest.fixture
+def stopped_by_signal():
+    """``stop(args, ready, sig)``: run ``python -m fieldgate *args`` with a terminal as its stdin
+    (a simulator reads commands there), wait for an output line starting with ``ready``, send
+    ``sig``; returns (exit code, standard error). The process never outlives the test."""
+
+    def stop(args: list[str], ready: str, sig: int) -> tuple[int, str]:
+        master, terminal = pty.openpty()
+        proc = subprocess.Popen([sys.executable, "-m", "fieldgate", *args], stdin=terminal, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        try:
+            assert any(line.startswith(ready) for line in iter(proc.stdout.readline, "")), f"no line starting {ready!r}"
+            proc.send_signal(sig)
+            return proc.wait(timeout=20), proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            proc.stdout.close()
+            proc.stderr.close()
+            os.close(master)
+            os.close(terminal)
+
+    return stop
