@@ -149,5 +149,3 @@ async def _simulate(args: argparse.Namespace, modules: list[tuple]) -> int:
             if pair:
                 pair.close()
     return 0
-
-

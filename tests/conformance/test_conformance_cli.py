@@ -3,11 +3,20 @@
 import subprocess
 import sys
 
+import pytest
 from conformance_slave import eds_text
 
 from fieldgate import load_registry
 from fieldgate.conformance import PROFILES, select
 from fieldgate.conformance.cli import main
+
+
+@pytest.fixture
+def device_eds(tmp_path):
+    """An EDS of the test slave, for runs that must get past reading it."""
+    eds = tmp_path / "dev.eds"
+    eds.write_text(eds_text())
+    return eds
 
 
 def test_command_is_registered_through_the_registry():
@@ -40,27 +49,21 @@ def test_bad_arguments_exit_2(tmp_path, capsys):
     assert "cannot start" in capsys.readouterr().err
 
 
-def test_a_silent_device_stops_the_run_with_exit_2(tmp_path, capsys):
-    eds = tmp_path / "dev.eds"
-    eds.write_text(eds_text())
-    assert main(["--node-id", "5", "--eds", str(eds), "--interface", "virtual", "--channel", "cli-nobody", "--timeout", "0.05"]) == 2
+def test_a_silent_device_stops_the_run_with_exit_2(device_eds, capsys):
+    assert main(["--node-id", "5", "--eds", str(device_eds), "--interface", "virtual", "--channel", "cli-nobody", "--timeout", "0.05"]) == 2
     assert "does not answer an SDO read of 0x1000 on 0x605" in capsys.readouterr().err
 
 
-def test_an_unknown_interface_is_one_line_naming_it_and_exit_2(tmp_path, capsys):
-    eds = tmp_path / "dev.eds"
-    eds.write_text(eds_text())
-    assert main(["--node-id", "5", "--eds", str(eds), "--interface", "pcann"]) == 2
+def test_an_unknown_interface_is_one_line_naming_it_and_exit_2(device_eds, capsys):
+    assert main(["--node-id", "5", "--eds", str(device_eds), "--interface", "pcann"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("conformance: cannot start: unknown CAN interface 'pcann' (python-can knows: ") and err.count("\n") == 1
     assert main(["--protocol", "devicenet", "--mac-id", "5", "--interface", "pcann"]) == 2
     assert "unknown CAN interface 'pcann'" in capsys.readouterr().err
 
 
-def test_a_silent_device_on_the_virtual_bus_hints_that_it_is_one_process_only(tmp_path, capsys):
-    eds = tmp_path / "dev.eds"
-    eds.write_text(eds_text())
-    assert main(["--node-id", "5", "--eds", str(eds), "--interface", "virtual", "--channel", "cli-alone", "--timeout", "0.05"]) == 2
+def test_a_silent_device_on_the_virtual_bus_hints_that_it_is_one_process_only(device_eds, capsys):
+    assert main(["--node-id", "5", "--eds", str(device_eds), "--interface", "virtual", "--channel", "cli-alone", "--timeout", "0.05"]) == 2
     assert "python-can's virtual bus exists only inside one process" in capsys.readouterr().err
     assert main(["--protocol", "devicenet", "--mac-id", "5", "--interface", "virtual", "--channel", "cli-alone", "--timeout", "0.05"]) == 2
     err = capsys.readouterr().err
