@@ -47,8 +47,23 @@ EXTRA_COB = 0x1C0  # COB-IDs for TPDO5..32 (0x1C4..0x1DF, free for node 1)
 def topology(channel: str, state_dir: str) -> dict:
     return {
         "gateway": {"name": "bench", "state_dir": state_dir},
-        "fronts": [{"name": "can", "type": "canopen", "interface": "virtual", "channel": channel, "node_id": 1}],
-        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 1, "digital": 64}] + [{"address": a, "analog": 31} for a in (2, 3, 4, 5)]}],
+        "fronts": [
+            {
+                "name": "can",
+                "type": "canopen",
+                "interface": "virtual",
+                "channel": channel,
+                "node_id": 1,
+            }
+        ],
+        "backs": [
+            {
+                "name": "io",
+                "type": "loopback",
+                "modules": [{"address": 1, "digital": 64}]
+                + [{"address": a, "analog": 31} for a in (2, 3, 4, 5)],
+            }
+        ],
     }
 
 
@@ -114,6 +129,7 @@ class GatewayThread:
             if asyncio.iscoroutine(result):
                 result = await result
             return result
+
         return asyncio.run_coroutine_threadsafe(wrapper(), self.loop).result(30)
 
     def close(self) -> None:
@@ -123,7 +139,14 @@ class GatewayThread:
 
 def sdo(master: can.BusABC, index: int, sub: int, value: int, size: int) -> None:
     cs = {1: 0x2F, 2: 0x2B, 4: 0x23}[size]
-    master.send(can.Message(arbitration_id=0x601, data=bytes([cs, index & 0xFF, index >> 8, sub]) + value.to_bytes(size, "little").ljust(4, b"\0"), is_extended_id=False))
+    master.send(
+        can.Message(
+            arbitration_id=0x601,
+            data=bytes([cs, index & 0xFF, index >> 8, sub])
+            + value.to_bytes(size, "little").ljust(4, b"\0"),
+            is_extended_id=False,
+        )
+    )
     while True:
         msg = master.recv(timeout=2)
         if msg is None:
@@ -152,6 +175,7 @@ def fieldgate_run(state_dir: str) -> tuple[list[float], float]:
             def update():
                 for i, cid in enumerate(ais):
                     image.update_input(cid, (k * 7 + i) & 0x7FFF)
+
             dut.call(update)
 
         latencies = measure_sync(master, set(tpdo_ids()), change)
@@ -164,6 +188,7 @@ def fieldgate_run(state_dir: str) -> tuple[list[float], float]:
             for k in range(EVENTS):
                 image.update_input("io/m1/di0", not k & 1)
                 await asyncio.sleep(0)
+
         t0 = time.perf_counter()
         dut.call(events)
         got = count_frames(master, 0x181, EVENTS)
@@ -235,10 +260,16 @@ def main() -> int:
         fg_lat, fg_rate = fieldgate_run(tmp)
         co_lat, co_rate = localnode_run(eds_path)
     ms = 1000.0
-    print(f"SYNC -> last of {TPDOS} TPDOs (type 1, 188 live values), {SYNCS} SYNCs on the virtual bus:")
+    print(
+        f"SYNC -> last of {TPDOS} TPDOs (type 1, 188 live values), {SYNCS} SYNCs on the virtual bus:"
+    )
     for name, lat in (("fieldgate PDO engine", fg_lat), ("canopen LocalNode by hand", co_lat)):
-        print(f"  {name:28s} p50 {statistics.median(lat) * ms:7.3f} ms   p99 {percentile(lat, 0.99) * ms:7.3f} ms")
-    print(f"  ratio fieldgate/LocalNode     p50 {statistics.median(fg_lat) / statistics.median(co_lat):5.2f}    p99 {percentile(fg_lat, 0.99) / percentile(co_lat, 0.99):5.2f}")
+        print(
+            f"  {name:28s} p50 {statistics.median(lat) * ms:7.3f} ms   p99 {percentile(lat, 0.99) * ms:7.3f} ms"
+        )
+    print(
+        f"  ratio fieldgate/LocalNode     p50 {statistics.median(fg_lat) / statistics.median(co_lat):5.2f}    p99 {percentile(fg_lat, 0.99) / percentile(co_lat, 0.99):5.2f}"
+    )
     print(f"Event-driven TPDO1 throughput ({EVENTS} DI changes):")
     print(f"  fieldgate (image event -> engine -> bus)  {fg_rate:9.0f} TPDO/s")
     print(f"  canopen LocalNode (raw = v; transmit())   {co_rate:9.0f} TPDO/s")

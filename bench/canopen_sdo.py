@@ -73,12 +73,31 @@ class OurServer:
 
     label = "fieldgate front"
 
-    def __init__(self, channel: str, state_dir: Path, loop_factory: Callable[[], asyncio.AbstractEventLoop] = asyncio.new_event_loop):
+    def __init__(
+        self,
+        channel: str,
+        state_dir: Path,
+        loop_factory: Callable[[], asyncio.AbstractEventLoop] = asyncio.new_event_loop,
+    ):
         self.topology = {
             "gateway": {"name": "bench", "state_dir": str(state_dir)},
-            "fronts": [{"name": "plc", "type": "canopen", "interface": "virtual", "channel": channel,
-                        "node_id": NODE_ID, "identity": {"device_type": DEVICE_TYPE}}],
-            "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 1, "digital": 8, "analog": 2}]}],
+            "fronts": [
+                {
+                    "name": "plc",
+                    "type": "canopen",
+                    "interface": "virtual",
+                    "channel": channel,
+                    "node_id": NODE_ID,
+                    "identity": {"device_type": DEVICE_TYPE},
+                }
+            ],
+            "backs": [
+                {
+                    "name": "io",
+                    "type": "loopback",
+                    "modules": [{"address": 1, "digital": 8, "analog": 2}],
+                }
+            ],
         }
         self.loop = loop_factory()
         self.gateway: Gateway | None = None
@@ -162,7 +181,9 @@ class RawClient:
 
     def __init__(self, channel: str):
         self.bus = can.Bus(interface="virtual", channel=channel)
-        self.request = can.Message(arbitration_id=0x600 + NODE_ID, data=REQUEST, is_extended_id=False)
+        self.request = can.Message(
+            arbitration_id=0x600 + NODE_ID, data=REQUEST, is_extended_id=False
+        )
 
     def upload(self) -> None:
         self.bus.send(self.request)
@@ -205,7 +226,9 @@ class WakeupOnly:
         self.answer = can.Message(arbitration_id=0x580 + NODE_ID, data=ANSWER, is_extended_id=False)
         self.stopping = threading.Event()
         self.loop = on_loop() if on_loop is not None else None
-        self.thread = threading.Thread(target=self._serve_thread if self.loop is None else self.loop.run_forever, daemon=True)
+        self.thread = threading.Thread(
+            target=self._serve_thread if self.loop is None else self.loop.run_forever, daemon=True
+        )
         self.thread.start()
         if self.loop is not None:
             from fieldgate.can.busrx import start_receiver
@@ -213,7 +236,9 @@ class WakeupOnly:
             ready = threading.Event()
 
             def attach() -> None:
-                self.receiver = start_receiver(self.bus, self.loop, self._answer, quick=lambda msg: False)
+                self.receiver = start_receiver(
+                    self.bus, self.loop, self._answer, quick=lambda msg: False
+                )
                 ready.set()
 
             self.loop.call_soon_threadsafe(attach)
@@ -269,7 +294,7 @@ def alternating(clients: dict, n: int) -> dict[str, list[float]]:
     times: dict[str, list[float]] = {side: [] for side in clients}
     sides = list(clients)
     for i in range(n):
-        for side in (sides if i % 2 == 0 else sides[::-1]):
+        for side in sides if i % 2 == 0 else sides[::-1]:
             started = time.perf_counter()
             clients[side].upload()
             times[side].append(time.perf_counter() - started)
@@ -294,21 +319,36 @@ def uvloop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:
 
 
 def run(requests: int, rounds: int, loop: str) -> int:
-    ours_channel, peer_channel = (f"bench-{name}-{uuid.uuid4().hex[:8]}" for name in ("ours", "peer"))
+    ours_channel, peer_channel = (
+        f"bench-{name}-{uuid.uuid4().hex[:8]}" for name in ("ours", "peer")
+    )
     factory = loop_factory(loop)  # what `fieldgate run --loop <loop>` runs on
     wake_loops = {"thread on the bus": None, "thread, then asyncio's loop": asyncio.new_event_loop}
     if uvloop_factory() is not None:
         wake_loops["thread, then uvloop"] = uvloop_factory()
     wakeups = wakeup_round_trips(requests, rounds, wake_loops)
     with tempfile.TemporaryDirectory() as state:
-        servers = {"ours": OurServer(ours_channel, Path(state), factory), "peer": LocalNodeServer(peer_channel)}
-        servers["ours"].label = f"fieldgate ({'uvloop' if factory is uvloop_factory() else 'asyncio'})"
+        servers = {
+            "ours": OurServer(ours_channel, Path(state), factory),
+            "peer": LocalNodeServer(peer_channel),
+        }
+        servers[
+            "ours"
+        ].label = f"fieldgate ({'uvloop' if factory is uvloop_factory() else 'asyncio'})"
         for server in servers.values():
             server.start()
         try:
-            work = {"ours on the loop": min(servers["ours"].loop_work_per_request(requests) for _ in range(3)) * 1e6}
-            work |= {side: min(server.work_per_request(requests) for _ in range(3)) * 1e6  # routed by now
-                     for side, server in servers.items()}
+            work = {
+                "ours on the loop": min(
+                    servers["ours"].loop_work_per_request(requests) for _ in range(3)
+                )
+                * 1e6
+            }
+            work |= {
+                side: min(server.work_per_request(requests) for _ in range(3))
+                * 1e6  # routed by now
+                for side, server in servers.items()
+            }
             results = {}
             for client_type in (RawClient, CanopenClient):
                 quick_before, rx_before = servers["ours"].answered_on_the_receive_thread()
@@ -322,14 +362,19 @@ def run(requests: int, rounds: int, loop: str) -> int:
                         sample = alternating(clients, requests // rounds)
                         for side in ("ours", "peer"):
                             times[side] += sample[side]
-                        round_ratios.append(statistics.median(sample["peer"]) / statistics.median(sample["ours"]))
+                        round_ratios.append(
+                            statistics.median(sample["peer"]) / statistics.median(sample["ours"])
+                        )
                 finally:
                     for client in clients.values():
                         client.close()
                 results[client_type.label] = {side: summary(t) for side, t in times.items()}
                 results[client_type.label]["rounds"] = sorted(round_ratios)
                 quick_after, rx_after = servers["ours"].answered_on_the_receive_thread()
-                results[client_type.label]["quick"] = (quick_after - quick_before, rx_after - rx_before)
+                results[client_type.label]["quick"] = (
+                    quick_after - quick_before,
+                    rx_after - rx_before,
+                )
         finally:
             for server in servers.values():
                 server.stop()
@@ -339,9 +384,13 @@ def run(requests: int, rounds: int, loop: str) -> int:
 def report(work: dict, wakeups: dict, results: dict, servers: dict) -> int:
     print("Server-side work per expedited upload (no threads, no other receivers; best of 3)")
     print(f"  {servers['ours'].label + ', receive thread':<36} {work['ours']:6.1f} us")
-    print(f"  {servers['ours'].label + ', event loop':<36} {work['ours on the loop']:6.1f} us  (a frame the receive thread declines)")
+    print(
+        f"  {servers['ours'].label + ', event loop':<36} {work['ours on the loop']:6.1f} us  (a frame the receive thread declines)"
+    )
     print(f"  {servers['peer'].label:<36} {work['peer']:6.1f} us")
-    print(f"  ratio LocalNode / ours (receive thread) = {work['peer'] / work['ours']:.2f}  (>= 1: ours does it in less time)")
+    print(
+        f"  ratio LocalNode / ours (receive thread) = {work['peer'] / work['ours']:.2f}  (>= 1: ours does it in less time)"
+    )
     print()
     print("Wake-up alone: raw-frame round trip to a server that answers at once")
     for label, r in wakeups.items():
@@ -353,15 +402,23 @@ def report(work: dict, wakeups: dict, results: dict, servers: dict) -> int:
     for client, by_side in results.items():
         for side in ("ours", "peer"):
             r = by_side[side]
-            print(f"{client:<20} {servers[side].label:<20} {r['p50']:8.1f} {r['p99']:8.1f} {r['rps']:8.0f}")
+            print(
+                f"{client:<20} {servers[side].label:<20} {r['p50']:8.1f} {r['p99']:8.1f} {r['rps']:8.0f}"
+            )
         ours, peer = by_side["ours"], by_side["peer"]
         rtt_ratio, rps_ratio = peer["p50"] / ours["p50"], ours["rps"] / peer["rps"]
-        print(f"{client:<20} ratio: LocalNode p50 / ours p50 = {rtt_ratio:.2f}, "
-              f"ours req/s / LocalNode req/s = {rps_ratio:.2f}  (>= 1: ours at least as fast)")
+        print(
+            f"{client:<20} ratio: LocalNode p50 / ours p50 = {rtt_ratio:.2f}, "
+            f"ours req/s / LocalNode req/s = {rps_ratio:.2f}  (>= 1: ours at least as fast)"
+        )
         spread = by_side["rounds"]
-        print(f"{'':<20} p50 ratio per round: min {spread[0]:.2f}, median {statistics.median(spread):.2f}, max {spread[-1]:.2f} ({len(spread)} rounds)")
+        print(
+            f"{'':<20} p50 ratio per round: min {spread[0]:.2f}, median {statistics.median(spread):.2f}, max {spread[-1]:.2f} ({len(spread)} rounds)"
+        )
         quick, received = by_side["quick"]
-        print(f"{'':<20} ours answered {quick} of {received} requests on the receive thread, the rest on the event loop")
+        print(
+            f"{'':<20} ours answered {quick} of {received} requests on the receive thread, the rest on the event loop"
+        )
         verdicts[client] = verdict(rtt_ratio, rps_ratio, spread)
         print(f"{'':<20} {verdicts[client]}")
     server_faster = work["peer"] >= work["ours"]
@@ -392,9 +449,21 @@ def verdict(rtt_ratio: float, rps_ratio: float, rounds: list[float]) -> str:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--requests", type=int, default=4000, help="requests per server and client (default 4000)")
-    parser.add_argument("--rounds", type=int, default=8, help="blocks of requests, for the spread of the ratio (default 8)")
-    parser.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto", help="event loop of our front, as `fieldgate run --loop` (default auto: uvloop when installed)")
+    parser.add_argument(
+        "--requests", type=int, default=4000, help="requests per server and client (default 4000)"
+    )
+    parser.add_argument(
+        "--rounds",
+        type=int,
+        default=8,
+        help="blocks of requests, for the spread of the ratio (default 8)",
+    )
+    parser.add_argument(
+        "--loop",
+        choices=("auto", "uvloop", "asyncio"),
+        default="auto",
+        help="event loop of our front, as `fieldgate run --loop` (default auto: uvloop when installed)",
+    )
     args = parser.parse_args()
     return run(args.requests, args.rounds, args.loop)
 

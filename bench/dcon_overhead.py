@@ -76,7 +76,11 @@ async def measure(port: str, n: int) -> tuple[dict[str, float], dict[str, float]
     ours, bare = {}, {}
     try:
         for name, text, _ in TRANSACTIONS:
-            check = codec.write_ack if text[0] in "#@" and len(text) > 3 and not text.endswith("DI") else (lambda reply: reply)
+            check = (
+                codec.write_ack
+                if text[0] in "#@" and len(text) > 3 and not text.endswith("DI")
+                else (lambda reply: reply)
+            )
             ours[name] = await per_transaction(lambda: _checked(link, text, check), n)
             raw = codec.frame(text, False)
             bare[name] = await per_transaction(lambda: _bare(serial, raw), n)
@@ -146,14 +150,24 @@ class Turnaround:
 
 def line_config(port: str, baud: int) -> DconBackConfig:
     modules = [{"address": a, "model": m} for a, m in LINE]
-    return DconBackConfig(name="rs485", type="dcon", port=port, baudrate=baud, timeout_ms=500, poll_ms=0, modules=modules)
+    return DconBackConfig(
+        name="rs485",
+        type="dcon",
+        port=port,
+        baudrate=baud,
+        timeout_ms=500,
+        poll_ms=0,
+        modules=modules,
+    )
 
 
 async def start_child_simulator(port_args: list[str]):
     args = [sys.executable, "-m", "fieldgate", "simulate", "dcon", *port_args, "--duration", "120"]
     for address, model in LINE:
         args += ["--module", f"{address}:{model}"]
-    proc = await asyncio.create_subprocess_exec(*args, stdout=asyncio.subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = await asyncio.create_subprocess_exec(
+        *args, stdout=asyncio.subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"}
+    )
     while True:
         line = (await asyncio.wait_for(proc.stdout.readline(), 20)).decode()
         if not line:
@@ -169,7 +183,9 @@ async def cycle_time(baud: int | None, cycles: int) -> tuple[float, float, list[
     with PtyPair(baudrate=baud) as pair, Turnaround() as turnaround:
         proc, _ = await start_child_simulator(["--port", pair.b])
         cfg = line_config(pair.a, baud or 115200)
-        topology = Topology(GatewaySection(name="bench"), [], [cfg], channel_specs=cfg.channel_specs())
+        topology = Topology(
+            GatewaySection(name="bench"), [], [cfg], channel_specs=cfg.channel_specs()
+        )
         back = DconBack(cfg, GatewayContext.build(topology))
         await back.start()
         task = asyncio.create_task(back.run())
@@ -184,7 +200,11 @@ async def cycle_time(baud: int | None, cycles: int) -> tuple[float, float, list[
             elapsed = time.perf_counter() - started
             assert not any(stats.errors.values()), f"errors during the bench: {dict(stats.errors)}"
             done = stats.cycles - first
-            return elapsed / done, (back.dcon.transactions - transactions) / done, list(turnaround.samples)
+            return (
+                elapsed / done,
+                (back.dcon.transactions - transactions) / done,
+                list(turnaround.samples),
+            )
         finally:
             task.cancel()
             await asyncio.gather(task, return_exceptions=True)
@@ -202,22 +222,34 @@ async def main() -> None:
     print(f"DCON back: software overhead per transaction (unpaced pty, {n} transactions each)\n")
     own, _ = await in_process(n)
     child, bare = await child_process(n)
-    print(f"{'transaction':<20} {'in-process':>11} {'sim in child':>12} {'bare peer':>11} {'wire 9600':>11} {'wire 115200':>11} {'ratio@9600':>10} {'ratio@115200':>12}")
+    print(
+        f"{'transaction':<20} {'in-process':>11} {'sim in child':>12} {'bare peer':>11} {'wire 9600':>11} {'wire 115200':>11} {'ratio@9600':>10} {'ratio@115200':>12}"
+    )
     worst = 0.0
     for name, text, reply in TRANSACTIONS:
         wires = [wire_time(text, reply, b) for b in BAUDS]
         ratio = child[name] / wires[1]
         worst = max(worst, ratio)
-        print(f"{name:<20} {ms(own[name])} {ms(child[name]):>12} {ms(bare[name])} {ms(wires[0])} {ms(wires[1])} {child[name] / wires[0]:9.2%} {ratio:11.1%}")
-    print(f"\nworst overhead / wire time at 115200 baud: {worst:.1%} (target < 10%) -> {'OK' if worst < 0.10 else 'MISSED'}")
+        print(
+            f"{name:<20} {ms(own[name])} {ms(child[name]):>12} {ms(bare[name])} {ms(wires[0])} {ms(wires[1])} {child[name] / wires[0]:9.2%} {ratio:11.1%}"
+        )
+    print(
+        f"\nworst overhead / wire time at 115200 baud: {worst:.1%} (target < 10%) -> {'OK' if worst < 0.10 else 'MISSED'}"
+    )
     mean_ours = sum(child.values()) / len(child)
     mean_bare = sum(bare.values()) / len(bare)
-    print(f"codec and reply checks cost {ms(mean_ours - mean_bare)} a transaction over the bare peer ({mean_ours / mean_bare:.2f}x)\n")
+    print(
+        f"codec and reply checks cost {ms(mean_ours - mean_bare)} a transaction over the bare peer ({mean_ours / mean_bare:.2f}x)\n"
+    )
 
-    print("Poll cycle of the i7231d-style line (I-7043, I-7053, I-7021, I-7012, I-7017), DconBack + LineScheduler,")
+    print(
+        "Poll cycle of the i7231d-style line (I-7043, I-7053, I-7021, I-7012, I-7017), DconBack + LineScheduler,"
+    )
     print("simulator in a child process:")
     unpaced, per_cycle, _ = await cycle_time(None, 300)
-    print(f"  unpaced pty (software only): {ms(unpaced)} a cycle of {per_cycle:.0f} transactions = {ms(unpaced / per_cycle)} each")
+    print(
+        f"  unpaced pty (software only): {ms(unpaced)} a cycle of {per_cycle:.0f} transactions = {ms(unpaced / per_cycle)} each"
+    )
     verdict = None
     for baud, cycles in ((115200, 100), (9600, 10)):
         paced, per_cycle, turns = await cycle_time(baud, cycles)
@@ -225,15 +257,25 @@ async def main() -> None:
         per_transaction_wire = wire / per_cycle
         extra = (paced - wire) / per_cycle
         turn = statistics.median(turns)
-        print(f"  pty paced at {baud:>6} baud: cycle {ms(paced)}, wire time {ms(wire)} ({per_cycle:.0f} transactions)")
-        print(f"      everything beyond the wire (bench included): {ms(extra)} a transaction = {extra / per_transaction_wire:.1%} of its mean wire time")
-        print(f"      master turnaround (reply CR in -> next command out), median of {len(turns)}: {ms(turn)}"
-              f" = {turn / per_transaction_wire:.1%} of the mean wire time (95th percentile {ms(sorted(turns)[int(len(turns) * 0.95)])})")
+        print(
+            f"  pty paced at {baud:>6} baud: cycle {ms(paced)}, wire time {ms(wire)} ({per_cycle:.0f} transactions)"
+        )
+        print(
+            f"      everything beyond the wire (bench included): {ms(extra)} a transaction = {extra / per_transaction_wire:.1%} of its mean wire time"
+        )
+        print(
+            f"      master turnaround (reply CR in -> next command out), median of {len(turns)}: {ms(turn)}"
+            f" = {turn / per_transaction_wire:.1%} of the mean wire time (95th percentile {ms(sorted(turns)[int(len(turns) * 0.95)])})"
+        )
         if baud == 115200:
             verdict = turn / per_transaction_wire
     floor = sum(bare.values()) / len(bare)
-    print(f"  (the bare peer above, {ms(floor)} a transaction, is the floor of the pty relay and the simulator themselves)")
-    print(f"\npoll-cycle overhead of the DCON back at 115200 baud: {verdict:.1%} of the wire time per transaction (target < 10%) -> {'OK' if verdict < 0.10 else 'MISSED'}")
+    print(
+        f"  (the bare peer above, {ms(floor)} a transaction, is the floor of the pty relay and the simulator themselves)"
+    )
+    print(
+        f"\npoll-cycle overhead of the DCON back at 115200 baud: {verdict:.1%} of the wire time per transaction (target < 10%) -> {'OK' if verdict < 0.10 else 'MISSED'}"
+    )
 
 
 def _cycle_wire(baud: int) -> float:

@@ -61,7 +61,16 @@ def wire_time(request: int, reply: int, baud: int) -> float:
 
 
 def config(port: str = "unused", baud: int = 115200, **extra) -> ModbusBackConfig:
-    return ModbusBackConfig(name="rs485", type="modbus", port=port, baudrate=baud, timeout_ms=500, poll_ms=0, modules=I7232D, **extra)
+    return ModbusBackConfig(
+        name="rs485",
+        type="modbus",
+        port=port,
+        baudrate=baud,
+        timeout_ms=500,
+        poll_ms=0,
+        modules=I7232D,
+        **extra,
+    )
 
 
 async def per_transaction(link: ModbusLink, call, n: int) -> float:
@@ -87,10 +96,26 @@ async def overhead_in_process(n: int) -> dict[str, float]:
 
 
 async def overhead_child_process(n: int) -> dict[str, float]:
-    args = [sys.executable, "-m", "fieldgate", "simulate", "modbus", "--pty", "--baudrate", "115200", "--duration", "120"]
+    args = [
+        sys.executable,
+        "-m",
+        "fieldgate",
+        "simulate",
+        "modbus",
+        "--pty",
+        "--baudrate",
+        "115200",
+        "--duration",
+        "120",
+    ]
     for m in I7232D:
         args += ["--module", f"{m['address']}:{m['model']}"]
-    proc = await asyncio.create_subprocess_exec(*args, stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = await asyncio.create_subprocess_exec(
+        *args,
+        stdin=asyncio.subprocess.PIPE,
+        stdout=asyncio.subprocess.PIPE,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     try:
         banner = (await asyncio.wait_for(proc.stdout.readline(), 20)).decode()
         port = re.search(r"point the gateway at (\S+)", banner).group(1)
@@ -111,7 +136,9 @@ async def cycle_time(baud: int | None, cycles: int) -> float:
         cfg = config(pair.a, baud or 115200, **({} if baud else {"inter_frame_ms": 0}))
         sim = ModbusSimulator(cfg, pair.b)
         await sim.start()
-        topology = Topology(GatewaySection(name="bench"), [], [cfg], channel_specs=cfg.channel_specs())
+        topology = Topology(
+            GatewaySection(name="bench"), [], [cfg], channel_specs=cfg.channel_specs()
+        )
         back = ModbusBack(cfg, GatewayContext.build(topology))
         await back.start()
         task = asyncio.create_task(back.run())
@@ -138,27 +165,45 @@ def ms(seconds: float) -> str:
 
 async def main() -> None:
     n = 400
-    print(f"Modbus RTU back: software overhead per transaction (unpaced pty, {n} transactions each)\n")
+    print(
+        f"Modbus RTU back: software overhead per transaction (unpaced pty, {n} transactions each)\n"
+    )
     own = await overhead_in_process(n)
     child = await overhead_child_process(n)
-    print(f"{'transaction':<18} {'in-process':>11} {'sim in child':>12} {'wire 9600':>11} {'wire 115200':>11} {'ratio@115200':>12}")
+    print(
+        f"{'transaction':<18} {'in-process':>11} {'sim in child':>12} {'wire 9600':>11} {'wire 115200':>11} {'ratio@115200':>12}"
+    )
     worst = 0.0
     for name, request, reply, _ in TRANSACTIONS:
         wires = [wire_time(request, reply, b) for b in BAUDS]
         ratio = child[name] / wires[1]
         worst = max(worst, ratio)
-        print(f"{name:<18} {ms(own[name])} {ms(child[name]):>12} {ms(wires[0])} {ms(wires[1])} {ratio:11.1%}")
-    print(f"\nworst overhead / wire time at 115200 baud: {worst:.1%} (target < 10%) -> {'OK' if worst < 0.10 else 'MISSED'}")
-    print("(ratio: the child column, i.e. the master's view; the in-process column also pays for the simulator on the same CPU)\n")
+        print(
+            f"{name:<18} {ms(own[name])} {ms(child[name]):>12} {ms(wires[0])} {ms(wires[1])} {ratio:11.1%}"
+        )
+    print(
+        f"\nworst overhead / wire time at 115200 baud: {worst:.1%} (target < 10%) -> {'OK' if worst < 0.10 else 'MISSED'}"
+    )
+    print(
+        "(ratio: the child column, i.e. the master's view; the in-process column also pays for the simulator on the same CPU)\n"
+    )
 
     wire_cycle = {b: sum(wire_time(rq, rp, b) for _, rq, rp, _ in CYCLE) for b in BAUDS}
     unpaced = await cycle_time(None, 300)
-    print("Cycle of the i7232d-style line (modules 1, 3, 4, 5; 4 transactions), ModbusBack + LineScheduler:")
-    print(f"  unpaced pty (software only): {ms(unpaced)}  = {unpaced / wire_cycle[115200]:.1%} of the 115200 wire cycle, {unpaced / wire_cycle[9600]:.1%} of the 9600 one")
+    print(
+        "Cycle of the i7232d-style line (modules 1, 3, 4, 5; 4 transactions), ModbusBack + LineScheduler:"
+    )
+    print(
+        f"  unpaced pty (software only): {ms(unpaced)}  = {unpaced / wire_cycle[115200]:.1%} of the 115200 wire cycle, {unpaced / wire_cycle[9600]:.1%} of the 9600 one"
+    )
     for baud, cycles in ((115200, 60), (9600, 15)):
         paced = await cycle_time(baud, cycles)
-        print(f"  pty paced at {baud:>6} baud:   {ms(paced)}  wire time {ms(wire_cycle[baud])}  ratio {paced / wire_cycle[baud]:.2f}")
-    print("  (paced: the master keeps t3.5 before each request; the simulator answers at once, so one of the two silences counted in the wire time is not spent)")
+        print(
+            f"  pty paced at {baud:>6} baud:   {ms(paced)}  wire time {ms(wire_cycle[baud])}  ratio {paced / wire_cycle[baud]:.2f}"
+        )
+    print(
+        "  (paced: the master keeps t3.5 before each request; the simulator answers at once, so one of the two silences counted in the wire time is not spent)"
+    )
 
 
 if __name__ == "__main__":

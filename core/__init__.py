@@ -8,14 +8,48 @@ Public API for embedding and for plugins::
 __version__ = "0.1.0"
 
 from .health import ErrorKind, HealthEvent, HealthRegistry, ModuleHealth
-from .image import Change, Channel, ChannelSpec, DataType, ErrorMode, Kind, ProcessImage, Quality, Scaling, Source, channel_id
+from .image import (
+    Change,
+    Channel,
+    ChannelSpec,
+    DataType,
+    ErrorMode,
+    Kind,
+    ProcessImage,
+    Quality,
+    Scaling,
+    Source,
+    channel_id,
+)
 from .masters import MasterMonitor
 from .plugin import Back, Front, GatewayContext, PluginStartError, Registry, hookimpl, load_registry
 from .runtime import Gateway, GatewayStartError
 
 __all__ = [
-    "Back", "Change", "Channel", "ChannelSpec", "DataType", "ErrorKind", "ErrorMode", "Front", "Gateway",
-    "GatewayContext", "GatewayStartError", "HealthEvent", "HealthRegistry", "Kind", "MasterMonitor", "ModuleHealth",
-    "PluginStartError", "ProcessImage", "Quality", "Registry", "Scaling", "Source", "channel_id", "hookimpl",
-    "load_registry", "__version__",
+    "Back",
+    "Change",
+    "Channel",
+    "ChannelSpec",
+    "DataType",
+    "ErrorKind",
+    "ErrorMode",
+    "Front",
+    "Gateway",
+    "GatewayContext",
+    "GatewayStartError",
+    "HealthEvent",
+    "HealthRegistry",
+    "Kind",
+    "MasterMonitor",
+    "ModuleHealth",
+    "PluginStartError",
+    "ProcessImage",
+    "Quality",
+    "Registry",
+    "Scaling",
+    "Source",
+    "channel_id",
+    "hookimpl",
+    "load_registry",
+    "__version__",
 ]

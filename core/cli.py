@@ -22,13 +22,22 @@ LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
 
 
 def setup_logging(level: str) -> None:
-    logging.basicConfig(level=getattr(logging, level.upper()), format=LOG_FORMAT, stream=sys.stderr, force=True)
+    logging.basicConfig(
+        level=getattr(logging, level.upper()), format=LOG_FORMAT, stream=sys.stderr, force=True
+    )
 
 
-def add_overrides_argument(parser: argparse.ArgumentParser, example: str = "fronts.can.interface=virtual") -> None:
+def add_overrides_argument(
+    parser: argparse.ArgumentParser, example: str = "fronts.can.interface=virtual"
+) -> None:
     """``--set PATH=VALUE`` (repeatable), read with :func:`parse_overrides`: every command that loads a topology."""
-    parser.add_argument("--set", action="append", default=[], metavar="PATH=VALUE",
-                        help=f"override a topology field before validation, e.g. {example}")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="PATH=VALUE",
+        help=f"override a topology field before validation, e.g. {example}",
+    )
 
 
 def parse_overrides(items: list[str]) -> dict:
@@ -83,7 +92,13 @@ def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
 
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
     try:
-        gateway = Gateway.load(args.file, parse_overrides(args.set), registry, simulate=args.simulate, animate=args.simulate)
+        gateway = Gateway.load(
+            args.file,
+            parse_overrides(args.set),
+            registry,
+            simulate=args.simulate,
+            animate=args.simulate,
+        )
     except TopologyError as exc:
         for issue in exc.issues:
             print(issue, file=sys.stderr)
@@ -109,7 +124,9 @@ def loop_factory(choice: str = "auto") -> Callable[[], asyncio.AbstractEventLoop
         import uvloop
     except ImportError:
         if choice == "uvloop":
-            raise SystemExit("fieldgate: --loop uvloop: uvloop is not installed here (pip install uvloop; there is none for Windows)") from None
+            raise SystemExit(
+                "fieldgate: --loop uvloop: uvloop is not installed here (pip install uvloop; there is none for Windows)"
+            ) from None
         return asyncio.new_event_loop
     return uvloop.new_event_loop
 
@@ -131,7 +148,11 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
         except GatewayStartError as exc:
             log.error("cannot start: %s", exc)
             return 2
-        status = asyncio.create_task(_print_status(gateway, args.status_every)) if args.status_every else None
+        status = (
+            asyncio.create_task(_print_status(gateway, args.status_every))
+            if args.status_every
+            else None
+        )
         await wait_until(stop, args.duration)
         log.info("stopping")
         if status is not None:
@@ -140,8 +161,10 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
     return 0
 
 
-STATUS_LEGEND = ("status lines: per module and kind, digital channels as bits with channel 0 first (leftmost), "
-                 "analog channels as raw values; '!quality' when not every channel of the group is good")
+STATUS_LEGEND = (
+    "status lines: per module and kind, digital channels as bits with channel 0 first (leftmost), "
+    "analog channels as raw values; '!quality' when not every channel of the group is good"
+)
 
 
 async def _print_status(gateway: Gateway, period: float) -> None:
@@ -160,7 +183,9 @@ def format_image(image) -> str:
     for ch in image:
         groups.setdefault((ch.source.back, ch.source.module, ch.kind), []).append(ch)
     parts = []
-    for (back, module, kind), channels in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2].value)):
+    for (back, module, kind), channels in sorted(
+        groups.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2].value)
+    ):
         channels.sort(key=lambda c: c.source.index)
         if kind.is_digital:
             text = "".join("1" if c.value else "0" for c in channels)
@@ -186,15 +211,29 @@ def seconds(text: str) -> float:
 
 
 def build_parser(registry: Registry) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="fieldgate", description="Fieldbus gateway: fieldbus slave fronts, RS-485 poller backs, one YAML topology.")
+    parser = argparse.ArgumentParser(
+        prog="fieldgate",
+        description="Fieldbus gateway: fieldbus slave fronts, RS-485 poller backs, one YAML topology.",
+    )
     parser.add_argument("--version", action="version", version=f"fieldgate {__version__}")
-    parser.add_argument("--log-level", default="info", choices=LOG_LEVELS, help="log verbosity (default info)")
+    parser.add_argument(
+        "--log-level", default="info", choices=LOG_LEVELS, help="log verbosity (default info)"
+    )
     # the same option after the command too (`fieldgate run x.yaml --log-level debug`)
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--log-level", default=argparse.SUPPRESS, choices=LOG_LEVELS, help="log verbosity (default info)")
-    sub = _with_parents(parser.add_subparsers(dest="command", metavar="COMMAND", required=True), common)
+    common.add_argument(
+        "--log-level",
+        default=argparse.SUPPRESS,
+        choices=LOG_LEVELS,
+        help="log verbosity (default info)",
+    )
+    sub = _with_parents(
+        parser.add_subparsers(dest="command", metavar="COMMAND", required=True), common
+    )
 
-    p = sub.add_parser("validate", help="check a topology file; print every error with file:line:column")
+    p = sub.add_parser(
+        "validate", help="check a topology file; print every error with file:line:column"
+    )
     p.add_argument("file")
     add_overrides_argument(p)
     p.set_defaults(handler=cmd_validate)
@@ -202,13 +241,36 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run a gateway until SIGINT/SIGTERM")
     p.add_argument("file")
     add_overrides_argument(p)
-    p.add_argument("--simulate", action="store_true", help="serve every back from simulated modules on pseudo-terminals (no hardware)")
-    p.add_argument("--loop", choices=LOOP_CHOICES, default="auto", help="event loop: auto (default: uvloop when installed, else asyncio), uvloop, or asyncio's standard loop")
-    p.add_argument("--status-every", type=seconds, default=0, metavar="SECONDS", help="print the process image periodically (0, the default: never)")
-    p.add_argument("--duration", type=seconds, default=0, metavar="SECONDS", help="stop by itself after this long (0, the default: run until stopped)")
+    p.add_argument(
+        "--simulate",
+        action="store_true",
+        help="serve every back from simulated modules on pseudo-terminals (no hardware)",
+    )
+    p.add_argument(
+        "--loop",
+        choices=LOOP_CHOICES,
+        default="auto",
+        help="event loop: auto (default: uvloop when installed, else asyncio), uvloop, or asyncio's standard loop",
+    )
+    p.add_argument(
+        "--status-every",
+        type=seconds,
+        default=0,
+        metavar="SECONDS",
+        help="print the process image periodically (0, the default: never)",
+    )
+    p.add_argument(
+        "--duration",
+        type=seconds,
+        default=0,
+        metavar="SECONDS",
+        help="stop by itself after this long (0, the default: run until stopped)",
+    )
     p.set_defaults(handler=cmd_run)
 
-    p = sub.add_parser("plugins", help="list installed plugins with what they provide and their version")
+    p = sub.add_parser(
+        "plugins", help="list installed plugins with what they provide and their version"
+    )
     p.set_defaults(handler=cmd_plugins)
 
     groups: dict[str, argparse._SubParsersAction] = {}
@@ -218,7 +280,10 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
             key = " ".join(command.path[: depth + 1])
             if key not in groups:
                 group_parser = parent.add_parser(word, help=f"{word} commands from plugins")
-                groups[key] = _with_parents(group_parser.add_subparsers(dest=f"sub{depth}", metavar="NAME", required=True), common)
+                groups[key] = _with_parents(
+                    group_parser.add_subparsers(dest=f"sub{depth}", metavar="NAME", required=True),
+                    common,
+                )
             parent = groups[key]
         cp = parent.add_parser(command.path[-1], help=f"{command.help} [{command.plugin}]")
         command.configure(cp)
@@ -226,7 +291,9 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     return parser
 
 
-def _with_parents(subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser) -> argparse._SubParsersAction:
+def _with_parents(
+    subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser
+) -> argparse._SubParsersAction:
     """Every parser added to ``subparsers`` also takes ``common``'s options."""
     add_parser = subparsers.add_parser
 

@@ -26,7 +26,9 @@ COUNTER_WRAP = 0x10000  # the I-7232D's 0x2000 counters are UNSIGNED16
 class ErrorKind(StrEnum):
     TIMEOUT = "timeout"
     CRC = "crc"  # bad CRC or checksum
-    EXCEPTION = "exception"  # the module answered with a protocol error (Modbus exception, DCON '?')
+    EXCEPTION = (
+        "exception"  # the module answered with a protocol error (Modbus exception, DCON '?')
+    )
     GARBAGE = "garbage"  # short, truncated or unparsable reply
     WRONG_ADDRESS = "wrong-address"  # reply from another module
     WATCHDOG = "watchdog"  # module reports host-watchdog timeout
@@ -55,7 +57,9 @@ class ModuleHealth:
     errors: Counter = field(default_factory=Counter)
     last_rtt: float | None = None
     last_success: float | None = None
-    _listeners: list[Callable[[ModuleHealth, HealthEvent], None]] = field(default_factory=list, repr=False)
+    _listeners: list[Callable[[ModuleHealth, HealthEvent], None]] = field(
+        default_factory=list, repr=False
+    )
 
     @property
     def key(self) -> tuple[str, int]:
@@ -84,7 +88,13 @@ class ModuleHealth:
         self._emit(HealthEvent.FAILURE)
         if self.online and self.consecutive_failures > self.fail_threshold:
             self.online = False
-            log.warning("module %s/%d offline after %d consecutive failures: %s", self.back, self.address, self.consecutive_failures, text)
+            log.warning(
+                "module %s/%d offline after %d consecutive failures: %s",
+                self.back,
+                self.address,
+                self.consecutive_failures,
+                text,
+            )
             self._emit(HealthEvent.OFFLINE)
             return True
         return False
@@ -164,7 +174,9 @@ class LineStats:
         return {
             "line": self.name,
             "cycles": self.cycles,
-            "last_cycle_ms": None if self.last_cycle_time is None else round(self.last_cycle_time * 1000, 3),
+            "last_cycle_ms": None
+            if self.last_cycle_time is None
+            else round(self.last_cycle_time * 1000, 3),
             "requests": self.requests,
             "writes": self.writes,
             "errors": {str(k): v for k, v in self.errors.items()},

@@ -36,7 +36,10 @@ from typing import Any, Protocol, runtime_checkable
 Key = tuple[str, int]  # (back name, module address)
 Setting = tuple[bool, int]  # (enabled, timeout in ms; 0 = unknown)
 
-TENTHS_MIN, TENTHS_MAX = 1, 255  # the timeout in 0.1 s steps, as DCON's ~AA3EVV and both gateways carry it
+TENTHS_MIN, TENTHS_MAX = (
+    1,
+    255,
+)  # the timeout in 0.1 s steps, as DCON's ~AA3EVV and both gateways carry it
 
 
 @runtime_checkable
@@ -84,7 +87,12 @@ class HostWatchdogs:
     answered while the back does not run.
     """
 
-    def __init__(self, backs: Mapping[str, Any] | None = None, capable: Iterable[str] = (), configured: Mapping[Key, Setting] | None = None):
+    def __init__(
+        self,
+        backs: Mapping[str, Any] | None = None,
+        capable: Iterable[str] = (),
+        configured: Mapping[Key, Setting] | None = None,
+    ):
         self.backs = backs if backs is not None else {}
         self.capable = set(capable)
         self.configured = dict(configured or {})
@@ -97,7 +105,13 @@ class HostWatchdogs:
         for config in context.topology.backs:
             if isinstance(config, WatchdogBackConfig):
                 capable.add(config.name)
-                configured.update({(config.name, a): s for a, s in config.host_watchdogs().items() if s is not None})
+                configured.update(
+                    {
+                        (config.name, a): s
+                        for a, s in config.host_watchdogs().items()
+                        if s is not None
+                    }
+                )
         return cls(context.backs, capable, configured)
 
     # -- reading ------------------------------------------------------------------------
@@ -147,7 +161,11 @@ class HostWatchdogs:
         """The timeout in 0.1 s, 1..255; the enable stays."""
         if not TENTHS_MIN <= tenths <= TENTHS_MAX:
             raise ValueError(f"the watchdog time is {TENTHS_MIN}..{TENTHS_MAX} x 0.1 s")
-        self._call(back, address, lambda b: b.set_watchdog(address, self.enabled(back, address), tenths * 100))
+        self._call(
+            back,
+            address,
+            lambda b: b.set_watchdog(address, self.enabled(back, address), tenths * 100),
+        )
 
     def recover(self, back: str, address: int) -> None:
         """Clear the module's watchdog timeout (DCON ``~AA1``); its outputs are written again."""
@@ -177,7 +195,11 @@ class HostWatchdogs:
     def _call(self, back: str, address: int, action) -> None:
         running = self._back(back)
         if running is None:
-            raise NoHostWatchdog(f"module {address} has no host watchdog" if back not in self.capable else f"back {back} is not running")
+            raise NoHostWatchdog(
+                f"module {address} has no host watchdog"
+                if back not in self.capable
+                else f"back {back} is not running"
+            )
         try:
             action(running)
         except ValueError:

@@ -221,7 +221,13 @@ Callback = Callable[[Change], None]
 class Subscription:
     """Handle returned by :meth:`ProcessImage.subscribe`; call :meth:`cancel` to stop."""
 
-    def __init__(self, image: ProcessImage, callback: Callback, kinds: frozenset[Kind] | None, ids: frozenset[str] | None):
+    def __init__(
+        self,
+        image: ProcessImage,
+        callback: Callback,
+        kinds: frozenset[Kind] | None,
+        ids: frozenset[str] | None,
+    ):
         self._image = image
         self.callback = callback
         self.kinds = kinds
@@ -274,7 +280,9 @@ class ProcessImage:
     def value(self, channel_id: str) -> bool | int | float:
         return self[channel_id].value
 
-    def channels(self, kind: Kind | None = None, back: str | None = None, module: int | None = None) -> list[Channel]:
+    def channels(
+        self, kind: Kind | None = None, back: str | None = None, module: int | None = None
+    ) -> list[Channel]:
         return [
             c
             for c in self._channels.values()
@@ -295,14 +303,22 @@ class ProcessImage:
         return iter(self._channels.values())
 
     # -- writing --------------------------------------------------------------
-    def update_input(self, channel_id: str, value: bool | int | float, quality: Quality = Quality.GOOD, origin: str = "back") -> bool:
+    def update_input(
+        self,
+        channel_id: str,
+        value: bool | int | float,
+        quality: Quality = Quality.GOOD,
+        origin: str = "back",
+    ) -> bool:
         """A back end reports a fresh reading. Returns True when value or quality changed."""
         channel = self[channel_id]
         if channel.kind.is_output:
             raise ValueError(f"{channel_id} is an output; backs write inputs only")
         return self._set(channel, channel.spec.data_type.check(value), quality, origin)
 
-    def write_output(self, channel_id: str, value: bool | int | float, origin: str = "front") -> bool:
+    def write_output(
+        self, channel_id: str, value: bool | int | float, origin: str = "front"
+    ) -> bool:
         """A front (or an error mode) sets an output. Returns True when the value changed."""
         channel = self[channel_id]
         if not channel.kind.is_output:
@@ -310,13 +326,17 @@ class ProcessImage:
         channel.written_by = origin
         return self._set(channel, channel.spec.data_type.check(value), channel.quality, origin)
 
-    def set_quality(self, channel_ids: Iterable[str], quality: Quality, origin: str = "back") -> None:
+    def set_quality(
+        self, channel_ids: Iterable[str], quality: Quality, origin: str = "back"
+    ) -> None:
         """Change the quality of channels and keep their last values (stale, comm fault, ...)."""
         for cid in channel_ids:
             channel = self[cid]
             self._set(channel, channel.value, quality, origin)
 
-    def _set(self, channel: Channel, value: bool | int | float, quality: Quality, origin: str) -> bool:
+    def _set(
+        self, channel: Channel, value: bool | int | float, quality: Quality, origin: str
+    ) -> bool:
         if quality is Quality.GOOD:
             channel.timestamp = self.clock()
         old_value, old_quality = channel.value, channel.quality
@@ -333,12 +353,29 @@ class ProcessImage:
         return True
 
     # -- subscriptions --------------------------------------------------------
-    def subscribe(self, callback: Callback, *, kinds: Iterable[Kind] | None = None, ids: Iterable[str] | None = None) -> Subscription:
-        sub = Subscription(self, callback, frozenset(kinds) if kinds is not None else None, frozenset(ids) if ids is not None else None)
+    def subscribe(
+        self,
+        callback: Callback,
+        *,
+        kinds: Iterable[Kind] | None = None,
+        ids: Iterable[str] | None = None,
+    ) -> Subscription:
+        sub = Subscription(
+            self,
+            callback,
+            frozenset(kinds) if kinds is not None else None,
+            frozenset(ids) if ids is not None else None,
+        )
         self._subscriptions.append(sub)
         return sub
 
-    def queue(self, *, kinds: Iterable[Kind] | None = None, ids: Iterable[str] | None = None, maxsize: int = 0) -> tuple[asyncio.Queue[Change], Subscription]:
+    def queue(
+        self,
+        *,
+        kinds: Iterable[Kind] | None = None,
+        ids: Iterable[str] | None = None,
+        maxsize: int = 0,
+    ) -> tuple[asyncio.Queue[Change], Subscription]:
         """Changes delivered to an asyncio queue instead of a callback.
 
         A full queue drops the change and logs it once per burst; the caller owns the
@@ -366,13 +403,19 @@ class ProcessImage:
             raise ValueError(f"{channel_id} is an input; error modes apply to outputs")
         channel.error_mode = ErrorMode(mode.use_value, channel.spec.data_type.check(mode.value))
 
-    def apply_error_modes(self, channel_ids: Iterable[str] | None = None, origin: str = "error-mode") -> list[str]:
+    def apply_error_modes(
+        self, channel_ids: Iterable[str] | None = None, origin: str = "error-mode"
+    ) -> list[str]:
         """Drive every output whose error mode says so to its error value.
 
         Called when a front loses its master. Returns the ids whose value changed.
         """
         outputs = self._outputs(channel_ids)
-        return [c.id for c in outputs if c.error_mode.use_value and self.write_output(c.id, c.error_mode.value, origin)]
+        return [
+            c.id
+            for c in outputs
+            if c.error_mode.use_value and self.write_output(c.id, c.error_mode.value, origin)
+        ]
 
     def apply_shutdown_modes(self, origin: str = "shutdown") -> list[str]:
         changed = []
@@ -390,7 +433,13 @@ class ProcessImage:
     def snapshot(self) -> list[dict]:
         """Plain data for status displays and tests."""
         return [
-            {"id": c.id, "kind": c.kind.value, "value": c.value, "quality": c.quality.value, "timestamp": c.timestamp}
+            {
+                "id": c.id,
+                "kind": c.kind.value,
+                "value": c.value,
+                "quality": c.quality.value,
+                "timestamp": c.timestamp,
+            }
             for c in self._channels.values()
         ]
 

@@ -19,14 +19,24 @@ from .image import Channel, Kind, ProcessImage
 def default_order(image: ProcessImage, back_order: Sequence[str] | None = None) -> list[Channel]:
     """Every channel: backs in topology order, modules by ascending address, channels by index."""
     rank = {name: i for i, name in enumerate(back_order or [])}
-    return sorted(image, key=lambda c: (rank.get(c.source.back, len(rank)), c.source.back, c.source.module, c.source.index))
+    return sorted(
+        image,
+        key=lambda c: (
+            rank.get(c.source.back, len(rank)),
+            c.source.back,
+            c.source.module,
+            c.source.index,
+        ),
+    )
 
 
 def of_kind(channels: Iterable[Channel], kind: Kind) -> list[Channel]:
     return [c for c in channels if c.kind is kind]
 
 
-def pack_bits(channels: Sequence[Channel], *, per_module: bool = True) -> list[list[Channel | None]]:
+def pack_bits(
+    channels: Sequence[Channel], *, per_module: bool = True
+) -> list[list[Channel | None]]:
     """Group digital channels into bytes of 8 slots (None = padding bit), LSB first."""
     result: list[list[Channel | None]] = []
     current: list[Channel | None] = []
@@ -48,7 +58,9 @@ def byte_value(slots: Sequence[Channel | None]) -> int:
     return sum(1 << bit for bit, ch in enumerate(slots) if ch is not None and ch.value)
 
 
-def write_byte(image: ProcessImage, slots: Sequence[Channel | None], value: int, origin: str) -> list[str]:
+def write_byte(
+    image: ProcessImage, slots: Sequence[Channel | None], value: int, origin: str
+) -> list[str]:
     """Write each real bit of ``value`` to its output channel; returns the ids that changed."""
     changed = []
     for bit, ch in enumerate(slots):

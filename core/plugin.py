@@ -47,12 +47,20 @@ class PluginStartError(Exception):
 class GatewayContext:
     """What a front or back may use: the process image, module health, master state."""
 
-    def __init__(self, topology: Topology, image: ProcessImage, health: HealthRegistry, masters: MasterMonitor):
+    def __init__(
+        self,
+        topology: Topology,
+        image: ProcessImage,
+        health: HealthRegistry,
+        masters: MasterMonitor,
+    ):
         self.topology = topology
         self.image = image
         self.health = health
         self.masters = masters
-        self.backs: dict[str, Component] = {}  # running back instances by name (a front's manufacturer objects reach them)
+        self.backs: dict[
+            str, Component
+        ] = {}  # running back instances by name (a front's manufacturer objects reach them)
 
     @classmethod
     def build(cls, topology: Topology, clock: Callable[[], float] | None = None) -> GatewayContext:
@@ -203,13 +211,23 @@ class Registry:
         self.plugins: dict[str, PluginInfo] = {}
         self._current = "?"
 
-    def add_front(self, type_name: str, model: type[FrontConfig], factory: FrontFactory, description: str = "") -> None:
+    def add_front(
+        self, type_name: str, model: type[FrontConfig], factory: FrontFactory, description: str = ""
+    ) -> None:
         self._add("front", type_name, model, factory, description)
 
-    def add_back(self, type_name: str, model: type[BackConfig], factory: BackFactory, description: str = "") -> None:
+    def add_back(
+        self, type_name: str, model: type[BackConfig], factory: BackFactory, description: str = ""
+    ) -> None:
         self._add("back", type_name, model, factory, description)
 
-    def add_command(self, path: tuple[str, ...], help: str, configure: Callable[[argparse.ArgumentParser], None], run: Callable[[argparse.Namespace], int]) -> None:
+    def add_command(
+        self,
+        path: tuple[str, ...],
+        help: str,
+        configure: Callable[[argparse.ArgumentParser], None],
+        run: Callable[[argparse.Namespace], int],
+    ) -> None:
         self.commands.append(Command(tuple(path), help, configure, run, self._current))
         if self._current in self.plugins:
             self.plugins[self._current].provides.append("command:" + " ".join(path))
@@ -218,10 +236,14 @@ class Registry:
         """``factory(back_config, port, animate)`` returns a :class:`Simulator` for that back type."""
         self.simulators[back_type] = factory
 
-    def _add(self, role: str, type_name: str, model: type, factory: Callable, description: str) -> None:
+    def _add(
+        self, role: str, type_name: str, model: type, factory: Callable, description: str
+    ) -> None:
         key = (role, type_name)
         if key in self.types:
-            raise ValueError(f"{role} type {type_name!r} registered by both {self.types[key].plugin} and {self._current}")
+            raise ValueError(
+                f"{role} type {type_name!r} registered by both {self.types[key].plugin} and {self._current}"
+            )
         self.types[key] = ComponentType(role, type_name, model, factory, self._current, description)
         if self._current in self.plugins:
             self.plugins[self._current].provides.append(f"{role}:{type_name}")
@@ -267,12 +289,17 @@ def load_registry(extra_plugins: list[object] | None = None) -> Registry:
             log.error("plugin %s (%s) failed to load: %s", ep.name, dist, info.error)
     for i, plugin in enumerate(extra_plugins or []):
         name = getattr(plugin, "PLUGIN_NAME", f"extra{i}")
-        registry.plugins[name] = PluginInfo(name, getattr(plugin, "__version__", "0"), "(in process)")
+        registry.plugins[name] = PluginInfo(
+            name, getattr(plugin, "__version__", "0"), "(in process)"
+        )
         pm.register(plugin, name=name)
     for name, plugin in pm.list_name_plugin():
         registry._current = name
         try:
-            pm.subset_hook_caller("fieldgate_register", remove_plugins=[p for n, p in pm.list_name_plugin() if n != name])(registry=registry)
+            pm.subset_hook_caller(
+                "fieldgate_register",
+                remove_plugins=[p for n, p in pm.list_name_plugin() if n != name],
+            )(registry=registry)
         except Exception as exc:
             registry.plugins[name].error = f"{type(exc).__name__}: {exc}"
             log.error("plugin %s failed to register: %s", name, registry.plugins[name].error)

@@ -127,7 +127,10 @@ class LineScheduler:
         self.stats = LineStats(name)
         self.jobs: list[LineJob] = []
         self._states = [
-            _ModuleState(m, health[m.address], (m.config.poll_ms / 1000) if m.config.poll_ms else poll_period) for m in modules
+            _ModuleState(
+                m, health[m.address], (m.config.poll_ms / 1000) if m.config.poll_ms else poll_period
+            )
+            for m in modules
         ]
         self._by_output = {cid: st for st in self._states for cid in st.module.outputs}
         self._wake = asyncio.Event()
@@ -162,7 +165,11 @@ class LineScheduler:
         e.g. after the module was reset behind the poller's back."""
         for st in self._states:
             if st.module is module:
-                st.dirty.update(cid for cid in module.outputs if self.image[cid].written_by or self.image[cid].spec.initial is not None)
+                st.dirty.update(
+                    cid
+                    for cid in module.outputs
+                    if self.image[cid].written_by or self.image[cid].spec.initial is not None
+                )
         self._wake.set()
 
     @property
@@ -228,7 +235,9 @@ class LineScheduler:
         return min(candidates, default=now + 1.0)
 
     # -- transactions ---------------------------------------------------------
-    async def _attempt(self, st: _ModuleState, action: Callable[[], Awaitable[Any]]) -> tuple[bool, Any]:
+    async def _attempt(
+        self, st: _ModuleState, action: Callable[[], Awaitable[Any]]
+    ) -> tuple[bool, Any]:
         """Run one transaction with retries; record health. Returns (ok, result)."""
         for attempt in range(self.retries + 1):
             started = self.clock()
@@ -240,7 +249,12 @@ class LineScheduler:
             except asyncio.CancelledError:
                 raise
             except Exception as exc:  # codec bug or port failure: count it, never stop the line
-                log.debug("line %s module %d: unexpected error", self.name, st.module.address, exc_info=True)
+                log.debug(
+                    "line %s module %d: unexpected error",
+                    self.name,
+                    st.module.address,
+                    exc_info=True,
+                )
                 self._failed(st, ErrorKind.IO, f"{type(exc).__name__}: {exc}")
             else:
                 if result is NOTHING_DUE:
@@ -266,7 +280,11 @@ class LineScheduler:
         except Exception as exc:
             self._failed(st, ErrorKind.IO, f"on_online: {type(exc).__name__}: {exc}")
         if st.health.online:  # bring the module up to date with what fronts (or the config) set
-            st.dirty.update(cid for cid in st.module.outputs if self.image[cid].written_by or self.image[cid].spec.initial is not None)
+            st.dirty.update(
+                cid
+                for cid in st.module.outputs
+                if self.image[cid].written_by or self.image[cid].spec.initial is not None
+            )
 
     def _failed(self, st: _ModuleState, kind: ErrorKind, text: str) -> None:
         self.stats.errors[kind] += 1
@@ -297,7 +315,9 @@ class LineScheduler:
             self._apply(readings)
         if ok and st.module.outputs:
             quality = st.module.output_quality()
-            self.image.set_quality([c for c in st.module.outputs if self.image[c].quality is not quality], quality)
+            self.image.set_quality(
+                [c for c in st.module.outputs if self.image[c].quality is not quality], quality
+            )
         st.due = started + (st.period if st.health.online else self.offline_probe_period)
         self._count_cycle(st)
 
@@ -339,7 +359,11 @@ class LineScheduler:
             self._cycle_start, self._cycle_seen = now, set()
 
     def status(self) -> dict:
-        return {**self.stats.as_dict(), "pending_writes": self.pending_writes, "modules": [s.health.as_dict() for s in self._states]}
+        return {
+            **self.stats.as_dict(),
+            "pending_writes": self.pending_writes,
+            "modules": [s.health.as_dict() for s in self._states],
+        }
 
 
 class SerialBack(Back):
@@ -377,7 +401,10 @@ class SerialBack(Back):
     async def start(self) -> None:
         self.link = await self.open_link()
         specs = [s for s in self.context.topology.channel_specs if s.source.back == self.name]
-        modules = [self.make_module(m, [s for s in specs if s.source.module == m.address]) for m in self.config.modules]
+        modules = [
+            self.make_module(m, [s for s in specs if s.source.module == m.address])
+            for m in self.config.modules
+        ]
         cfg = self.config
         self.scheduler = LineScheduler(
             self.name,

@@ -22,17 +22,18 @@ from typing import Any
 
 from .cancellation import raise_if_cancelled
 from .image import Quality
-from .simulation import SimulationBench
 from .plugin import Component, GatewayContext, PluginStartError, Registry, load_registry
+from .simulation import SimulationBench
 from .topology import Topology, load_topology
 
 log = logging.getLogger("fieldgate.runtime")
 
 MAX_BACKOFF = 60.0
-STABLE_RUN_S = 60.0  # a component that ran this long before failing restarts after the first delay again
+STABLE_RUN_S = (
+    60.0  # a component that ran this long before failing restarts after the first delay again
+)
 CANCEL_GRACE_S = 0.5  # how long a cancelled component task may take before it is cancelled again
 CANCEL_ATTEMPTS = 10
-
 
 
 class Backoff:
@@ -54,12 +55,21 @@ class Backoff:
         delay, self.delay = self.delay, min(self.delay * 2, self.cap)
         return delay
 
+
 class GatewayStartError(Exception):
     """A component could not start; the message names it and the cause in one line."""
 
 
 class Gateway:
-    def __init__(self, topology: Topology, registry: Registry, clock: Callable[[], float] = time.monotonic, *, simulate: bool = False, animate: bool = False):
+    def __init__(
+        self,
+        topology: Topology,
+        registry: Registry,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        simulate: bool = False,
+        animate: bool = False,
+    ):
         self.topology = topology
         self.bench = SimulationBench(topology, registry, animate) if simulate else None
         self.registry = registry
@@ -74,7 +84,13 @@ class Gateway:
         self.running = False
 
     @classmethod
-    def load(cls, source: str | Path | dict, overrides: dict[str, Any] | None = None, registry: Registry | None = None, **options: Any) -> Gateway:
+    def load(
+        cls,
+        source: str | Path | dict,
+        overrides: dict[str, Any] | None = None,
+        registry: Registry | None = None,
+        **options: Any,
+    ) -> Gateway:
         """Load a topology; ``simulate=True`` serves every back from its plugin's simulator."""
         registry = registry or load_registry()
         return cls(load_topology(source, registry, overrides), registry, **options)
@@ -104,8 +120,15 @@ class Gateway:
             raise
         self.running = True
         for comp in self.backs + self.fronts:
-            self._tasks[comp.name] = asyncio.create_task(self._supervise(comp), name=f"fieldgate:{comp.name}")
-        log.info("gateway %s running: %d back(s), %d front(s)", self.topology.gateway.name, len(self.backs), len(self.fronts))
+            self._tasks[comp.name] = asyncio.create_task(
+                self._supervise(comp), name=f"fieldgate:{comp.name}"
+            )
+        log.info(
+            "gateway %s running: %d back(s), %d front(s)",
+            self.topology.gateway.name,
+            len(self.backs),
+            len(self.fronts),
+        )
 
     def _create(self, role: str, cfg: Any) -> Component:
         ctype = self.registry.lookup(role, cfg.type)
@@ -120,9 +143,13 @@ class Gateway:
         try:
             await comp.start()
         except PluginStartError as exc:
-            raise GatewayStartError(f"{comp.kind} {comp.name} ({comp.config.type}): {exc}") from None
+            raise GatewayStartError(
+                f"{comp.kind} {comp.name} ({comp.config.type}): {exc}"
+            ) from None
         except Exception as exc:
-            raise GatewayStartError(f"{comp.kind} {comp.name} ({comp.config.type}): {type(exc).__name__}: {exc}") from exc
+            raise GatewayStartError(
+                f"{comp.kind} {comp.name} ({comp.config.type}): {type(exc).__name__}: {exc}"
+            ) from exc
         comp.started = True  # type: ignore[attr-defined]
 
     async def _supervise(self, comp: Component) -> None:
@@ -155,7 +182,13 @@ class Gateway:
                     raise
                 except Exception as exc:
                     delay = backoff.next()
-                    log.error("%s %s restart failed: %s; next try in %.1f s", comp.kind, comp.name, exc, delay)
+                    log.error(
+                        "%s %s restart failed: %s; next try in %.1f s",
+                        comp.kind,
+                        comp.name,
+                        exc,
+                        delay,
+                    )
                     await self._safe_stop(comp)
 
     async def _safe_stop(self, comp: Component) -> None:
@@ -205,9 +238,16 @@ class Gateway:
                 if not task.cancelled():
                     task.exception()  # retrieved: a failure while stopping is not worth a warning at exit
                 return
-            log.warning("%s %s: still running %.1f s after being cancelled (attempt %d); cancelling again",
-                        comp.kind, comp.name, CANCEL_GRACE_S * attempt, attempt)
-        log.error("%s %s does not stop when cancelled; leaving its task behind", comp.kind, comp.name)
+            log.warning(
+                "%s %s: still running %.1f s after being cancelled (attempt %d); cancelling again",
+                comp.kind,
+                comp.name,
+                CANCEL_GRACE_S * attempt,
+                attempt,
+            )
+        log.error(
+            "%s %s does not stop when cancelled; leaving its task behind", comp.kind, comp.name
+        )
 
     async def _stop_components(self) -> None:
         for comp in self.fronts + self.backs:
@@ -241,7 +281,17 @@ class Gateway:
         return {
             "gateway": self.topology.gateway.name,
             "running": self.running,
-            "fronts": {c.name: {**c.status(), "master_ok": self.masters.is_ok(c.name), "restarts": self._restarts.get(c.name, 0)} for c in self.fronts},
-            "backs": {c.name: {**c.status(), "restarts": self._restarts.get(c.name, 0)} for c in self.backs},
+            "fronts": {
+                c.name: {
+                    **c.status(),
+                    "master_ok": self.masters.is_ok(c.name),
+                    "restarts": self._restarts.get(c.name, 0),
+                }
+                for c in self.fronts
+            },
+            "backs": {
+                c.name: {**c.status(), "restarts": self._restarts.get(c.name, 0)}
+                for c in self.backs
+            },
             "modules": [m.as_dict() for m in self.health.modules()],
         }

@@ -38,10 +38,20 @@ class AsyncSerial:
         self.closed = False
 
     @classmethod
-    async def open(cls, url: str, baudrate: int = 9600, bytesize: int = 8, parity: str = "N", stopbits: int = 1) -> AsyncSerial:
+    async def open(
+        cls, url: str, baudrate: int = 9600, bytesize: int = 8, parity: str = "N", stopbits: int = 1
+    ) -> AsyncSerial:
         """Open a port; failures become PluginStartError with a one-line cause."""
         try:
-            port = serial.serial_for_url(url, baudrate=baudrate, bytesize=bytesize, parity=_PARITY[parity], stopbits=stopbits, timeout=0, write_timeout=2)
+            port = serial.serial_for_url(
+                url,
+                baudrate=baudrate,
+                bytesize=bytesize,
+                parity=_PARITY[parity],
+                stopbits=stopbits,
+                timeout=0,
+                write_timeout=2,
+            )
         except serial.SerialException as exc:
             raise PluginStartError(f"cannot open serial port {url}: {_cause(exc)}") from None
         except ValueError as exc:
@@ -151,8 +161,12 @@ class PtyPair:
         self.fault: Callable[[bytes], bytes] | None = None
         self._stop = threading.Event()
         self._threads = [
-            threading.Thread(target=self._pump, args=(self._ends[0][0], self._ends[1][0], False), daemon=True),
-            threading.Thread(target=self._pump, args=(self._ends[1][0], self._ends[0][0], True), daemon=True),
+            threading.Thread(
+                target=self._pump, args=(self._ends[0][0], self._ends[1][0], False), daemon=True
+            ),
+            threading.Thread(
+                target=self._pump, args=(self._ends[1][0], self._ends[0][0], True), daemon=True
+            ),
         ]
         for t in self._threads:
             t.start()
@@ -201,10 +215,21 @@ class PortServer:
     at once (:meth:`send`) or after a delay (:meth:`send_later`, for fault injection).
     """
 
-    def __init__(self, port: str, on_data: Callable[[bytes, float], None], *, baudrate: int = 9600, bytesize: int = 8, parity: str = "N", stopbits: int = 1):
+    def __init__(
+        self,
+        port: str,
+        on_data: Callable[[bytes, float], None],
+        *,
+        baudrate: int = 9600,
+        bytesize: int = 8,
+        parity: str = "N",
+        stopbits: int = 1,
+    ):
         self.port_name = port
         self.on_data = on_data
-        self.settings = dict(baudrate=baudrate, bytesize=bytesize, parity=_PARITY[parity], stopbits=stopbits)
+        self.settings = dict(
+            baudrate=baudrate, bytesize=bytesize, parity=_PARITY[parity], stopbits=stopbits
+        )
         self.sent = 0  # replies written
         self._port: serial.SerialBase | None = None
         self._loop: asyncio.AbstractEventLoop | None = None

@@ -28,15 +28,23 @@ class SimulationBench:
         for back in self.topology.backs:
             factory = self.registry.simulators.get(back.type)
             if factory is None:
-                raise PluginStartError(f"back {back.name} ({back.type}): its plugin offers no simulator")
+                raise PluginStartError(
+                    f"back {back.name} ({back.type}): its plugin offers no simulator"
+                )
             if not hasattr(back, "port"):
-                raise PluginStartError(f"back {back.name} ({back.type}): not a serial back, cannot simulate it")
+                raise PluginStartError(
+                    f"back {back.name} ({back.type}): not a serial back, cannot simulate it"
+                )
             pair = PtyPair()
             self._pairs.append(pair)
             back.port = pair.a
             if getattr(back, "parity", "N") != "N":
                 # a pseudo-terminal carries bytes, not bits, and Linux refuses even parity on one
-                log.info("back %s: simulated line runs without parity (configured %s)", back.name, back.parity)
+                log.info(
+                    "back %s: simulated line runs without parity (configured %s)",
+                    back.name,
+                    back.parity,
+                )
                 back.parity = "N"
             simulator = factory(back, pair.b, self.animate)
             await simulator.start()

@@ -18,10 +18,18 @@ def stopped_by_signal():
 
     def stop(args: list[str], ready: str, sig: int) -> tuple[int, str]:
         master, terminal = pty.openpty()
-        proc = subprocess.Popen([sys.executable, "-m", "fieldgate", *args], stdin=terminal, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "fieldgate", *args],
+            stdin=terminal,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
         try:
-            assert any(line.startswith(ready) for line in iter(proc.stdout.readline, "")), f"no line starting {ready!r}"
+            assert any(line.startswith(ready) for line in iter(proc.stdout.readline, "")), (
+                f"no line starting {ready!r}"
+            )
             proc.send_signal(sig)
             return proc.wait(timeout=20), proc.stderr.read()
         finally:

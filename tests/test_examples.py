@@ -12,14 +12,28 @@ REGISTRY = load_registry()
 
 
 def test_the_five_examples_exist():
-    assert {p.stem for p in EXAMPLES} >= {"i7232d-style", "i7231d-style", "i7241d-style", "na9161-style", "devicenet-modbus"}
+    assert {p.stem for p in EXAMPLES} >= {
+        "i7232d-style",
+        "i7231d-style",
+        "i7241d-style",
+        "na9161-style",
+        "devicenet-modbus",
+    }
 
 
 @pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
 def test_example_validates_or_needs_only_a_missing_plugin(path):
     text = path.read_text()
-    front_types = {line.split(":", 1)[1].strip() for line in text.splitlines() if line.strip().startswith("type:")}
-    missing = sorted(t for t in front_types if REGISTRY.lookup("front", t) is None and REGISTRY.lookup("back", t) is None)
+    front_types = {
+        line.split(":", 1)[1].strip()
+        for line in text.splitlines()
+        if line.strip().startswith("type:")
+    }
+    missing = sorted(
+        t
+        for t in front_types
+        if REGISTRY.lookup("front", t) is None and REGISTRY.lookup("back", t) is None
+    )
     if not missing:
         topology = load_topology(path, REGISTRY)
         assert topology.channel_specs, "an example without channels shows nothing"

@@ -13,12 +13,30 @@ EXAMPLE = Path(__file__).parent.parent / "examples" / "i7232d-style.yaml"
 
 
 def run(*args, level="warning"):
-    return subprocess.run([sys.executable, "-m", "fieldgate", "--log-level", level, *args], capture_output=True, text=True, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-m", "fieldgate", "--log-level", level, *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
 
 
 def run_demo(tmp_path, *loop_args):
-    return run("run", str(EXAMPLE), "--simulate", *loop_args, "--status-every", "0.5", "--duration", "2.5",
-               "--set", f"gateway.state_dir={tmp_path}", "--set", f"fronts.can.channel=loop-test-{tmp_path.name}", level="info")
+    return run(
+        "run",
+        str(EXAMPLE),
+        "--simulate",
+        *loop_args,
+        "--status-every",
+        "0.5",
+        "--duration",
+        "2.5",
+        "--set",
+        f"gateway.state_dir={tmp_path}",
+        "--set",
+        f"fronts.can.channel=loop-test-{tmp_path.name}",
+        level="info",
+    )
 
 
 def assert_demo_ran(result):

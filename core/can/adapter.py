@@ -59,25 +59,34 @@ class CanEngine(Protocol):
     def next_deadline(self) -> float | None: ...
     def on_bit_timing(self, callback: Callable[..., Any]) -> None: ...
 
+
 CAN_ERR_BUSOFF = 0x40
 CAN_ERR_RESTARTED = 0x100
 STATE_POLL_S = 1.0
 RX_ERRORS_FATAL = 100  # receive errors within one state poll that count as a dead bus
 
 
-def open_bus(interface: str, channel: str | None, bitrate: int | None, options: dict[str, Any] | None = None) -> can.BusABC:
+def open_bus(
+    interface: str, channel: str | None, bitrate: int | None, options: dict[str, Any] | None = None
+) -> can.BusABC:
     """``can.Bus(...)`` with a one-line :class:`PluginStartError` on failure."""
     kwargs = dict(options or {})
     if bitrate is not None:
         kwargs["bitrate"] = bitrate
     if interface not in can.VALID_INTERFACES:
-        raise PluginStartError(f"unknown CAN interface {interface!r} (python-can knows: {', '.join(sorted(can.VALID_INTERFACES))})")
+        raise PluginStartError(
+            f"unknown CAN interface {interface!r} (python-can knows: {', '.join(sorted(can.VALID_INTERFACES))})"
+        )
     try:
         return can.Bus(interface=interface, channel=channel, **kwargs)
     except can.CanInterfaceNotImplementedError as exc:
-        raise PluginStartError(f"CAN interface {interface!r} not available here: {_one_line(exc)}") from None
+        raise PluginStartError(
+            f"CAN interface {interface!r} not available here: {_one_line(exc)}"
+        ) from None
     except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
-        raise PluginStartError(f"cannot open CAN {interface} channel {channel!r}: {_one_line(exc)}") from None
+        raise PluginStartError(
+            f"cannot open CAN {interface} channel {channel!r}: {_one_line(exc)}"
+        ) from None
 
 
 def _one_line(exc: BaseException) -> str:
@@ -86,7 +95,12 @@ def _one_line(exc: BaseException) -> str:
 
 def to_message(frame: Frame) -> can.Message:
     if frame.rtr:
-        return can.Message(arbitration_id=frame.can_id, is_extended_id=False, is_remote_frame=True, dlc=frame.length)
+        return can.Message(
+            arbitration_id=frame.can_id,
+            is_extended_id=False,
+            is_remote_frame=True,
+            dlc=frame.length,
+        )
     data = frame.data
     # Positional (timestamp, arbitration_id, is_extended_id, is_remote_frame, is_error_frame,
     # channel, dlc, data): two thirds of the keyword call's time on every frame sent.
@@ -104,10 +118,16 @@ def to_frame(msg: can.Message) -> Frame:
 
 
 class CanAdapter:
-    def __init__(self, node: CanEngine, bus: can.BusABC, loop: asyncio.AbstractEventLoop, *,
-                 on_bus_state: Callable[[bool, float], None] | None = None,
-                 transmit_allowed: Callable[[float], bool] | None = None,
-                 reopen: Callable[[int], can.BusABC] | None = None):
+    def __init__(
+        self,
+        node: CanEngine,
+        bus: can.BusABC,
+        loop: asyncio.AbstractEventLoop,
+        *,
+        on_bus_state: Callable[[bool, float], None] | None = None,
+        transmit_allowed: Callable[[float], bool] | None = None,
+        reopen: Callable[[int], can.BusABC] | None = None,
+    ):
         self.node = node
         self.bus = bus
         self.loop = loop
@@ -125,10 +145,14 @@ class CanAdapter:
         self._rx_errors_seen = 0
         self.closed = False
         self._switching = False  # the bus is being reopened at a new bit rate
-        self.engine_lock = threading.RLock()  # the loop holds it while it calls the engine (re-entered when a
+        self.engine_lock = (
+            threading.RLock()
+        )  # the loop holds it while it calls the engine (re-entered when a
         # process-image event raised inside an engine call pumps again); see the module notes
         self.quick_answers = 0
-        self.failed: asyncio.Future = loop.create_future()  # set when receiving is dead: run() raises
+        self.failed: asyncio.Future = (
+            loop.create_future()
+        )  # set when receiving is dead: run() raises
 
     # -- life cycle ------------------------------------------------------------------
     def start(self, boot: bool = True) -> None:
@@ -141,7 +165,9 @@ class CanAdapter:
         self.node.on_bit_timing(self._bit_timing)
 
     def close(self) -> None:
-        with self.engine_lock:  # a read being answered on the receive thread finishes first; none after
+        with (
+            self.engine_lock
+        ):  # a read being answered on the receive thread finishes first; none after
             self.closed = True
         for handle in (self._timer, self._state_timer):
             if handle is not None:
@@ -250,8 +276,14 @@ class CanAdapter:
         receiver = self._receiver
         exc = getattr(receiver, "exception", None)
         errors = getattr(receiver, "errors", 0)
-        if exc is None and isinstance(errors, int) and errors - self._rx_errors_seen >= RX_ERRORS_FATAL:
-            exc = can.CanOperationError(f"{errors - self._rx_errors_seen} receive errors in {STATE_POLL_S:g} s")
+        if (
+            exc is None
+            and isinstance(errors, int)
+            and errors - self._rx_errors_seen >= RX_ERRORS_FATAL
+        ):
+            exc = can.CanOperationError(
+                f"{errors - self._rx_errors_seen} receive errors in {STATE_POLL_S:g} s"
+            )
         self._rx_errors_seen = errors if isinstance(errors, int) else 0
         if exc is not None:
             self._receive_failed(exc)
@@ -287,7 +319,11 @@ class CanAdapter:
             except (can.CanError, OSError, ValueError) as exc:
                 self.counters["tx_errors"] += 1
                 if self.counters["tx_errors"] == 1 or self.counters["tx_errors"] % 1000 == 0:
-                    log.warning("CAN send failed (%d so far): %s", self.counters["tx_errors"], _one_line(exc))
+                    log.warning(
+                        "CAN send failed (%d so far): %s",
+                        self.counters["tx_errors"],
+                        _one_line(exc),
+                    )
 
     def pump(self, action: Callable[[], object] | None = None) -> None:
         """Run ``action`` on the engine from outside its frame and timer calls (raise an EMCY,
@@ -359,5 +395,10 @@ class CanAdapter:
         self.counters["bit_timing_switches"] += 1
 
     def status(self) -> dict:
-        return {"rx": self.rx_frames, "tx": self.tx_frames, "quick_answers": self.quick_answers, **self.counters,
-                "bus_off": self._bus_off}
+        return {
+            "rx": self.rx_frames,
+            "tx": self.tx_frames,
+            "quick_answers": self.quick_answers,
+            **self.counters,
+            "bus_off": self._bus_off,
+        }

@@ -49,12 +49,21 @@ class Receiver:
     handed_over = 0  # messages handed to the loop, counted by the receiving thread only
     handled = 0  # ... and handled there, counted by the loop only
 
-    def __init__(self, bus: can.BusABC, loop: asyncio.AbstractEventLoop, on_message: OnMessage,
-                 quick: Quick | None = None):
+    def __init__(
+        self,
+        bus: can.BusABC,
+        loop: asyncio.AbstractEventLoop,
+        on_message: OnMessage,
+        quick: Quick | None = None,
+    ):
         self.bus, self.loop, self.on_message, self.quick = bus, loop, on_message, quick
         self.active = True
-        self.exception: BaseException | None = None  # what ended the receive thread, if anything did
-        self._thread = threading.Thread(target=self._receive_thread, name=f"can-rx {bus.channel_info}", daemon=True)
+        self.exception: BaseException | None = (
+            None  # what ended the receive thread, if anything did
+        )
+        self._thread = threading.Thread(
+            target=self._receive_thread, name=f"can-rx {bus.channel_info}", daemon=True
+        )
         self._thread.start()
 
     def _receive_thread(self) -> None:
@@ -64,7 +73,9 @@ class Receiver:
                 msg = recv(RECV_TIMEOUT_S)
                 if msg is not None:
                     handle(msg)
-        except Exception as exc:  # a failing driver ends the thread; the adapter's state poll reports it
+        except (
+            Exception
+        ) as exc:  # a failing driver ends the thread; the adapter's state poll reports it
             if self.active:
                 self.exception = exc
                 log.error("CAN receive thread ended: %s", exc)
@@ -114,13 +125,17 @@ class _LoopQueue:
                 pass
 
     def get(self, block: bool = True, timeout: float | None = None):
-        raise can.CanOperationError("this virtual bus delivers to the event loop; recv() is not available")
+        raise can.CanOperationError(
+            "this virtual bus delivers to the event loop; recv() is not available"
+        )
 
 
 class VirtualReceiver(Receiver):
     mode = "virtual-push"
 
-    def __init__(self, bus: virtual.VirtualBus, loop: asyncio.AbstractEventLoop, on_message: OnMessage):
+    def __init__(
+        self, bus: virtual.VirtualBus, loop: asyncio.AbstractEventLoop, on_message: OnMessage
+    ):
         self.bus, self.loop, self.on_message = bus, loop, on_message
         self.active = True
         stand_in = _LoopQueue(self)
@@ -142,7 +157,9 @@ class VirtualReceiver(Receiver):
 class ReaderReceiver(Receiver):
     mode = "add-reader"
 
-    def __init__(self, bus: can.BusABC, loop: asyncio.AbstractEventLoop, on_message: OnMessage, fd: int):
+    def __init__(
+        self, bus: can.BusABC, loop: asyncio.AbstractEventLoop, on_message: OnMessage, fd: int
+    ):
         self.bus, self.loop, self.on_message = bus, loop, on_message
         self.active = True
         self.errors = 0
@@ -181,8 +198,11 @@ class ReaderReceiver(Receiver):
 
 
 def _usable_virtual(bus: can.BusABC) -> bool:
-    return (isinstance(bus, virtual.VirtualBus) and isinstance(getattr(bus, "channel", None), list)
-            and any(q is getattr(bus, "queue", None) for q in bus.channel))
+    return (
+        isinstance(bus, virtual.VirtualBus)
+        and isinstance(getattr(bus, "channel", None), list)
+        and any(q is getattr(bus, "queue", None) for q in bus.channel)
+    )
 
 
 def _fileno(bus: can.BusABC) -> int | None:
@@ -193,8 +213,12 @@ def _fileno(bus: can.BusABC) -> int | None:
     return fd if isinstance(fd, int) and fd >= 0 else None
 
 
-def start_receiver(bus: can.BusABC, loop: asyncio.AbstractEventLoop, on_message: OnMessage,
-                   quick: Quick | None = None) -> Receiver:
+def start_receiver(
+    bus: can.BusABC,
+    loop: asyncio.AbstractEventLoop,
+    on_message: OnMessage,
+    quick: Quick | None = None,
+) -> Receiver:
     """Deliver the bus's messages to ``on_message`` on ``loop`` (call from the loop's thread)."""
     fd = _fileno(bus)
     if fd is not None:

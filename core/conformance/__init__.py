@@ -7,8 +7,23 @@ See docs/conformance.md. Programmatic use::
     results = run_suite(SuiteConfig(node_id=5, eds="dev.eds"), interface="socketcan", channel="can0")
 """
 
-from .framework import CASES, PROFILES, Case, CaseResult, Options, Timing, Verdict, select
 from .dnet import DnetSuiteConfig, run_devicenet_suite
+from .framework import CASES, PROFILES, Case, CaseResult, Options, Timing, Verdict, select
 from .runner import DeviceSilent, SuiteConfig, failed, run_suite
 
-__all__ = ["CASES", "DeviceSilent", "DnetSuiteConfig", "run_devicenet_suite", "PROFILES", "Case", "CaseResult", "Options", "SuiteConfig", "Timing", "Verdict", "failed", "run_suite", "select"]
+__all__ = [
+    "CASES",
+    "DeviceSilent",
+    "DnetSuiteConfig",
+    "run_devicenet_suite",
+    "PROFILES",
+    "Case",
+    "CaseResult",
+    "Options",
+    "SuiteConfig",
+    "Timing",
+    "Verdict",
+    "failed",
+    "run_suite",
+    "select",
+]

@@ -134,9 +134,15 @@ class Device:
         """An answer that must come; an abort raises :class:`SdoAbort`."""
         frame = self.sdo_request(data)
         if frame is None:
-            raise Fail(f"no {what} from the device", expected=f"a frame on 0x{self.sdo_tx:03X}", seen="nothing")
+            raise Fail(
+                f"no {what} from the device",
+                expected=f"a frame on 0x{self.sdo_tx:03X}",
+                seen="nothing",
+            )
         if len(frame.data) < 8:
-            raise Fail(f"SDO response with DLC {len(frame.data)}", expected="DLC 8", seen=str(frame))
+            raise Fail(
+                f"SDO response with DLC {len(frame.data)}", expected="DLC 8", seen=str(frame)
+            )
         if frame.data[0] == 0x80:
             raise SdoAbort(struct.unpack_from("<I", frame.data, 4)[0], frame)
         return frame
@@ -157,7 +163,11 @@ class Device:
             seg = self.sdo(bytes([0x60 | toggle << 4]), "upload segment")
             expect_cs(seg, 0, "upload segment response (scs 0)")
             if (seg.data[0] >> 4) & 1 != toggle:
-                raise Fail("upload segment with the wrong toggle bit", expected=f"t={toggle}", seen=str(seg))
+                raise Fail(
+                    "upload segment with the wrong toggle bit",
+                    expected=f"t={toggle}",
+                    seen=str(seg),
+                )
             n = (seg.data[0] >> 1) & 7
             data += seg.data[1 : 8 - n]
             if seg.data[0] & 0x01:
@@ -166,12 +176,18 @@ class Device:
             if len(data) > 1 << 20:
                 raise Fail("segmented upload never ends")
         if size is not None and size != len(data):
-            raise Fail(f"segmented upload of 0x{index:04X}:{sub} delivered {len(data)} bytes", expected=f"{size} bytes as announced", seen=f"{len(data)} bytes")
+            raise Fail(
+                f"segmented upload of 0x{index:04X}:{sub} delivered {len(data)} bytes",
+                expected=f"{size} bytes as announced",
+                seen=f"{len(data)} bytes",
+            )
         return bytes(data)
 
     def download(self, index: int, sub: int, data: bytes, segmented: bool = False) -> None:
         if len(data) <= 4 and not segmented:
-            frame = self.sdo(bytes([0x23 | (4 - len(data)) << 2]) + mux(index, sub) + data.ljust(4, b"\0"))
+            frame = self.sdo(
+                bytes([0x23 | (4 - len(data)) << 2]) + mux(index, sub) + data.ljust(4, b"\0")
+            )
             expect_cs(frame, 3, "download response (scs 3)")
             expect_mux(frame, index, sub)
             return
@@ -182,9 +198,16 @@ class Device:
         for pos in range(0, len(data), 7):
             chunk = data[pos : pos + 7]
             last = pos + 7 >= len(data)
-            seg = self.sdo(bytes([toggle << 4 | (7 - len(chunk)) << 1 | int(last)]) + chunk.ljust(7, b"\0"), "download segment response")
+            seg = self.sdo(
+                bytes([toggle << 4 | (7 - len(chunk)) << 1 | int(last)]) + chunk.ljust(7, b"\0"),
+                "download segment response",
+            )
             if seg.data[0] != 0x20 | toggle << 4:
-                raise Fail("wrong download segment response", expected=f"{0x20 | toggle << 4:02X} (scs 1, t={toggle})", seen=str(seg))
+                raise Fail(
+                    "wrong download segment response",
+                    expected=f"{0x20 | toggle << 4:02X} (scs 1, t={toggle})",
+                    seen=str(seg),
+                )
             toggle ^= 1
 
     def expect_abort(self, request: bytes, codes: tuple[int, ...], what: str) -> int:
@@ -192,23 +215,41 @@ class Device:
             frame = self.sdo(request)
         except SdoAbort as exc:
             if exc.code not in codes:
-                raise Fail(f"{what}: wrong abort code", expected=" or ".join(abort_text(c) for c in codes), seen=abort_text(exc.code)) from None
+                raise Fail(
+                    f"{what}: wrong abort code",
+                    expected=" or ".join(abort_text(c) for c in codes),
+                    seen=abort_text(exc.code),
+                ) from None
             if bytes(exc.frame.data[1:4]) != bytes(request[1:4]) and request[0] >> 5 in (1, 2):
-                raise Fail(f"{what}: abort does not echo the multiplexer", expected=bytes(request[1:4]).hex(" "), seen=str(exc.frame))
+                raise Fail(
+                    f"{what}: abort does not echo the multiplexer",
+                    expected=bytes(request[1:4]).hex(" "),
+                    seen=str(exc.frame),
+                )
             return exc.code
-        raise Fail(f"{what}: accepted", expected=" or ".join(abort_text(c) for c in codes), seen=str(frame))
+        raise Fail(
+            f"{what}: accepted", expected=" or ".join(abort_text(c) for c in codes), seen=str(frame)
+        )
 
-    def expect_write_abort(self, index: int, sub: int, data: bytes, codes: tuple[int, ...], what: str) -> int:
+    def expect_write_abort(
+        self, index: int, sub: int, data: bytes, codes: tuple[int, ...], what: str
+    ) -> int:
         """Write ``data`` (expedited up to 4 bytes, else segmented); it must be refused with one of ``codes``."""
         if len(data) <= 4:
-            return self.expect_abort(bytes([0x23 | (4 - len(data)) << 2]) + mux(index, sub) + data.ljust(4, b"\0"), codes, what)
+            return self.expect_abort(
+                bytes([0x23 | (4 - len(data)) << 2]) + mux(index, sub) + data.ljust(4, b"\0"),
+                codes,
+                what,
+            )
         wanted = " or ".join(abort_text(c) for c in codes)
         try:
             self.download(index, sub, data)
         except SdoAbort as exc:
             if exc.code in codes:
                 return exc.code
-            raise Fail(f"{what}: wrong abort code", expected=wanted, seen=abort_text(exc.code)) from None
+            raise Fail(
+                f"{what}: wrong abort code", expected=wanted, seen=abort_text(exc.code)
+            ) from None
         raise Fail(f"{what}: accepted", expected=wanted)
 
     # -- typed access through the EDS --------------------------------------------
@@ -220,7 +261,9 @@ class Device:
         try:
             return var.decode_raw(raw)
         except Exception as exc:
-            raise Fail(f"0x{index:04X}:{sub} value {raw.hex(' ')} does not decode as {type_name(var)}: {exc}") from None
+            raise Fail(
+                f"0x{index:04X}:{sub} value {raw.hex(' ')} does not decode as {type_name(var)}: {exc}"
+            ) from None
 
     def write(self, index: int, sub: int, value) -> None:
         var = self.var(index, sub)
@@ -262,7 +305,9 @@ class Device:
 
     def wait_bootup(self, node_id: int | None = None) -> Frame | None:
         cob = 0x700 + (node_id or self.node_id)
-        return self.link.expect(lambda f: f.cob == cob and not f.rtr and f.data[:1] == b"\0", self.timing.bootup)
+        return self.link.expect(
+            lambda f: f.cob == cob and not f.rtr and f.data[:1] == b"\0", self.timing.bootup
+        )
 
     def settle(self) -> None:
         """Back to Pre-operational between cases; pending frames are dropped."""
@@ -289,7 +334,9 @@ class StateProbe:
         elif self.dev.has(0x100C):
             self.method = "guarding"
         else:
-            raise Skip("the EDS lists neither 0x1017 (heartbeat) nor 0x100C (guarding): NMT state cannot be observed")
+            raise Skip(
+                "the EDS lists neither 0x1017 (heartbeat) nor 0x100C (guarding): NMT state cannot be observed"
+            )
 
     def arm(self) -> None:
         if self.method == "heartbeat":
@@ -305,7 +352,9 @@ class StateProbe:
         else:
             dev.link.flush()
             wait = 2 * self.ctx.timing.heartbeat_ms / 1000 + self.ctx.timing.response
-            frame = dev.link.expect(lambda f: f.cob == 0x700 + dev.node_id and not f.rtr and f.data[:1] != b"\0", wait)
+            frame = dev.link.expect(
+                lambda f: f.cob == 0x700 + dev.node_id and not f.rtr and f.data[:1] != b"\0", wait
+            )
         if frame is None or not frame.data:
             return None
         return frame.data[0] & 0x7F
@@ -327,7 +376,11 @@ def expect_cs(frame: Frame, cs: int, what: str) -> None:
 
 def expect_mux(frame: Frame, index: int, sub: int) -> None:
     if bytes(frame.data[1:4]) != mux(index, sub):
-        raise Fail("SDO response does not echo the multiplexer", expected=mux(index, sub).hex(" ").upper(), seen=str(frame))
+        raise Fail(
+            "SDO response does not echo the multiplexer",
+            expected=mux(index, sub).hex(" ").upper(),
+            seen=str(frame),
+        )
 
 
 def type_name(var: ODVariable) -> str:

@@ -9,8 +9,8 @@ request), 3 (explicit response), 5 (poll), 7 (duplicate MAC ID check), Group 1 m
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import can
 
@@ -25,10 +25,17 @@ CHOICE_EXPLICIT, CHOICE_POLL, CHOICE_STROBE, CHOICE_COS = 0x01, 0x02, 0x04, 0x10
 FIRST, MIDDLE, LAST, ACK = 0x00, 0x40, 0x80, 0xC0
 
 STATUS_NAMES = {
-    0x02: "resource unavailable", 0x05: "path destination unknown", 0x08: "service not supported",
-    0x09: "invalid attribute value", 0x0B: "already in requested mode/state", 0x0C: "object state conflict",
-    0x0E: "attribute not settable", 0x13: "not enough data", 0x14: "attribute not supported",
-    0x15: "too much data", 0x16: "object does not exist",
+    0x02: "resource unavailable",
+    0x05: "path destination unknown",
+    0x08: "service not supported",
+    0x09: "invalid attribute value",
+    0x0B: "already in requested mode/state",
+    0x0C: "object state conflict",
+    0x0E: "attribute not settable",
+    0x13: "not enough data",
+    0x14: "attribute not supported",
+    0x15: "too much data",
+    0x16: "object does not exist",
 }
 
 
@@ -75,7 +82,9 @@ class DnetDevice:
         return group1_id(G1_POLL_RESPONSE, self.mac_id)
 
     def _explicit_response(self, timeout: float | None = None) -> Frame | None:
-        return self.link.expect(self.g2(G2_EXPLICIT_RESPONSE), self.timing.response if timeout is None else timeout)
+        return self.link.expect(
+            self.g2(G2_EXPLICIT_RESPONSE), self.timing.response if timeout is None else timeout
+        )
 
     # -- unconnected port: Allocate / Release ---------------------------------------
     def unconnected(self, service: int, body: bytes, master: int | None = None) -> Frame | None:
@@ -91,9 +100,15 @@ class DnetDevice:
         return self._unconnected_reply(frame, ALLOCATE, f"Allocate 0x{choice:02X}")
 
     def release(self, choice: int, master: int | None = None) -> Frame:
-        return self._unconnected_reply(self.unconnected(RELEASE, bytes([choice]), master=master), RELEASE, f"Release 0x{choice:02X}")
+        return self._unconnected_reply(
+            self.unconnected(RELEASE, bytes([choice]), master=master),
+            RELEASE,
+            f"Release 0x{choice:02X}",
+        )
 
-    def expect_unconnected_error(self, service: int, body: bytes, codes: tuple[int, int], what: str) -> None:
+    def expect_unconnected_error(
+        self, service: int, body: bytes, codes: tuple[int, int], what: str
+    ) -> None:
         """An unconnected request that must be refused with ``(general, additional)``."""
         frame = self.unconnected(service, body)
         want = f"[hdr] 94 {codes[0]:02X} {codes[1]:02X} ({STATUS_NAMES.get(codes[0], 'error')})"
@@ -107,10 +122,18 @@ class DnetDevice:
 
     def _unconnected_reply(self, frame: Frame | None, service: int, what: str) -> Frame:
         if frame is None:
-            raise Fail(f"no response to {what}", expected=f"a frame on 0x{self.g2(G2_EXPLICIT_RESPONSE):03X}", seen="nothing")
+            raise Fail(
+                f"no response to {what}",
+                expected=f"a frame on 0x{self.g2(G2_EXPLICIT_RESPONSE):03X}",
+                seen="nothing",
+            )
         check_error(frame.data, frame)
         if len(frame.data) < 2 or frame.data[1] != service | 0x80:
-            raise Fail(f"wrong response to {what}", expected=f"[hdr] {service | 0x80:02X} ...", seen=str(frame))
+            raise Fail(
+                f"wrong response to {what}",
+                expected=f"[hdr] {service | 0x80:02X} ...",
+                seen=str(frame),
+            )
         return frame
 
     # -- explicit connection ------------------------------------------------------------
@@ -126,7 +149,11 @@ class DnetDevice:
             frame = self._explicit_response(timeout)
             if frame is None:
                 if frames:
-                    raise Fail("fragmented response stopped", expected=f"fragment {expected_count}", seen="nothing")
+                    raise Fail(
+                        "fragmented response stopped",
+                        expected=f"fragment {expected_count}",
+                        seen="nothing",
+                    )
                 return None
             frames.append(frame)
             data = frame.data
@@ -142,10 +169,18 @@ class DnetDevice:
             kind, count = frag & 0xC0, frag & 0x3F
             want_kind = (FIRST,) if not frames[:-1] else (MIDDLE, LAST)
             if kind not in want_kind or count != expected_count & 0x3F:
-                raise Fail("explicit fragment out of sequence", expected=f"type {'first' if not frames[:-1] else 'middle/last'}, count {expected_count}", seen=str(frame))
+                raise Fail(
+                    "explicit fragment out of sequence",
+                    expected=f"type {'first' if not frames[:-1] else 'middle/last'}, count {expected_count}",
+                    seen=str(frame),
+                )
             if kind != LAST and len(data) != 8:
-                raise Fail("a fragment before the last one is not full (6 data bytes)", seen=str(frame))
-            self.link.send(self.g2(G2_EXPLICIT_REQUEST), bytes([self.master_mac | 0x80, ACK | count, 0x00]))
+                raise Fail(
+                    "a fragment before the last one is not full (6 data bytes)", seen=str(frame)
+                )
+            self.link.send(
+                self.g2(G2_EXPLICIT_REQUEST), bytes([self.master_mac | 0x80, ACK | count, 0x00])
+            )
             payload += data[2:]
             expected_count += 1
             if kind == LAST:
@@ -153,33 +188,71 @@ class DnetDevice:
             if expected_count > 200:
                 raise Fail("fragmented response never ends")
 
-    def call(self, service: int, class_id: int, instance: int, rest: bytes = b"", what: str = "") -> Reply:
+    def call(
+        self, service: int, class_id: int, instance: int, rest: bytes = b"", what: str = ""
+    ) -> Reply:
         """A request that must succeed: the reply, or Fail / CipErrorSeen."""
         what = what or f"service 0x{service:02X} class 0x{class_id:02X} instance {instance}"
         reply = self.request(bytes([service, class_id, instance]) + rest)
         if reply is None:
-            raise Fail(f"no response to {what}", expected=f"a frame on 0x{self.g2(G2_EXPLICIT_RESPONSE):03X}", seen="nothing")
+            raise Fail(
+                f"no response to {what}",
+                expected=f"a frame on 0x{self.g2(G2_EXPLICIT_RESPONSE):03X}",
+                seen="nothing",
+            )
         if reply.service == ERROR | 0x80:
-            raise CipErrorSeen(reply.data[0] if reply.data else -1, reply.data[1] if len(reply.data) > 1 else -1, reply.frames[-1])
+            raise CipErrorSeen(
+                reply.data[0] if reply.data else -1,
+                reply.data[1] if len(reply.data) > 1 else -1,
+                reply.frames[-1],
+            )
         if reply.service != service | 0x80:
-            raise Fail(f"wrong service in the response to {what}", expected=f"0x{service | 0x80:02X}", seen=str(reply.frames[-1]))
+            raise Fail(
+                f"wrong service in the response to {what}",
+                expected=f"0x{service | 0x80:02X}",
+                seen=str(reply.frames[-1]),
+            )
         return reply
 
     def get(self, class_id: int, instance: int, attribute: int) -> bytes:
-        return self.call(GET, class_id, instance, bytes([attribute]), f"Get_Attribute_Single {class_id}/{instance}/{attribute}").data
+        return self.call(
+            GET,
+            class_id,
+            instance,
+            bytes([attribute]),
+            f"Get_Attribute_Single {class_id}/{instance}/{attribute}",
+        ).data
 
     def set(self, class_id: int, instance: int, attribute: int, value: bytes) -> bytes:
-        return self.call(SET, class_id, instance, bytes([attribute]) + value, f"Set_Attribute_Single {class_id}/{instance}/{attribute}").data
+        return self.call(
+            SET,
+            class_id,
+            instance,
+            bytes([attribute]) + value,
+            f"Set_Attribute_Single {class_id}/{instance}/{attribute}",
+        ).data
 
     def expect_error(self, body: bytes, codes: tuple[int, ...], what: str) -> int:
         reply = self.request(body)
         if reply is None:
-            raise Fail(f"{what}: no response", expected="error response [hdr] 94 " + " or ".join(f"{c:02X}" for c in codes), seen="nothing")
+            raise Fail(
+                f"{what}: no response",
+                expected="error response [hdr] 94 " + " or ".join(f"{c:02X}" for c in codes),
+                seen="nothing",
+            )
         if reply.service != ERROR | 0x80:
-            raise Fail(f"{what}: accepted", expected="an error response (service 0x94)", seen=str(reply.frames[-1]))
+            raise Fail(
+                f"{what}: accepted",
+                expected="an error response (service 0x94)",
+                seen=str(reply.frames[-1]),
+            )
         general = reply.data[0] if reply.data else -1
         if general not in codes:
-            raise Fail(f"{what}: wrong general status", expected=" or ".join(status_text(c) for c in codes), seen=f"{status_text(general)}: {reply.frames[-1]}")
+            raise Fail(
+                f"{what}: wrong general status",
+                expected=" or ".join(status_text(c) for c in codes),
+                seen=f"{status_text(general)}: {reply.frames[-1]}",
+            )
         return general
 
     # -- I/O ---------------------------------------------------------------------------
@@ -189,7 +262,7 @@ class DnetDevice:
         if len(outputs) <= 8:
             self.link.send(self.g2(G2_POLL), outputs)
         else:
-            chunks = [outputs[i:i + 7] for i in range(0, len(outputs), 7)]
+            chunks = [outputs[i : i + 7] for i in range(0, len(outputs), 7)]
             for n, chunk in enumerate(chunks):
                 kind = FIRST if n == 0 else LAST if n == len(chunks) - 1 else MIDDLE
                 self.link.send(self.g2(G2_POLL), bytes([kind | n & 0x3F]) + chunk)
@@ -205,9 +278,15 @@ class DnetDevice:
         while len(data) < size:
             frame = self.link.expect(self.poll_response_id, self.timing.response)
             if frame is None:
-                raise Fail("I/O fragmented poll response stopped", expected=f"{size} bytes", seen=f"{len(data)} bytes")
+                raise Fail(
+                    "I/O fragmented poll response stopped",
+                    expected=f"{size} bytes",
+                    seen=f"{len(data)} bytes",
+                )
             if frame.data[0] & 0x3F != count & 0x3F:
-                raise Fail("I/O fragment out of sequence", expected=f"count {count}", seen=str(frame))
+                raise Fail(
+                    "I/O fragment out of sequence", expected=f"count {count}", seen=str(frame)
+                )
             data += frame.data[1:]
             count += 1
         return data
@@ -240,7 +319,6 @@ def check_error(data: bytes, frame: Frame | None) -> None:
         raise CipErrorSeen(data[2], data[3] if len(data) > 3 else -1, frame)
 
 
-
 @dataclass
 class DnetSuiteConfig:
     mac_id: int
@@ -258,19 +336,36 @@ def identity(device: DnetDevice) -> dict[str, str]:
         device.allocate(CHOICE_EXPLICIT)
     except Exception:
         return out
-    for key, attribute in (("vendor", 1), ("device type", 2), ("product code", 3), ("serial number", 6), ("product name", 7)):
+    for key, attribute in (
+        ("vendor", 1),
+        ("device type", 2),
+        ("product code", 3),
+        ("serial number", 6),
+        ("product name", 7),
+    ):
         try:
             data = device.get(1, 1, attribute)
         except Exception:  # the header must not stop the run; the identity case reports it
             continue
-        out[key] = data[1:1 + data[0]].decode("latin-1") if attribute == 7 and data else f"0x{int.from_bytes(data, 'little'):X}"
+        out[key] = (
+            data[1 : 1 + data[0]].decode("latin-1")
+            if attribute == 7 and data
+            else f"0x{int.from_bytes(data, 'little'):X}"
+        )
     device.settle()
     return out
 
 
-def run_devicenet_suite(config: DnetSuiteConfig, bus: can.BusABC | None = None, *, interface: str = "virtual", channel: str = "vcan0",
-                        bitrate: int | None = None, progress: Callable[[CaseResult], None] | None = None,
-                        on_start: Callable[[dict[str, str]], None] | None = None) -> list[CaseResult]:
+def run_devicenet_suite(
+    config: DnetSuiteConfig,
+    bus: can.BusABC | None = None,
+    *,
+    interface: str = "virtual",
+    channel: str = "vcan0",
+    bitrate: int | None = None,
+    progress: Callable[[CaseResult], None] | None = None,
+    on_start: Callable[[dict[str, str]], None] | None = None,
+) -> list[CaseResult]:
     """Run the selected DeviceNet cases against the slave at ``config.mac_id`` (see run_suite)."""
     from .runner import DeviceSilent
 
@@ -280,9 +375,13 @@ def run_devicenet_suite(config: DnetSuiteConfig, bus: can.BusABC | None = None, 
         ctx = Context(device, config.timing, config.options)
         device.settle()
         if not device.wait_online(config.timing.bootup):
-            raise DeviceSilent(f"MAC ID {config.mac_id} does not answer an Allocate on 0x{device.g2(G2_UNCONNECTED):03X}: wrong MAC ID or bus, or the device is not online")
+            raise DeviceSilent(
+                f"MAC ID {config.mac_id} does not answer an Allocate on 0x{device.g2(G2_UNCONNECTED):03X}: wrong MAC ID or bus, or the device is not online"
+            )
         if on_start:
             on_start(identity(device))
-        return run_cases(select(config.profiles, config.patterns, protocol="devicenet"), ctx, progress)
+        return run_cases(
+            select(config.profiles, config.patterns, protocol="devicenet"), ctx, progress
+        )
     finally:
         link.close()

@@ -11,9 +11,10 @@ from __future__ import annotations
 import fnmatch
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from .device import Device
@@ -50,7 +51,7 @@ class Case:
     id: str
     profile: str
     title: str
-    fn: Callable[["Context"], None]
+    fn: Callable[[Context], None]
 
 
 CASES: dict[str, Case] = {}
@@ -92,7 +93,9 @@ class Timing:
 
 @dataclass
 class Options:
-    loopback: bool = False  # the device's outputs are wired to its inputs (DO n → DI n, AO n → AI n)
+    loopback: bool = (
+        False  # the device's outputs are wired to its inputs (DO n → DI n, AO n → AI n)
+    )
     lss_spare_node_id: int | None = None  # node-ID the LSS cases may configure temporarily
 
 
@@ -130,7 +133,9 @@ class Context:
         return errors
 
 
-def select(profiles: list[str] | None = None, patterns: list[str] | None = None, protocol: str = "canopen") -> list[Case]:
+def select(
+    profiles: list[str] | None = None, patterns: list[str] | None = None, protocol: str = "canopen"
+) -> list[Case]:
     """Cases of the given profiles whose id matches any -k pattern. No profiles: every profile
     of the protocol but the opt-in ones (``seed``); ``"all"``: every profile of the protocol."""
     from . import cases  # noqa: F401  (registers every case)
@@ -159,7 +164,9 @@ def _matches(case_id: str, pattern: str) -> bool:
     return pattern in case_id
 
 
-def run_cases(selected: list[Case], ctx: Context, progress: Callable[[CaseResult], None] | None = None) -> list[CaseResult]:
+def run_cases(
+    selected: list[Case], ctx: Context, progress: Callable[[CaseResult], None] | None = None
+) -> list[CaseResult]:
     results = []
     for c in selected:
         result = run_case(c, ctx)
@@ -190,5 +197,7 @@ def run_case(c: Case, ctx: Context) -> CaseResult:
     if result.verdict is Verdict.FAIL:
         result.frames = link.log_lines()
     if errors and result.verdict is Verdict.PASS:
-        result = CaseResult(c, Verdict.FAIL, "; ".join(errors), frames=link.log_lines(), duration=result.duration)
+        result = CaseResult(
+            c, Verdict.FAIL, "; ".join(errors), frames=link.log_lines(), duration=result.duration
+        )
     return result

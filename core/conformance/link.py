@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import queue
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import can
 import canopen
@@ -47,7 +47,9 @@ class Link:
         self._rx: queue.Queue[Frame] = queue.Queue()
         self.network = canopen.Network(bus)
         self.network.listeners.append(self._on_message)
-        self.network.NOTIFIER_CYCLE = 0.1  # closing the link waits up to one cycle for the receive thread
+        self.network.NOTIFIER_CYCLE = (
+            0.1  # closing the link waits up to one cycle for the receive thread
+        )
         self.network.connect()
         self.log: list[tuple[float, str, Frame]] = []
         self._t0 = time.time()
@@ -87,12 +89,26 @@ class Link:
     def _on_message(self, msg: can.Message) -> None:
         if msg.is_error_frame:
             return
-        frame = Frame(msg.arbitration_id, bytes(msg.data), msg.is_remote_frame, msg.dlc, msg.timestamp or time.time())
+        frame = Frame(
+            msg.arbitration_id,
+            bytes(msg.data),
+            msg.is_remote_frame,
+            msg.dlc,
+            msg.timestamp or time.time(),
+        )
         self._rx.put(frame)
 
-    def send(self, cob: int, data: bytes | list[int] = b"", rtr: bool = False, dlc: int | None = None) -> Frame:
+    def send(
+        self, cob: int, data: bytes | list[int] = b"", rtr: bool = False, dlc: int | None = None
+    ) -> Frame:
         data = bytes(data)
-        msg = can.Message(arbitration_id=cob, data=b"" if rtr else data, is_extended_id=False, is_remote_frame=rtr, dlc=dlc if dlc is not None else len(data))
+        msg = can.Message(
+            arbitration_id=cob,
+            data=b"" if rtr else data,
+            is_extended_id=False,
+            is_remote_frame=rtr,
+            dlc=dlc if dlc is not None else len(data),
+        )
         frame = Frame(cob, bytes(msg.data or b""), rtr, msg.dlc, time.time())
         self.bus.send(msg)
         self._record("→", frame)

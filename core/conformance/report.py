@@ -10,7 +10,9 @@ from .framework import CaseResult, Verdict
 
 
 def line(result: CaseResult) -> str:
-    text = f"{result.verdict.value}  {result.case.id:<34} {result.duration:6.3f}s  {result.case.title}"
+    text = (
+        f"{result.verdict.value}  {result.case.id:<34} {result.duration:6.3f}s  {result.case.title}"
+    )
     if result.verdict is Verdict.SKIP:
         text += f"\n      why: {result.reason}"
     return text
@@ -44,7 +46,11 @@ def text_report(results: list[CaseResult], header: str = "") -> str:
     return "\n".join(out) + "\n"
 
 
-def junit_xml(results: list[CaseResult], suite_name: str = "fieldgate-conformance", properties: dict[str, str] | None = None) -> ET.ElementTree:
+def junit_xml(
+    results: list[CaseResult],
+    suite_name: str = "fieldgate-conformance",
+    properties: dict[str, str] | None = None,
+) -> ET.ElementTree:
     counts = Counter(r.verdict for r in results)
     suites = ET.Element("testsuites")
     suite = ET.SubElement(
@@ -62,7 +68,13 @@ def junit_xml(results: list[CaseResult], suite_name: str = "fieldgate-conformanc
         for name, value in properties.items():
             ET.SubElement(props, "property", name=name, value=str(value))
     for r in results:
-        tc = ET.SubElement(suite, "testcase", classname=f"conformance.{r.case.profile}", name=r.case.id, time=f"{r.duration:.3f}")
+        tc = ET.SubElement(
+            suite,
+            "testcase",
+            classname=f"conformance.{r.case.profile}",
+            name=r.case.id,
+            time=f"{r.duration:.3f}",
+        )
         if r.verdict is Verdict.FAIL:
             failure = ET.SubElement(tc, "failure", message=r.reason)
             failure.text = "\n".join(details(r))
@@ -72,5 +84,7 @@ def junit_xml(results: list[CaseResult], suite_name: str = "fieldgate-conformanc
     return ET.ElementTree(suites)
 
 
-def write_junit(results: list[CaseResult], path: str | Path, properties: dict[str, str] | None = None) -> None:
+def write_junit(
+    results: list[CaseResult], path: str | Path, properties: dict[str, str] | None = None
+) -> None:
     junit_xml(results, properties=properties).write(path, encoding="utf-8", xml_declaration=True)

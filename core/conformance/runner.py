@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import can
 
@@ -29,19 +29,35 @@ class SuiteConfig:
 def identity(device: Device) -> dict[str, str]:
     """What the device says it is (0x1008, 0x1018), for the report header; absent entries are left out."""
     out = {}
-    for key, index, sub in (("device name", 0x1008, 0), ("vendor-ID", 0x1018, 1), ("product code", 0x1018, 2), ("revision", 0x1018, 3), ("serial number", 0x1018, 4)):
+    for key, index, sub in (
+        ("device name", 0x1008, 0),
+        ("vendor-ID", 0x1018, 1),
+        ("product code", 0x1018, 2),
+        ("revision", 0x1018, 3),
+        ("serial number", 0x1018, 4),
+    ):
         if not device.has(index, sub):
             continue
         try:
             value = device.read(index, sub)
-        except Exception:  # the header must not stop the run; od.read_all reports unreadable entries
+        except (
+            Exception
+        ):  # the header must not stop the run; od.read_all reports unreadable entries
             continue
         out[key] = value.rstrip("\0") if isinstance(value, str) else f"0x{value:08X}"
     return out
 
 
-def run_suite(config: SuiteConfig, bus: can.BusABC | None = None, *, interface: str = "virtual", channel: str = "vcan0", bitrate: int | None = None,
-              progress: Callable[[CaseResult], None] | None = None, on_start: Callable[[dict[str, str]], None] | None = None) -> list[CaseResult]:
+def run_suite(
+    config: SuiteConfig,
+    bus: can.BusABC | None = None,
+    *,
+    interface: str = "virtual",
+    channel: str = "vcan0",
+    bitrate: int | None = None,
+    progress: Callable[[CaseResult], None] | None = None,
+    on_start: Callable[[dict[str, str]], None] | None = None,
+) -> list[CaseResult]:
     """Run the selected cases. Pass ``bus`` to reuse an open python-can bus (left open afterwards).
     ``on_start`` gets the device's identity once it answered; ``progress`` every result."""
     link = Link(bus) if bus is not None else Link.open(interface, channel, bitrate)
@@ -50,7 +66,9 @@ def run_suite(config: SuiteConfig, bus: can.BusABC | None = None, *, interface: 
         ctx = Context(device, config.timing, config.options)
         device.nmt(NMT_PREOP)
         if not any(device.sdo_request(bytes([0x40, 0x00, 0x10, 0x00])) for _ in range(2)):
-            raise DeviceSilent(f"node {config.node_id} does not answer an SDO read of 0x1000 on 0x{device.sdo_rx:03X}: wrong node-ID or bus, or the device is not running")
+            raise DeviceSilent(
+                f"node {config.node_id} does not answer an SDO read of 0x1000 on 0x{device.sdo_rx:03X}: wrong node-ID or bus, or the device is not running"
+            )
         if on_start:
             on_start(identity(device))
         return run_cases(select(config.profiles, config.patterns), ctx, progress)

@@ -16,7 +16,20 @@ from .model import (
 )
 
 __all__ = [
-    "BackConfig", "ComponentConfig", "ConfigIssue", "ErrorModeSpec", "FrontConfig", "GatewaySection",
-    "ModuleConfig", "SerialBackConfig", "StrictModel", "Topology", "TopologyError", "ValueMode",
-    "load_topology", "read_yaml", "to_error_mode", "validate",
+    "BackConfig",
+    "ComponentConfig",
+    "ConfigIssue",
+    "ErrorModeSpec",
+    "FrontConfig",
+    "GatewaySection",
+    "ModuleConfig",
+    "SerialBackConfig",
+    "StrictModel",
+    "Topology",
+    "TopologyError",
+    "ValueMode",
+    "load_topology",
+    "read_yaml",
+    "to_error_mode",
+    "validate",
 ]

@@ -51,7 +51,11 @@ MAPPING_EXPECTED = "the file must be a mapping with keys gateway, fronts, backs"
 
 def _ini_hint(text: str) -> str:
     """``; is it an INI or TOML file?`` when ``text`` has ``[section]`` or ``key = value`` parts."""
-    return "; is it an INI or TOML file?" if re.search(r"(^|\s)(\[[^\]\n]*\](\s|$)|[\w.-]+\s*=)", text) else ""
+    return (
+        "; is it an INI or TOML file?"
+        if re.search(r"(^|\s)(\[[^\]\n]*\](\s|$)|[\w.-]+\s*=)", text)
+        else ""
+    )
 
 
 def not_a_mapping(data: Any) -> str:
@@ -80,7 +84,11 @@ def yaml_problem(exc: Any, text: str) -> str:
     if "'\\t'" in problem and mark is not None:
         lines = text.splitlines()
         before = lines[mark.line][: mark.column] if mark.line < len(lines) else ""
-        problem += " (YAML indents with spaces, not tabs)" if not before.strip() else " (YAML separates with spaces, not tabs)"
+        problem += (
+            " (YAML indents with spaces, not tabs)"
+            if not before.strip()
+            else " (YAML separates with spaces, not tabs)"
+        )
     return f"YAML syntax: {problem}"
 
 
@@ -109,7 +117,9 @@ def position(root: Any, loc: tuple, *, key: bool = False) -> tuple[int | None, i
                 best = _own_position(child)  # inside a nested mapping or list: point at its content
             elif lc is not None:
                 try:
-                    line, col = lc.key(part) if (key and last) or not _is_scalar(child) else lc.value(part)
+                    line, col = (
+                        lc.key(part) if (key and last) or not _is_scalar(child) else lc.value(part)
+                    )
                     best = (line + 1, col + 1)
                 except (KeyError, TypeError):
                     pass
@@ -148,7 +158,11 @@ def data_loc(root: Any, loc: tuple) -> tuple:
         elif isinstance(node, list) and isinstance(part, int) and 0 <= part < len(node):
             out.append(part)
             node = node[part]
-        elif not isinstance(node, (dict, list)) or (isinstance(part, str) and part[:1].isupper()) or "[" in str(part):
+        elif (
+            not isinstance(node, (dict, list))
+            or (isinstance(part, str) and part[:1].isupper())
+            or "[" in str(part)
+        ):
             continue  # union tag (class name or literal[...]), or below a scalar
         else:
             out.append(part)  # a missing key: keep it so the path names it
@@ -211,11 +225,17 @@ def describe_pydantic_error(err: dict, model: type[BaseModel], raw_loc: tuple) -
         field_name = str(raw_loc[-1])
         keys = allowed_keys(model, raw_loc)
         hint = suggest(field_name, keys)
-        return f"unknown field '{field_name}'{hint or ''} (expected one of: {', '.join(keys)})" if not hint else f"unknown field '{field_name}'{hint}"
+        return (
+            f"unknown field '{field_name}'{hint or ''} (expected one of: {', '.join(keys)})"
+            if not hint
+            else f"unknown field '{field_name}'{hint}"
+        )
     if kind == "missing":
         return "required field is missing"
     message = err["msg"]
-    if kind == "value_error":  # a validator's own message: pydantic's "Value error, " prefix says nothing
+    if (
+        kind == "value_error"
+    ):  # a validator's own message: pydantic's "Value error, " prefix says nothing
         message = message.removeprefix("Value error, ")
     if "input" in err and not isinstance(err["input"], (dict, list)):
         message += f" (got {err['input']!r})"

@@ -94,12 +94,24 @@ def read_yaml(path: str | Path) -> Any:
     try:
         raw = Path(path).read_bytes()
     except OSError as exc:
-        raise TopologyError([ConfigIssue(file, None, None, "", f"cannot read file: {exc.strerror or exc}")]) from None
+        raise TopologyError(
+            [ConfigIssue(file, None, None, "", f"cannot read file: {exc.strerror or exc}")]
+        ) from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         line, col = byte_position(raw, exc.start)
-        raise TopologyError([ConfigIssue(file, line, col, "", f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); save the file as UTF-8")]) from None
+        raise TopologyError(
+            [
+                ConfigIssue(
+                    file,
+                    line,
+                    col,
+                    "",
+                    f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}); save the file as UTF-8",
+                )
+            ]
+        ) from None
     yaml = YAML(typ="rt")
     try:
         return yaml.load(text)
@@ -107,15 +119,31 @@ def read_yaml(path: str | Path) -> Any:
         mark = exc.problem_mark or exc.context_mark
         line, col = (mark.line + 1, mark.column + 1) if mark else (None, None)
         raise TopologyError([ConfigIssue(file, line, col, "", yaml_problem(exc, text))]) from None
-    except ReaderError as exc:  # a control character such as NUL; its position is an offset in the text
+    except (
+        ReaderError
+    ) as exc:  # a control character such as NUL; its position is an offset in the text
         line, col = char_position(text, exc.position)
         char = exc.character if isinstance(exc.character, int) else ord(exc.character)
-        raise TopologyError([ConfigIssue(file, line, col, "", f"YAML syntax: character U+{char:04X} is not allowed in YAML text (is this a binary file?)")]) from None
+        raise TopologyError(
+            [
+                ConfigIssue(
+                    file,
+                    line,
+                    col,
+                    "",
+                    f"YAML syntax: character U+{char:04X} is not allowed in YAML text (is this a binary file?)",
+                )
+            ]
+        ) from None
     except YAMLError as exc:
-        raise TopologyError([ConfigIssue(file, None, None, "", f"YAML syntax: {' '.join(str(exc).split())}")]) from None
+        raise TopologyError(
+            [ConfigIssue(file, None, None, "", f"YAML syntax: {' '.join(str(exc).split())}")]
+        ) from None
 
 
-def apply_overrides(data: Any, overrides: dict[str, Any], origins: dict[tuple, str] | None = None) -> Any:
+def apply_overrides(
+    data: Any, overrides: dict[str, Any], origins: dict[tuple, str] | None = None
+) -> Any:
     """Set fields by dotted path before validation: ``fronts.can.interface`` or ``backs.0.port``.
 
     A list element is addressed by index or by its ``name``. A path that addresses nothing
@@ -159,7 +187,9 @@ def _show_value(value: Any) -> str:
     if value is None:
         return "null"
     if isinstance(value, dict):
-        return "{" + ", ".join(f"{_show_value(k)}: {_show_value(v)}" for k, v in value.items()) + "}"
+        return (
+            "{" + ", ".join(f"{_show_value(k)}: {_show_value(v)}" for k, v in value.items()) + "}"
+        )
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_show_value(v) for v in value) + "]"
     return str(value)
@@ -173,7 +203,11 @@ def _list_index(items: list, part: str, where_list: str, where: str) -> int:
         if not 0 <= index < n:
             raise KeyError(f"{where}: {entries}")
         return index
-    names = [item.get("name") for item in items if isinstance(item, dict) and isinstance(item.get("name"), str)]
+    names = [
+        item.get("name")
+        for item in items
+        if isinstance(item, dict) and isinstance(item.get("name"), str)
+    ]
     for i, item in enumerate(items):
         if isinstance(item, dict) and item.get("name") == part:
             return i
@@ -181,7 +215,9 @@ def _list_index(items: list, part: str, where_list: str, where: str) -> int:
     raise KeyError(f"{where}: no list entry named {part!r}; {entries}{named}{suggest(part, names)}")
 
 
-def load_topology(source: str | Path | dict, registry, overrides: dict[str, Any] | None = None) -> Topology:
+def load_topology(
+    source: str | Path | dict, registry, overrides: dict[str, Any] | None = None
+) -> Topology:
     """Load and validate a topology from a YAML file or a dict. Raises TopologyError.
 
     An error at a field that an override set, or inside it, ends with ``(from --set PATH=VALUE)``.
@@ -212,7 +248,9 @@ def _from_override(issue: ConfigIssue, origins: dict[tuple, str]) -> ConfigIssue
     for loc, where in origins.items():
         path = dotted(loc)
         if issue.path == path or issue.path.startswith((path + ".", path + "[")):
-            return ConfigIssue(issue.file, issue.line, issue.column, issue.path, f"{issue.message} (from {where})")
+            return ConfigIssue(
+                issue.file, issue.line, issue.column, issue.path, f"{issue.message} (from {where})"
+            )
     return issue
 
 
@@ -234,7 +272,9 @@ def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = 
 
     fronts: list[FrontConfig] = []
     backs: list[BackConfig] = []
-    checked_backs: dict[int, BackConfig | None] = {}  # None: its own fields are wrong, not the back as a whole
+    checked_backs: dict[
+        int, BackConfig | None
+    ] = {}  # None: its own fields are wrong, not the back as a whole
     for role, out in (("front", fronts), ("back", backs)):
         section = f"{role}s"
         entries = data.get(section)
@@ -247,14 +287,30 @@ def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = 
             type_name = entry.get("type")
             if not isinstance(type_name, str):
                 line, col = position(data, base)
-                issues.append(ConfigIssue(file, line, col, dotted(base + ("type",)), f"required field is missing: the {role} type, one of: {', '.join(registry.type_names(role)) or '(none installed)'}"))
+                issues.append(
+                    ConfigIssue(
+                        file,
+                        line,
+                        col,
+                        dotted(base + ("type",)),
+                        f"required field is missing: the {role} type, one of: {', '.join(registry.type_names(role)) or '(none installed)'}",
+                    )
+                )
                 continue
             ctype = registry.lookup(role, type_name)
             if ctype is None:
                 line, col = position(data, base + ("type",))
                 installed = ", ".join(registry.type_names(role)) or "none"
                 hint = suggest(type_name, registry.type_names(role))
-                issues.append(ConfigIssue(file, line, col, dotted(base + ("type",)), f"no installed plugin provides {role} type '{type_name}'{hint} (installed {role} types: {installed}); is the plugin installed?"))
+                issues.append(
+                    ConfigIssue(
+                        file,
+                        line,
+                        col,
+                        dotted(base + ("type",)),
+                        f"no installed plugin provides {role} type '{type_name}'{hint} (installed {role} types: {installed}); is the plugin installed?",
+                    )
+                )
                 continue
             try:
                 config = ctype.model.model_validate(dict(entry))
@@ -278,13 +334,17 @@ def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = 
     return topology
 
 
-def _issues_from(exc: ValidationError, model, data: Any, base: tuple, file: str) -> list[ConfigIssue]:
+def _issues_from(
+    exc: ValidationError, model, data: Any, base: tuple, file: str
+) -> list[ConfigIssue]:
     out = []
     for err in exc.errors(include_url=False):
         raw_loc = error_loc(err)
         full = base + data_loc(_at(data, base), raw_loc)
         line, col = position(data, full, key=err["type"] == "extra_forbidden")
-        out.append(ConfigIssue(file, line, col, dotted(full), describe_pydantic_error(err, model, raw_loc)))
+        out.append(
+            ConfigIssue(file, line, col, dotted(full), describe_pydantic_error(err, model, raw_loc))
+        )
     return out
 
 
@@ -302,13 +362,21 @@ def _dedupe(issues: list[ConfigIssue]) -> list[ConfigIssue]:
         if key in merged:
             prev = merged[key]
             if issue.message not in prev.message:
-                merged[key] = ConfigIssue(prev.file, prev.line, prev.column, prev.path, f"{prev.message}; or {issue.message}")
+                merged[key] = ConfigIssue(
+                    prev.file,
+                    prev.line,
+                    prev.column,
+                    prev.path,
+                    f"{prev.message}; or {issue.message}",
+                )
         else:
             merged[key] = issue
     return sorted(merged.values(), key=lambda i: (i.line or 0, i.column or 0, i.path))
 
 
-def _unique_checks(data: dict, checked_backs: dict[int, BackConfig | None], file: str) -> list[ConfigIssue]:
+def _unique_checks(
+    data: dict, checked_backs: dict[int, BackConfig | None], file: str
+) -> list[ConfigIssue]:
     """Names unique across fronts and backs, module addresses unique on each back.
 
     Run on the data as written, so that they are reported with the field errors. A back
@@ -330,7 +398,10 @@ def _unique_checks(data: dict, checked_backs: dict[int, BackConfig | None], file
             if not isinstance(name, str):
                 continue
             if name in seen:
-                issue((section, i, "name"), f"name '{name}' is already used by {dotted(seen[name])}; names must be unique across fronts and backs")
+                issue(
+                    (section, i, "name"),
+                    f"name '{name}' is already used by {dotted(seen[name])}; names must be unique across fronts and backs",
+                )
             else:
                 seen[name] = (section, i)
 
@@ -345,7 +416,10 @@ def _unique_checks(data: dict, checked_backs: dict[int, BackConfig | None], file
             if address is None:
                 continue
             if address in first:
-                issue(("backs", b_index, "modules", m_index, "address"), f"address {address} is already used by modules[{first[address]}] on this line")
+                issue(
+                    ("backs", b_index, "modules", m_index, "address"),
+                    f"address {address} is already used by modules[{first[address]}] on this line",
+                )
             else:
                 first[address] = m_index
     return issues
@@ -377,5 +451,8 @@ def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]
         for e_index, pattern in enumerate(front.expose or []):
             if not fnmatch.filter(ids, pattern):
                 close = suggest(pattern, sorted(ids))
-                issue(("fronts", f_index, "expose", e_index), f"'{pattern}' matches no channel{close or ''} (channel ids look like <back>/m<address>/<kind><index>, e.g. {next(iter(sorted(ids)), 'rs485/m1/di0')})")
+                issue(
+                    ("fronts", f_index, "expose", e_index),
+                    f"'{pattern}' matches no channel{close or ''} (channel ids look like <back>/m<address>/<kind><index>, e.g. {next(iter(sorted(ids)), 'rs485/m1/di0')})",
+                )
     return issues

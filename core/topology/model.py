@@ -8,7 +8,7 @@ same common fields.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, StringConstraints, Tag
 
@@ -38,8 +38,12 @@ def _error_mode_kind(spec: Any) -> str | None:
 # ``hold`` or ``{value: X}``; anything else is one error saying so (not one per union member),
 # and a mapping's errors name its own fields (``error_mode.valu: ... did you mean 'value'?``).
 ErrorModeSpec = Annotated[
-    Union[Annotated[Literal["hold"], Tag("hold")], Annotated[ValueMode, Tag("ValueMode")]],
-    Discriminator(_error_mode_kind, custom_error_type="error_mode", custom_error_message="expected 'hold' or {value: X}"),
+    Annotated[Literal["hold"], Tag("hold")] | Annotated[ValueMode, Tag("ValueMode")],
+    Discriminator(
+        _error_mode_kind,
+        custom_error_type="error_mode",
+        custom_error_message="expected 'hold' or {value: X}",
+    ),
 ]
 
 
@@ -54,13 +58,21 @@ def to_error_mode(spec: ErrorModeSpec | None) -> ErrorMode | None:
 class GatewaySection(StrictModel):
     name: Identifier
     description: str = ""
-    state_dir: str = Field("fieldgate-state", description="directory for persisted settings (relative to the topology file)")
+    state_dir: str = Field(
+        "fieldgate-state",
+        description="directory for persisted settings (relative to the topology file)",
+    )
 
 
 class ComponentConfig(StrictModel):
     name: Identifier
     type: str
-    restart_backoff_s: float = Field(1.0, gt=0, le=300, description="first delay before restarting after a run-time failure; doubles up to 60 s, back to this after a minute without failure")
+    restart_backoff_s: float = Field(
+        1.0,
+        gt=0,
+        le=300,
+        description="first delay before restarting after a run-time failure; doubles up to 60 s, back to this after a minute without failure",
+    )
 
 
 class FrontConfig(ComponentConfig):
@@ -76,10 +88,18 @@ class ModuleConfig(StrictModel):
     address: int = Field(ge=0, le=255)
     name: str | None = None
     model: str | None = None
-    poll_ms: int | None = Field(None, ge=1, le=3_600_000, description="poll period; default: the line's poll_ms")
-    error_mode: ErrorModeSpec = Field("hold", description="outputs' error mode when a front loses its master")
-    shutdown_mode: ErrorModeSpec | None = Field(None, description="outputs' value on gateway shutdown; default: leave as is")
-    error_modes: dict[str, ErrorModeSpec] = Field(default_factory=dict, description="per-channel override, key e.g. do3 or ao0")
+    poll_ms: int | None = Field(
+        None, ge=1, le=3_600_000, description="poll period; default: the line's poll_ms"
+    )
+    error_mode: ErrorModeSpec = Field(
+        "hold", description="outputs' error mode when a front loses its master"
+    )
+    shutdown_mode: ErrorModeSpec | None = Field(
+        None, description="outputs' value on gateway shutdown; default: leave as is"
+    )
+    error_modes: dict[str, ErrorModeSpec] = Field(
+        default_factory=dict, description="per-channel override, key e.g. do3 or ao0"
+    )
 
     def output_modes(self, kind: Kind, index: int) -> tuple[ErrorMode, ErrorMode | None]:
         local = f"{kind.value}{index}"
@@ -98,14 +118,34 @@ class BackConfig(ComponentConfig):
 class SerialBackConfig(BackConfig):
     """Settings every RS-485 poller shares; the line scheduler in core reads them."""
 
-    port: str = Field(description="serial device (/dev/ttyUSB0), or a pyserial URL such as socket://127.0.0.1:5020")
+    port: str = Field(
+        description="serial device (/dev/ttyUSB0), or a pyserial URL such as socket://127.0.0.1:5020"
+    )
     baudrate: int = Field(9600, ge=300, le=4_000_000)
     bytesize: Literal[7, 8] = 8
     parity: Literal["N", "E", "O"] = "N"
     stopbits: Literal[1, 2] = 1
     timeout_ms: int = Field(200, ge=1, le=60_000, description="reply timeout per transaction")
-    retries: int = Field(0, ge=0, le=10, description="immediate retries of a failed transaction; each failed attempt counts toward fail_threshold and the error counter")
-    poll_ms: int = Field(100, ge=0, le=3_600_000, description="default poll period of each module; 0 = as fast as the line allows")
-    fail_threshold: int = Field(3, ge=0, le=100, description="a module is offline when its consecutive failures exceed this")
-    offline_probe_ms: int = Field(5000, ge=10, le=3_600_000, description="re-probe period of an offline module")
-    write_period_ms: int | None = Field(None, ge=10, description="also rewrite outputs cyclically at this period; default: on change only")
+    retries: int = Field(
+        0,
+        ge=0,
+        le=10,
+        description="immediate retries of a failed transaction; each failed attempt counts toward fail_threshold and the error counter",
+    )
+    poll_ms: int = Field(
+        100,
+        ge=0,
+        le=3_600_000,
+        description="default poll period of each module; 0 = as fast as the line allows",
+    )
+    fail_threshold: int = Field(
+        3, ge=0, le=100, description="a module is offline when its consecutive failures exceed this"
+    )
+    offline_probe_ms: int = Field(
+        5000, ge=10, le=3_600_000, description="re-probe period of an offline module"
+    )
+    write_period_ms: int | None = Field(
+        None,
+        ge=10,
+        description="also rewrite outputs cyclically at this period; default: on change only",
+    )

@@ -14,7 +14,16 @@ from .abort import VALUE_RANGE, SdoAbort
 
 EXTENDED_BIT = 1 << 29
 NOT_11_BIT = EXTENDED_BIT | 0x1FFF_F800
-RESTRICTED_CAN_IDS = ((0x000, 0x000), (0x001, 0x07F), (0x101, 0x180), (0x581, 0x5FF), (0x601, 0x67F), (0x6E0, 0x6FF), (0x701, 0x77F), (0x780, 0x7FF))
+RESTRICTED_CAN_IDS = (
+    (0x000, 0x000),
+    (0x001, 0x07F),
+    (0x101, 0x180),
+    (0x581, 0x5FF),
+    (0x601, 0x67F),
+    (0x6E0, 0x6FF),
+    (0x701, 0x77F),
+    (0x780, 0x7FF),
+)
 
 
 def restricted(can_id: int) -> bool:
@@ -27,5 +36,7 @@ def check_cob_id(value: int, what: str, *, in_use: bool = True) -> int:
         raise SdoAbort(VALUE_RANGE, f"only 11-bit {what} COB-IDs are supported")
     can_id = value & 0x7FF
     if in_use and restricted(can_id):
-        raise SdoAbort(VALUE_RANGE, f"{what} COB-ID 0x{can_id:03X} is a restricted CAN-ID (CiA 301)")
+        raise SdoAbort(
+            VALUE_RANGE, f"{what} COB-ID 0x{can_id:03X} is a restricted CAN-ID (CiA 301)"
+        )
     return can_id

@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import io
 import sys
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -36,16 +36,33 @@ class EdsError(Exception):
     """The topology has no such canopen front (or none at all)."""
 
 
-def front_node(topology_source: str | Path | dict, front_name: str | None = None, registry: Registry | None = None,
-               overrides: dict | None = None) -> tuple[Any, Any]:
+def front_node(
+    topology_source: str | Path | dict,
+    front_name: str | None = None,
+    registry: Registry | None = None,
+    overrides: dict | None = None,
+) -> tuple[Any, Any]:
     """The front object and its booted-free node, as the gateway would build them."""
     registry = registry or load_registry()
     topology = load_topology(topology_source, registry, overrides)
-    fronts = [f for f in topology.fronts if f.type == "canopen" and (front_name is None or f.name == front_name)]
+    fronts = [
+        f
+        for f in topology.fronts
+        if f.type == "canopen" and (front_name is None or f.name == front_name)
+    ]
     if not fronts:
-        others = sorted({f.type for f in topology.fronts if front_name is None or f.name == front_name} - {"canopen"})
-        hint = f" (it has a {' and a '.join(others)} front; for DeviceNet: fieldgate devicenet eds)" if others else ""
-        raise EdsError(f"no canopen front{f' named {front_name!r}' if front_name else ''} in the topology{hint}")
+        others = sorted(
+            {f.type for f in topology.fronts if front_name is None or f.name == front_name}
+            - {"canopen"}
+        )
+        hint = (
+            f" (it has a {' and a '.join(others)} front; for DeviceNet: fieldgate devicenet eds)"
+            if others
+            else ""
+        )
+        raise EdsError(
+            f"no canopen front{f' named {front_name!r}' if front_name else ''} in the topology{hint}"
+        )
     cfg = fronts[0]
     context = GatewayContext.build(topology)
     ctype = registry.lookup("front", cfg.type)
@@ -75,12 +92,14 @@ def eds_text(front: Any, node: Any, file_name: str | None = None) -> str:
         info.nr_of_TXPDO = len(io_device.engine.tpdos)
     info.LSS_supported = True
     info.allowed_baudrates = set(STANDARD_BITRATES)
-    if 0x1003 in od.indices:  # sub 0 counts the errors recorded: none at start (not the highest sub)
+    if (
+        0x1003 in od.indices
+    ):  # sub 0 counts the errors recorded: none at start (not the highest sub)
         od.indices[0x1003].subindices[0].default = 0
     for var in node.od.variables():
         if var.relative and isinstance(var.default, int):
             var.default_raw = f"$NODEID+0x{var.default:X}"
-    now = datetime.now(timezone.utc)
+    now = datetime.now(UTC)
     file_info = {
         "FileName": file_name or f"{front.name}.eds",
         "FileVersion": 1,
@@ -119,14 +138,20 @@ def _replace_file_info(text: str, file_info: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def write_eds(topology_source: str | Path | dict, front_name: str | None = None, dest: str | Path | None = None, registry: Registry | None = None,
-              overrides: dict | None = None) -> str:
+def write_eds(
+    topology_source: str | Path | dict,
+    front_name: str | None = None,
+    dest: str | Path | None = None,
+    registry: Registry | None = None,
+    overrides: dict | None = None,
+) -> str:
     """The EDS text, also written to ``dest`` when given (OSError when it cannot be: the
     folder must exist, a directory is refused); ``overrides`` as ``--set``."""
     front, node = front_node(topology_source, front_name, registry, overrides)
     text = eds_text(front, node, Path(dest).name if dest is not None else None)
     if dest is not None:
         from fieldgate.persist import write_atomic
+
         write_atomic(Path(dest), text.encode(), make_parents=False)
     return text
 
@@ -145,7 +170,9 @@ def run(args: argparse.Namespace) -> int:
     from fieldgate.cli import parse_overrides
 
     try:
-        text = write_eds(args.topology, args.front, args.output, overrides=parse_overrides(args.set))
+        text = write_eds(
+            args.topology, args.front, args.output, overrides=parse_overrides(args.set)
+        )
     except TopologyError as exc:
         for issue in exc.issues:
             print(issue, file=sys.stderr)

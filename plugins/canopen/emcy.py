@@ -66,9 +66,22 @@ class EmcyProducer(Service):
         od = node.od
         od.add_variable(0x1001, "Error register", dt.UNSIGNED8, "ro", 0)
         od.bind(0x1001, 0, getter=lambda: self.register, thread_safe=True)
-        od.add_array(0x1003, "Pre-defined error field", [(i, f"Standard error field {i}", dt.UNSIGNED32, "ro", 0) for i in range(1, self.depth + 1)])
+        od.add_array(
+            0x1003,
+            "Pre-defined error field",
+            [
+                (i, f"Standard error field {i}", dt.UNSIGNED32, "ro", 0)
+                for i in range(1, self.depth + 1)
+            ],
+        )
         od.variable(0x1003, 0).access_type = "rw"
-        od.bind(0x1003, 0, getter=lambda: len(self.history), setter=self._write_history_count, thread_safe=True)
+        od.bind(
+            0x1003,
+            0,
+            getter=lambda: len(self.history),
+            setter=self._write_history_count,
+            thread_safe=True,
+        )
         od.add_validator(0x1003, self._check_history_write)
         for sub in range(1, self.depth + 1):
             od.bind(0x1003, sub, getter=lambda sub=sub: self._history_entry(sub), thread_safe=True)
@@ -85,7 +98,13 @@ class EmcyProducer(Service):
             bits |= b
         return (bits | GENERIC) if active else 0
 
-    def raise_error(self, code: int, register_bits: int = GENERIC, manufacturer: bytes = b"", now: float | None = None) -> bool:
+    def raise_error(
+        self,
+        code: int,
+        register_bits: int = GENERIC,
+        manufacturer: bytes = b"",
+        now: float | None = None,
+    ) -> bool:
         """Record a new error and send its EMCY. False (and no frame) if already active."""
         manufacturer = bytes(manufacturer[:5])
         key = (code & 0xFFFF, manufacturer)
@@ -96,15 +115,25 @@ class EmcyProducer(Service):
         self._produce(code, manufacturer, now)
         return True
 
-    def clear_error(self, code: int, manufacturer: bytes | None = None, now: float | None = None) -> bool:
+    def clear_error(
+        self, code: int, manufacturer: bytes | None = None, now: float | None = None
+    ) -> bool:
         """Clear an active error (every error with ``code`` if ``manufacturer`` is None)."""
-        keys = [k for k in self.active if k[0] == code and (manufacturer is None or k[1] == bytes(manufacturer[:5]))]
+        keys = [
+            k
+            for k in self.active
+            if k[0] == code and (manufacturer is None or k[1] == bytes(manufacturer[:5]))
+        ]
         return self._clear(keys, now) > 0
 
     def clear_errors(self, errors: Iterable[tuple[int, bytes]], now: float | None = None) -> int:
         """Clear several errors that end together (``(code, manufacturer)`` pairs; inactive
         ones are skipped) with *one* error-reset EMCY. Returns how many were active."""
-        keys = [k for k in dict.fromkeys((code & 0xFFFF, bytes(m[:5])) for code, m in errors) if k in self.active]
+        keys = [
+            k
+            for k in dict.fromkeys((code & 0xFFFF, bytes(m[:5])) for code, m in errors)
+            if k in self.active
+        ]
         return self._clear(keys, now)
 
     def _clear(self, keys: list[tuple[int, bytes]], now: float | None) -> int:
@@ -114,7 +143,9 @@ class EmcyProducer(Service):
             self._produce(0x0000, b"", now)
         return len(keys)
 
-    def signal(self, code: int, register: int, manufacturer: bytes = b"", now: float | None = None) -> None:
+    def signal(
+        self, code: int, register: int, manufacturer: bytes = b"", now: float | None = None
+    ) -> None:
         """Send (and record) a one-off event EMCY that does not stay active, e.g. the I-7232D's
         ``00 FF 80 0A`` on an NMT reset request; ``register`` is sent as given."""
         self._produce(code, bytes(manufacturer[:5]), now, register)
@@ -123,7 +154,9 @@ class EmcyProducer(Service):
         return any(k[0] == code for k in self.active)
 
     # -- producing ------------------------------------------------------------------------
-    def _produce(self, code: int, manufacturer: bytes, now: float | None, register: int | None = None) -> None:
+    def _produce(
+        self, code: int, manufacturer: bytes, now: float | None, register: int | None = None
+    ) -> None:
         now = self.node.now if now is None else now
         self.history.appendleft(history_value(code, manufacturer))
         register = self.register if register is None else register & 0xFF
@@ -178,8 +211,16 @@ class EmcyProducer(Service):
     def _check_cob_id(self, sub: int, value: int) -> None:
         check_cob_id(value, "EMCY", in_use=not value & COB_ID_INVALID)
         old = self.node.od.get(0x1014)
-        if not (old & COB_ID_INVALID) and not (value & COB_ID_INVALID) and (old & 0x7FF) != (value & 0x7FF):
+        if (
+            not (old & COB_ID_INVALID)
+            and not (value & COB_ID_INVALID)
+            and (old & 0x7FF) != (value & 0x7FF)
+        ):
             raise SdoAbort(abort.VALUE_RANGE, "set bit 31 before changing the EMCY COB-ID")
 
     def status(self) -> dict:
-        return {**self.counters, "error_register": self.register, "active": [f"{c:04X}:{m.hex()}" for c, m in self.active]}
+        return {
+            **self.counters,
+            "error_register": self.register,
+            "active": [f"{c:04X}:{m.hex()}" for c, m in self.active],
+        }

@@ -19,15 +19,47 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 from .abort import (
-    LENGTH_TOO_HIGH, LENGTH_TOO_LOW, NO_OBJECT, NO_SUBINDEX, READ_ONLY, VALUE_TOO_HIGH, VALUE_TOO_LOW, WRITE_ONLY, SdoAbort,
+    LENGTH_TOO_HIGH,
+    LENGTH_TOO_LOW,
+    NO_OBJECT,
+    NO_SUBINDEX,
+    READ_ONLY,
+    VALUE_TOO_HIGH,
+    VALUE_TOO_LOW,
+    WRITE_ONLY,
+    SdoAbort,
 )
 
 # CiA 301 data type indices
-BOOLEAN, INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32 = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07
+BOOLEAN, INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32 = (
+    0x01,
+    0x02,
+    0x03,
+    0x04,
+    0x05,
+    0x06,
+    0x07,
+)
 VISIBLE_STRING = 0x09
 
-_FORMATS = {BOOLEAN: "<?", INTEGER8: "<b", INTEGER16: "<h", INTEGER32: "<i", UNSIGNED8: "<B", UNSIGNED16: "<H", UNSIGNED32: "<I"}
-RANGES = {BOOLEAN: (0, 1), INTEGER8: (-0x80, 0x7F), INTEGER16: (-0x8000, 0x7FFF), INTEGER32: (-0x8000_0000, 0x7FFF_FFFF), UNSIGNED8: (0, 0xFF), UNSIGNED16: (0, 0xFFFF), UNSIGNED32: (0, 0xFFFF_FFFF)}
+_FORMATS = {
+    BOOLEAN: "<?",
+    INTEGER8: "<b",
+    INTEGER16: "<h",
+    INTEGER32: "<i",
+    UNSIGNED8: "<B",
+    UNSIGNED16: "<H",
+    UNSIGNED32: "<I",
+}
+RANGES = {
+    BOOLEAN: (0, 1),
+    INTEGER8: (-0x80, 0x7F),
+    INTEGER16: (-0x8000, 0x7FFF),
+    INTEGER32: (-0x8000_0000, 0x7FFF_FFFF),
+    UNSIGNED8: (0, 0xFF),
+    UNSIGNED16: (0, 0xFFFF),
+    UNSIGNED32: (0, 0xFFFF_FFFF),
+}
 
 # Abort codes (CiA 301) and the exception are the node's own, see .abort.
 Abort = SdoAbort  # an SDO or mapping request refused with a CiA 301 abort code

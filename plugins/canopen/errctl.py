@@ -75,7 +75,14 @@ class ErrorControl(Service):
     name = "error_control"
     active_states = ALL_STATES
 
-    def __init__(self, guard_time_ms: int = 0, life_time_factor: int = 0, heartbeat_ms: int = 0, consumers: int = 1, error_behaviour: int = ERROR_NO_CHANGE):
+    def __init__(
+        self,
+        guard_time_ms: int = 0,
+        life_time_factor: int = 0,
+        heartbeat_ms: int = 0,
+        consumers: int = 1,
+        error_behaviour: int = ERROR_NO_CHANGE,
+    ):
         super().__init__()
         self.defaults = (guard_time_ms, life_time_factor, heartbeat_ms)
         self.error_behaviour = error_behaviour
@@ -83,15 +90,23 @@ class ErrorControl(Service):
         self.toggle = 0
         self.life_deadline: float | None = None
         self.heartbeat_due: float | None = None
-        self.consumer_times: dict[int, int] = {}  # producer node-ID -> consumer time (ms), from 0x1016
-        self.watched: dict[int, float | None] = {}  # producer node-ID -> deadline (None: not yet heard)
+        self.consumer_times: dict[
+            int, int
+        ] = {}  # producer node-ID -> consumer time (ms), from 0x1016
+        self.watched: dict[
+            int, float | None
+        ] = {}  # producer node-ID -> deadline (None: not yet heard)
         # what the master monitoring says now (each an active EMCY error, bus-off aside)
         self.guard_lost = False
         self.heartbeat_lost: set[int] = set()
         self.bus_off = False
         self.bus_off_recovered = False  # EMCY 0x8140 active: the master not heard since
-        self.unheard = False  # lost until heard (assume_master_lost); no EMCY: this node detected nothing
-        self._own_state_change = False  # 0x1029 at work: an NMT state change that is not the master's
+        self.unheard = (
+            False  # lost until heard (assume_master_lost); no EMCY: this node detected nothing
+        )
+        self._own_state_change = (
+            False  # 0x1029 at work: an NMT state change that is not the master's
+        )
         self.master_lost = False  # as last told to node.master_state
 
     def attach(self, node) -> None:
@@ -101,9 +116,36 @@ class ErrorControl(Service):
         od.add_variable(0x100C, "Guard time", dt.UNSIGNED16, "rw", guard, maximum=32767)
         od.add_variable(0x100D, "Life time factor", dt.UNSIGNED8, "rw", factor)
         od.add_variable(0x1017, "Producer heartbeat time", dt.UNSIGNED16, "rw", heartbeat)
-        od.add_array(0x1029, "Error behaviour", [(1, "Communication error", dt.UNSIGNED8, "rw", self.error_behaviour, {"maximum": ERROR_STOPPED})])
+        od.add_array(
+            0x1029,
+            "Error behaviour",
+            [
+                (
+                    1,
+                    "Communication error",
+                    dt.UNSIGNED8,
+                    "rw",
+                    self.error_behaviour,
+                    {"maximum": ERROR_STOPPED},
+                )
+            ],
+        )
         if self.consumers:
-            od.add_array(0x1016, "Consumer heartbeat time", [(i, f"Consumer heartbeat time {i}", dt.UNSIGNED32, "rw", 0, {"maximum": 0x00FFFFFF}) for i in range(1, self.consumers + 1)])
+            od.add_array(
+                0x1016,
+                "Consumer heartbeat time",
+                [
+                    (
+                        i,
+                        f"Consumer heartbeat time {i}",
+                        dt.UNSIGNED32,
+                        "rw",
+                        0,
+                        {"maximum": 0x00FFFFFF},
+                    )
+                    for i in range(1, self.consumers + 1)
+                ],
+            )
             od.add_validator(0x1016, self._check_consumer)
             od.on_write(0x1016, lambda *_: self._consumers_written(node.now))
         od.on_write(0x1017, lambda *_: self._heartbeat_time_written(node.now))
@@ -116,7 +158,9 @@ class ErrorControl(Service):
         self.life_deadline = None
         self.heartbeat_due = None
         self.consumer_times = self._consumer_times()
-        self.watched = dict.fromkeys(self.consumer_times)  # each restarts at its producer's first heartbeat
+        self.watched = dict.fromkeys(
+            self.consumer_times
+        )  # each restarts at its producer's first heartbeat
 
     def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
         if not self._own_state_change:
@@ -125,7 +169,14 @@ class ErrorControl(Service):
             self._restart_heartbeat(now)
             # after a reset (the boot-up is out, EMCY may be sent): the monitoring restarted,
             # so none of its errors holds any more, nor do the other services' (SYNC loss)
-            self._end(now, "reset communication", guard=True, producers=self.heartbeat_lost, bus_off_recovered=True, others=self._ended_elsewhere())
+            self._end(
+                now,
+                "reset communication",
+                guard=True,
+                producers=self.heartbeat_lost,
+                bus_off_recovered=True,
+                others=self._ended_elsewhere(),
+            )
         elif new is NmtState.INITIALISING:
             self.heartbeat_due = None
         else:
@@ -165,7 +216,11 @@ class ErrorControl(Service):
             self._heard("guard request")
             self._guard_request(now)
             return True
-        if 0x701 <= frame.can_id <= 0x77F and not frame.rtr and frame.can_id - 0x700 in self.watched:
+        if (
+            0x701 <= frame.can_id <= 0x77F
+            and not frame.rtr
+            and frame.can_id - 0x700 in self.watched
+        ):
             self._heard(f"heartbeat of node {frame.can_id - 0x700}")
             self._heartbeat_from(frame.can_id - 0x700, frame.data, now)
             return True
@@ -209,7 +264,12 @@ class ErrorControl(Service):
         else:
             self.watched[producer] = now + self.consumer_times[producer] / 1000.0
         if producer in self.heartbeat_lost or self.bus_off_recovered:
-            self._end(now, f"heartbeat of node {producer} back", producers=(producer,), bus_off_recovered=True)
+            self._end(
+                now,
+                f"heartbeat of node {producer} back",
+                producers=(producer,),
+                bus_off_recovered=True,
+            )
 
     # -- timers -------------------------------------------------------------------------
     def deadline(self) -> float | None:
@@ -227,7 +287,9 @@ class ErrorControl(Service):
             self.node.send(Frame(self.cob_id, bytes([int(self.node.state)])))
             self.counters["heartbeats_sent"] += 1
             period = self.node.od.get(0x1017) / 1000.0
-            self.heartbeat_due = (self.heartbeat_due + period) if self.heartbeat_due + period > now else now + period
+            self.heartbeat_due = (
+                (self.heartbeat_due + period) if self.heartbeat_due + period > now else now + period
+            )
         if self.life_deadline is not None and now >= self.life_deadline:
             self.life_deadline = None
             self.guard_lost = True
@@ -238,7 +300,9 @@ class ErrorControl(Service):
                 self.watched[producer] = None
                 self.heartbeat_lost.add(producer)
                 self.counters["heartbeat_consumer_timeouts"] += 1
-                self._master_lost(heartbeat_error(producer), f"heartbeat of node {producer} timed out", now)
+                self._master_lost(
+                    heartbeat_error(producer), f"heartbeat of node {producer} timed out", now
+                )
 
     def _restart_heartbeat(self, now: float) -> None:
         period = self.node.od.get(0x1017)
@@ -258,13 +322,18 @@ class ErrorControl(Service):
             self._rearm_life_guarding(now)
             return
         self.life_deadline = None  # a later first RTR starts it again
-        self._end(now, "life guarding switched off", guard=True, bus_off_recovered=not self.monitoring())
+        self._end(
+            now, "life guarding switched off", guard=True, bus_off_recovered=not self.monitoring()
+        )
 
     def _consumers_written(self, now: float) -> None:
         self._heard("monitoring configured")
         times = self._consumer_times()
         # a producer whose time changed restarts at its next heartbeat; the others keep running
-        self.watched = {p: self.watched.get(p) if self.consumer_times.get(p) == t else None for p, t in times.items()}
+        self.watched = {
+            p: self.watched.get(p) if self.consumer_times.get(p) == t else None
+            for p, t in times.items()
+        }
         self.consumer_times = times
         dropped = sorted(p for p in self.heartbeat_lost if p not in times)
         reason = "heartbeat consumer for node " + ", ".join(map(str, dropped)) + " switched off"
@@ -287,7 +356,10 @@ class ErrorControl(Service):
         for other in range(1, self.consumers + 1):
             entry = self.node.od.get(0x1016, other)
             if other != sub and (entry >> 16) & 0xFF == producer and entry & 0xFFFF:
-                raise SdoAbort(abort.INCOMPATIBLE_PARAMETER, f"node {producer} is already monitored at sub {other}")
+                raise SdoAbort(
+                    abort.INCOMPATIBLE_PARAMETER,
+                    f"node {producer} is already monitored at sub {other}",
+                )
 
     # -- master lost / back -----------------------------------------------------------------
     def bus_state(self, bus_off: bool, now: float) -> None:
@@ -300,7 +372,9 @@ class ErrorControl(Service):
         elif not bus_off and self.bus_off:
             self.bus_off = False
             if self.node.emcy is not None:
-                self.node.emcy.raise_error(BUS_OFF_RECOVERED_CODE, COMM_REGISTER, BUS_OFF_RECOVERED_ERROR[1], now)
+                self.node.emcy.raise_error(
+                    BUS_OFF_RECOVERED_CODE, COMM_REGISTER, BUS_OFF_RECOVERED_ERROR[1], now
+                )
                 self.bus_off_recovered = True
             # with nothing to hear the master by, the recovery EMCY is an event: reset at once
             self._end(now, "recovered from bus-off", bus_off_recovered=not self.monitoring())
@@ -322,7 +396,15 @@ class ErrorControl(Service):
         finally:
             self._own_state_change = False
 
-    def _end(self, now: float, reason: str, guard: bool = False, producers=(), bus_off_recovered: bool = False, others: Iterable[Error] = ()) -> None:
+    def _end(
+        self,
+        now: float,
+        reason: str,
+        guard: bool = False,
+        producers=(),
+        bus_off_recovered: bool = False,
+        others: Iterable[Error] = (),
+    ) -> None:
         """Monitoring errors that no longer hold (master heard, monitoring off, reset): one EMCY."""
         ended: list[Error] = list(others)
         if guard and self.guard_lost:
@@ -347,6 +429,19 @@ class ErrorControl(Service):
             self.node.master_state(not lost, reason)
 
     def status(self) -> dict:
-        guarding = "lost" if self.guard_lost else ("active" if self.life_deadline else ("armed" if self.guarding_enabled() else "off"))
-        return {**self.counters, "guarding": guarding, "heartbeat_lost": sorted(self.heartbeat_lost), "bus_off": self.bus_off,
-                "bus_off_recovered": self.bus_off_recovered, "master_unheard": self.unheard, "master": "lost" if self.master_lost else "ok"}
+        guarding = (
+            "lost"
+            if self.guard_lost
+            else (
+                "active" if self.life_deadline else ("armed" if self.guarding_enabled() else "off")
+            )
+        )
+        return {
+            **self.counters,
+            "guarding": guarding,
+            "heartbeat_lost": sorted(self.heartbeat_lost),
+            "bus_off": self.bus_off,
+            "bus_off_recovered": self.bus_off_recovered,
+            "master_unheard": self.unheard,
+            "master": "lost" if self.master_lost else "ok",
+        }

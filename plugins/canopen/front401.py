@@ -34,18 +34,39 @@ from .iodevice import IoDevice, IoSettings
 
 
 class IoFrontOptions(StrictModel):
-    style: Literal["icpdas", "na9161"] = Field("icpdas", description="object and default PDO layout: icpdas (I-7232D/I-7231D) or na9161 (CREVIS NA-9161)")
-    pdo_count: int | None = Field(None, ge=1, le=512, description="RPDOs and TPDOs each; default 32 (icpdas) or 8 (na9161)")
-    mapping_closed: bool = Field(False, description="icpdas: analog data from PDO1 when a direction has no digital channels (the I-7232D utility's 'Mapping Closed')")
-    compressed: bool = Field(True, description="na9161: digital channels packed across modules (0x4500:2 = 1); false: each module starts a byte")
-    tpdo_on_start: Literal["async", "all", "none"] | None = Field(None, description="TPDOs sent once on entering Operational; default async (icpdas) / all (na9161)")
-    error_on_stopped: bool | None = Field(None, description="NMT Stopped drives outputs to their error values; default false (icpdas) / true (na9161)")
+    style: Literal["icpdas", "na9161"] = Field(
+        "icpdas",
+        description="object and default PDO layout: icpdas (I-7232D/I-7231D) or na9161 (CREVIS NA-9161)",
+    )
+    pdo_count: int | None = Field(
+        None, ge=1, le=512, description="RPDOs and TPDOs each; default 32 (icpdas) or 8 (na9161)"
+    )
+    mapping_closed: bool = Field(
+        False,
+        description="icpdas: analog data from PDO1 when a direction has no digital channels (the I-7232D utility's 'Mapping Closed')",
+    )
+    compressed: bool = Field(
+        True,
+        description="na9161: digital channels packed across modules (0x4500:2 = 1); false: each module starts a byte",
+    )
+    tpdo_on_start: Literal["async", "all", "none"] | None = Field(
+        None,
+        description="TPDOs sent once on entering Operational; default async (icpdas) / all (na9161)",
+    )
+    error_on_stopped: bool | None = Field(
+        None,
+        description="NMT Stopped drives outputs to their error values; default false (icpdas) / true (na9161)",
+    )
 
 
 def io_settings(options: Any) -> IoSettings:
     return IoSettings(
-        style=options.style, pdo_count=options.pdo_count, mapping_closed=options.mapping_closed, compressed=options.compressed,
-        start_policy=options.tpdo_on_start, error_on_stopped=options.error_on_stopped,
+        style=options.style,
+        pdo_count=options.pdo_count,
+        mapping_closed=options.mapping_closed,
+        compressed=options.compressed,
+        start_policy=options.tpdo_on_start,
+        error_on_stopped=options.error_on_stopped,
     )
 
 
@@ -54,8 +75,17 @@ def io_device(front: Any) -> IoDevice:
     cfg, ctx = front.config, front.context
     models = {(b.name, m.address): m.model or "" for b in ctx.topology.backs for m in b.modules}
     return IoDevice(
-        io_settings(cfg), ctx.image, ctx.front_channels(cfg), origin=front.name, health=ctx.health, masters=ctx.masters,
-        front=front.name, host_watchdogs=HostWatchdogs.from_context(ctx), models=models, master_events=False, module_emcy=False,
+        io_settings(cfg),
+        ctx.image,
+        ctx.front_channels(cfg),
+        origin=front.name,
+        health=ctx.health,
+        masters=ctx.masters,
+        front=front.name,
+        host_watchdogs=HostWatchdogs.from_context(ctx),
+        models=models,
+        master_events=False,
+        module_emcy=False,
     )
 
 

@@ -57,9 +57,13 @@ class IoSettings:
     pdo_count: int | None = None  # per direction; default 32 (icpdas) / 8 (na9161)
     mapping_closed: bool = False  # icpdas: analog from PDO1 when a direction has no digital data
     compressed: bool = True  # na9161: digital bits packed across modules
-    start_policy: Literal["async", "all", "none"] | None = None  # TPDOs sent on entering Operational
+    start_policy: Literal["async", "all", "none"] | None = (
+        None  # TPDOs sent on entering Operational
+    )
     error_on_stopped: bool | None = None  # NMT Stopped is an output error event (na9161)
-    do_error_default: tuple[int, int] | None = None  # (0x6206, 0x6207) for outputs without a configured mode
+    do_error_default: tuple[int, int] | None = (
+        None  # (0x6206, 0x6207) for outputs without a configured mode
+    )
 
     @property
     def count(self) -> int:
@@ -97,13 +101,34 @@ class IoDevice(Service):
         self.settings = settings
         self.image = image
         self.front = front or origin
-        self.layout: IoLayout = build_layout(channels, settings.style, compressed=settings.compressed, models=models)
-        self.defaults = default_pdos(self.layout, settings.style, count=settings.count, mapping_closed=settings.mapping_closed)
+        self.layout: IoLayout = build_layout(
+            channels, settings.style, compressed=settings.compressed, models=models
+        )
+        self.defaults = default_pdos(
+            self.layout,
+            settings.style,
+            count=settings.count,
+            mapping_closed=settings.mapping_closed,
+        )
         self.profile = Profile401(image, self.layout, origin)
-        self.manufacturer = ManufacturerObjects(self.layout, health or HealthRegistry(), style=settings.style, host_watchdogs=host_watchdogs, module_emcy=module_emcy)
+        self.manufacturer = ManufacturerObjects(
+            self.layout,
+            health or HealthRegistry(),
+            style=settings.style,
+            host_watchdogs=host_watchdogs,
+            module_emcy=module_emcy,
+        )
         # the master-state owner, unless the front owns it (master_events False)
-        self.master_state = MasterState(masters if masters is not None else MasterMonitor(image), self.front, self.profile.output_ids,
-                                        stopped_is_error=settings.stopped_is_error) if master_events else None
+        self.master_state = (
+            MasterState(
+                masters if masters is not None else MasterMonitor(image),
+                self.front,
+                self.profile.output_ids,
+                stopped_is_error=settings.stopped_is_error,
+            )
+            if master_events
+            else None
+        )
         self.directory = Directory(self.profile.objects() + self.manufacturer.objects())
         self.engine: PdoEngine | None = None
         self.store = IoStore(self)
@@ -122,9 +147,15 @@ class IoDevice(Service):
     def attach(self, node) -> None:
         super().attach(node)
         self.engine = PdoEngine(
-            self.directory, self.defaults.tpdo, self.defaults.rpdo, node.node_id if node.configured else 0,
-            start_policy=self.settings.policy, rpdo_timing=self.settings.style == "na9161",
-            clock=lambda: node.now, length_error=self._length_error, wakeup=self._engine_wakeup,
+            self.directory,
+            self.defaults.tpdo,
+            self.defaults.rpdo,
+            node.node_id if node.configured else 0,
+            start_policy=self.settings.policy,
+            rpdo_timing=self.settings.style == "na9161",
+            clock=lambda: node.now,
+            length_error=self._length_error,
+            wakeup=self._engine_wakeup,
             exists=lambda index, sub: (index, sub) in node.od,
         )
         for obj in self.objects():
@@ -211,11 +242,33 @@ def bind_object(od, obj: ObjectDef) -> None:
     """Add one :class:`ObjectDef` to the node's dictionary with its getters and setters."""
     if obj.kind == "var":
         e = obj.entries[0]
-        od.add_variable(obj.index, obj.name, e.dtype, e.access, _model_default(e), minimum=e.low, maximum=e.high, mappable=e.mappable)
+        od.add_variable(
+            obj.index,
+            obj.name,
+            e.dtype,
+            e.access,
+            _model_default(e),
+            minimum=e.low,
+            maximum=e.high,
+            mappable=e.mappable,
+        )
     else:
         members = [
-            (e.sub, e.name, e.dtype, e.access, _model_default(e), {"minimum": e.low, "maximum": e.high, "mappable": e.mappable, "relative": e.default_expr is not None})
-            for e in obj.entries if e.sub != 0
+            (
+                e.sub,
+                e.name,
+                e.dtype,
+                e.access,
+                _model_default(e),
+                {
+                    "minimum": e.low,
+                    "maximum": e.high,
+                    "mappable": e.mappable,
+                    "relative": e.default_expr is not None,
+                },
+            )
+            for e in obj.entries
+            if e.sub != 0
         ]
         od.add_record(obj.index, obj.name, members, array=obj.kind == "array")
         sub0 = obj.by_sub.get(0)

@@ -23,7 +23,19 @@ from .abort import SdoAbort
 log = logging.getLogger("fieldgate.canopen.iostore")
 
 SECTION = "io401"
-STORED_APPLICATION = (0x6002, 0x6206, 0x6207, 0x6208, 0x6421, 0x6423, 0x6424, 0x6425, 0x6426, 0x6443, 0x6444)
+STORED_APPLICATION = (
+    0x6002,
+    0x6206,
+    0x6207,
+    0x6208,
+    0x6421,
+    0x6423,
+    0x6424,
+    0x6425,
+    0x6426,
+    0x6443,
+    0x6444,
+)
 
 
 class IoStore:
@@ -31,8 +43,19 @@ class IoStore:
         self.io = io
         self.store = None  # the node's store service, if it has one
         settings, lay = io.settings, io.layout
-        self.fingerprint_part = "|".join([settings.style, str(settings.count), str(settings.compressed), str(settings.mapping_closed)] + [
-            ",".join(c.id if c is not None else "-" for c in b) for b in lay.di_bytes + lay.do_bytes] + [c.id for c in lay.ai + lay.ao])
+        self.fingerprint_part = "|".join(
+            [
+                settings.style,
+                str(settings.count),
+                str(settings.compressed),
+                str(settings.mapping_closed),
+            ]
+            + [
+                ",".join(c.id if c is not None else "-" for c in b)
+                for b in lay.di_bytes + lay.do_bytes
+            ]
+            + [c.id for c in lay.ai + lay.ao]
+        )
 
     def attach(self, node) -> None:
         try:
@@ -56,7 +79,13 @@ class IoStore:
         if application:
             doc.pop("application", None)
             if saving:
-                doc["application"] = {f"{obj.index:04X}.{e.sub:02X}": e.get() for obj in self.io.directory if obj.index in STORED_APPLICATION for e in obj.entries if e.writable}
+                doc["application"] = {
+                    f"{obj.index:04X}.{e.sub:02X}": e.get()
+                    for obj in self.io.directory
+                    if obj.index in STORED_APPLICATION
+                    for e in obj.entries
+                    if e.writable
+                }
         self.store.set_section(SECTION, doc)
 
     # -- at reset -------------------------------------------------------------------------
@@ -76,7 +105,7 @@ class IoStore:
                         except SdoAbort:
                             pass
         stored = self._section().get("application")
-        for key, value in (stored.items() if isinstance(stored, dict) else ()):
+        for key, value in stored.items() if isinstance(stored, dict) else ():
             try:
                 index, sub = (int(part, 16) for part in key.split("."))
                 self.io.directory.entry(index, sub).write(int(value))

@@ -74,15 +74,29 @@ class IoLayout:
 
     @property
     def device_type(self) -> int:
-        return device_type({kind for kind, present in zip(IO_KINDS, (self.di_bytes, self.do_bytes, self.ai, self.ao)) if present})
+        return device_type(
+            {
+                kind
+                for kind, present in zip(IO_KINDS, (self.di_bytes, self.do_bytes, self.ai, self.ao))
+                if present
+            }
+        )
 
 
 def device_type(kinds: set[Kind]) -> int:
     """0x1000: profile 401 (0x0191) plus bit 16/17/18/19 when DI/DO/AI/AO are served (I-7232D rule)."""
-    return DEVICE_PROFILE_401 | sum(1 << (16 + i) for i, kind in enumerate(IO_KINDS) if kind in kinds)
+    return DEVICE_PROFILE_401 | sum(
+        1 << (16 + i) for i, kind in enumerate(IO_KINDS) if kind in kinds
+    )
 
 
-def build_layout(channels: Sequence[Channel], style: Style = "icpdas", *, compressed: bool = True, models: dict[tuple[str, int], str] | None = None) -> IoLayout:
+def build_layout(
+    channels: Sequence[Channel],
+    style: Style = "icpdas",
+    *,
+    compressed: bool = True,
+    models: dict[tuple[str, int], str] | None = None,
+) -> IoLayout:
     """Place a front's channels (in the seeds' default order) into the CiA 401 objects."""
     ordered = list(channels)  # the front's order: its expose list, or backs then ascending address
     per_module = style == "icpdas" or not compressed
@@ -93,7 +107,13 @@ def build_layout(channels: Sequence[Channel], style: Style = "icpdas", *, compre
         ao=of_kind(ordered, Kind.AO),
         modules=_modules(ordered, models or {}),
     )
-    for name, count, limit in (("DI bytes", len(layout.di_bytes), 254), ("DO bytes", len(layout.do_bytes), 254), ("AI channels", len(layout.ai), 254), ("AO channels", len(layout.ao), 254), ("modules", len(layout.modules), 254)):
+    for name, count, limit in (
+        ("DI bytes", len(layout.di_bytes), 254),
+        ("DO bytes", len(layout.do_bytes), 254),
+        ("AI channels", len(layout.ai), 254),
+        ("AO channels", len(layout.ao), 254),
+        ("modules", len(layout.modules), 254),
+    ):
         if count > limit:
             raise LayoutError(f"{count} {name} exceed the {limit} sub-indices of one object")
     return layout
@@ -104,12 +124,21 @@ def _modules(channels: Sequence[Channel], models: dict[tuple[str, int], str]) ->
     for c in channels:
         counts.setdefault((c.source.back, c.source.module), {k: 0 for k in Kind})[c.kind] += 1
     return [
-        ModuleRef(back, address, models.get((back, address), ""), n[Kind.DI], n[Kind.DO], n[Kind.AI], n[Kind.AO])
+        ModuleRef(
+            back,
+            address,
+            models.get((back, address), ""),
+            n[Kind.DI],
+            n[Kind.DO],
+            n[Kind.AI],
+            n[Kind.AO],
+        )
         for (back, address), n in counts.items()
     ]
 
 
 # -- default PDOs ---------------------------------------------------------------------
+
 
 def mapping_entry(index: int, sub: int, bits: int) -> int:
     return index << 16 | sub << 8 | bits
@@ -139,13 +168,20 @@ class PdoDefaults:
 
 
 def _chunks(items: list[int], size: int) -> list[list[int]]:
-    return [items[i:i + size] for i in range(0, len(items), size)]
+    return [items[i : i + size] for i in range(0, len(items), size)]
 
 
-def _plan(n_digital: int, n_analog: int, count: int, style: Style, closed: bool) -> list[list[tuple[str, int]]]:
+def _plan(
+    n_digital: int, n_analog: int, count: int, style: Style, closed: bool
+) -> list[list[tuple[str, int]]]:
     """Which objects each PDO of one direction carries: lists of ("d", byte) / ("a", channel)."""
-    digital = [[("d", i) for i in chunk] for chunk in _chunks(list(range(1, n_digital + 1)), DIGITAL_PER_PDO)]
-    analog = [[("a", i) for i in chunk] for chunk in _chunks(list(range(1, n_analog + 1)), ANALOG_PER_PDO)]
+    digital = [
+        [("d", i) for i in chunk]
+        for chunk in _chunks(list(range(1, n_digital + 1)), DIGITAL_PER_PDO)
+    ]
+    analog = [
+        [("a", i) for i in chunk] for chunk in _chunks(list(range(1, n_analog + 1)), ANALOG_PER_PDO)
+    ]
     slots: list[list[tuple[str, int]]] = []
     if style == "icpdas":
         if closed and not digital:
@@ -155,15 +191,25 @@ def _plan(n_digital: int, n_analog: int, count: int, style: Style, closed: bool)
             if len(analog) > 3 or len(digital) > 1:
                 slots += [[]] * (4 - len(slots)) + digital[1:] + analog[3:]
     else:
-        slots = [digital[0] if digital else [], analog[0] if analog else []] + digital[1:] + analog[1:]
+        slots = (
+            [digital[0] if digital else [], analog[0] if analog else []] + digital[1:] + analog[1:]
+        )
     while slots and not slots[-1]:
         slots.pop()
     if len(slots) > count:
-        raise LayoutError(f"the default mapping needs {len(slots)} PDOs per direction, only {count} exist")
+        raise LayoutError(
+            f"the default mapping needs {len(slots)} PDOs per direction, only {count} exist"
+        )
     return slots
 
 
-def default_pdos(layout: IoLayout, style: Style = "icpdas", *, count: int | None = None, mapping_closed: bool = False) -> PdoDefaults:
+def default_pdos(
+    layout: IoLayout,
+    style: Style = "icpdas",
+    *,
+    count: int | None = None,
+    mapping_closed: bool = False,
+) -> PdoDefaults:
     count = count or STYLE_PDO_COUNT[style]
     result = PdoDefaults([], [])
     for direction, bases, digital, analog, d_obj, a_obj in (
@@ -174,11 +220,20 @@ def default_pdos(layout: IoLayout, style: Style = "icpdas", *, count: int | None
         pdos = result.tpdo if direction == "t" else result.rpdo
         for n in range(count):
             objects = plan[n] if n < len(plan) else []
-            entries = [mapping_entry(d_obj, i, 8) if kind == "d" else mapping_entry(a_obj, i, 16) for kind, i in objects]
+            entries = [
+                mapping_entry(d_obj, i, 8) if kind == "d" else mapping_entry(a_obj, i, 16)
+                for kind, i in objects
+            ]
             base = bases[n] if n < len(bases) else None
             if style == "icpdas":
                 pdo = PdoDefault(base, base is not None, 255, entries=entries)
             else:
-                pdo = PdoDefault(base if n < 2 else None, n < 2 and bool(entries), 254, inhibit=5000 if direction == "t" else 0, entries=entries)
+                pdo = PdoDefault(
+                    base if n < 2 else None,
+                    n < 2 and bool(entries),
+                    254,
+                    inhibit=5000 if direction == "t" else 0,
+                    entries=entries,
+                )
             pdos.append(pdo)
     return result

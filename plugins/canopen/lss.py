@@ -87,11 +87,28 @@ FASTSCAN_CONFIRM = 0x80
 # Table selector 0 of "configure bit timing": index -> bit/s.
 BIT_TIMING_TABLES: dict[str, dict[int, int]] = {
     # CiA 305 standard table (index 9 = auto bit rate, not offered).
-    "cia": {0: 1_000_000, 1: 800_000, 2: 500_000, 3: 250_000, 4: 125_000, 5: 100_000,
-            6: 50_000, 7: 20_000, 8: 10_000},
+    "cia": {
+        0: 1_000_000,
+        1: 800_000,
+        2: 500_000,
+        3: 250_000,
+        4: 125_000,
+        5: 100_000,
+        6: 50_000,
+        7: 20_000,
+        8: 10_000,
+    },
     # The I-7232D's own table (seed-000 §2.8): the reverse order, no 100 kbit/s.
-    "i7232d": {0: 10_000, 1: 20_000, 2: 50_000, 3: 125_000, 4: 250_000, 5: 500_000,
-               6: 800_000, 7: 1_000_000},
+    "i7232d": {
+        0: 10_000,
+        1: 20_000,
+        2: 50_000,
+        3: 125_000,
+        4: 250_000,
+        5: 500_000,
+        6: 800_000,
+        7: 1_000_000,
+    },
 }
 
 RawFrame = tuple[int, bytes]
@@ -156,13 +173,17 @@ class LssStore:
             if bitrate is not None and not (isinstance(bitrate, int) and bitrate > 0):
                 raise ValueError(f"bitrate {bitrate!r}")
         except (KeyError, TypeError, ValueError) as exc:
-            log.warning("LSS store %s ignored, using the topology's settings: bad %s", self.path, exc)
+            log.warning(
+                "LSS store %s ignored, using the topology's settings: bad %s", self.path, exc
+            )
             return None
         return StoredLss(node_id, bitrate)
 
     def save(self, settings: StoredLss) -> None:
-        write_json_atomic(self.path, {"format": self.FORMAT, "node_id": settings.node_id,
-                                      "bitrate": settings.bitrate})
+        write_json_atomic(
+            self.path,
+            {"format": self.FORMAT, "node_id": settings.node_id, "bitrate": settings.bitrate},
+        )
 
 
 def _frame(cs: int, payload: bytes = b"") -> RawFrame:
@@ -206,7 +227,9 @@ class LssSlave:
 
     def __post_init__(self) -> None:
         if self.table not in BIT_TIMING_TABLES:
-            raise ValueError(f"unknown bit timing table {self.table!r}; expected one of {sorted(BIT_TIMING_TABLES)}")
+            raise ValueError(
+                f"unknown bit timing table {self.table!r}; expected one of {sorted(BIT_TIMING_TABLES)}"
+            )
         self.active_node_id = self.node_id
         self.pending_node_id = self.node_id
         self.pending_bitrate: int | None = None
@@ -218,8 +241,14 @@ class LssSlave:
         self._silent_until: float | None = None  # no transmission before this time
 
     @classmethod
-    def starting(cls, address: LssAddress, node_id: int = UNCONFIGURED, bitrate: int | None = None,
-                 table: str = "cia", store: LssStore | None = None) -> LssSlave:
+    def starting(
+        cls,
+        address: LssAddress,
+        node_id: int = UNCONFIGURED,
+        bitrate: int | None = None,
+        table: str = "cia",
+        store: LssStore | None = None,
+    ) -> LssSlave:
         """The slave at power-on: what LSS stored overrides the configured node-ID and bit rate."""
         stored = store.load() if store is not None else None
         if stored is not None:
@@ -270,7 +299,9 @@ class LssSlave:
 
     # -- requests ------------------------------------------------------------------------
 
-    def on_frame(self, can_id: int, data: bytes, now: float, *, rtr: bool = False) -> list[RawFrame]:
+    def on_frame(
+        self, can_id: int, data: bytes, now: float, *, rtr: bool = False
+    ) -> list[RawFrame]:
         """Handle one frame on 0x7E5; anything malformed is counted and dropped."""
         if can_id != REQUEST_ID:
             return []
@@ -348,7 +379,11 @@ class LssSlave:
             self.counters.dropped_malformed += 1
             return None
         # Only unconfigured nodes in the waiting state take part (CiA 305).
-        if self.configured or self.pending_node_id != UNCONFIGURED or self.state != LssState.WAITING:
+        if (
+            self.configured
+            or self.pending_node_id != UNCONFIGURED
+            or self.state != LssState.WAITING
+        ):
             return None
         if bit_check == FASTSCAN_CONFIRM:
             self._fastscan_sub = 0
@@ -408,7 +443,9 @@ class LssSlave:
 
     _ANY_STATE = {
         Cs.SWITCH_GLOBAL: _switch_global,
-        **dict.fromkeys(range(Cs.SWITCH_SELECTIVE_VENDOR, Cs.SWITCH_SELECTIVE_SERIAL + 1), _switch_selective),
+        **dict.fromkeys(
+            range(Cs.SWITCH_SELECTIVE_VENDOR, Cs.SWITCH_SELECTIVE_SERIAL + 1), _switch_selective
+        ),
         **dict.fromkeys(range(Cs.IDENTIFY_VENDOR, Cs.IDENTIFY_SERIAL_HIGH + 1), _identify_remote),
         Cs.IDENTIFY_NON_CONFIGURED: _identify_non_configured,
         Cs.FASTSCAN: _fastscan,
@@ -434,7 +471,9 @@ class LssService(Service):
     name = "lss"
     active_states = ALL_STATES
 
-    def __init__(self, *, bitrate: int | None = None, table: str = "cia", store: LssStore | None = None):
+    def __init__(
+        self, *, bitrate: int | None = None, table: str = "cia", store: LssStore | None = None
+    ):
         super().__init__()
         self._options = {"bitrate": bitrate, "table": table, "store": store}
         self.slave: LssSlave | None = None
@@ -445,7 +484,9 @@ class LssService(Service):
 
     def attach(self, node) -> None:
         super().attach(node)
-        self.slave = LssSlave.starting(self._address(), node_id=node.pending_node_id, **self._options)
+        self.slave = LssSlave.starting(
+            self._address(), node_id=node.pending_node_id, **self._options
+        )
         self._sync_pending_node_id()
 
     def _address(self) -> LssAddress:

@@ -33,7 +33,16 @@ from fieldgate.host_watchdog import HostWatchdogs, NoHostWatchdog, WatchdogUnava
 
 from . import abort
 from .abort import VALUE_RANGE
-from .entries import UNSIGNED8, UNSIGNED16, VISIBLE_STRING, Abort, Entry, ObjectDef, array, count_entry
+from .entries import (
+    UNSIGNED8,
+    UNSIGNED16,
+    VISIBLE_STRING,
+    Abort,
+    Entry,
+    ObjectDef,
+    array,
+    count_entry,
+)
 from .layouts import IoLayout, ModuleRef
 
 log = logging.getLogger("fieldgate.canopen.manufacturer")
@@ -54,7 +63,15 @@ def module_emcy_bytes(address: int) -> bytes:
 
 
 class ManufacturerObjects:
-    def __init__(self, layout: IoLayout, health: HealthRegistry, *, style: str = "icpdas", host_watchdogs: HostWatchdogs | None = None, module_emcy: bool = True):
+    def __init__(
+        self,
+        layout: IoLayout,
+        health: HealthRegistry,
+        *,
+        style: str = "icpdas",
+        host_watchdogs: HostWatchdogs | None = None,
+        module_emcy: bool = True,
+    ):
         self.layout = layout
         self.module_emcy = module_emcy  # False: the front raises/clears the offline EMCY itself
         self.health = health
@@ -70,7 +87,9 @@ class ManufacturerObjects:
     # -- module health -> EMCY ----------------------------------------------------------
     def attach(self, raise_error: Raise, clear_error: Clear) -> None:
         self._raise, self._clear = raise_error, clear_error
-        for m in self.layout.modules if self.module_emcy else ():  # modules already offline at start
+        for m in (
+            self.layout.modules if self.module_emcy else ()
+        ):  # modules already offline at start
             h = self._health(m)
             if h is not None and not h.online:
                 raise_error(MODULE_EMCY_CODE, MODULE_EMCY_REGISTER, module_emcy_bytes(m.address))
@@ -83,7 +102,9 @@ class ManufacturerObjects:
             return
         if event is HealthEvent.OFFLINE and self.module_emcy:
             self._raise(MODULE_EMCY_CODE, MODULE_EMCY_REGISTER, module_emcy_bytes(health.address))
-        elif (event is HealthEvent.ONLINE and self.module_emcy) or event is HealthEvent.COUNTER_CLEARED:
+        elif (
+            event is HealthEvent.ONLINE and self.module_emcy
+        ) or event is HealthEvent.COUNTER_CLEARED:
             self._clear(MODULE_EMCY_CODE, module_emcy_bytes(health.address))
 
     def _health(self, module: ModuleRef) -> ModuleHealth | None:
@@ -126,7 +147,9 @@ class ManufacturerObjects:
         self._wd_call(lambda: self.host_watchdogs.set_enabled(module.back, module.address, value))
 
     def _write_wd_time(self, module: ModuleRef, value: int) -> None:
-        self._wd_call(lambda: self.host_watchdogs.set_timeout_tenths(module.back, module.address, value))
+        self._wd_call(
+            lambda: self.host_watchdogs.set_timeout_tenths(module.back, module.address, value)
+        )
 
     def _write_wd_status(self, module: ModuleRef, value: int) -> None:
         if value != 0:
@@ -139,27 +162,109 @@ class ManufacturerObjects:
         if not mods:
             return []
 
-        def per_module(index: int, name: str, dtype: int, access: str, get: Callable[[ModuleRef], Any], put: Callable[[ModuleRef, int], None] | None = None) -> ObjectDef:
-            return array(index, name, (
-                Entry(k + 1, f"{name} {k + 1}", dtype, access, lambda m=m: get(m), (lambda v, m=m: put(m, v)) if put else None, default=get(m))
-                for k, m in enumerate(mods)
-            ))
+        def per_module(
+            index: int,
+            name: str,
+            dtype: int,
+            access: str,
+            get: Callable[[ModuleRef], Any],
+            put: Callable[[ModuleRef, int], None] | None = None,
+        ) -> ObjectDef:
+            return array(
+                index,
+                name,
+                (
+                    Entry(
+                        k + 1,
+                        f"{name} {k + 1}",
+                        dtype,
+                        access,
+                        lambda m=m: get(m),
+                        (lambda v, m=m: put(m, v)) if put else None,
+                        default=get(m),
+                    )
+                    for k, m in enumerate(mods)
+                ),
+            )
 
-        objs = [per_module(ERROR_COUNTERS, "Module error counter", UNSIGNED16, "rw", self._counter, self._write_counter)]
+        objs = [
+            per_module(
+                ERROR_COUNTERS,
+                "Module error counter",
+                UNSIGNED16,
+                "rw",
+                self._counter,
+                self._write_counter,
+            )
+        ]
         if self.host_watchdogs.any((m.back, m.address) for m in mods):
             objs += [
-                per_module(WATCHDOG_ENABLE, "Host watchdog enable", UNSIGNED8, "rw", self._wd_enabled, self._write_wd_enabled),
-                per_module(WATCHDOG_TIME, "Host watchdog time", UNSIGNED8, "rw", self._wd_time, self._write_wd_time),
-                per_module(WATCHDOG_STATUS, "Host watchdog status", UNSIGNED8, "rw", self._wd_status, self._write_wd_status),
+                per_module(
+                    WATCHDOG_ENABLE,
+                    "Host watchdog enable",
+                    UNSIGNED8,
+                    "rw",
+                    self._wd_enabled,
+                    self._write_wd_enabled,
+                ),
+                per_module(
+                    WATCHDOG_TIME,
+                    "Host watchdog time",
+                    UNSIGNED8,
+                    "rw",
+                    self._wd_time,
+                    self._write_wd_time,
+                ),
+                per_module(
+                    WATCHDOG_STATUS,
+                    "Host watchdog status",
+                    UNSIGNED8,
+                    "rw",
+                    self._wd_status,
+                    self._write_wd_status,
+                ),
             ]
         objs += [
-            per_module(MODULE_ADDRESS, "Module address", UNSIGNED8, "ro", lambda m: m.address & 0xFF),
-            per_module(MODULE_MODEL, "Module model", VISIBLE_STRING, "ro", lambda m: m.model or "-"),
+            per_module(
+                MODULE_ADDRESS, "Module address", UNSIGNED8, "ro", lambda m: m.address & 0xFF
+            ),
+            per_module(
+                MODULE_MODEL, "Module model", VISIBLE_STRING, "ro", lambda m: m.model or "-"
+            ),
         ]
-        objs += [per_module(index, f"Module {kind.upper()} channels", UNSIGNED8, "ro", lambda m, kind=kind: min(255, getattr(m, kind))) for index, kind in MODULE_COUNTS.items()]
+        objs += [
+            per_module(
+                index,
+                f"Module {kind.upper()} channels",
+                UNSIGNED8,
+                "ro",
+                lambda m, kind=kind: min(255, getattr(m, kind)),
+            )
+            for index, kind in MODULE_COUNTS.items()
+        ]
         if self.style == "na9161":
             di_bits = sum(1 for b in self.layout.di_bytes for c in b if c is not None)
             do_bits = sum(1 for b in self.layout.do_bytes for c in b if c is not None)
-            for index, name, bits in ((DI_BITS, "Input information", di_bits), (DO_BITS, "Output information", do_bits)):
-                objs.append(ObjectDef(index, name, "record", [count_entry(1), Entry(1, "Digital bit size", UNSIGNED16, "ro", lambda b=bits: b, default=bits)]))
+            for index, name, bits in (
+                (DI_BITS, "Input information", di_bits),
+                (DO_BITS, "Output information", do_bits),
+            ):
+                objs.append(
+                    ObjectDef(
+                        index,
+                        name,
+                        "record",
+                        [
+                            count_entry(1),
+                            Entry(
+                                1,
+                                "Digital bit size",
+                                UNSIGNED16,
+                                "ro",
+                                lambda b=bits: b,
+                                default=bits,
+                            ),
+                        ],
+                    )
+                )
         return objs

@@ -29,7 +29,14 @@ RESTART_REASON = "master not heard since the front restarted"
 
 
 class MasterState:
-    def __init__(self, masters: Any, front: str, outputs: Iterable[str] | Callable[[], Iterable[str]], *, stopped_is_error: bool = False):
+    def __init__(
+        self,
+        masters: Any,
+        front: str,
+        outputs: Iterable[str] | Callable[[], Iterable[str]],
+        *,
+        stopped_is_error: bool = False,
+    ):
         self.masters = masters  # fieldgate.masters.MasterMonitor (lost / ok / is_ok)
         self.front = front
         self._outputs = outputs
@@ -60,7 +67,11 @@ class MasterState:
         if old is NmtState.INITIALISING and new is not NmtState.INITIALISING and not self._booted:
             self._booted = True
             self._restarted()
-        self._update("NMT Stopped" if new is NmtState.STOPPED else ("reset communication" if new is NmtState.INITIALISING else "left NMT Stopped"))
+        self._update(
+            "NMT Stopped"
+            if new is NmtState.STOPPED
+            else ("reset communication" if new is NmtState.INITIALISING else "left NMT Stopped")
+        )
 
     def _restarted(self) -> None:
         """The node's first boot-up: a master lost before this node existed stays lost until heard."""
@@ -76,7 +87,9 @@ class MasterState:
     def _update(self, reason: str) -> None:
         # the node's state, not the last NMT notification: error control reports from inside a
         # state change, before this owner's NMT listener hears of it
-        self.stopped = self.stopped_is_error and self.node is not None and self.node.state is NmtState.STOPPED
+        self.stopped = (
+            self.stopped_is_error and self.node is not None and self.node.state is NmtState.STOPPED
+        )
         lost = self.monitoring_lost or self.stopped
         if lost == self.lost:
             return
@@ -88,4 +101,10 @@ class MasterState:
             self.masters.ok(self.front, reason)
 
     def status(self) -> dict:
-        return {"lost": self.lost, "reason": self.reason, "monitoring_lost": self.monitoring_lost, "stopped_error": self.stopped, "losses": self.losses}
+        return {
+            "lost": self.lost,
+            "reason": self.reason,
+            "monitoring_lost": self.monitoring_lost,
+            "stopped_error": self.stopped,
+            "losses": self.losses,
+        }

@@ -44,7 +44,11 @@ NMT_STOP = 0x02
 NMT_PRE_OPERATIONAL = 0x80
 NMT_RESET_NODE = 0x81
 NMT_RESET_COMMUNICATION = 0x82
-RESET_EMCY_CODE, RESET_EMCY_REGISTER, RESET_EMCY_MANUFACTURER = 0xFF00, 0x80, b"\x0a"  # I-7232D/I-7231D
+RESET_EMCY_CODE, RESET_EMCY_REGISTER, RESET_EMCY_MANUFACTURER = (
+    0xFF00,
+    0x80,
+    b"\x0a",
+)  # I-7232D/I-7231D
 
 
 class Node:
@@ -55,13 +59,19 @@ class Node:
         self.name = name
         self.node_id = node_id
         self.pending_node_id = node_id
-        self.od = od if od is not None else Dictionary(node_id=node_id if node_id != UNCONFIGURED_NODE_ID else 0)
+        self.od = (
+            od
+            if od is not None
+            else Dictionary(node_id=node_id if node_id != UNCONFIGURED_NODE_ID else 0)
+        )
         self.od.node_id = node_id if node_id != UNCONFIGURED_NODE_ID else 0
         self.state = NmtState.INITIALISING
         self.services: list[Service] = []
         self._timed: list[Service] = []
         self.counters: Counter[str] = Counter()
-        self.frames_received = 0  # counters["rx"] in status(); a plain integer on the per-frame path
+        self.frames_received = (
+            0  # counters["rx"] in status(); a plain integer on the per-frame path
+        )
         self.emcy = None  # the EMCY producer, set when one is added (see .emcy)
         self.now = 0.0  # time of the last boot()/receive()/tick(), for calls from outside
         self._deadline_hint: float | None = None
@@ -251,7 +261,13 @@ class Node:
 
     def _internal_error(self, service: Service, where: str, frame: Frame | None = None) -> None:
         self.counters["internal_errors"] += 1
-        log.exception("%s: service %s failed in %s%s", self.name, service.name, where, f" on {frame}" if frame else "")
+        log.exception(
+            "%s: service %s failed in %s%s",
+            self.name,
+            service.name,
+            where,
+            f" on {frame}" if frame else "",
+        )
 
     # -- NMT ----------------------------------------------------------------------------
     def _nmt_command(self, frame: Frame, now: float) -> None:

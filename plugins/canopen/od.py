@@ -48,8 +48,26 @@ DEFAULT_MAX_SIZE = 1024  # bytes accepted for a writable string/domain without i
 
 _TYPE_RANGES = {
     dt.BOOLEAN: (0, 1),
-    **{t: (-(1 << (8 * s - 1)), (1 << (8 * s - 1)) - 1) for t, s in ((dt.INTEGER8, 1), (dt.INTEGER16, 2), (dt.INTEGER24, 3), (dt.INTEGER32, 4), (dt.INTEGER64, 8))},
-    **{t: (0, (1 << (8 * s)) - 1) for t, s in ((dt.UNSIGNED8, 1), (dt.UNSIGNED16, 2), (dt.UNSIGNED24, 3), (dt.UNSIGNED32, 4), (dt.UNSIGNED64, 8))},
+    **{
+        t: (-(1 << (8 * s - 1)), (1 << (8 * s - 1)) - 1)
+        for t, s in (
+            (dt.INTEGER8, 1),
+            (dt.INTEGER16, 2),
+            (dt.INTEGER24, 3),
+            (dt.INTEGER32, 4),
+            (dt.INTEGER64, 8),
+        )
+    },
+    **{
+        t: (0, (1 << (8 * s)) - 1)
+        for t, s in (
+            (dt.UNSIGNED8, 1),
+            (dt.UNSIGNED16, 2),
+            (dt.UNSIGNED24, 3),
+            (dt.UNSIGNED32, 4),
+            (dt.UNSIGNED64, 8),
+        )
+    },
 }
 
 
@@ -77,20 +95,49 @@ class Dictionary:
         self._validators: dict[int, list[Validator]] = {}
         self._listeners: dict[int, list[WriteListener]] = {}
         self.generation = 0  # +1 on every change of entries, bindings or values: caches compare it
-        self._sources: dict[tuple[int, int], tuple[cod.ODVariable, Getter | None, bool]] = {}  # read()'s cache
+        self._sources: dict[
+            tuple[int, int], tuple[cod.ODVariable, Getter | None, bool]
+        ] = {}  # read()'s cache
         self._sources_generation = -1
         for var in self.variables():
             self._values[(var.index, var.subindex)] = self.default(var)
 
     # -- building ----------------------------------------------------------------
-    def add_variable(self, index: int, name: str, data_type: int, access: str = "rw", default: Value = 0, *, minimum: int | None = None, maximum: int | None = None, relative: bool = False, mappable: bool = False, max_size: int | None = None) -> cod.ODVariable:
-        var = _make_var(name, index, 0, data_type, access, default, minimum, maximum, relative, mappable, max_size)
+    def add_variable(
+        self,
+        index: int,
+        name: str,
+        data_type: int,
+        access: str = "rw",
+        default: Value = 0,
+        *,
+        minimum: int | None = None,
+        maximum: int | None = None,
+        relative: bool = False,
+        mappable: bool = False,
+        max_size: int | None = None,
+    ) -> cod.ODVariable:
+        var = _make_var(
+            name,
+            index,
+            0,
+            data_type,
+            access,
+            default,
+            minimum,
+            maximum,
+            relative,
+            mappable,
+            max_size,
+        )
         self.model.add_object(var)
         self._values[(index, 0)] = self.default(var)
         self.generation += 1
         return var
 
-    def add_record(self, index: int, name: str, members: list[tuple], *, array: bool = False) -> cod.ODRecord | cod.ODArray:
+    def add_record(
+        self, index: int, name: str, members: list[tuple], *, array: bool = False
+    ) -> cod.ODRecord | cod.ODArray:
         """A record (or array) with sub 0 = highest sub-index and ``members``.
 
         Each member is ``(subindex, name, data_type, access, default[, options dict])``;
@@ -98,12 +145,38 @@ class Dictionary:
         """
         obj = cod.ODArray(name, index) if array else cod.ODRecord(name, index)
         highest = max((m[0] for m in members), default=0)
-        sub0 = _make_var("Highest sub-index supported", index, 0, dt.UNSIGNED8, "ro", highest, None, None, False, False, None)
+        sub0 = _make_var(
+            "Highest sub-index supported",
+            index,
+            0,
+            dt.UNSIGNED8,
+            "ro",
+            highest,
+            None,
+            None,
+            False,
+            False,
+            None,
+        )
         obj.add_member(sub0)
         for member in members:
             sub, mname, dtype, access, default = member[:5]
             opts = member[5] if len(member) > 5 else {}
-            obj.add_member(_make_var(mname, index, sub, dtype, access, default, opts.get("minimum"), opts.get("maximum"), opts.get("relative", False), opts.get("mappable", False), opts.get("max_size")))
+            obj.add_member(
+                _make_var(
+                    mname,
+                    index,
+                    sub,
+                    dtype,
+                    access,
+                    default,
+                    opts.get("minimum"),
+                    opts.get("maximum"),
+                    opts.get("relative", False),
+                    opts.get("mappable", False),
+                    opts.get("max_size"),
+                )
+            )
         self.model.add_object(obj)
         for var in obj.subindices.values():
             self._values[(index, var.subindex)] = self.default(var)
@@ -163,8 +236,15 @@ class Dictionary:
         return var.default if var.default is not None else _zero(var)
 
     # -- hooks ---------------------------------------------------------------------
-    def bind(self, index: int, subindex: int, getter: Getter | None = None, setter: Setter | None = None, *,
-             thread_safe: bool = False) -> None:
+    def bind(
+        self,
+        index: int,
+        subindex: int,
+        getter: Getter | None = None,
+        setter: Setter | None = None,
+        *,
+        thread_safe: bool = False,
+    ) -> None:
         """Serve (index, subindex) from ``getter`` and/or pass accepted writes to ``setter``.
 
         ``thread_safe``: the getter gives a consistent value when called from another
@@ -213,7 +293,11 @@ class Dictionary:
         source = self._sources.get(key)
         if source is None:
             getter = self._getters.get(key)
-            source = self._sources[key] = (self.variable(*key), getter, getter is None or key in self._thread_safe)
+            source = self._sources[key] = (
+                self.variable(*key),
+                getter,
+                getter is None or key in self._thread_safe,
+            )
         return source
 
     def read_quick(self, index: int, subindex: int) -> bytes | None:
@@ -274,11 +358,22 @@ class Dictionary:
     def storable(self) -> Iterator[cod.ODVariable]:
         """Entries whose value a store (0x1010) saves: writable and not bound to a getter."""
         for var in self.variables():
-            if var.writable and (var.index, var.subindex) not in self._getters and var.index not in (0x1010, 0x1011):
+            if (
+                var.writable
+                and (var.index, var.subindex) not in self._getters
+                and var.index not in (0x1010, 0x1011)
+            ):
                 yield var
 
-    def snapshot(self, communication: bool = True, application: bool = True) -> dict[tuple[int, int], Value]:
-        return {(v.index, v.subindex): self._values[(v.index, v.subindex)] for v in self.storable() if (in_communication_area(v.index) and communication) or (not in_communication_area(v.index) and application)}
+    def snapshot(
+        self, communication: bool = True, application: bool = True
+    ) -> dict[tuple[int, int], Value]:
+        return {
+            (v.index, v.subindex): self._values[(v.index, v.subindex)]
+            for v in self.storable()
+            if (in_communication_area(v.index) and communication)
+            or (not in_communication_area(v.index) and application)
+        }
 
     @property
     def stored(self) -> dict[tuple[int, int], Value]:
@@ -381,7 +476,19 @@ def check_range(var: cod.ODVariable, value: Value) -> None:
         raise SdoAbort(abort.VALUE_TOO_HIGH)
 
 
-def _make_var(name: str, index: int, sub: int, data_type: int, access: str, default: Any, minimum, maximum, relative: bool, mappable: bool, max_size) -> cod.ODVariable:
+def _make_var(
+    name: str,
+    index: int,
+    sub: int,
+    data_type: int,
+    access: str,
+    default: Any,
+    minimum,
+    maximum,
+    relative: bool,
+    mappable: bool,
+    max_size,
+) -> cod.ODVariable:
     var = cod.ODVariable(name, index, sub)
     var.data_type = data_type
     var.access_type = access

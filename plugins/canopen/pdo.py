@@ -39,7 +39,18 @@ from typing import Literal
 
 from .abort import DEVICE_STATE, NOT_MAPPABLE, PDO_TOO_LONG, VALUE_RANGE
 from .cobid import check_cob_id
-from .entries import UNSIGNED8, UNSIGNED16, UNSIGNED32, Abort, Directory, Entry, ObjectDef, count_entry, decode, encode
+from .entries import (
+    UNSIGNED8,
+    UNSIGNED16,
+    UNSIGNED32,
+    Abort,
+    Directory,
+    Entry,
+    ObjectDef,
+    count_entry,
+    decode,
+    encode,
+)
 from .layouts import COB_INVALID, PdoDefault
 
 log = logging.getLogger("fieldgate.canopen.pdo")
@@ -51,6 +62,7 @@ MAX_ENTRIES = 8
 MAX_BITS = 64
 MAX_PDOS = 512
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
+
 
 # CiA 301 §7.3.5: identifiers a PDO may not use.
 def _sync_type(t: int) -> bool:
@@ -134,7 +146,9 @@ class PdoCounters:
     rpdo_write_refused: int = 0
     tpdo_sent: int = 0
     rtr_answered: int = 0
-    frames_ignored: int = 0  # a remote request for an RPDO, or data on a TPDO's COB-ID (another node's?)
+    frames_ignored: int = (
+        0  # a remote request for an RPDO, or data on a TPDO's COB-ID (another node's?)
+    )
 
 
 class PdoEngine:
@@ -186,7 +200,12 @@ class PdoEngine:
         for pdo in self.tpdos + self.rpdos:
             d = pdo.default
             pdo.cob_id = d.cob_id(self.node_id)
-            pdo.trans_type, pdo.inhibit, pdo.event_timer, pdo.sync_start = d.trans_type, d.inhibit, d.event_timer, 0
+            pdo.trans_type, pdo.inhibit, pdo.event_timer, pdo.sync_start = (
+                d.trans_type,
+                d.inhibit,
+                d.event_timer,
+                0,
+            )
             pdo.map_entries = (list(d.entries) + [0] * MAX_ENTRIES)[:MAX_ENTRIES]
             pdo.map_count = len(d.entries)
             pdo.slots = self._compile(pdo, pdo.map_entries[: pdo.map_count])
@@ -226,7 +245,11 @@ class PdoEngine:
                 if rtr:
                     pdo = self._rtr.get(can_id)
                     if pdo is not None:
-                        data_out = pdo.sample if pdo.trans_type == 252 and pdo.sample is not None else self._build(pdo)
+                        data_out = (
+                            pdo.sample
+                            if pdo.trans_type == 252 and pdo.sample is not None
+                            else self._build(pdo)
+                        )
                         self._outbox.append((pdo.can_id, data_out))
                         self.counters.rtr_answered += 1
                     else:
@@ -289,7 +312,9 @@ class PdoEngine:
     def next_deadline(self) -> float | None:
         if not self.operational:
             return None
-        times = [p.next_allowed for p in self._timed if p.pending] + [p.timer_due for p in self._timed if p.timer_due is not None]
+        times = [p.next_allowed for p in self._timed if p.pending] + [
+            p.timer_due for p in self._timed if p.timer_due is not None
+        ]
         if self._queued_at is not None:
             times.append(self._queued_at)
         return min(times) if times else None
@@ -339,7 +364,13 @@ class PdoEngine:
         self._arm_timer(pdo, now)
 
     def _arm_timer(self, pdo: Pdo, now: float) -> None:
-        active = pdo.transmit and self.operational and pdo.valid and pdo.event_timer and _async_type(pdo.trans_type)
+        active = (
+            pdo.transmit
+            and self.operational
+            and pdo.valid
+            and pdo.event_timer
+            and _async_type(pdo.trans_type)
+        )
         pdo.timer_due = now + pdo.event_timer / 1000 if active else None
 
     def _event(self, pdo: Pdo, now: float) -> None:
@@ -395,7 +426,7 @@ class PdoEngine:
         offset = 0
         for slot in pdo.slots:
             try:
-                slot.entry.write(decode(slot.entry.dtype, payload[offset: offset + slot.size]))  # type: ignore[arg-type]
+                slot.entry.write(decode(slot.entry.dtype, payload[offset : offset + slot.size]))  # type: ignore[arg-type]
             except Abort as exc:
                 self.counters.rpdo_write_refused += 1
                 log.debug("RPDO%d: 0x%04X:%d refused: %s", pdo.number, slot.index, slot.sub, exc)
@@ -412,7 +443,10 @@ class PdoEngine:
             raise
         usable = entry.readable if pdo.transmit else entry.writable
         if not entry.mappable or not usable:
-            raise Abort(NOT_MAPPABLE, f"0x{index:04X}:{sub} cannot be mapped into a {'T' if pdo.transmit else 'R'}PDO")
+            raise Abort(
+                NOT_MAPPABLE,
+                f"0x{index:04X}:{sub} cannot be mapped into a {'T' if pdo.transmit else 'R'}PDO",
+            )
         if bits != entry.bits:
             raise Abort(NOT_MAPPABLE, f"0x{index:04X}:{sub} is {entry.bits} bits, not {bits}")
         return _Slot(index, sub, entry, bits // 8)
@@ -420,12 +454,19 @@ class PdoEngine:
     def _compile(self, pdo: Pdo, values: list[int]) -> list[_Slot]:
         slots = [self._check_entry(pdo, v) for v in values]
         if sum(s.size for s in slots) * 8 > MAX_BITS:
-            raise Abort(PDO_TOO_LONG, f"the mapping needs {sum(s.size for s in slots) * 8} bits, at most {MAX_BITS}")
+            raise Abort(
+                PDO_TOO_LONG,
+                f"the mapping needs {sum(s.size for s in slots) * 8} bits, at most {MAX_BITS}",
+            )
         return slots
 
     def _reindex(self) -> None:
         # Only these TPDOs ever have a deadline (event timer, or events held back by an inhibit time).
-        self._timed = [p for p in self.tpdos if p.valid and _async_type(p.trans_type) and (p.event_timer or p.inhibit)]
+        self._timed = [
+            p
+            for p in self.tpdos
+            if p.valid and _async_type(p.trans_type) and (p.event_timer or p.inhibit)
+        ]
         self._rx = {p.can_id: p for p in self.rpdos if p.valid}
         self._rtr = {p.can_id: p for p in self.tpdos if p.valid and p.rtr_allowed}
         self._events = {}
@@ -442,7 +483,11 @@ class PdoEngine:
         if pdo.valid and new_valid and value != pdo.cob_id:
             raise Abort(VALUE_RANGE, "the COB-ID of a valid PDO cannot change; set bit 31 first")
         if new_valid:
-            clash = [p for p in (self.tpdos + self.rpdos) if p is not pdo and p.valid and p.can_id == can_id]
+            clash = [
+                p
+                for p in (self.tpdos + self.rpdos)
+                if p is not pdo and p.valid and p.can_id == can_id
+            ]
             if clash:
                 raise Abort(VALUE_RANGE, f"COB-ID 0x{can_id:03X} is used by another PDO")
         was_valid = pdo.valid
@@ -455,7 +500,10 @@ class PdoEngine:
     def _set_trans_type(self, pdo: Pdo, value: int) -> None:
         allowed = value <= 240 or value >= (252 if pdo.transmit else 254)
         if not allowed:
-            raise Abort(VALUE_RANGE, f"transmission type {value} is not supported for a {'T' if pdo.transmit else 'R'}PDO")
+            raise Abort(
+                VALUE_RANGE,
+                f"transmission type {value} is not supported for a {'T' if pdo.transmit else 'R'}PDO",
+            )
         pdo.trans_type = value
         pdo.clear_runtime()
         self._arm_timer(pdo, self.clock())
@@ -463,7 +511,9 @@ class PdoEngine:
 
     def _set_while_invalid(self, pdo: Pdo, attr: str, value: int) -> None:
         if pdo.valid and pdo.transmit:
-            raise Abort(VALUE_RANGE, f"{attr.replace('_', ' ')} can change only while the PDO is invalid")
+            raise Abort(
+                VALUE_RANGE, f"{attr.replace('_', ' ')} can change only while the PDO is invalid"
+            )
         setattr(pdo, attr, value)
         pdo.clear_runtime()
         self._reindex()
@@ -506,39 +556,127 @@ class PdoEngine:
         d = pdo.default
         kind = "Transmit" if pdo.transmit else "Receive"
         entries = [
-            Entry(1, "COB-ID", UNSIGNED32, "rw", lambda: pdo.cob_id, lambda v: self._set_cob_id(pdo, v), default=cob, default_expr=expr),
-            Entry(2, "Transmission type", UNSIGNED8, "rw", lambda: pdo.trans_type, lambda v: self._set_trans_type(pdo, v), default=d.trans_type),
+            Entry(
+                1,
+                "COB-ID",
+                UNSIGNED32,
+                "rw",
+                lambda: pdo.cob_id,
+                lambda v: self._set_cob_id(pdo, v),
+                default=cob,
+                default_expr=expr,
+            ),
+            Entry(
+                2,
+                "Transmission type",
+                UNSIGNED8,
+                "rw",
+                lambda: pdo.trans_type,
+                lambda v: self._set_trans_type(pdo, v),
+                default=d.trans_type,
+            ),
         ]
         if pdo.transmit or self.rpdo_timing:
             entries += [
-                Entry(3, "Inhibit time", UNSIGNED16, "rw", lambda: pdo.inhibit, lambda v: self._set_while_invalid(pdo, "inhibit", v), default=d.inhibit),
-                Entry(5, "Event timer", UNSIGNED16, "rw", lambda: pdo.event_timer, lambda v: self._set_event_timer(pdo, v), default=d.event_timer),
+                Entry(
+                    3,
+                    "Inhibit time",
+                    UNSIGNED16,
+                    "rw",
+                    lambda: pdo.inhibit,
+                    lambda v: self._set_while_invalid(pdo, "inhibit", v),
+                    default=d.inhibit,
+                ),
+                Entry(
+                    5,
+                    "Event timer",
+                    UNSIGNED16,
+                    "rw",
+                    lambda: pdo.event_timer,
+                    lambda v: self._set_event_timer(pdo, v),
+                    default=d.event_timer,
+                ),
             ]
         if pdo.transmit:
-            entries.append(Entry(6, "SYNC start value", UNSIGNED8, "rw", lambda: pdo.sync_start, lambda v: self._set_while_invalid(pdo, "sync_start", v), default=0, high=240))
+            entries.append(
+                Entry(
+                    6,
+                    "SYNC start value",
+                    UNSIGNED8,
+                    "rw",
+                    lambda: pdo.sync_start,
+                    lambda v: self._set_while_invalid(pdo, "sync_start", v),
+                    default=0,
+                    high=240,
+                )
+            )
         highest = entries[-1].sub
-        return ObjectDef(pdo.comm_index, f"{kind} PDO {pdo.number} communication parameter", "record", [count_entry(highest)] + entries)
+        return ObjectDef(
+            pdo.comm_index,
+            f"{kind} PDO {pdo.number} communication parameter",
+            "record",
+            [count_entry(highest)] + entries,
+        )
 
     def _map_object(self, pdo: Pdo) -> ObjectDef:
         d = pdo.default
         kind = "Transmit" if pdo.transmit else "Receive"
-        entries = [Entry(0, "Number of mapped objects", UNSIGNED8, "rw", lambda: pdo.map_count, lambda v: self._set_map_count(pdo, v), default=len(d.entries))]
+        entries = [
+            Entry(
+                0,
+                "Number of mapped objects",
+                UNSIGNED8,
+                "rw",
+                lambda: pdo.map_count,
+                lambda v: self._set_map_count(pdo, v),
+                default=len(d.entries),
+            )
+        ]
         for position in range(MAX_ENTRIES):
             default = d.entries[position] if position < len(d.entries) else 0
-            entries.append(Entry(
-                position + 1, f"Mapped object {position + 1}", UNSIGNED32, "rw",
-                lambda p=position: pdo.map_entries[p], lambda v, p=position: self._set_map_entry(pdo, p, v), default=default,
-            ))
-        return ObjectDef(pdo.map_index, f"{kind} PDO {pdo.number} mapping parameter", "record", entries)
+            entries.append(
+                Entry(
+                    position + 1,
+                    f"Mapped object {position + 1}",
+                    UNSIGNED32,
+                    "rw",
+                    lambda p=position: pdo.map_entries[p],
+                    lambda v, p=position: self._set_map_entry(pdo, p, v),
+                    default=default,
+                )
+            )
+        return ObjectDef(
+            pdo.map_index, f"{kind} PDO {pdo.number} mapping parameter", "record", entries
+        )
 
     # -- persistence (0x1010 store) ------------------------------------------------------
     def parameters(self) -> list[list]:
         """The parameters of every PDO that differs from its default, as plain data."""
         records = []
         for pdo in self.tpdos + self.rpdos:
-            record = [pdo.transmit, pdo.number, pdo.cob_id, pdo.trans_type, pdo.inhibit, pdo.event_timer, pdo.sync_start, pdo.map_count, list(pdo.map_entries)]
+            record = [
+                pdo.transmit,
+                pdo.number,
+                pdo.cob_id,
+                pdo.trans_type,
+                pdo.inhibit,
+                pdo.event_timer,
+                pdo.sync_start,
+                pdo.map_count,
+                list(pdo.map_entries),
+            ]
             d = pdo.default
-            default = [pdo.transmit, pdo.number, d.cob_id(self.node_id), d.trans_type, d.inhibit, d.event_timer, 0, len(d.entries), (list(d.entries) + [0] * MAX_ENTRIES)[:MAX_ENTRIES]]
+            default = [
+                pdo.transmit,
+                pdo.number,
+                d.cob_id(self.node_id),
+                d.trans_type,
+                d.inhibit,
+                d.event_timer,
+                0,
+                len(d.entries),
+                (list(d.entries) + [0] * MAX_ENTRIES)[:MAX_ENTRIES],
+            ]
             if record != default:
                 records.append(record)
         return records
@@ -549,14 +687,32 @@ class PdoEngine:
         by_key = {(p.transmit, p.number): p for p in self.tpdos + self.rpdos}
         for record in records:
             try:
-                transmit, number, cob_id, trans_type, inhibit, event_timer, sync_start, count, entries = record
+                (
+                    transmit,
+                    number,
+                    cob_id,
+                    trans_type,
+                    inhibit,
+                    event_timer,
+                    sync_start,
+                    count,
+                    entries,
+                ) = record
                 pdo = by_key[(bool(transmit), int(number))]
                 entries = [int(e) for e in entries][:MAX_ENTRIES]
                 slots = self._compile(pdo, entries[:count])
             except (Abort, KeyError, TypeError, ValueError):
-                log.warning("stored PDO parameters %r do not fit this device; defaults kept", record)
+                log.warning(
+                    "stored PDO parameters %r do not fit this device; defaults kept", record
+                )
                 continue
-            pdo.cob_id, pdo.trans_type, pdo.inhibit, pdo.event_timer, pdo.sync_start = int(cob_id), int(trans_type), int(inhibit), int(event_timer), int(sync_start)
+            pdo.cob_id, pdo.trans_type, pdo.inhibit, pdo.event_timer, pdo.sync_start = (
+                int(cob_id),
+                int(trans_type),
+                int(inhibit),
+                int(event_timer),
+                int(sync_start),
+            )
             pdo.map_entries = entries + [0] * (MAX_ENTRIES - len(entries))
             pdo.map_count, pdo.slots, pdo.sample = int(count), slots, None
             pdo.clear_runtime()

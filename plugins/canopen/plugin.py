@@ -20,12 +20,12 @@ from typing import Any, Literal
 from pydantic import Field, field_validator
 
 from fieldgate import __version__
+from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.plugin import Front, GatewayContext, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
-from fieldgate.can.adapter import CanAdapter, open_bus
 from .cobid import restricted
 from .eds import register_command as register_eds_command
 from .front401 import IoFrontOptions, io_settings
@@ -54,12 +54,19 @@ def add_node_extension(extension: NodeExtension) -> None:
 
 
 class IdentitySettings(StrictModel):
-    device_type: int | None = Field(None, ge=0, le=0xFFFFFFFF, description="0x1000; default 0x0191 (CiA 401) with bits 16-19 set for DI/DO/AI/AO present")
+    device_type: int | None = Field(
+        None,
+        ge=0,
+        le=0xFFFFFFFF,
+        description="0x1000; default 0x0191 (CiA 401) with bits 16-19 set for DI/DO/AI/AO present",
+    )
     vendor_id: int = Field(0, ge=0, le=0xFFFFFFFF, description="0x1018:1 (also the LSS address)")
     product_code: int = Field(0, ge=0, le=0xFFFFFFFF, description="0x1018:2")
     revision: int = Field(0, ge=0, le=0xFFFFFFFF, description="0x1018:3")
     serial: int = Field(0, ge=0, le=0xFFFFFFFF, description="0x1018:4")
-    device_name: str = Field("fieldgate", max_length=255, description="0x1008 manufacturer device name")
+    device_name: str = Field(
+        "fieldgate", max_length=255, description="0x1008 manufacturer device name"
+    )
     hardware_version: str = Field("", max_length=255, description="0x1009")
     software_version: str = Field(f"fieldgate {__version__}", max_length=255, description="0x100A")
 
@@ -69,42 +76,91 @@ CIA_BITRATES = tuple(sorted(set().union(*(table.values() for table in BIT_TIMING
 
 class CanopenFrontConfig(FrontConfig, IoFrontOptions):
     type: Literal["canopen"] = "canopen"
-    interface: str = Field("socketcan", description="python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...")
-    channel: str | None = Field("can0", description="python-can channel (can0, vcan0, PCAN_USBBUS1, a virtual channel name, ...)")
-    bitrate: int | None = Field(125_000, description="CAN bit rate in bit/s, one of CiA 301's (passed to can.Bus; LSS may change it); null for an interface configured outside fieldgate")
-    bus_options: dict[str, Any] = Field(default_factory=dict, description="extra keyword arguments for can.Bus")
-    node_id: int | None = Field(1, ge=1, le=127, description="node-ID 1..127; null = unconfigured, wait for LSS")
-    heartbeat_ms: int = Field(0, ge=0, le=65535, description="0x1017 producer heartbeat time (0 = off)")
+    interface: str = Field(
+        "socketcan",
+        description="python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...",
+    )
+    channel: str | None = Field(
+        "can0",
+        description="python-can channel (can0, vcan0, PCAN_USBBUS1, a virtual channel name, ...)",
+    )
+    bitrate: int | None = Field(
+        125_000,
+        description="CAN bit rate in bit/s, one of CiA 301's (passed to can.Bus; LSS may change it); null for an interface configured outside fieldgate",
+    )
+    bus_options: dict[str, Any] = Field(
+        default_factory=dict, description="extra keyword arguments for can.Bus"
+    )
+    node_id: int | None = Field(
+        1, ge=1, le=127, description="node-ID 1..127; null = unconfigured, wait for LSS"
+    )
+    heartbeat_ms: int = Field(
+        0, ge=0, le=65535, description="0x1017 producer heartbeat time (0 = off)"
+    )
     guard_time_ms: int = Field(0, ge=0, le=32767, description="0x100C guard time default")
     life_time_factor: int = Field(0, ge=0, le=255, description="0x100D life time factor default")
-    heartbeat_consumers: int = Field(1, ge=0, le=127, description="number of 0x1016 heartbeat consumer entries")
-    on_master_lost: Literal["pre-operational", "no-change", "stopped"] = Field("no-change", description="0x1029:1 default: NMT state change on life guarding / heartbeat timeout / bus-off (NA-9161: pre-operational)")
+    heartbeat_consumers: int = Field(
+        1, ge=0, le=127, description="number of 0x1016 heartbeat consumer entries"
+    )
+    on_master_lost: Literal["pre-operational", "no-change", "stopped"] = Field(
+        "no-change",
+        description="0x1029:1 default: NMT state change on life guarding / heartbeat timeout / bus-off (NA-9161: pre-operational)",
+    )
     sync_cob_id: int = Field(0x80, ge=1, le=0x7FF, description="0x1005 default SYNC COB-ID")
-    emcy_on_nmt_reset: bool = Field(False, description="send EMCY 00 FF 80 0A 00 00 00 00 before an NMT reset node/communication, as the I-7232D/I-7231D do")
-    emcy_history: int = Field(5, ge=5, le=254, description="depth of the 0x1003 pre-defined error field")
-    sdo_timeout_ms: int = Field(1000, ge=10, le=60_000, description="server-side SDO transfer timeout")
+    emcy_on_nmt_reset: bool = Field(
+        False,
+        description="send EMCY 00 FF 80 0A 00 00 00 00 before an NMT reset node/communication, as the I-7232D/I-7231D do",
+    )
+    emcy_history: int = Field(
+        5, ge=5, le=254, description="depth of the 0x1003 pre-defined error field"
+    )
+    sdo_timeout_ms: int = Field(
+        1000, ge=10, le=60_000, description="server-side SDO transfer timeout"
+    )
     sdo_block_size: int = Field(127, ge=1, le=127, description="block size the SDO server offers")
-    sdo_zero_extend: bool = Field(False, description="accept expedited writes shorter than an unsigned object and zero-extend them (NA-9161 masters); default: abort 0607 0013")
-    sdo_servers: int = Field(1, ge=1, le=128, description="SDO server channels: 1 = only 0x1200; N adds 0x1201..0x1200+N-1, each invalid until its COB-IDs are written")
-    store_file: str | None = Field(None, description="0x1010/0x1011 store file (relative to the state dir); default <front name>.canopen.json")
-    lss_table: Literal["cia", "i7232d"] = Field("cia", description="LSS bit-timing table: CiA 305, or the I-7232D's own")
-    lss_store_file: str | None = Field(None, description="LSS store file (relative to the state dir); default <front name>.lss.json")
-    module_emcy: bool = Field(True, description="send EMCY 00 FF 81 0B <address> when a served module goes offline")
+    sdo_zero_extend: bool = Field(
+        False,
+        description="accept expedited writes shorter than an unsigned object and zero-extend them (NA-9161 masters); default: abort 0607 0013",
+    )
+    sdo_servers: int = Field(
+        1,
+        ge=1,
+        le=128,
+        description="SDO server channels: 1 = only 0x1200; N adds 0x1201..0x1200+N-1, each invalid until its COB-IDs are written",
+    )
+    store_file: str | None = Field(
+        None,
+        description="0x1010/0x1011 store file (relative to the state dir); default <front name>.canopen.json",
+    )
+    lss_table: Literal["cia", "i7232d"] = Field(
+        "cia", description="LSS bit-timing table: CiA 305, or the I-7232D's own"
+    )
+    lss_store_file: str | None = Field(
+        None,
+        description="LSS store file (relative to the state dir); default <front name>.lss.json",
+    )
+    module_emcy: bool = Field(
+        True, description="send EMCY 00 FF 81 0B <address> when a served module goes offline"
+    )
     identity: IdentitySettings = Field(default_factory=IdentitySettings)
 
     @field_validator("bitrate")
     @classmethod
     def _standard_bitrate(cls, value: int | None) -> int | None:
         if value is not None and value not in CIA_BITRATES:
-            raise ValueError(f"expected one of the CiA 301 bit rates {', '.join(map(str, CIA_BITRATES))} bit/s, "
-                             f"or null when the interface's own configuration sets it")
+            raise ValueError(
+                f"expected one of the CiA 301 bit rates {', '.join(map(str, CIA_BITRATES))} bit/s, "
+                f"or null when the interface's own configuration sets it"
+            )
         return value
 
     @field_validator("sync_cob_id")
     @classmethod
     def _sync_cob_id_not_restricted(cls, value: int) -> int:
         if restricted(value):
-            raise ValueError(f"0x{value:03X} is a restricted CAN-ID (CiA 301 §7.3.5); 0x80 is the usual SYNC COB-ID")
+            raise ValueError(
+                f"0x{value:03X} is a restricted CAN-ID (CiA 301 §7.3.5); 0x80 is the usual SYNC COB-ID"
+            )
         return value
 
 
@@ -137,22 +193,50 @@ class CanopenFront(Front):
         ident = cfg.identity
         settings = NodeSettings(
             node_id=cfg.node_id,
-            identity=Identity(device_type, ident.vendor_id, ident.product_code, ident.revision, ident.serial, ident.device_name, ident.hardware_version, ident.software_version),
-            heartbeat_ms=cfg.heartbeat_ms, guard_time_ms=cfg.guard_time_ms, life_time_factor=cfg.life_time_factor,
-            heartbeat_consumers=cfg.heartbeat_consumers, emcy_history=cfg.emcy_history, emcy_on_nmt_reset=cfg.emcy_on_nmt_reset,
+            identity=Identity(
+                device_type,
+                ident.vendor_id,
+                ident.product_code,
+                ident.revision,
+                ident.serial,
+                ident.device_name,
+                ident.hardware_version,
+                ident.software_version,
+            ),
+            heartbeat_ms=cfg.heartbeat_ms,
+            guard_time_ms=cfg.guard_time_ms,
+            life_time_factor=cfg.life_time_factor,
+            heartbeat_consumers=cfg.heartbeat_consumers,
+            emcy_history=cfg.emcy_history,
+            emcy_on_nmt_reset=cfg.emcy_on_nmt_reset,
             error_behaviour=("pre-operational", "no-change", "stopped").index(cfg.on_master_lost),
-            sdo_timeout_s=cfg.sdo_timeout_ms / 1000.0, sdo_block_size=cfg.sdo_block_size, sdo_zero_extend=cfg.sdo_zero_extend, sdo_servers=cfg.sdo_servers, sync_cob_id=cfg.sync_cob_id,
+            sdo_timeout_s=cfg.sdo_timeout_ms / 1000.0,
+            sdo_block_size=cfg.sdo_block_size,
+            sdo_zero_extend=cfg.sdo_zero_extend,
+            sdo_servers=cfg.sdo_servers,
+            sync_cob_id=cfg.sync_cob_id,
             store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),
             fingerprint=self.fingerprint(channels),
         )
         node = build_node(settings, name=self.name)
-        node.add_service(LssService(bitrate=cfg.bitrate, table=cfg.lss_table, store=LssStore(self._state_path(cfg.lss_store_file, f"{self.name}.lss.json"))))
+        node.add_service(
+            LssService(
+                bitrate=cfg.bitrate,
+                table=cfg.lss_table,
+                store=LssStore(self._state_path(cfg.lss_store_file, f"{self.name}.lss.json")),
+            )
+        )
         for extension in list(_node_extensions):
             extension(self, node)
         node.service("store").load()
         self.outputs = [c.id for c in channels if c.kind.is_output]
         self._modules = {(c.source.back, c.source.module) for c in channels}
-        self.master = MasterState(self.context.masters, self.name, self.outputs, stopped_is_error=io_settings(cfg).stopped_is_error)
+        self.master = MasterState(
+            self.context.masters,
+            self.name,
+            self.outputs,
+            stopped_is_error=io_settings(cfg).stopped_is_error,
+        )
         self.master.attach(node)
         return node
 
@@ -165,7 +249,9 @@ class CanopenFront(Front):
         bus = open_bus(cfg.interface, cfg.channel, bitrate, cfg.bus_options)
         lss = self.node.service("lss")
         self.adapter = CanAdapter(
-            self.node, bus, loop,
+            self.node,
+            bus,
+            loop,
             on_bus_state=lambda off, now: self.node.service("error_control").bus_state(off, now),
             transmit_allowed=lss.transmit_allowed,
             reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
@@ -174,7 +260,13 @@ class CanopenFront(Front):
         if cfg.module_emcy and not self._health_subscribed:
             self._health_subscribed = True
             self.context.health.subscribe(self._module_health)
-        self.log.info("CANopen node %s on %s/%s at %s bit/s", self.node.node_id if self.node.configured else "unconfigured", cfg.interface, cfg.channel, bitrate)
+        self.log.info(
+            "CANopen node %s on %s/%s at %s bit/s",
+            self.node.node_id if self.node.configured else "unconfigured",
+            cfg.interface,
+            cfg.channel,
+            bitrate,
+        )
 
     async def run(self) -> None:
         """Everything is callback-driven; raises only when receiving from the bus has died."""
@@ -187,11 +279,18 @@ class CanopenFront(Front):
 
     # -- module health ------------------------------------------------------------------
     def _module_health(self, health: ModuleHealth, event: HealthEvent) -> None:
-        if self.node is None or self.node.emcy is None or health.key not in self._modules or not 0 <= health.address <= 255:
+        if (
+            self.node is None
+            or self.node.emcy is None
+            or health.key not in self._modules
+            or not 0 <= health.address <= 255
+        ):
             return
         manufacturer, emcy = bytes([0x0B, health.address]), self.node.emcy
         if event is HealthEvent.OFFLINE:
-            action = lambda: emcy.raise_error(MODULE_FAILURE_CODE, MODULE_FAILURE_REGISTER, manufacturer)  # noqa: E731
+            action = lambda: emcy.raise_error(
+                MODULE_FAILURE_CODE, MODULE_FAILURE_REGISTER, manufacturer
+            )  # noqa: E731
         elif event is HealthEvent.ONLINE:
             action = lambda: emcy.clear_error(MODULE_FAILURE_CODE, manufacturer)  # noqa: E731
         else:
@@ -204,13 +303,20 @@ class CanopenFront(Front):
     def status(self) -> dict:
         if self.node is None:
             return {}
-        return {**self.node.status(), "master": self.master.status() if self.master else None, "bus": self.adapter.status() if self.adapter else None,
-                "interface": self.config.interface, "channel": self.config.channel}
+        return {
+            **self.node.status(),
+            "master": self.master.status() if self.master else None,
+            "bus": self.adapter.status() if self.adapter else None,
+            "interface": self.config.interface,
+            "channel": self.config.channel,
+        }
 
 
 @hookimpl
 def fieldgate_register(registry) -> None:
-    registry.add_front("canopen", CanopenFrontConfig, CanopenFront, "CANopen CiA 301 slave on any python-can bus")
+    registry.add_front(
+        "canopen", CanopenFrontConfig, CanopenFront, "CANopen CiA 301 slave on any python-can bus"
+    )
     register_eds_command(registry)
 
 

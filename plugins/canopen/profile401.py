@@ -34,11 +34,28 @@ from fieldgate.image import Change, Channel, DataType, ErrorMode, ProcessImage, 
 from fieldgate.layout import byte_value
 
 from .abort import VALUE_RANGE
-from .entries import BOOLEAN, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED32, Abort, Entry, ObjectDef, array
+from .entries import (
+    BOOLEAN,
+    INTEGER16,
+    INTEGER32,
+    UNSIGNED8,
+    UNSIGNED32,
+    Abort,
+    Entry,
+    ObjectDef,
+    array,
+)
 from .layouts import AI_OBJECT, AO_OBJECT, DI_OBJECT, DO_OBJECT, IoLayout
 
 DI_POLARITY, DO_ERROR_MODE, DO_ERROR_VALUE, DO_FILTER = 0x6002, 0x6206, 0x6207, 0x6208
-AI_TRIGGER, AI_SOURCE, AI_ENABLE, AI_UPPER, AI_LOWER, AI_DELTA = 0x6421, 0x6422, 0x6423, 0x6424, 0x6425, 0x6426
+AI_TRIGGER, AI_SOURCE, AI_ENABLE, AI_UPPER, AI_LOWER, AI_DELTA = (
+    0x6421,
+    0x6422,
+    0x6423,
+    0x6424,
+    0x6425,
+    0x6426,
+)
 AO_ERROR_MODE, AO_ERROR_VALUE = 0x6443, 0x6444
 TRIGGER_UPPER, TRIGGER_LOWER, TRIGGER_DELTA = 0x01, 0x02, 0x04
 
@@ -75,7 +92,15 @@ def _bits(slots: list[Channel | None], pick: Callable[[Channel], bool]) -> int:
 class Profile401:
     """The CiA 401 objects of one front, over ``image``; ``origin`` labels its output writes."""
 
-    def __init__(self, image: ProcessImage, layout: IoLayout, origin: str, *, filter_default: int = 0xFF, trigger_default: int = 0x07):
+    def __init__(
+        self,
+        image: ProcessImage,
+        layout: IoLayout,
+        origin: str,
+        *,
+        filter_default: int = 0xFF,
+        trigger_default: int = 0x07,
+    ):
         self.image = image
         self.layout = layout
         self.origin = origin
@@ -89,7 +114,12 @@ class Profile401:
         self.interrupt_enable = False
         self.interrupt_source = [0] * ((n_ai + 31) // 32)
         self._last_reported = [0] * n_ai
-        self._di_sub = {ch.id: n + 1 for n, slots in enumerate(layout.di_bytes) for ch in slots if ch is not None}
+        self._di_sub = {
+            ch.id: n + 1
+            for n, slots in enumerate(layout.di_bytes)
+            for ch in slots
+            if ch is not None
+        }
         self._ai_number = {ch.id: n + 1 for n, ch in enumerate(layout.ai)}
         self._subscriptions: list[Subscription] = []
         self._event: Callable[[int, int, float], None] | None = None
@@ -124,7 +154,10 @@ class Profile401:
         fire = (
             (trigger & TRIGGER_UPPER and value > self.upper[n - 1])
             or (trigger & TRIGGER_LOWER and value < self.lower[n - 1])
-            or (trigger & TRIGGER_DELTA and abs(value - self._last_reported[n - 1]) > self.delta[n - 1])
+            or (
+                trigger & TRIGGER_DELTA
+                and abs(value - self._last_reported[n - 1]) > self.delta[n - 1]
+            )
         )
         if fire:
             self._last_reported[n - 1] = value
@@ -166,7 +199,11 @@ class Profile401:
 
     def _write_ao_error_value(self, n: int, value: int) -> None:
         ch = self.layout.ao[n]
-        converted = from_int16(ch, value) if ch.spec.data_type in (DataType.UINT16, DataType.FLOAT32) else value
+        converted = (
+            from_int16(ch, value)
+            if ch.spec.data_type in (DataType.UINT16, DataType.FLOAT32)
+            else value
+        )
         try:
             self.image.set_error_mode(ch.id, ErrorMode(ch.error_mode.use_value, converted))
         except ValueError as exc:
@@ -191,7 +228,12 @@ class Profile401:
     # -- objects ----------------------------------------------------------------------
     def objects(self) -> list[ObjectDef]:
         lay = self.layout
-        di, do, ai, ao = range(len(lay.di_bytes)), range(len(lay.do_bytes)), range(len(lay.ai)), range(len(lay.ao))
+        di, do, ai, ao = (
+            range(len(lay.di_bytes)),
+            range(len(lay.do_bytes)),
+            range(len(lay.ai)),
+            range(len(lay.ao)),
+        )
 
         def setter(values: list[int], n: int) -> Callable[[int], None]:
             return lambda v: values.__setitem__(n, v)
@@ -199,33 +241,277 @@ class Profile401:
         objs: list[ObjectDef] = []
         if lay.di_bytes:
             objs += [
-                array(DI_OBJECT, "Read input 8-bit", (Entry(n + 1, f"Read input 8-bit {n + 1}", UNSIGNED8, "ro", lambda n=n: self.read_di(n), default=0, mappable=True) for n in di)),
-                array(DI_POLARITY, "Polarity input 8-bit", (Entry(n + 1, f"Polarity input 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: self.polarity[n], setter(self.polarity, n), default=0) for n in di)),
+                array(
+                    DI_OBJECT,
+                    "Read input 8-bit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Read input 8-bit {n + 1}",
+                            UNSIGNED8,
+                            "ro",
+                            lambda n=n: self.read_di(n),
+                            default=0,
+                            mappable=True,
+                        )
+                        for n in di
+                    ),
+                ),
+                array(
+                    DI_POLARITY,
+                    "Polarity input 8-bit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Polarity input 8-bit {n + 1}",
+                            UNSIGNED8,
+                            "rw",
+                            lambda n=n: self.polarity[n],
+                            setter(self.polarity, n),
+                            default=0,
+                        )
+                        for n in di
+                    ),
+                ),
             ]
         if lay.do_bytes:
             objs += [
-                array(DO_OBJECT, "Write output 8-bit", (Entry(n + 1, f"Write output 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: self.read_do(n), lambda v, n=n: self.write_do(n, v), default=self.read_do(n), mappable=True) for n in do)),
-                array(DO_ERROR_MODE, "Error mode output 8-bit", (Entry(n + 1, f"Error mode output 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: _bits(lay.do_bytes[n], lambda c: c.error_mode.use_value), lambda v, n=n: self._write_do_error(n, v, mode=True), default=_bits(lay.do_bytes[n], lambda c: c.error_mode.use_value)) for n in do)),
-                array(DO_ERROR_VALUE, "Error value output 8-bit", (Entry(n + 1, f"Error value output 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: _bits(lay.do_bytes[n], lambda c: bool(c.error_mode.value)), lambda v, n=n: self._write_do_error(n, v, mode=False), default=_bits(lay.do_bytes[n], lambda c: bool(c.error_mode.value))) for n in do)),
-                array(DO_FILTER, "Filter mask output 8-bit", (Entry(n + 1, f"Filter mask output 8-bit {n + 1}", UNSIGNED8, "rw", lambda n=n: self.filter[n], setter(self.filter, n), default=self.filter[n]) for n in do)),
+                array(
+                    DO_OBJECT,
+                    "Write output 8-bit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Write output 8-bit {n + 1}",
+                            UNSIGNED8,
+                            "rw",
+                            lambda n=n: self.read_do(n),
+                            lambda v, n=n: self.write_do(n, v),
+                            default=self.read_do(n),
+                            mappable=True,
+                        )
+                        for n in do
+                    ),
+                ),
+                array(
+                    DO_ERROR_MODE,
+                    "Error mode output 8-bit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Error mode output 8-bit {n + 1}",
+                            UNSIGNED8,
+                            "rw",
+                            lambda n=n: _bits(lay.do_bytes[n], lambda c: c.error_mode.use_value),
+                            lambda v, n=n: self._write_do_error(n, v, mode=True),
+                            default=_bits(lay.do_bytes[n], lambda c: c.error_mode.use_value),
+                        )
+                        for n in do
+                    ),
+                ),
+                array(
+                    DO_ERROR_VALUE,
+                    "Error value output 8-bit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Error value output 8-bit {n + 1}",
+                            UNSIGNED8,
+                            "rw",
+                            lambda n=n: _bits(lay.do_bytes[n], lambda c: bool(c.error_mode.value)),
+                            lambda v, n=n: self._write_do_error(n, v, mode=False),
+                            default=_bits(lay.do_bytes[n], lambda c: bool(c.error_mode.value)),
+                        )
+                        for n in do
+                    ),
+                ),
+                array(
+                    DO_FILTER,
+                    "Filter mask output 8-bit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Filter mask output 8-bit {n + 1}",
+                            UNSIGNED8,
+                            "rw",
+                            lambda n=n: self.filter[n],
+                            setter(self.filter, n),
+                            default=self.filter[n],
+                        )
+                        for n in do
+                    ),
+                ),
             ]
         if lay.ai:
             objs += [
-                array(AI_OBJECT, "Read analog input 16-bit", (Entry(n + 1, f"Read analog input {n + 1}", INTEGER16, "ro", lambda n=n: to_int16(lay.ai[n]), default=0, mappable=True) for n in ai)),
-                array(AI_TRIGGER, "Analog input interrupt trigger selection", (Entry(n + 1, f"Trigger selection {n + 1}", UNSIGNED8, "rw", lambda n=n: self.trigger[n], setter(self.trigger, n), default=self.trigger[n], high=0x07) for n in ai)),
-                array(AI_SOURCE, "Analog input interrupt source", (Entry(b + 1, f"Interrupt source bank {b + 1}", UNSIGNED32, "ro", lambda b=b: self._read_source(b), default=0) for b in range(len(self.interrupt_source)))),
-                ObjectDef(AI_ENABLE, "Analog input global interrupt enable", "var", [Entry(0, "Analog input global interrupt enable", BOOLEAN, "rw", lambda: int(self.interrupt_enable), self._set_enable, default=0)]),
-                array(AI_UPPER, "Analog input interrupt upper limit", (Entry(n + 1, f"Upper limit {n + 1}", INTEGER32, "rw", lambda n=n: self.upper[n], setter(self.upper, n), default=0) for n in ai)),
-                array(AI_LOWER, "Analog input interrupt lower limit", (Entry(n + 1, f"Lower limit {n + 1}", INTEGER32, "rw", lambda n=n: self.lower[n], setter(self.lower, n), default=0) for n in ai)),
-                array(AI_DELTA, "Analog input interrupt delta", (Entry(n + 1, f"Delta {n + 1}", UNSIGNED32, "rw", lambda n=n: self.delta[n], setter(self.delta, n), default=0) for n in ai)),
+                array(
+                    AI_OBJECT,
+                    "Read analog input 16-bit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Read analog input {n + 1}",
+                            INTEGER16,
+                            "ro",
+                            lambda n=n: to_int16(lay.ai[n]),
+                            default=0,
+                            mappable=True,
+                        )
+                        for n in ai
+                    ),
+                ),
+                array(
+                    AI_TRIGGER,
+                    "Analog input interrupt trigger selection",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Trigger selection {n + 1}",
+                            UNSIGNED8,
+                            "rw",
+                            lambda n=n: self.trigger[n],
+                            setter(self.trigger, n),
+                            default=self.trigger[n],
+                            high=0x07,
+                        )
+                        for n in ai
+                    ),
+                ),
+                array(
+                    AI_SOURCE,
+                    "Analog input interrupt source",
+                    (
+                        Entry(
+                            b + 1,
+                            f"Interrupt source bank {b + 1}",
+                            UNSIGNED32,
+                            "ro",
+                            lambda b=b: self._read_source(b),
+                            default=0,
+                        )
+                        for b in range(len(self.interrupt_source))
+                    ),
+                ),
+                ObjectDef(
+                    AI_ENABLE,
+                    "Analog input global interrupt enable",
+                    "var",
+                    [
+                        Entry(
+                            0,
+                            "Analog input global interrupt enable",
+                            BOOLEAN,
+                            "rw",
+                            lambda: int(self.interrupt_enable),
+                            self._set_enable,
+                            default=0,
+                        )
+                    ],
+                ),
+                array(
+                    AI_UPPER,
+                    "Analog input interrupt upper limit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Upper limit {n + 1}",
+                            INTEGER32,
+                            "rw",
+                            lambda n=n: self.upper[n],
+                            setter(self.upper, n),
+                            default=0,
+                        )
+                        for n in ai
+                    ),
+                ),
+                array(
+                    AI_LOWER,
+                    "Analog input interrupt lower limit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Lower limit {n + 1}",
+                            INTEGER32,
+                            "rw",
+                            lambda n=n: self.lower[n],
+                            setter(self.lower, n),
+                            default=0,
+                        )
+                        for n in ai
+                    ),
+                ),
+                array(
+                    AI_DELTA,
+                    "Analog input interrupt delta",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Delta {n + 1}",
+                            UNSIGNED32,
+                            "rw",
+                            lambda n=n: self.delta[n],
+                            setter(self.delta, n),
+                            default=0,
+                        )
+                        for n in ai
+                    ),
+                ),
             ]
         if lay.ao:
             objs += [
-                array(AO_OBJECT, "Write analog output 16-bit", (Entry(n + 1, f"Write analog output {n + 1}", INTEGER16, "rw", lambda n=n: to_int16(lay.ao[n]), lambda v, n=n: self.write_ao(n, v), default=to_int16(lay.ao[n]), mappable=True) for n in ao)),
-                array(AO_ERROR_MODE, "Analog output error mode", (Entry(n + 1, f"Error mode {n + 1}", UNSIGNED8, "rw", lambda n=n: int(lay.ao[n].error_mode.use_value), lambda v, n=n: self._write_ao_mode(n, v), default=int(lay.ao[n].error_mode.use_value)) for n in ao)),
-                array(AO_ERROR_VALUE, "Analog output error value", (Entry(n + 1, f"Error value {n + 1}", INTEGER32, "rw", lambda n=n: self._ao_error_value(n), lambda v, n=n: self._write_ao_error_value(n, v), default=self._ao_error_value(n)) for n in ao)),
+                array(
+                    AO_OBJECT,
+                    "Write analog output 16-bit",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Write analog output {n + 1}",
+                            INTEGER16,
+                            "rw",
+                            lambda n=n: to_int16(lay.ao[n]),
+                            lambda v, n=n: self.write_ao(n, v),
+                            default=to_int16(lay.ao[n]),
+                            mappable=True,
+                        )
+                        for n in ao
+                    ),
+                ),
+                array(
+                    AO_ERROR_MODE,
+                    "Analog output error mode",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Error mode {n + 1}",
+                            UNSIGNED8,
+                            "rw",
+                            lambda n=n: int(lay.ao[n].error_mode.use_value),
+                            lambda v, n=n: self._write_ao_mode(n, v),
+                            default=int(lay.ao[n].error_mode.use_value),
+                        )
+                        for n in ao
+                    ),
+                ),
+                array(
+                    AO_ERROR_VALUE,
+                    "Analog output error value",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Error value {n + 1}",
+                            INTEGER32,
+                            "rw",
+                            lambda n=n: self._ao_error_value(n),
+                            lambda v, n=n: self._write_ao_error_value(n, v),
+                            default=self._ao_error_value(n),
+                        )
+                        for n in ao
+                    ),
+                ),
             ]
         return objs
 
     def output_ids(self) -> list[str]:
-        return [ch.id for slots in self.layout.do_bytes for ch in slots if ch is not None] + [ch.id for ch in self.layout.ao]
+        return [ch.id for slots in self.layout.do_bytes for ch in slots if ch is not None] + [
+            ch.id for ch in self.layout.ao
+        ]

@@ -69,13 +69,20 @@ class Phase(Enum):
 class SdoServer(Service):
     name = "sdo"
 
-    def __init__(self, timeout_s: float = DEFAULT_TIMEOUT_S, block_size: int = MAX_BLOCK_SIZE, zero_extend: bool = False):
+    def __init__(
+        self,
+        timeout_s: float = DEFAULT_TIMEOUT_S,
+        block_size: int = MAX_BLOCK_SIZE,
+        zero_extend: bool = False,
+    ):
         super().__init__()
         if not 1 <= block_size <= MAX_BLOCK_SIZE:
             raise ValueError("SDO block size must be 1..127")
         self.timeout_s = timeout_s
         self.block_size = block_size
-        self.zero_extend = zero_extend  # accept short expedited writes to unsigned objects (NA-9161 masters)
+        self.zero_extend = (
+            zero_extend  # accept short expedited writes to unsigned objects (NA-9161 masters)
+        )
         self.expedited_uploads = 0
         self._idle()
 
@@ -86,10 +93,14 @@ class SdoServer(Service):
 
     def _add_parameter_object(self, od) -> None:
         """0x1200, the default channel; further channels (0x1201-0x127F) are :class:`.sdo_channel.SdoChannel`."""
-        od.add_record(0x1200, "SDO server parameter", [
-            (1, "COB-ID client to server", dt.UNSIGNED32, "ro", 0x600, {"relative": True}),
-            (2, "COB-ID server to client", dt.UNSIGNED32, "ro", 0x580, {"relative": True}),
-        ])
+        od.add_record(
+            0x1200,
+            "SDO server parameter",
+            [
+                (1, "COB-ID client to server", dt.UNSIGNED32, "ro", 0x600, {"relative": True}),
+                (2, "COB-ID server to client", dt.UNSIGNED32, "ro", 0x580, {"relative": True}),
+            ],
+        )
 
     def _load_cob_ids(self) -> None:
         """0x1200 is read-only: its COB-IDs change only with the node-ID (reset communication)."""
@@ -115,7 +126,11 @@ class SdoServer(Service):
         return self.last_deadline if self.phase is not Phase.IDLE else None
 
     def poll(self, now: float) -> None:
-        if self.phase is not Phase.IDLE and self.last_deadline is not None and now >= self.last_deadline:
+        if (
+            self.phase is not Phase.IDLE
+            and self.last_deadline is not None
+            and now >= self.last_deadline
+        ):
             self.counters["timeouts"] += 1
             self._abort(abort.TIMEOUT)
 
@@ -151,7 +166,9 @@ class SdoServer(Service):
         except SdoAbort as exc:
             self.counters["aborts"] += 1
             self._abort(exc.code)
-        except Exception:  # a bug behind the dictionary (getter, setter, listener): answer, log, go on
+        except (
+            Exception
+        ):  # a bug behind the dictionary (getter, setter, listener): answer, log, go on
             self.counters["internal_errors"] += 1
             log.exception("%s: SDO request %s failed", self.node.name, frame)
             self._abort(abort.GENERAL)
@@ -217,12 +234,12 @@ class SdoServer(Service):
         expedited, sized = d[0] & 0x02, d[0] & 0x01
         if expedited:
             if sized:
-                data = d[4:8 - ((d[0] >> 2) & 0x03)]
+                data = d[4 : 8 - ((d[0] >> 2) & 0x03)]
                 if self.zero_extend:
                     data = self._zero_extended(data)
             else:  # size not indicated: the object's own size (CiA 301 allows it)
                 var = od.check_download(self.index, self.subindex)
-                data = d[4:4 + min(4, size_of(var) or 4)]
+                data = d[4 : 4 + min(4, size_of(var) or 4)]
             od.write(self.index, self.subindex, data)
             self._send(b"\x60" + self._mux())
             self._done()
@@ -244,7 +261,7 @@ class SdoServer(Service):
         toggle = (d[0] >> 4) & 1
         if toggle != self.toggle:
             raise SdoAbort(abort.TOGGLE)
-        self.data += d[1:8 - ((d[0] >> 1) & 0x07)]
+        self.data += d[1 : 8 - ((d[0] >> 1) & 0x07)]
         if self.size is not None and len(self.data) > self.size:
             raise SdoAbort(abort.LENGTH_MISMATCH)
         if d[0] & 0x01:
@@ -284,7 +301,10 @@ class SdoServer(Service):
         return self._expedited_frame(index, subindex, value) if 0 < len(value) <= 4 else None
 
     def _expedited_frame(self, index: int, subindex: int, value: bytes) -> Frame:
-        return Frame(self.tx_cob, EXPEDITED_UPLOAD.pack(0x43 | ((4 - len(value)) << 2), index, subindex, value))
+        return Frame(
+            self.tx_cob,
+            EXPEDITED_UPLOAD.pack(0x43 | ((4 - len(value)) << 2), index, subindex, value),
+        )
 
     def _initiate_upload(self, d: bytes) -> None:
         self._begin(d, Phase.IDLE)
@@ -304,7 +324,7 @@ class SdoServer(Service):
         toggle = (d[0] >> 4) & 1
         if toggle != self.toggle:
             raise SdoAbort(abort.TOGGLE)
-        chunk = bytes(self.data[self.pos:self.pos + 7])
+        chunk = bytes(self.data[self.pos : self.pos + 7])
         self.pos += len(chunk)
         last = self.pos >= len(self.data)
         n = 7 - len(chunk)
@@ -329,7 +349,9 @@ class SdoServer(Service):
         self.crc = bool(d[0] & 0x04)
         self.blksize = blksize
         self.phase = Phase.BLOCK_UP_START
-        self._send(bytes([0xC2 | (int(self.crc) << 2)]) + self._mux() + struct.pack("<I", len(value)))
+        self._send(
+            bytes([0xC2 | (int(self.crc) << 2)]) + self._mux() + struct.pack("<I", len(value))
+        )
 
     def _block_upload_client(self, d: bytes) -> None:
         cs = d[0] & 0x03
@@ -347,7 +369,7 @@ class SdoServer(Service):
         seq = 0
         while seq < self.blksize:
             seq += 1
-            chunk = bytes(self.data[self.pos:self.pos + 7])
+            chunk = bytes(self.data[self.pos : self.pos + 7])
             self.pos += 7
             last = self.pos >= len(self.data)
             self._send(bytes([seq | (0x80 if last else 0)]) + chunk)
@@ -405,13 +427,13 @@ class SdoServer(Service):
         if d[0] & 0x03 != 1:
             raise SdoAbort(abort.BAD_COMMAND)
         n = (d[0] >> 2) & 0x07
-        data = bytes(self.data[:len(self.data) - n])
+        data = bytes(self.data[: len(self.data) - n])
         if self.size is not None and len(data) != self.size:
             raise SdoAbort(abort.LENGTH_MISMATCH)
         if self.crc and crc16(data) != struct.unpack_from("<H", d, 1)[0]:
             raise SdoAbort(abort.CRC_ERROR)
         self.node.od.write(self.index, self.subindex, data)
-        self._send(b"\xA1")
+        self._send(b"\xa1")
         self._done()
 
     def status(self) -> dict:

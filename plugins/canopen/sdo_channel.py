@@ -45,9 +45,17 @@ def channel_indices(servers: int) -> range:
 class SdoChannel(SdoServer):
     """An SDO server on the COB-IDs of one 0x1201-0x127F parameter object (see module doc)."""
 
-    def __init__(self, parameter_index: int, timeout_s: float = DEFAULT_TIMEOUT_S, block_size: int = MAX_BLOCK_SIZE, zero_extend: bool = False):
+    def __init__(
+        self,
+        parameter_index: int,
+        timeout_s: float = DEFAULT_TIMEOUT_S,
+        block_size: int = MAX_BLOCK_SIZE,
+        zero_extend: bool = False,
+    ):
         if not FIRST_INDEX <= parameter_index <= LAST_INDEX:
-            raise ValueError(f"SDO server parameter index must be 0x{FIRST_INDEX:04X}..0x{LAST_INDEX:04X}")
+            raise ValueError(
+                f"SDO server parameter index must be 0x{FIRST_INDEX:04X}..0x{LAST_INDEX:04X}"
+            )
         self.parameter_index = parameter_index
         self.name = f"sdo_{parameter_index:04X}"
         self._in_frame = False
@@ -56,11 +64,15 @@ class SdoChannel(SdoServer):
 
     def _add_parameter_object(self, od) -> None:
         index = self.parameter_index
-        od.add_record(index, "SDO server parameter", [
-            (1, "COB-ID client to server", dt.UNSIGNED32, "rw", NOT_VALID),
-            (2, "COB-ID server to client", dt.UNSIGNED32, "rw", NOT_VALID),
-            (3, "Node-ID of the SDO client", dt.UNSIGNED8, "rw", 0, {"maximum": 127}),
-        ])
+        od.add_record(
+            index,
+            "SDO server parameter",
+            [
+                (1, "COB-ID client to server", dt.UNSIGNED32, "rw", NOT_VALID),
+                (2, "COB-ID server to client", dt.UNSIGNED32, "rw", NOT_VALID),
+                (3, "Node-ID of the SDO client", dt.UNSIGNED8, "rw", 0, {"maximum": 127}),
+            ],
+        )
         od.add_validator(index, self._check)
         od.on_write(index, self._written)
 
@@ -116,9 +128,14 @@ class SdoChannel(SdoServer):
             return
         old = self.node.od.get(self.parameter_index, sub)
         if not old & NOT_VALID and (old & 0x7FF) != can_id:
-            raise SdoAbort(abort.VALUE_RANGE, f"0x{self.parameter_index:04X}:{sub} is valid: set bit 31 before changing its CAN-ID")
+            raise SdoAbort(
+                abort.VALUE_RANGE,
+                f"0x{self.parameter_index:04X}:{sub} is valid: set bit 31 before changing its CAN-ID",
+            )
         if can_id in self._can_ids_in_use(except_sub=sub):
-            raise SdoAbort(abort.VALUE_RANGE, f"CAN-ID 0x{can_id:03X} is already used by an SDO channel")
+            raise SdoAbort(
+                abort.VALUE_RANGE, f"CAN-ID 0x{can_id:03X} is already used by an SDO channel"
+            )
 
     def _can_ids_in_use(self, except_sub: int) -> set[int]:
         """The valid CAN-IDs of every SDO channel of the node, but this channel's ``except_sub``."""

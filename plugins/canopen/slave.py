@@ -71,15 +71,33 @@ class IdentityObjects(Service):
         super().attach(node)
         ident, od = self.identity, node.od
         od.add_variable(0x1000, "Device type", dt.UNSIGNED32, "ro", ident.device_type)
-        od.add_variable(0x1008, "Manufacturer device name", dt.VISIBLE_STRING, "const", ident.device_name)
-        od.add_variable(0x1009, "Manufacturer hardware version", dt.VISIBLE_STRING, "const", ident.hardware_version)
-        od.add_variable(0x100A, "Manufacturer software version", dt.VISIBLE_STRING, "const", ident.software_version)
-        od.add_record(0x1018, "Identity object", [
-            (1, "Vendor-ID", dt.UNSIGNED32, "ro", ident.vendor_id),
-            (2, "Product code", dt.UNSIGNED32, "ro", ident.product_code),
-            (3, "Revision number", dt.UNSIGNED32, "ro", ident.revision),
-            (4, "Serial number", dt.UNSIGNED32, "ro", ident.serial),
-        ])
+        od.add_variable(
+            0x1008, "Manufacturer device name", dt.VISIBLE_STRING, "const", ident.device_name
+        )
+        od.add_variable(
+            0x1009,
+            "Manufacturer hardware version",
+            dt.VISIBLE_STRING,
+            "const",
+            ident.hardware_version,
+        )
+        od.add_variable(
+            0x100A,
+            "Manufacturer software version",
+            dt.VISIBLE_STRING,
+            "const",
+            ident.software_version,
+        )
+        od.add_record(
+            0x1018,
+            "Identity object",
+            [
+                (1, "Vendor-ID", dt.UNSIGNED32, "ro", ident.vendor_id),
+                (2, "Product code", dt.UNSIGNED32, "ro", ident.product_code),
+                (3, "Revision number", dt.UNSIGNED32, "ro", ident.revision),
+                (4, "Serial number", dt.UNSIGNED32, "ro", ident.serial),
+            ],
+        )
 
 
 def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
@@ -87,11 +105,25 @@ def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
     node.reset_emcy = settings.emcy_on_nmt_reset
     node.add_service(IdentityObjects(settings.identity))
     node.add_service(EmcyProducer(settings.emcy_history))
-    node.add_service(ErrorControl(settings.guard_time_ms, settings.life_time_factor, settings.heartbeat_ms, settings.heartbeat_consumers, settings.error_behaviour))
+    node.add_service(
+        ErrorControl(
+            settings.guard_time_ms,
+            settings.life_time_factor,
+            settings.heartbeat_ms,
+            settings.heartbeat_consumers,
+            settings.error_behaviour,
+        )
+    )
     node.add_service(SyncService(settings.sync_cob_id))
-    node.add_service(SdoServer(settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend))
+    node.add_service(
+        SdoServer(settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend)
+    )
     node.add_service(StoreService(settings.store_path, settings.fingerprint))
     node.add_service(TimeConsumer())
     for index in channel_indices(settings.sdo_servers):
-        node.add_service(SdoChannel(index, settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend))
+        node.add_service(
+            SdoChannel(
+                index, settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend
+            )
+        )
     return node

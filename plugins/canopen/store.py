@@ -48,7 +48,9 @@ AREAS = {1: (True, True), 2: (True, False), 3: (False, True)}
 
 log = logging.getLogger("fieldgate.canopen.store")
 
-AreaHook = Callable[[bool, bool, bool], None]  # (communication, application, saving) inside a save / load
+AreaHook = Callable[
+    [bool, bool, bool], None
+]  # (communication, application, saving) inside a save / load
 
 
 def _key(index: int, sub: int) -> str:
@@ -85,18 +87,39 @@ class StoreService(Service):
     def attach(self, node) -> None:
         super().attach(node)
         od = node.od
-        for index, name, sig in ((0x1010, "Store parameters", SAVE), (0x1011, "Restore default parameters", LOAD)):
-            od.add_array(index, name, [(s, ("all", "communication", "application")[s - 1], dt.UNSIGNED32, "rw", 1) for s in AREAS])
+        for index, name, sig in (
+            (0x1010, "Store parameters", SAVE),
+            (0x1011, "Restore default parameters", LOAD),
+        ):
+            od.add_array(
+                index,
+                name,
+                [
+                    (s, ("all", "communication", "application")[s - 1], dt.UNSIGNED32, "rw", 1)
+                    for s in AREAS
+                ],
+            )
             od.add_validator(index, lambda sub, value, sig=sig: self._check_signature(sig, value))
             for sub in AREAS:
-                od.bind(index, sub, getter=lambda: 1, setter=(lambda v, sub=sub: self.save(sub)) if sig == SAVE else (lambda v, sub=sub: self.restore(sub)),
-                        thread_safe=True)
+                od.bind(
+                    index,
+                    sub,
+                    getter=lambda: 1,
+                    setter=(lambda v, sub=sub: self.save(sub))
+                    if sig == SAVE
+                    else (lambda v, sub=sub: self.restore(sub)),
+                    thread_safe=True,
+                )
 
     @property
     def fingerprint(self) -> str:
         """The front's module-set fingerprint, extended by what services added."""
         base, *added = self._fingerprint_parts
-        return hashlib.sha256("\n".join(self._fingerprint_parts).encode()).hexdigest()[:16] if added else base
+        return (
+            hashlib.sha256("\n".join(self._fingerprint_parts).encode()).hexdigest()[:16]
+            if added
+            else base
+        )
 
     def add_fingerprint(self, part: str) -> None:
         """A fact the stored data depend on beyond the channel list (call before :meth:`load`)."""
@@ -125,10 +148,16 @@ class StoreService(Service):
             values = {_parse_key(k): _from_json(v) for k, v in doc.get("values", {}).items()}
             sections = dict(doc.get("sections", {}))
         except (CorruptStore, OSError, ValueError, TypeError, AttributeError, KeyError) as exc:
-            self._problem(CORRUPT_CODE, CORRUPT_MFR, f"stored parameters unreadable, using defaults: {exc}")
+            self._problem(
+                CORRUPT_CODE, CORRUPT_MFR, f"stored parameters unreadable, using defaults: {exc}"
+            )
             return
         if doc.get("fingerprint") != self.fingerprint:
-            self._problem(OTHER_SET_CODE, OTHER_SET_MFR, f"{self.path}: stored for another module set, using defaults")
+            self._problem(
+                OTHER_SET_CODE,
+                OTHER_SET_MFR,
+                f"{self.path}: stored for another module set, using defaults",
+            )
             return
         self.values = values
         self.sections = sections
@@ -142,9 +171,12 @@ class StoreService(Service):
     def _write(self) -> None:
         if self.path is None:
             raise SdoAbort(abort.CANNOT_STORE, "no store file configured")
-        doc = {"format": FORMAT, "fingerprint": self.fingerprint,
-               "values": {_key(*k): _to_json(v) for k, v in sorted(self.values.items())},
-               "sections": self.sections}
+        doc = {
+            "format": FORMAT,
+            "fingerprint": self.fingerprint,
+            "values": {_key(*k): _to_json(v) for k, v in sorted(self.values.items())},
+            "sections": self.sections,
+        }
         try:
             write_atomic(self.path, json.dumps(doc, indent=1, sort_keys=True).encode())
         except OSError as exc:
@@ -155,8 +187,14 @@ class StoreService(Service):
     def save(self, sub: int = 1) -> None:
         communication, application = AREAS[sub]
         od = self.node.od
-        keep = {k: v for k, v in self.values.items() if not _in_area(k[0], communication, application)}
-        changed = {k: v for k, v in od.snapshot(communication, application).items() if v != od.default(od.variable(*k))}
+        keep = {
+            k: v for k, v in self.values.items() if not _in_area(k[0], communication, application)
+        }
+        changed = {
+            k: v
+            for k, v in od.snapshot(communication, application).items()
+            if v != od.default(od.variable(*k))
+        }
         self.values = {**keep, **changed}
         self._run_area_hooks(communication, application, True)
         self._write()
@@ -168,7 +206,9 @@ class StoreService(Service):
 
     def restore(self, sub: int = 1) -> None:
         communication, application = AREAS[sub]
-        self.values = {k: v for k, v in self.values.items() if not _in_area(k[0], communication, application)}
+        self.values = {
+            k: v for k, v in self.values.items() if not _in_area(k[0], communication, application)
+        }
         self._run_area_hooks(communication, application, False)
         self._write()
         self.node.od.set_stored(self.values)
@@ -187,13 +227,22 @@ class StoreService(Service):
 
     # -- reporting ------------------------------------------------------------------------------
     def on_nmt_state(self, old, new, now) -> None:
-        if new is NmtState.PRE_OPERATIONAL and self.problem is not None and not self._reported and self.node.emcy is not None:
+        if (
+            new is NmtState.PRE_OPERATIONAL
+            and self.problem is not None
+            and not self._reported
+            and self.node.emcy is not None
+        ):
             self._reported = True
             self.node.emcy.raise_error(self.problem[0], 0x81, self.problem[1], now)
 
     def status(self) -> dict:
-        return {**self.counters, "file": str(self.path) if self.path else None, "stored_values": len(self.values),
-                "problem": f"{self.problem[0]:04X}" if self.problem else None}
+        return {
+            **self.counters,
+            "file": str(self.path) if self.path else None,
+            "stored_values": len(self.values),
+            "problem": f"{self.problem[0]:04X}" if self.problem else None,
+        }
 
 
 def _in_area(index: int, communication: bool, application: bool) -> bool:

@@ -82,7 +82,9 @@ class SyncService(Service):
         self.loss_deadline = None  # supervision (re)starts at the first SYNC
         self.counter = 0
         if self._producer() and self.node.state in COMMUNICATING:
-            self.produce_due = self.produce_due if self.produce_due is not None else now + self._period_s()
+            self.produce_due = (
+                self.produce_due if self.produce_due is not None else now + self._period_s()
+            )
         else:
             self.produce_due = None
         if not self.supervising():
@@ -128,7 +130,9 @@ class SyncService(Service):
     def _consume(self, counter: int | None, now: float) -> None:
         self.counters["received"] += 1
         period = self._period_s()
-        self.loss_deadline = now + LOSS_TOLERANCE * period if period and not self._producer() else None
+        self.loss_deadline = (
+            now + LOSS_TOLERANCE * period if period and not self._producer() else None
+        )
         self._end_loss(now)
         self.node.sync(counter, now)
 
@@ -158,7 +162,9 @@ class SyncService(Service):
                 self.lost = True
                 self.counters["sync_loss"] += 1
                 if self.node.emcy is not None:
-                    self.node.emcy.raise_error(SYNC_LOSS_CODE, SYNC_LOSS_REGISTER, SYNC_LOSS_ERROR[1], now)
+                    self.node.emcy.raise_error(
+                        SYNC_LOSS_CODE, SYNC_LOSS_REGISTER, SYNC_LOSS_ERROR[1], now
+                    )
 
     # -- validators --------------------------------------------------------------------------
     def _check_cob_id(self, sub: int, value: int) -> None:

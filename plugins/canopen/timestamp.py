@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 
 from canopen.objectdictionary import datatypes as dt
 
@@ -32,7 +32,7 @@ from .service import Service
 CONSUME_BIT = 1 << 31
 PRODUCE_BIT = 1 << 30
 DEFAULT_COB_ID = CONSUME_BIT | 0x100
-EPOCH = datetime(1984, 1, 1, tzinfo=timezone.utc)
+EPOCH = datetime(1984, 1, 1, tzinfo=UTC)
 MS_PER_DAY = 86_400_000
 MS_MASK = 0x0FFF_FFFF
 
@@ -54,7 +54,7 @@ def decode_time_of_day(data: bytes) -> datetime:
 
 def encode_time_of_day(when: datetime) -> bytes:
     """The 6-byte TIME_OF_DAY of an aware datetime (rounded down to the millisecond)."""
-    delta = when.astimezone(timezone.utc) - EPOCH
+    delta = when.astimezone(UTC) - EPOCH
     if not 0 <= delta.days <= 0xFFFF:
         raise ValueError(f"{when} is outside 1984-01-01 .. 2163-06-06")
     ms = delta.seconds * 1000 + delta.microseconds // 1000
@@ -129,7 +129,9 @@ class TimeConsumer(Service):
         can_id = check_cob_id(value, "TIME", in_use=consume)
         old = self.node.od.get(0x1012)
         if consume and old & CONSUME_BIT and (old & 0x7FF) != can_id:
-            raise SdoAbort(abort.VALUE_RANGE, "clear bit 31 of 0x1012 before changing the TIME CAN-ID")
+            raise SdoAbort(
+                abort.VALUE_RANGE, "clear bit 31 of 0x1012 before changing the TIME CAN-ID"
+            )
 
     def status(self) -> dict:
         return {**self.counters, "consuming": self.cob_id is not None, "last": self.last}

@@ -14,7 +14,22 @@ __all__ = ["DconBack", "DconBackConfig", "DconModuleConfig", "DconSimulator"]
 
 @hookimpl
 def fieldgate_register(registry) -> None:
-    registry.add_back("dcon", DconBackConfig, DconBack, "ICP DAS DCON master (I-7000, M-7000 in DCON mode, I-87K) on RS-485")
+    registry.add_back(
+        "dcon",
+        DconBackConfig,
+        DconBack,
+        "ICP DAS DCON master (I-7000, M-7000 in DCON mode, I-87K) on RS-485",
+    )
     registry.add_simulator("dcon", simulator_factory)
-    registry.add_command(("scan", "dcon"), "find DCON modules on a line and print a topology section", configure_scan, run_scan)
-    registry.add_command(("simulate", "dcon"), "simulated DCON modules on a serial port or pty", configure_simulate, run_simulate)
+    registry.add_command(
+        ("scan", "dcon"),
+        "find DCON modules on a line and print a topology section",
+        configure_scan,
+        run_scan,
+    )
+    registry.add_command(
+        ("simulate", "dcon"),
+        "simulated DCON modules on a serial port or pty",
+        configure_simulate,
+        run_simulate,
+    )

@@ -50,7 +50,9 @@ class DconBack(SerialBack):
         self.modules: dict[int, DconModule] = {}
         self.dcon: DconLink | None = None
         self.host_ok_sent = 0
-        self.host_ok_enabled = True  # a front may switch ~** off (the I-7241D's Application class attribute 4)
+        self.host_ok_enabled = (
+            True  # a front may switch ~** off (the I-7241D's Application class attribute 4)
+        )
         self._requests: list[Request] = []
         self._host_ok_running = False
         context.masters.subscribe(self._on_master)
@@ -58,7 +60,9 @@ class DconBack(SerialBack):
     # -- SerialBack -------------------------------------------------------------------
     async def open_link(self) -> AsyncSerial:
         cfg = self.config
-        serial = await AsyncSerial.open(cfg.port, cfg.baudrate, cfg.bytesize, cfg.parity, cfg.stopbits)
+        serial = await AsyncSerial.open(
+            cfg.port, cfg.baudrate, cfg.bytesize, cfg.parity, cfg.stopbits
+        )
         self.dcon = DconLink(serial, cfg.checksum, cfg.timeout_ms / 1000)
         for module in self.modules.values():
             module.link = self.dcon
@@ -73,11 +77,21 @@ class DconBack(SerialBack):
 
     def make_module(self, config: DconModuleConfig, specs: list[ChannelSpec]) -> DconModule:
         assert self.dcon is not None
-        module = DconModule(config, specs, self.context.image, self.dcon, watch_status=not self._host_ok_allowed())
+        module = DconModule(
+            config, specs, self.context.image, self.dcon, watch_status=not self._host_ok_allowed()
+        )
         old = self.modules.get(config.address)
         if old is not None:  # a restart keeps what was learnt (identity, watchdog state)
-            module.name, module.firmware, module.in_watchdog, module.watchdog_events = old.name, old.firmware, old.in_watchdog, old.watchdog_events
-            module.watchdog_enabled, module.watchdog_timeout_ms = old.watchdog_enabled, old.watchdog_timeout_ms
+            module.name, module.firmware, module.in_watchdog, module.watchdog_events = (
+                old.name,
+                old.firmware,
+                old.in_watchdog,
+                old.watchdog_events,
+            )
+            module.watchdog_enabled, module.watchdog_timeout_ms = (
+                old.watchdog_enabled,
+                old.watchdog_timeout_ms,
+            )
         module.on_reset = self._rewrite
         self.modules[config.address] = module
         return module
@@ -108,7 +122,9 @@ class DconBack(SerialBack):
         if wanted != self._host_ok_running:
             self._host_ok_running = wanted
             if wanted:
-                log.info("%s: sending ~** every %.0f ms", self.name, (self.host_ok_period() or 0) * 1000)
+                log.info(
+                    "%s: sending ~** every %.0f ms", self.name, (self.host_ok_period() or 0) * 1000
+                )
         return wanted
 
     async def _host_ok(self) -> None:
@@ -118,20 +134,31 @@ class DconBack(SerialBack):
 
     def _on_master(self, front: str, ok: bool, reason: str) -> None:
         if not ok and any(m.watchdog_enabled for m in self.modules.values()):
-            log.warning("%s: front %s lost its master (%s): ~** stopped; modules go to their safe values after their watchdog timeouts", self.name, front, reason)
+            log.warning(
+                "%s: front %s lost its master (%s): ~** stopped; modules go to their safe values after their watchdog timeouts",
+                self.name,
+                front,
+                reason,
+            )
         self._host_ok_changed()
 
     def set_host_ok(self, enabled: bool) -> None:
         """Allow (default) or stop the ``~**`` broadcast: with it off, watchdog-enabled modules time out."""
         if bool(enabled) != self.host_ok_enabled:
-            log.info("%s: host OK (~**) %s by a front", self.name, "allowed" if enabled else "switched off")
+            log.info(
+                "%s: host OK (~**) %s by a front",
+                self.name,
+                "allowed" if enabled else "switched off",
+            )
         self.host_ok_enabled = bool(enabled)
         self._host_ok_changed()
 
     def _host_ok_changed(self) -> None:
         allowed = self._host_ok_allowed()
         for module in self.modules.values():
-            module.watch_status = not allowed  # read ~AA0 with the inputs while modules may time out
+            module.watch_status = (
+                not allowed
+            )  # read ~AA0 with the inputs while modules may time out
         if self.scheduler is not None:
             self.scheduler.wake()
 
@@ -184,7 +211,9 @@ class DconBack(SerialBack):
 
         return self._submit(clear)
 
-    def set_watchdog(self, address: int, enabled: bool, timeout_ms: int | None = None) -> asyncio.Future[Any]:
+    def set_watchdog(
+        self, address: int, enabled: bool, timeout_ms: int | None = None
+    ) -> asyncio.Future[Any]:
         """Change a module's host watchdog at run time (0x2001/0x2002): queues ``~AA3EVV``."""
         module = self.module(address)
         if timeout_ms is not None and not 100 <= timeout_ms <= 25_500:
@@ -217,6 +246,15 @@ class DconBack(SerialBack):
 
     def status(self) -> dict:
         status = super().status()
-        status["host_ok"] = {"enabled": self.host_ok_enabled, "period_ms": None if self.host_ok_period() is None else round(self.host_ok_period() * 1000), "sending": self._host_ok_running, "sent": self.host_ok_sent}
-        status["dcon_modules"] = [m.status() for m in sorted(self.modules.values(), key=lambda m: m.address)]
+        status["host_ok"] = {
+            "enabled": self.host_ok_enabled,
+            "period_ms": None
+            if self.host_ok_period() is None
+            else round(self.host_ok_period() * 1000),
+            "sending": self._host_ok_running,
+            "sent": self.host_ok_sent,
+        }
+        status["dcon_modules"] = [
+            m.status() for m in sorted(self.modules.values(), key=lambda m: m.address)
+        ]
         return status

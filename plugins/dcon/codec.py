@@ -58,7 +58,9 @@ def unframe(raw: bytes, use_checksum: bool) -> str:
             raise CommError(ErrorKind.GARBAGE, f"frame too short for a checksum: {text!r}")
         text, received = text[:-2], text[-2:]
         if received.upper() != checksum(text) or not _is_hex(received):
-            raise CommError(ErrorKind.CRC, f"bad checksum in {text + received!r}: expected {checksum(text)}")
+            raise CommError(
+                ErrorKind.CRC, f"bad checksum in {text + received!r}: expected {checksum(text)}"
+            )
     return text
 
 
@@ -119,7 +121,9 @@ def addressed(text: str, address: int) -> str:
     if len(aa) < 2 or not _is_hex(aa):
         raise CommError(ErrorKind.GARBAGE, f"reply without address: {text!r}")
     if int(aa, 16) != address:
-        raise CommError(ErrorKind.WRONG_ADDRESS, f"reply from {aa} to a command for {address:02X}: {text!r}")
+        raise CommError(
+            ErrorKind.WRONG_ADDRESS, f"reply from {aa} to a command for {address:02X}: {text!r}"
+        )
     if reply.lead == "?":
         raise CommError(ErrorKind.EXCEPTION, f"module {address:02X} refused the command ({text!r})")
     if reply.lead != "!":
@@ -162,7 +166,9 @@ def write_ack(text: str) -> None:
 def _check_refusal_address(reply: Reply, address: int | None) -> None:
     aa = reply.text[:2]
     if address is not None and len(aa) == 2 and _is_hex(aa) and int(aa, 16) != address:
-        raise CommError(ErrorKind.WRONG_ADDRESS, f"refusal from {aa} to a command for {address:02X}")
+        raise CommError(
+            ErrorKind.WRONG_ADDRESS, f"refusal from {aa} to a command for {address:02X}"
+        )
 
 
 def hex_field(text: str, what: str) -> int:
@@ -191,9 +197,24 @@ class ModuleConfigReply:
 def parse_config(text: str, address: int) -> ModuleConfigReply:
     body = addressed(text, address)
     if len(body) != 6:
-        raise CommError(ErrorKind.GARBAGE, f"$AA2 reply has {len(body)} data characters, expected 6: {text!r}")
-    return ModuleConfigReply(hex_field(body[0:2], "type code"), hex_field(body[2:4], "baud code"), hex_field(body[4:6], "format"))
+        raise CommError(
+            ErrorKind.GARBAGE, f"$AA2 reply has {len(body)} data characters, expected 6: {text!r}"
+        )
+    return ModuleConfigReply(
+        hex_field(body[0:2], "type code"),
+        hex_field(body[2:4], "baud code"),
+        hex_field(body[4:6], "format"),
+    )
 
 
-BAUD_CODES = {0x03: 1200, 0x04: 2400, 0x05: 4800, 0x06: 9600, 0x07: 19200, 0x08: 38400, 0x09: 57600, 0x0A: 115200}
+BAUD_CODES = {
+    0x03: 1200,
+    0x04: 2400,
+    0x05: 4800,
+    0x06: 9600,
+    0x07: 19200,
+    0x08: 38400,
+    0x09: 57600,
+    0x0A: 115200,
+}
 BAUD_TO_CODE = {v: k for k, v in BAUD_CODES.items()}

@@ -19,7 +19,9 @@ class WatchdogConfig(StrictModel):
     """The module's host watchdog (``~AA3EVV``), written each time the module comes online."""
 
     enabled: bool = Field(True, description="enable the module's host watchdog")
-    timeout_ms: int = Field(2000, ge=100, le=25_500, description="timeout, in steps of 100 ms (DCON: 0.1..25.5 s)")
+    timeout_ms: int = Field(
+        2000, ge=100, le=25_500, description="timeout, in steps of 100 ms (DCON: 0.1..25.5 s)"
+    )
 
 
 OutputValue = int | list[int]
@@ -27,11 +29,25 @@ OutputValue = int | list[int]
 
 class DconModuleConfig(ModuleConfig):
     model: str = Field(description="module model: I-7017, M-7055D, I-87024, ... (see docs/dcon.md)")
-    type_code: int | None = Field(None, ge=0, le=0xFF, description="expected type code (0x08 = +/-10 V...); default: what $AA2 reports")
-    data_format: FormatName = Field("auto", description="expected data format; default: what $AA2 reports")
-    watchdog: WatchdogConfig | None = Field(None, description="host watchdog; default: leave the module's setting alone")
-    safe_value: OutputValue | None = Field(None, description="output value the module's watchdog applies: DO bit pattern, or AO raw value(s)")
-    power_on_value: OutputValue | None = Field(None, description="output value after power-on: DO bit pattern, or AO raw value(s)")
+    type_code: int | None = Field(
+        None,
+        ge=0,
+        le=0xFF,
+        description="expected type code (0x08 = +/-10 V...); default: what $AA2 reports",
+    )
+    data_format: FormatName = Field(
+        "auto", description="expected data format; default: what $AA2 reports"
+    )
+    watchdog: WatchdogConfig | None = Field(
+        None, description="host watchdog; default: leave the module's setting alone"
+    )
+    safe_value: OutputValue | None = Field(
+        None,
+        description="output value the module's watchdog applies: DO bit pattern, or AO raw value(s)",
+    )
+    power_on_value: OutputValue | None = Field(
+        None, description="output value after power-on: DO bit pattern, or AO raw value(s)"
+    )
 
     @field_validator("model")
     @classmethod
@@ -47,10 +63,14 @@ class DconModuleConfig(ModuleConfig):
         if self.type_code is not None:
             if table is None:
                 if self.type_code != 0x40:
-                    raise ValueError(f"{profile.model} is a digital module (type code 0x40), not 0x{self.type_code:02X}")
+                    raise ValueError(
+                        f"{profile.model} is a digital module (type code 0x40), not 0x{self.type_code:02X}"
+                    )
             elif table.get(self.type_code) is None:
                 codes = ", ".join(f"0x{c:02X}" for c in table.codes())
-                raise ValueError(f"type code 0x{self.type_code:02X} is not one of {profile.model}'s: {codes}")
+                raise ValueError(
+                    f"type code 0x{self.type_code:02X} is not one of {profile.model}'s: {codes}"
+                )
         for name in ("safe_value", "power_on_value"):
             value = getattr(self, name)
             if value is not None:
@@ -78,19 +98,30 @@ class DconModuleConfig(ModuleConfig):
 def _check_output_value(profile: Profile, name: str, value: OutputValue) -> None:
     if profile.do and not profile.ao:
         if not isinstance(value, int) or not 0 <= value < (1 << profile.do):
-            raise ValueError(f"{name} of {profile.model} is a bit pattern of its {profile.do} outputs (0..{(1 << profile.do) - 1})")
+            raise ValueError(
+                f"{name} of {profile.model} is a bit pattern of its {profile.do} outputs (0..{(1 << profile.do) - 1})"
+            )
     elif profile.ao:
         values = value if isinstance(value, list) else [value] * profile.ao
         if len(values) != profile.ao:
-            raise ValueError(f"{name} of {profile.model} needs {profile.ao} values (one per AO channel), got {len(values)}")
+            raise ValueError(
+                f"{name} of {profile.model} needs {profile.ao} values (one per AO channel), got {len(values)}"
+            )
     else:
         raise ValueError(f"{profile.model} has no outputs; {name} does not apply")
 
 
 class DconBackConfig(SerialBackConfig):
     type: Literal["dcon"] = "dcon"
-    checksum: bool = Field(False, description="DCON checksum on every frame (must match the modules' setting)")
-    host_ok_ms: int | None = Field(None, ge=20, le=12_000, description="period of the ~** host-OK broadcast; default: a third of the shortest watchdog timeout")
+    checksum: bool = Field(
+        False, description="DCON checksum on every frame (must match the modules' setting)"
+    )
+    host_ok_ms: int | None = Field(
+        None,
+        ge=20,
+        le=12_000,
+        description="period of the ~** host-OK broadcast; default: a third of the shortest watchdog timeout",
+    )
     modules: list[DconModuleConfig] = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -98,15 +129,23 @@ class DconBackConfig(SerialBackConfig):
         seen: set[int] = set()
         for m in self.modules:
             if m.address in seen:
-                raise ValueError(f"two modules at address {m.address}; DCON addresses must be unique on a line")
+                raise ValueError(
+                    f"two modules at address {m.address}; DCON addresses must be unique on a line"
+                )
             seen.add(m.address)
-        timeouts = [m.watchdog.timeout_ms for m in self.modules if m.watchdog and m.watchdog.enabled]
+        timeouts = [
+            m.watchdog.timeout_ms for m in self.modules if m.watchdog and m.watchdog.enabled
+        ]
         if self.host_ok_ms is not None and timeouts and self.host_ok_ms * 2 >= min(timeouts):
-            raise ValueError(f"host_ok_ms {self.host_ok_ms} must be less than half the shortest watchdog timeout ({min(timeouts)} ms)")
+            raise ValueError(
+                f"host_ok_ms {self.host_ok_ms} must be less than half the shortest watchdog timeout ({min(timeouts)} ms)"
+            )
         return self
 
     def host_ok_period(self) -> float | None:
-        timeouts = [m.watchdog.timeout_ms for m in self.modules if m.watchdog and m.watchdog.enabled]
+        timeouts = [
+            m.watchdog.timeout_ms for m in self.modules if m.watchdog and m.watchdog.enabled
+        ]
         if self.host_ok_ms is not None:
             return self.host_ok_ms / 1000
         return min(timeouts) / 3000 if timeouts else None
@@ -114,7 +153,12 @@ class DconBackConfig(SerialBackConfig):
     def host_watchdogs(self) -> dict[int, tuple[bool, int] | None]:
         """The configured host watchdog of every module, None where the module keeps its own
         (``fieldgate.host_watchdog.WatchdogBackConfig``: the fronts' watchdog objects)."""
-        return {m.address: None if m.watchdog is None else (bool(m.watchdog.enabled), int(m.watchdog.timeout_ms)) for m in self.modules}
+        return {
+            m.address: None
+            if m.watchdog is None
+            else (bool(m.watchdog.enabled), int(m.watchdog.timeout_ms))
+            for m in self.modules
+        }
 
     def channel_specs(self) -> list[ChannelSpec]:
         specs: list[ChannelSpec] = []
@@ -126,11 +170,18 @@ class DconBackConfig(SerialBackConfig):
                     specs.append(self._spec(m, kind, i, rng))
         return specs
 
-    def _spec(self, m: DconModuleConfig, kind: Kind, index: int, rng: TypeRange | None) -> ChannelSpec:
+    def _spec(
+        self, m: DconModuleConfig, kind: Kind, index: int, rng: TypeRange | None
+    ) -> ChannelSpec:
         extra: dict = {}
         if kind.is_output:
             extra["error_mode"], extra["shutdown_mode"] = m.output_modes(kind, index)
         if not kind.is_digital and rng is not None:
             extra["scaling"] = Scaling(rng.hmin, rng.hmax, rng.fmin, rng.fmax, rng.unit)
             extra["dtype"] = DataType.UINT16 if rng.hmax > 0x7FFF else DataType.INT16
-        return ChannelSpec(channel_id(self.name, m.address, kind, index), kind, Source(self.name, m.address, index), **extra)
+        return ChannelSpec(
+            channel_id(self.name, m.address, kind, index),
+            kind,
+            Source(self.name, m.address, index),
+            **extra,
+        )

@@ -40,7 +40,12 @@ class DataFormat(IntEnum):
         return {0: "engineering", 1: "percent", 2: "hex", 3: "ohms"}[self.value]
 
 
-FORMAT_NAMES = {"engineering": DataFormat.ENGINEERING, "percent": DataFormat.PERCENT, "hex": DataFormat.HEX, "ohms": DataFormat.OHMS}
+FORMAT_NAMES = {
+    "engineering": DataFormat.ENGINEERING,
+    "percent": DataFormat.PERCENT,
+    "hex": DataFormat.HEX,
+    "ohms": DataFormat.OHMS,
+}
 
 
 # -- the linear maps --------------------------------------------------------------
@@ -48,7 +53,9 @@ def raw_to_engineering(raw: int, tr: TypeRange) -> float:
     return (raw - tr.hmin) * (tr.fmax - tr.fmin) / (tr.hmax - tr.hmin) + tr.fmin
 
 
-def engineering_to_raw(value: float, tr: TypeRange, *, round_down: bool = False) -> tuple[int, Quality]:
+def engineering_to_raw(
+    value: float, tr: TypeRange, *, round_down: bool = False
+) -> tuple[int, Quality]:
     """AI readings round to nearest; AO set-points round down ("truncated", seed-001 TV-C3)."""
     exact = (value - tr.fmin) * (tr.hmax - tr.hmin) / (tr.fmax - tr.fmin) + tr.hmin
     raw = math.floor(exact + 1e-9) if round_down else math.floor(exact + 0.5)
@@ -103,7 +110,10 @@ def _curve(sensor: str) -> tuple[float, float, float, float]:
     try:
         return _CVD[sensor]
     except KeyError:
-        raise CommError(ErrorKind.GARBAGE, f"ohms format is not supported for sensor {sensor}; set the module to hex format") from None
+        raise CommError(
+            ErrorKind.GARBAGE,
+            f"ohms format is not supported for sensor {sensor}; set the module to hex format",
+        ) from None
 
 
 def ohms_supported(tr: TypeRange) -> bool:
@@ -116,7 +126,9 @@ def decimals(full_scale: float) -> int:
     return max(0, 5 - len(str(int(abs(full_scale)))))
 
 
-def format_number(value: float, full_scale: float, signed: bool = True, round_up: bool = False) -> str:
+def format_number(
+    value: float, full_scale: float, signed: bool = True, round_up: bool = False
+) -> str:
     places = decimals(full_scale)
     if round_up:  # so that a module that rounds down lands on the intended raw value
         value = math.ceil(value * 10**places - 1e-6) / 10**places
@@ -134,7 +146,10 @@ def split_values(data: str, fmt: DataFormat, count: int, hex_width: int = 4) -> 
     """Cut the data of an AI reply into ``count`` values (hex: fixed width; else at signs)."""
     if fmt is DataFormat.HEX:
         if len(data) != count * hex_width:
-            raise CommError(ErrorKind.GARBAGE, f"expected {count} hex values of {hex_width} digits, got {data!r}")
+            raise CommError(
+                ErrorKind.GARBAGE,
+                f"expected {count} hex values of {hex_width} digits, got {data!r}",
+            )
         return [data[i * hex_width : (i + 1) * hex_width] for i in range(count)]
     values = re.findall(r"[+-][^+-]*", data)
     if len(values) != count or "".join(values) != data:
@@ -162,8 +177,14 @@ def text_to_raw(text: str, fmt: DataFormat, tr: TypeRange) -> tuple[int, Quality
     """One AI value as the module sent it -> (raw, quality); CommError for text that is not one."""
     try:
         return _text_to_raw(text, fmt, tr)
-    except (ValueError, OverflowError) as exc:  # a number no module sends: 300 digits, an RTD value off every curve
-        raise CommError(ErrorKind.GARBAGE, f"not a value of {tr.describe()}: {text[:20]!r}{'...' if len(text) > 20 else ''}") from exc
+    except (
+        ValueError,
+        OverflowError,
+    ) as exc:  # a number no module sends: 300 digits, an RTD value off every curve
+        raise CommError(
+            ErrorKind.GARBAGE,
+            f"not a value of {tr.describe()}: {text[:20]!r}{'...' if len(text) > 20 else ''}",
+        ) from exc
 
 
 def _text_to_raw(text: str, fmt: DataFormat, tr: TypeRange) -> tuple[int, Quality]:
@@ -179,7 +200,15 @@ def _text_to_raw(text: str, fmt: DataFormat, tr: TypeRange) -> tuple[int, Qualit
     return engineering_to_raw(rtd_temperature(tr.sensor, number), tr)
 
 
-def raw_to_text(raw: int, fmt: DataFormat, tr: TypeRange, *, hex_width: int = 4, signed_text: bool = True, round_up: bool = False) -> str:
+def raw_to_text(
+    raw: int,
+    fmt: DataFormat,
+    tr: TypeRange,
+    *,
+    hex_width: int = 4,
+    signed_text: bool = True,
+    round_up: bool = False,
+) -> str:
     """A raw value as a module writes it (AI replies) or expects it (AO commands: ``round_up``)."""
     if fmt is DataFormat.HEX:
         return f"{raw & ((1 << (4 * hex_width)) - 1):0{hex_width}X}"
@@ -208,5 +237,7 @@ def ao_text_to_raw(text: str, fmt: DataFormat, tr: TypeRange) -> tuple[int, Qual
     number = parse_number(text)
     if fmt is DataFormat.PERCENT:
         pmin, pmax = tr.percent_limits
-        return clamp(math.floor((number - pmin) * (tr.hmax - tr.hmin) / (pmax - pmin) + tr.hmin + 1e-9), tr)
+        return clamp(
+            math.floor((number - pmin) * (tr.hmax - tr.hmin) / (pmax - pmin) + tr.hmin + 1e-9), tr
+        )
     return engineering_to_raw(number, tr, round_down=True)

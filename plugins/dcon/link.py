@@ -17,7 +17,9 @@ class DconLink:
     ``write``, ``read_until``, ``reset_input`` and ``pending``).
     """
 
-    def __init__(self, serial, use_checksum: bool, timeout: float, *, settle_after_timeout: bool = True):
+    def __init__(
+        self, serial, use_checksum: bool, timeout: float, *, settle_after_timeout: bool = True
+    ):
         self.serial = serial
         self.settle_after_timeout = settle_after_timeout
         self.use_checksum = use_checksum

@@ -25,12 +25,22 @@ RESET_CHECK_EVERY = 10  # polls between two $AA5 reset-status reads of a module 
 class DconModule(PolledModule):
     config: DconModuleConfig
 
-    def __init__(self, config: DconModuleConfig, specs: list[ChannelSpec], image: ProcessImage, link: DconLink, watch_status: bool = False):
+    def __init__(
+        self,
+        config: DconModuleConfig,
+        specs: list[ChannelSpec],
+        image: ProcessImage,
+        link: DconLink,
+        watch_status: bool = False,
+    ):
         super().__init__(config, specs)
         self.image = image
         self.link = link
         self.profile = config.profile
-        self.by_kind: dict[Kind, list[str]] = {k: [s.id for s in sorted(specs, key=lambda s: s.source.index) if s.kind is k] for k in Kind}
+        self.by_kind: dict[Kind, list[str]] = {
+            k: [s.id for s in sorted(specs, key=lambda s: s.source.index) if s.kind is k]
+            for k in Kind
+        }
         self.range: TypeRange | None = None
         self.data_format: DataFormat | None = None
         self.config_error = ""
@@ -39,7 +49,9 @@ class DconModule(PolledModule):
         self.firmware = ""
         self.in_watchdog = False
         self.watchdog_events = 0
-        self.watch_status = watch_status  # poll ~AA0 with the inputs (set while host OK is suspended)
+        self.watch_status = (
+            watch_status  # poll ~AA0 with the inputs (set while host OK is suspended)
+        )
         self._outputs_configured = False
         self.polls = 0
         self.resets = 0
@@ -51,14 +63,18 @@ class DconModule(PolledModule):
 
     # -- helpers ----------------------------------------------------------------
     async def _ask(self, body: str, lead: str = "$") -> str:
-        return codec.addressed(await self.link.transact(codec.command(lead, self.address, body)), self.address)
+        return codec.addressed(
+            await self.link.transact(codec.command(lead, self.address, body)), self.address
+        )
 
     async def _write(self, text: str) -> None:
         codec.write_ack(await self.link.transact(text))
 
     async def read_config(self) -> codec.ModuleConfigReply:
         """``$AA2``: adopt the module's type code and data format; note mismatches with the topology."""
-        reply = codec.parse_config(await self.link.transact(codec.command("$", self.address, "2")), self.address)
+        reply = codec.parse_config(
+            await self.link.transact(codec.command("$", self.address, "2")), self.address
+        )
         self._adopt(reply)
         return reply
 
@@ -66,7 +82,9 @@ class DconModule(PolledModule):
         cfg, p = self.config, self.profile
         warnings, error = [], ""
         if cfg.type_code is not None and reply.type_code != cfg.type_code:
-            warnings.append(f"type code 0x{reply.type_code:02X}, topology says 0x{cfg.type_code:02X}")
+            warnings.append(
+                f"type code 0x{reply.type_code:02X}, topology says 0x{cfg.type_code:02X}"
+            )
         key = p.ai_table or p.ao_table
         if key:
             self.range = TABLES[key].get(reply.type_code)
@@ -75,12 +93,22 @@ class DconModule(PolledModule):
         fmt = DataFormat(reply.data_format)
         if key and cfg.data_format not in ("auto", fmt.label):
             warnings.append(f"data format {fmt.label}, topology says {cfg.data_format}")
-        if self.range is not None and fmt is DataFormat.OHMS and self.range.sensor not in ("pt385", "pt3916", "pt1000"):
+        if (
+            self.range is not None
+            and fmt is DataFormat.OHMS
+            and self.range.sensor not in ("pt385", "pt3916", "pt1000")
+        ):
             error = f"ohms format of {self.range.describe()} is not supported; set the module to hex format"
         self.data_format = fmt if key else None
         if warnings != self.warnings:
             for w in warnings:
-                log.warning("%s module %d (%s): %s; using the module's setting", self.link_name, self.address, p.model, w)
+                log.warning(
+                    "%s module %d (%s): %s; using the module's setting",
+                    self.link_name,
+                    self.address,
+                    p.model,
+                    w,
+                )
         self.warnings, self.config_error = warnings, error
 
     @property
@@ -94,7 +122,9 @@ class DconModule(PolledModule):
         if (p.ai or p.ao) and self.data_format is None:
             await self.read_config()
         if p.digital == DIO:
-            do_bits, di_bits = p.decode_dio(codec.data(await self.link.transact(codec.command("@", self.address)), self.address))
+            do_bits, di_bits = p.decode_dio(
+                codec.data(await self.link.transact(codec.command("@", self.address)), self.address)
+            )
             readings.update(self._bits(Kind.DI, di_bits))
         elif p.digital == AIDIO:
             body = await self._ask("DI", "@")  # !AASOOII
@@ -104,7 +134,9 @@ class DconModule(PolledModule):
         if p.ai:
             readings.update(await self._read_analog())
         if (self.watch_status and self.watchdog_enabled) or not (p.di or p.do or p.ai):
-            await self.read_status()  # analog-output modules have nothing else to read: status keeps them polled
+            await (
+                self.read_status()
+            )  # analog-output modules have nothing else to read: status keeps them polled
         self.polls += 1
         if (p.do or p.ao) and self.polls % RESET_CHECK_EVERY == 0:
             await self.check_reset()
@@ -116,7 +148,12 @@ class DconModule(PolledModule):
         if await self._ask("5") != "1":
             return False
         self.resets += 1
-        log.warning("%s module %d (%s) was reset: writing its outputs again", self.link_name, self.address, self.profile.model)
+        log.warning(
+            "%s module %d (%s) was reset: writing its outputs again",
+            self.link_name,
+            self.address,
+            self.profile.model,
+        )
         self.on_reset(self)
         return True
 
@@ -132,7 +169,9 @@ class DconModule(PolledModule):
         assert self.range is not None and self.data_format is not None
         data = codec.data(await self.link.transact(codec.command("#", self.address)), self.address)
         values = split_values(data, self.data_format, len(ids))
-        return {cid: text_to_raw(text, self.data_format, self.range) for cid, text in zip(ids, values)}
+        return {
+            cid: text_to_raw(text, self.data_format, self.range) for cid, text in zip(ids, values)
+        }
 
     async def probe(self) -> None:
         await self.read_config()
@@ -164,7 +203,9 @@ class DconModule(PolledModule):
             await self._ask(f"DO{bits:02X}", "@")
             if self.watchdog_enabled and await self.read_status() & WATCHDOG_TIMEOUT_BIT:
                 # this family answers !AA even when it ignores the write
-                raise CommError(ErrorKind.WATCHDOG, "output write ignored: module in host-watchdog timeout")
+                raise CommError(
+                    ErrorKind.WATCHDOG, "output write ignored: module in host-watchdog timeout"
+                )
             return
         await self._write(codec.command("@", self.address, p.encode_do(bits)))
 
@@ -174,7 +215,14 @@ class DconModule(PolledModule):
         if self.config_error or self.range is None or self.data_format is None:
             raise CommError(ErrorKind.EXCEPTION, self.config_error or "no type code")
         p = self.profile
-        text = raw_to_text(raw, self.data_format, self.range, hex_width=p.ao_hex_width, signed_text=p.ao_signed_text, round_up=True)
+        text = raw_to_text(
+            raw,
+            self.data_format,
+            self.range,
+            hex_width=p.ao_hex_width,
+            signed_text=p.ao_signed_text,
+            round_up=True,
+        )
         body = text if p.ao_style == AO_SINGLE else f"{index}{text}"
         await self._write(codec.command("#", self.address, body))
 
@@ -186,7 +234,13 @@ class DconModule(PolledModule):
         if not self.in_watchdog:
             self.in_watchdog = True
             self.watchdog_events += 1
-            log.warning("%s module %d (%s) is in host-watchdog timeout (%s): outputs at their safe values until cleared", self.link_name, self.address, self.profile.model, why)
+            log.warning(
+                "%s module %d (%s) is in host-watchdog timeout (%s): outputs at their safe values until cleared",
+                self.link_name,
+                self.address,
+                self.profile.model,
+                why,
+            )
         self.image.set_quality(self.outputs, Quality.WATCHDOG)
 
     async def read_status(self) -> int:
@@ -202,14 +256,21 @@ class DconModule(PolledModule):
         await self._ask("1", "~")
         status = await self._ask("0", "~")
         if codec.hex_field(status[:2], "module status") & WATCHDOG_TIMEOUT_BIT:
-            raise CommError(ErrorKind.WATCHDOG, "the module still reports a host-watchdog timeout after ~AA1")
+            raise CommError(
+                ErrorKind.WATCHDOG, "the module still reports a host-watchdog timeout after ~AA1"
+            )
         if self.in_watchdog:
             log.info("%s module %d: host-watchdog timeout cleared", self.link_name, self.address)
         self.in_watchdog = False
         self.image.set_quality(self.outputs, Quality.GOOD)
 
     async def configure_watchdog(self) -> None:
-        await self._ask(codec.watchdog_setup(self.address, self.watchdog_enabled, self.watchdog_timeout_ms or 100)[3:], "~")
+        await self._ask(
+            codec.watchdog_setup(
+                self.address, self.watchdog_enabled, self.watchdog_timeout_ms or 100
+            )[3:],
+            "~",
+        )
 
     # -- coming online --------------------------------------------------------------------
     async def on_online(self) -> None:
@@ -218,15 +279,30 @@ class DconModule(PolledModule):
             self.firmware = await self._ask("F")
             found = find_profile(self.name)
             if found is not None and found is not self.profile:
-                self.warnings.append(f"module answers $AAM as {self.name!r}, topology says {self.profile.model}")
-                log.warning("%s module %d: $AAM says %r, topology says %s", self.link_name, self.address, self.name, self.profile.model)
+                self.warnings.append(
+                    f"module answers $AAM as {self.name!r}, topology says {self.profile.model}"
+                )
+                log.warning(
+                    "%s module %d: $AAM says %r, topology says %s",
+                    self.link_name,
+                    self.address,
+                    self.name,
+                    self.profile.model,
+                )
         if await self._ask("5") == "1":
-            log.info("%s module %d (%s) was reset or powered up", self.link_name, self.address, self.profile.model)
+            log.info(
+                "%s module %d (%s) was reset or powered up",
+                self.link_name,
+                self.address,
+                self.profile.model,
+            )
             if self._seen_online:
                 self.resets += 1  # the scheduler rewrites the outputs after on_online
         self._seen_online = True
         await self.read_config()
-        if self.config.watchdog is not None or self.watchdog_enabled:  # from the topology or set at run time
+        if (
+            self.config.watchdog is not None or self.watchdog_enabled
+        ):  # from the topology or set at run time
             await self.configure_watchdog()
         if self.profile.do or self.profile.ao:
             await self.read_status()
@@ -245,24 +321,44 @@ class DconModule(PolledModule):
             return
         if p.digital == AIDIO:
             current = await self._ask("4", "~")  # !AAPPSS
-            pp = cfg.power_on_value if cfg.power_on_value is not None else codec.hex_field(current[0:2], "power-on value")
-            ss = cfg.safe_value if cfg.safe_value is not None else codec.hex_field(current[2:4], "safe value")
+            pp = (
+                cfg.power_on_value
+                if cfg.power_on_value is not None
+                else codec.hex_field(current[0:2], "power-on value")
+            )
+            ss = (
+                cfg.safe_value
+                if cfg.safe_value is not None
+                else codec.hex_field(current[2:4], "safe value")
+            )
             await self._ask(f"5{pp:02X}{ss:02X}", "~")
         elif p.do:
             if not await self._latch_digital():
                 return
         else:
             await self._latch_analog()
-        log.info("%s module %d (%s): safe/power-on values stored", self.link_name, self.address, p.model)
+        log.info(
+            "%s module %d (%s): safe/power-on values stored", self.link_name, self.address, p.model
+        )
 
     async def _latch_digital(self) -> bool:
         """Returns False when the module already held both values (nothing written)."""
         cfg, p = self.config, self.profile
-        wanted = [(letter, value) for letter, value in (("S", cfg.safe_value), ("P", cfg.power_on_value)) if value is not None]
-        missing = [(letter, value) for letter, value in wanted if codec.hex_field((await self._ask(f"4{letter}", "~"))[:8], "DO value") != value]
+        wanted = [
+            (letter, value)
+            for letter, value in (("S", cfg.safe_value), ("P", cfg.power_on_value))
+            if value is not None
+        ]
+        missing = [
+            (letter, value)
+            for letter, value in wanted
+            if codec.hex_field((await self._ask(f"4{letter}", "~"))[:8], "DO value") != value
+        ]
         if not missing:
             return False  # already stored: no need to drive the outputs through them
-        before, _ = p.decode_dio(codec.data(await self.link.transact(codec.command("@", self.address)), self.address))
+        before, _ = p.decode_dio(
+            codec.data(await self.link.transact(codec.command("@", self.address)), self.address)
+        )
         for letter, value in missing:
             await self._write(codec.command("@", self.address, p.encode_do(value)))
             await self._ask(f"5{letter}", "~")
@@ -274,7 +370,10 @@ class DconModule(PolledModule):
         if self.range is None or self.data_format is None or self.config_error:
             return
         channels = [""] if p.ao_style == AO_SINGLE else [str(i) for i in range(p.ao)]
-        before = [ao_text_to_raw(await self._ask(f"6{ch}"), self.data_format, self.range)[0] for ch in channels]
+        before = [
+            ao_text_to_raw(await self._ask(f"6{ch}"), self.data_format, self.range)[0]
+            for ch in channels
+        ]
         for value, (lead, body) in ((cfg.safe_value, ("~", "5")), (cfg.power_on_value, ("$", "4"))):
             if value is None:
                 continue
@@ -294,7 +393,12 @@ class DconModule(PolledModule):
             "type_code": None if self.range is None else f"0x{self.range.code:02X}",
             "range": None if self.range is None else self.range.label,
             "data_format": None if self.data_format is None else self.data_format.label,
-            "watchdog": {"enabled": self.watchdog_enabled, "timeout_ms": self.watchdog_timeout_ms, "timed_out": self.in_watchdog, "events": self.watchdog_events},
+            "watchdog": {
+                "enabled": self.watchdog_enabled,
+                "timeout_ms": self.watchdog_timeout_ms,
+                "timed_out": self.in_watchdog,
+                "events": self.watchdog_events,
+            },
             "resets_seen": self.resets,
             "warnings": list(self.warnings),
             "config_error": self.config_error,

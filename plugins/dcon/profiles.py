@@ -50,7 +50,11 @@ class Profile:
 
     @property
     def description(self) -> str:
-        parts = [f"{n} {k}" for n, k in ((self.di, "DI"), (self.do, "DO"), (self.ai, "AI"), (self.ao, "AO")) if n]
+        parts = [
+            f"{n} {k}"
+            for n, k in ((self.di, "DI"), (self.do, "DO"), (self.ai, "AI"), (self.ao, "AO"))
+            if n
+        ]
         return ", ".join(parts)
 
     @property
@@ -71,7 +75,10 @@ class Profile:
         """``@AA`` data -> (DO bits, DI bits)."""
         fields = self.dio_fields()
         if len(data) != sum(w for _, w in fields):
-            raise CommError(ErrorKind.GARBAGE, f"{self.model}: digital data {data!r} should have {sum(w for _, w in fields)} hex digits")
+            raise CommError(
+                ErrorKind.GARBAGE,
+                f"{self.model}: digital data {data!r} should have {sum(w for _, w in fields)} hex digits",
+            )
         values, pos = {"di": 0, "do": 0, "pad": 0}, 0
         for kind, width in fields:
             values[kind] = hex_field(data[pos : pos + width], f"{self.model} {kind}")
@@ -90,16 +97,51 @@ def _mask(count: int) -> int:
     return (1 << count) - 1
 
 
-def _dio(model: str, series: str, di: int, do: int, do_chars: int = 2, aliases: tuple[str, ...] = ()) -> Profile:
+def _dio(
+    model: str, series: str, di: int, do: int, do_chars: int = 2, aliases: tuple[str, ...] = ()
+) -> Profile:
     return Profile(model, series, di=di, do=do, digital=DIO, do_chars=do_chars, aliases=aliases)
 
 
-def _ai(model: str, series: str, ai: int, table: str, aliases: tuple[str, ...] = (), di: int = 0, do: int = 0) -> Profile:
-    return Profile(model, series, di=di, do=do, ai=ai, ai_table=table, digital=AIDIO if (di or do) else None, aliases=aliases)
+def _ai(
+    model: str,
+    series: str,
+    ai: int,
+    table: str,
+    aliases: tuple[str, ...] = (),
+    di: int = 0,
+    do: int = 0,
+) -> Profile:
+    return Profile(
+        model,
+        series,
+        di=di,
+        do=do,
+        ai=ai,
+        ai_table=table,
+        digital=AIDIO if (di or do) else None,
+        aliases=aliases,
+    )
 
 
-def _ao(model: str, series: str, ao: int, table: str, style: str = AO_CHANNEL, hex_width: int = 4, signed_text: bool = True) -> Profile:
-    return Profile(model, series, ao=ao, ao_table=table, ao_style=style, ao_hex_width=hex_width, ao_signed_text=signed_text)
+def _ao(
+    model: str,
+    series: str,
+    ao: int,
+    table: str,
+    style: str = AO_CHANNEL,
+    hex_width: int = 4,
+    signed_text: bool = True,
+) -> Profile:
+    return Profile(
+        model,
+        series,
+        ao=ao,
+        ao_table=table,
+        ao_style=style,
+        ao_hex_width=hex_width,
+        ao_signed_text=signed_text,
+    )
 
 
 S7, S87 = "I-7000", "I-87K"

@@ -37,8 +37,13 @@ class Found:
 Progress = Callable[[int, int, int], None]  # (done, total, found)
 
 
-async def scan_line(link: DconLink, addresses: Iterable[int], baudrate: int, progress: Progress | None = None,
-                    found: list[Found] | None = None) -> list[Found]:
+async def scan_line(
+    link: DconLink,
+    addresses: Iterable[int],
+    baudrate: int,
+    progress: Progress | None = None,
+    found: list[Found] | None = None,
+) -> list[Found]:
     """Probe each address; modules that answer ``$AA2`` are identified. Silence = nobody there.
 
     The modules are appended to ``found`` (a new list by default) as they are identified,
@@ -50,7 +55,9 @@ async def scan_line(link: DconLink, addresses: Iterable[int], baudrate: int, pro
     count = len(found)
     for done, address in enumerate(addresses, 1):
         try:
-            config = codec.parse_config(await link.transact(codec.command("$", address, "2")), address)
+            config = codec.parse_config(
+                await link.transact(codec.command("$", address, "2")), address
+            )
             name = codec.addressed(await link.transact(codec.command("$", address, "M")), address)
             firmware = _optional(await _try(link, address, "F"))
         except CommError as exc:
@@ -77,7 +84,9 @@ def _optional(text: str | None) -> str:
 def progress_bar(stream=sys.stderr, width: int = 32) -> Progress:
     def show(done: int, total: int, found: int) -> None:
         filled = width * done // max(total, 1)
-        stream.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} addresses, {found} module(s) found")
+        stream.write(
+            f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} addresses, {found} module(s) found"
+        )
         if done == total:
             stream.write("\n")
         stream.flush()
@@ -91,17 +100,32 @@ def topology_yaml(found: list[Found], port: str, checksum: bool, name: str = "rs
     for baud in sorted({f.baudrate for f in found}):
         modules = [f for f in found if f.baudrate == baud]
         back = name if len({f.baudrate for f in found}) == 1 else f"{name}-{baud}"
-        lines += [f"  - name: {back}", "    type: dcon", f"    port: {port}", f"    baudrate: {baud}", f"    checksum: {'true' if checksum else 'false'}", "    modules:"]
+        lines += [
+            f"  - name: {back}",
+            "    type: dcon",
+            f"    port: {port}",
+            f"    baudrate: {baud}",
+            f"    checksum: {'true' if checksum else 'false'}",
+            "    modules:",
+        ]
         for f in modules:
             model = f.profile.model if f.profile else f"I-{f.name}"
-            note = f"  # $AAM {f.name}" + (f", firmware {f.firmware}" if f.firmware else "") + ("" if f.profile else ", NOT SUPPORTED")
+            note = (
+                f"  # $AAM {f.name}"
+                + (f", firmware {f.firmware}" if f.firmware else "")
+                + ("" if f.profile else ", NOT SUPPORTED")
+            )
             lines.append(f"      - address: {f.address}")
             lines.append(f"        model: {model}{note}")
             if f.profile and (f.profile.ai or f.profile.ao):
-                lines.append(f"        type_code: 0x{f.config.type_code:02X}  # {f.describe_range()}")
+                lines.append(
+                    f"        type_code: 0x{f.config.type_code:02X}  # {f.describe_range()}"
+                )
                 lines.append(f"        data_format: {DataFormat(f.config.data_format).label}")
             if f.config.checksum != checksum:
-                lines.append(f"        # module checksum is {'on' if f.config.checksum else 'off'}, the line's is {'on' if checksum else 'off'}")
+                lines.append(
+                    f"        # module checksum is {'on' if f.config.checksum else 'off'}, the line's is {'on' if checksum else 'off'}"
+                )
     if len(lines) == 1:
         lines.append("  []  # no module answered")
     return "\n".join(lines) + "\n"

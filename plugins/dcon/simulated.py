@@ -27,12 +27,27 @@ def _mask(n: int) -> int:
 
 
 class SimModule:
-    def __init__(self, profile: Profile, address: int, *, type_code: int | None = None, data_format: DataFormat = DataFormat.HEX, checksum: bool = False, baud_code: int = 0x06):
+    def __init__(
+        self,
+        profile: Profile,
+        address: int,
+        *,
+        type_code: int | None = None,
+        data_format: DataFormat = DataFormat.HEX,
+        checksum: bool = False,
+        baud_code: int = 0x06,
+    ):
         self.profile = profile
         self.address = address
-        table = TABLES[profile.ai_table or profile.ao_table] if (profile.ai_table or profile.ao_table) else None
+        table = (
+            TABLES[profile.ai_table or profile.ao_table]
+            if (profile.ai_table or profile.ao_table)
+            else None
+        )
         self.table = table
-        self.type_code = type_code if type_code is not None else (table.default if table else DIO_TYPE_CODE)
+        self.type_code = (
+            type_code if type_code is not None else (table.default if table else DIO_TYPE_CODE)
+        )
         self.data_format = data_format
         self.checksum = checksum
         self.baud_code = baud_code
@@ -62,7 +77,11 @@ class SimModule:
 
     def tick(self, now: float) -> bool:
         """Apply a host-watchdog timeout if due. True when it fired now."""
-        if self.watchdog_enabled and not self.timed_out and now - self.last_host_ok > self.watchdog_tenths / 10:
+        if (
+            self.watchdog_enabled
+            and not self.timed_out
+            and now - self.last_host_ok > self.watchdog_tenths / 10
+        ):
             self.timed_out = True
             self.do_bits = self.safe_do
             self.ao_raw = list(self.safe_ao)
@@ -82,7 +101,13 @@ class SimModule:
         self.commands += 1
         lead, body = text[0], text[3:]
         try:
-            handler = {"$": self._dollar, "#": self._hash, "@": self._at, "~": self._tilde, "%": self._percent}[lead]
+            handler = {
+                "$": self._dollar,
+                "#": self._hash,
+                "@": self._at,
+                "~": self._tilde,
+                "%": self._percent,
+            }[lead]
             return handler(body, now)
         except (ValueError, IndexError, OverflowError, CommError):
             return None  # malformed data: a real module stays silent
@@ -111,7 +136,15 @@ class SimModule:
             return self._ok(f"{_mask(p.ai):02X}")
         if p.ao and body[:1] == "6" and self.range is not None:  # $AA6 / $AA6N: last output value
             (ch,) = self._ao_channels(body[1:])
-            return self._ok(raw_to_text(self.ao_raw[ch], self.data_format, self.range, hex_width=p.ao_hex_width, signed_text=p.ao_signed_text))
+            return self._ok(
+                raw_to_text(
+                    self.ao_raw[ch],
+                    self.data_format,
+                    self.range,
+                    hex_width=p.ao_hex_width,
+                    signed_text=p.ao_signed_text,
+                )
+            )
         if p.ao and body[:1] == "4":  # $AA4 / $AA4N: current output becomes the power-on value
             for ch in self._ao_channels(body[1:]):
                 self.power_on_ao[ch] = self.ao_raw[ch]
@@ -211,7 +244,9 @@ class SimModule:
     def _tilde(self, body: str, now: float) -> str | None:
         p = self.profile
         if body == "0":
-            return self._ok(f"{(0x04 if self.timed_out else 0) | (0x80 if self.watchdog_enabled else 0):02X}")
+            return self._ok(
+                f"{(0x04 if self.timed_out else 0) | (0x80 if self.watchdog_enabled else 0):02X}"
+            )
         if body == "1":
             self.timed_out = False
             self.last_host_ok = now
@@ -222,10 +257,16 @@ class SimModule:
             tenths = int(body[2:], 16)
             if body[1] == "1" and tenths == 0:
                 return self._refuse()
-            self.watchdog_enabled, self.watchdog_tenths, self.last_host_ok = body[1] == "1", tenths, now
+            self.watchdog_enabled, self.watchdog_tenths, self.last_host_ok = (
+                body[1] == "1",
+                tenths,
+                now,
+            )
             return self._ok()
         if p.digital == DIO and p.do and body in ("4P", "4S"):
-            return self._ok(f"{self.power_on_do if body[1] == 'P' else self.safe_do:0{max(2, p.do_chars)}X}")
+            return self._ok(
+                f"{self.power_on_do if body[1] == 'P' else self.safe_do:0{max(2, p.do_chars)}X}"
+            )
         if p.digital == DIO and p.do and body in ("5P", "5S"):
             if body[1] == "P":
                 self.power_on_do = self.do_bits
@@ -235,7 +276,10 @@ class SimModule:
         if p.digital == AIDIO and body == "4":
             return self._ok(f"{self.power_on_do:02X}{self.safe_do:02X}")
         if p.digital == AIDIO and body[:1] == "5" and len(body) == 5:
-            self.power_on_do, self.safe_do = int(body[1:3], 16) & _mask(p.do), int(body[3:5], 16) & _mask(p.do)
+            self.power_on_do, self.safe_do = (
+                int(body[1:3], 16) & _mask(p.do),
+                int(body[3:5], 16) & _mask(p.do),
+            )
             return self._ok()
         if p.ao and body[:1] == "5":  # ~AA5 / ~AA5N: current output becomes the safe value
             for ch in self._ao_channels(body[1:]):
@@ -361,14 +405,18 @@ class SimBus:
             if fault.kind == "delay":
                 return frame, fault.delay
             if fault.kind == "bad-checksum":
-                return (frame[:-3] + (b"00" if frame[-3:-1] != b"00" else b"01") + codec.CR if self.checksum else frame[:1] + b"\x7f" + frame[2:]), 0.0
+                return (
+                    frame[:-3] + (b"00" if frame[-3:-1] != b"00" else b"01") + codec.CR
+                    if self.checksum
+                    else frame[:1] + b"\x7f" + frame[2:]
+                ), 0.0
             if fault.kind == "garbage":
                 return b"\x00\xff#%&\r", 0.0
             if fault.kind == "truncate":
                 return frame[: max(1, len(frame) // 2)], 0.0
             if fault.kind == "wrong-address":
                 other = f"{(address + 1) & 0xFF:02X}".encode()
-                text = frame[:1] + other + frame[3:-1 - (2 if self.checksum else 0)]
+                text = frame[:1] + other + frame[3 : -1 - (2 if self.checksum else 0)]
                 return codec.frame(text.decode("ascii"), self.checksum), 0.0
         return frame, 0.0
 
@@ -387,7 +435,11 @@ class SimBus:
                 continue
             if wire.source[1] == "do":
                 bit = bool(src.do_bits >> wire.source[2] & 1) != wire.invert
-                dst.di_bits = dst.di_bits | 1 << wire.target[2] if bit else dst.di_bits & ~(1 << wire.target[2])
+                dst.di_bits = (
+                    dst.di_bits | 1 << wire.target[2]
+                    if bit
+                    else dst.di_bits & ~(1 << wire.target[2])
+                )
             elif src.range is not None and dst.range is not None:
                 dst.set_ai_engineering(wire.target[2], src.ao_engineering(wire.source[2]))
 
@@ -401,4 +453,6 @@ class SimBus:
             if module.profile.ai and rng is not None:
                 for ch in range(module.profile.ai):
                     span = (rng.fmax - rng.fmin) / 2
-                    module.set_ai_engineering(ch, rng.fmin + span + 0.8 * span * math.sin(now / 5 + ch))
+                    module.set_ai_engineering(
+                        ch, rng.fmin + span + 0.8 * span * math.sin(now / 5 + ch)
+                    )

@@ -54,12 +54,26 @@ class DconSimulator(Simulator):
         bus = SimBus(checksum=config.checksum)
         for m in config.modules:
             fmt = DataFormat.HEX if m.data_format == "auto" else FORMAT_NAMES[m.data_format]
-            module = SimModule(m.profile, m.address, type_code=m.type_code, data_format=fmt, baud_code=BAUD_TO_CODE.get(config.baudrate, 0x06))
+            module = SimModule(
+                m.profile,
+                m.address,
+                type_code=m.type_code,
+                data_format=fmt,
+                baud_code=BAUD_TO_CODE.get(config.baudrate, 0x06),
+            )
             bus.add(module)
         return cls(port, bus, baudrate=config.baudrate, animate=animate)
 
     @classmethod
-    def from_modules(cls, port: str, modules: list[tuple], *, checksum: bool = False, baudrate: int = 9600, animate: bool = False) -> DconSimulator:
+    def from_modules(
+        cls,
+        port: str,
+        modules: list[tuple],
+        *,
+        checksum: bool = False,
+        baudrate: int = 9600,
+        animate: bool = False,
+    ) -> DconSimulator:
         """``modules``: (address, model[, type_code[, format name]]) tuples."""
         bus = SimBus(checksum=checksum)
         for address, model, *rest in modules:
@@ -68,7 +82,15 @@ class DconSimulator(Simulator):
                 raise ValueError(f"unknown DCON module {model!r}")
             type_code = rest[0] if rest else None
             fmt = FORMAT_NAMES[rest[1]] if len(rest) > 1 else DataFormat.HEX
-            bus.add(SimModule(profile, address, type_code=type_code, data_format=fmt, baud_code=BAUD_TO_CODE.get(baudrate, 0x06)))
+            bus.add(
+                SimModule(
+                    profile,
+                    address,
+                    type_code=type_code,
+                    data_format=fmt,
+                    baud_code=BAUD_TO_CODE.get(baudrate, 0x06),
+                )
+            )
         return cls(port, bus, baudrate=baudrate, animate=animate)
 
     # -- life cycle ---------------------------------------------------------------------
@@ -88,7 +110,9 @@ class DconSimulator(Simulator):
         while True:
             now = self.server.now
             for address in self.bus.tick(now):
-                log.info("simulated module %d: host-watchdog timeout, outputs at safe values", address)
+                log.info(
+                    "simulated module %d: host-watchdog timeout, outputs at safe values", address
+                )
             if self.animate:
                 self.bus.animate(now)
                 self.bus.propagate()
@@ -110,7 +134,12 @@ class DconSimulator(Simulator):
         module = self.bus.modules.get(address)
         if module is None:
             raise KeyError(f"no simulated module at address {address}")
-        limit = {"di": module.profile.di, "do": module.profile.do, "ai": module.profile.ai, "ao": module.profile.ao}[kind]
+        limit = {
+            "di": module.profile.di,
+            "do": module.profile.do,
+            "ai": module.profile.ai,
+            "ao": module.profile.ao,
+        }[kind]
         if index >= limit:
             raise KeyError(f"{module.profile.model} at {address} has no {kind}{index}")
         return module, kind, index
@@ -119,7 +148,9 @@ class DconSimulator(Simulator):
         """DI: bool; AI: the raw 16-bit value in the module's hex scale (as the process image holds it)."""
         module, kind, index = self._locate(channel_id)
         if kind == "di":
-            module.di_bits = module.di_bits | 1 << index if value else module.di_bits & ~(1 << index)
+            module.di_bits = (
+                module.di_bits | 1 << index if value else module.di_bits & ~(1 << index)
+            )
         elif kind == "ai":
             module.ai_raw[index] = int(value)
         else:
@@ -133,7 +164,9 @@ class DconSimulator(Simulator):
             return module.ao_raw[index]
         raise KeyError(f"{channel_id} is an input")
 
-    def inject(self, kind: str, address: int | None = None, *, delay: float = 0.0, count: int | None = None) -> Fault:
+    def inject(
+        self, kind: str, address: int | None = None, *, delay: float = 0.0, count: int | None = None
+    ) -> Fault:
         fault = Fault(kind, address, delay, count)
         self.bus.faults.append(fault)
         return fault
@@ -141,7 +174,9 @@ class DconSimulator(Simulator):
     def clear_faults(self) -> None:
         self.bus.faults.clear()
 
-    def wire(self, source: tuple[int, str, int], target: tuple[int, str, int], invert: bool = False) -> None:
+    def wire(
+        self, source: tuple[int, str, int], target: tuple[int, str, int], invert: bool = False
+    ) -> None:
         self.bus.wires.append(Wire(source, target, invert))
         self.bus.propagate()
 
@@ -149,5 +184,7 @@ class DconSimulator(Simulator):
         return self.bus.modules[address]
 
 
-def simulator_factory(back_config: DconBackConfig, port: str, animate: bool = False) -> DconSimulator:
+def simulator_factory(
+    back_config: DconBackConfig, port: str, animate: bool = False
+) -> DconSimulator:
     return DconSimulator.from_config(back_config, port, animate)

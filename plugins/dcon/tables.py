@@ -98,22 +98,105 @@ THERMOCOUPLES = (
 
 # RTD modules I-7013(D), I-7015, I-7033(D), I-87013
 RTD = (
-    TypeRange(0x20, "Pt100 a=0.00385 -100..100 degC", "degC", -100.0, 100.0, *S16, 60.25, 138.50, "pt385"),
-    TypeRange(0x21, "Pt100 a=0.00385 0..100 degC", "degC", 0.0, 100.0, 0, 0x7FFF, 100.00, 138.50, "pt385"),
-    TypeRange(0x22, "Pt100 a=0.00385 0..200 degC", "degC", 0.0, 200.0, 0, 0x7FFF, 100.00, 175.84, "pt385"),
-    TypeRange(0x23, "Pt100 a=0.00385 0..600 degC", "degC", 0.0, 600.0, 0, 0x7FFF, 100.00, 313.59, "pt385"),
-    TypeRange(0x24, "Pt100 a=0.003916 -100..100 degC", "degC", -100.0, 100.0, *S16, 59.58, 139.16, "pt3916"),
-    TypeRange(0x25, "Pt100 a=0.003916 0..100 degC", "degC", 0.0, 100.0, 0, 0x7FFF, 100.00, 139.16, "pt3916"),
-    TypeRange(0x26, "Pt100 a=0.003916 0..200 degC", "degC", 0.0, 200.0, 0, 0x7FFF, 100.00, 177.13, "pt3916"),
-    TypeRange(0x27, "Pt100 a=0.003916 0..600 degC", "degC", 0.0, 600.0, 0, 0x7FFF, 100.00, 317.28, "pt3916"),
-    TypeRange(0x28, "Ni120 -80..100 degC", "degC", -80.0, 100.0, -26214, 0x7FFF, None, 200.64, "ni120"),
+    TypeRange(
+        0x20, "Pt100 a=0.00385 -100..100 degC", "degC", -100.0, 100.0, *S16, 60.25, 138.50, "pt385"
+    ),
+    TypeRange(
+        0x21, "Pt100 a=0.00385 0..100 degC", "degC", 0.0, 100.0, 0, 0x7FFF, 100.00, 138.50, "pt385"
+    ),
+    TypeRange(
+        0x22, "Pt100 a=0.00385 0..200 degC", "degC", 0.0, 200.0, 0, 0x7FFF, 100.00, 175.84, "pt385"
+    ),
+    TypeRange(
+        0x23, "Pt100 a=0.00385 0..600 degC", "degC", 0.0, 600.0, 0, 0x7FFF, 100.00, 313.59, "pt385"
+    ),
+    TypeRange(
+        0x24,
+        "Pt100 a=0.003916 -100..100 degC",
+        "degC",
+        -100.0,
+        100.0,
+        *S16,
+        59.58,
+        139.16,
+        "pt3916",
+    ),
+    TypeRange(
+        0x25,
+        "Pt100 a=0.003916 0..100 degC",
+        "degC",
+        0.0,
+        100.0,
+        0,
+        0x7FFF,
+        100.00,
+        139.16,
+        "pt3916",
+    ),
+    TypeRange(
+        0x26,
+        "Pt100 a=0.003916 0..200 degC",
+        "degC",
+        0.0,
+        200.0,
+        0,
+        0x7FFF,
+        100.00,
+        177.13,
+        "pt3916",
+    ),
+    TypeRange(
+        0x27,
+        "Pt100 a=0.003916 0..600 degC",
+        "degC",
+        0.0,
+        600.0,
+        0,
+        0x7FFF,
+        100.00,
+        317.28,
+        "pt3916",
+    ),
+    TypeRange(
+        0x28, "Ni120 -80..100 degC", "degC", -80.0, 100.0, -26214, 0x7FFF, None, 200.64, "ni120"
+    ),
     TypeRange(0x29, "Ni120 0..100 degC", "degC", 0.0, 100.0, 0, 0x7FFF, 120.60, 200.64, "ni120"),
-    TypeRange(0x2A, "Pt1000 a=0.00385 -200..600 degC", "degC", -200.0, 600.0, -10922, 0x7FFF, 185.2, 3137.1, "pt1000"),
+    TypeRange(
+        0x2A,
+        "Pt1000 a=0.00385 -200..600 degC",
+        "degC",
+        -200.0,
+        600.0,
+        -10922,
+        0x7FFF,
+        185.2,
+        3137.1,
+        "pt1000",
+    ),
 )
 
 
-def _ao(code: int, label: str, unit: str, fmin: float, fmax: float, hmin: int, hmax: int, pct: tuple[float, float] | None = None) -> TypeRange:
-    return TypeRange(code, label, unit, fmin, fmax, hmin, hmax, pct_min=pct[0] if pct else None, pct_max=pct[1] if pct else None)
+def _ao(
+    code: int,
+    label: str,
+    unit: str,
+    fmin: float,
+    fmax: float,
+    hmin: int,
+    hmax: int,
+    pct: tuple[float, float] | None = None,
+) -> TypeRange:
+    return TypeRange(
+        code,
+        label,
+        unit,
+        fmin,
+        fmax,
+        hmin,
+        hmax,
+        pct_min=pct[0] if pct else None,
+        pct_max=pct[1] if pct else None,
+    )
 
 
 # I-7021, I-7022, I-87022: 12-bit, 0x000..0xFFF on every range

@@ -17,11 +17,24 @@ from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, State
 if TYPE_CHECKING:
     from .engine import DeviceNetSlave
 
-BIT_EXPLICIT, BIT_POLL, BIT_STROBE, BIT_MULTICAST, BIT_COS, BIT_CYCLIC, BIT_ACK_SUPPRESS = 0x01, 0x02, 0x04, 0x08, 0x10, 0x20, 0x40
+BIT_EXPLICIT, BIT_POLL, BIT_STROBE, BIT_MULTICAST, BIT_COS, BIT_CYCLIC, BIT_ACK_SUPPRESS = (
+    0x01,
+    0x02,
+    0x04,
+    0x08,
+    0x10,
+    0x20,
+    0x40,
+)
 UNSUPPORTED = BIT_MULTICAST | 0x80
 UNALLOCATED = 0xFF
 BODY_FORMAT_8_8 = 0x00
-CONNECTION_BITS = ((EXPLICIT, BIT_EXPLICIT), (POLL, BIT_POLL), (STROBE, BIT_STROBE), (COS_CYCLIC, BIT_COS | BIT_CYCLIC))
+CONNECTION_BITS = (
+    (EXPLICIT, BIT_EXPLICIT),
+    (POLL, BIT_POLL),
+    (STROBE, BIT_STROBE),
+    (COS_CYCLIC, BIT_COS | BIT_CYCLIC),
+)
 
 
 class Allocation:
@@ -55,12 +68,19 @@ class Allocation:
         if not choice & BIT_EXPLICIT and not slave.connections[EXPLICIT].exists:
             raise CipError(*invalid)
         wanted = self._requested(choice)
-        if any(slave.connections[i].exists and slave.connections[i].state is not State.TIMED_OUT for i in wanted):
+        if any(
+            slave.connections[i].exists and slave.connections[i].state is not State.TIMED_OUT
+            for i in wanted
+        ):
             raise CipError(cip.ALREADY_IN_STATE, cip.INVALID_ALLOCATION_CHOICE)
         if choice & (BIT_COS | BIT_CYCLIC) and slave.allocation_choice & (BIT_COS | BIT_CYCLIC):
             raise CipError(cip.ALREADY_IN_STATE, cip.INVALID_ALLOCATION_CHOICE)
         slave.master_mac = master
-        keep = slave.allocation_choice & ~(BIT_COS | BIT_CYCLIC | BIT_ACK_SUPPRESS) if choice & (BIT_COS | BIT_CYCLIC) else slave.allocation_choice
+        keep = (
+            slave.allocation_choice & ~(BIT_COS | BIT_CYCLIC | BIT_ACK_SUPPRESS)
+            if choice & (BIT_COS | BIT_CYCLIC)
+            else slave.allocation_choice
+        )
         slave.allocation_choice = keep | choice
         for instance in wanted:
             slave.open_connection(instance, now)

@@ -56,8 +56,11 @@ ErrorCounter = Callable[[str, int], int]
 class ModuleView:
     def __init__(self, back: str, address: int, channels: Sequence[Channel]):
         self.back, self.address = back, address
-        self.parts = {kind: Assembly(0, kind, pack_bits(members) if kind.is_digital else members)
-                      for kind in KINDS if (members := of_kind(channels, kind))}
+        self.parts = {
+            kind: Assembly(0, kind, pack_bits(members) if kind.is_digital else members)
+            for kind in KINDS
+            if (members := of_kind(channels, kind))
+        }
 
 
 def module_views(channels: Sequence[Channel]) -> list[ModuleView]:
@@ -70,7 +73,9 @@ def module_views(channels: Sequence[Channel]) -> list[ModuleView]:
 class ApplicationObject(CipObject):
     class_id, revision = 0x64, 2
 
-    def __init__(self, slave: DeviceNetSlave, modules: list[ModuleView], error_counter: ErrorCounter):
+    def __init__(
+        self, slave: DeviceNetSlave, modules: list[ModuleView], error_counter: ErrorCounter
+    ):
         super().__init__(slave)
         self.modules = modules
         self.error_counter = error_counter
@@ -82,7 +87,9 @@ class ApplicationObject(CipObject):
         table = super().class_attributes()
         watchdogs = self.slave.host_watchdogs
         if watchdogs.any((m.back, m.address) for m in self.modules):
-            table[HOST_OK] = Attribute(lambda: u8(watchdogs.host_ok()), self._change(1, watchdogs.set_host_ok))
+            table[HOST_OK] = Attribute(
+                lambda: u8(watchdogs.host_ok()), self._change(1, watchdogs.set_host_ok)
+            )
         return table
 
     def instance_attributes(self, instance: int) -> dict[int, Attribute]:
@@ -98,7 +105,9 @@ class ApplicationObject(CipObject):
             table[LENGTH_ATTR + offset] = Attribute(lambda size=size: u8(size))
             table[COUNT_ATTR + offset] = Attribute(lambda count=count: u8(count))
             if part is not None:
-                table[DATA_ATTR + offset] = Attribute(part.data, self._writer(part) if kind.is_output else None)
+                table[DATA_ATTR + offset] = Attribute(
+                    part.data, self._writer(part) if kind.is_output else None
+                )
         watchdogs = self.slave.host_watchdogs
         if watchdogs.has(module.back, module.address):
             table.update(self._watchdog_attributes(watchdogs, module.back, module.address))
@@ -106,6 +115,7 @@ class ApplicationObject(CipObject):
 
     def _change(self, size: int, action: Callable[[int], None]):
         """A watchdog Set: ``size`` data bytes (0 = NULL) -> ``action(value)``, errors as CIP codes."""
+
         def write(data: bytes) -> bytes:
             value = self.sized.take(data, size)
             try:
@@ -115,13 +125,22 @@ class ApplicationObject(CipObject):
             except (NoHostWatchdog, WatchdogUnavailable):
                 raise CipError(cip.DEVICE_STATE_CONFLICT) from None
             return b""
+
         return write
 
-    def _watchdog_attributes(self, wd: HostWatchdogs, back: str, address: int) -> dict[int, Attribute]:
+    def _watchdog_attributes(
+        self, wd: HostWatchdogs, back: str, address: int
+    ) -> dict[int, Attribute]:
         change = self._change
         return {
-            WATCHDOG_ENABLE: Attribute(lambda: u8(wd.enabled(back, address)), change(1, lambda v: wd.set_enabled(back, address, v))),
-            WATCHDOG_TIME: Attribute(lambda: u8(wd.timeout_tenths(back, address)), change(1, lambda v: wd.set_timeout_tenths(back, address, v))),
+            WATCHDOG_ENABLE: Attribute(
+                lambda: u8(wd.enabled(back, address)),
+                change(1, lambda v: wd.set_enabled(back, address, v)),
+            ),
+            WATCHDOG_TIME: Attribute(
+                lambda: u8(wd.timeout_tenths(back, address)),
+                change(1, lambda v: wd.set_timeout_tenths(back, address, v)),
+            ),
             WATCHDOG_STATUS: Attribute(lambda: u8(wd.expired(back, address))),
             WATCHDOG_CLEAR: Attribute(None, change(0, lambda _: wd.recover(back, address))),
         }
@@ -132,5 +151,5 @@ class ApplicationObject(CipObject):
                 raise CipError(cip.NOT_ENOUGH_DATA if len(data) < part.size else cip.TOO_MUCH_DATA)
             self.slave.write_assembly(part, data)
             return b""
-        return write
 
+        return write

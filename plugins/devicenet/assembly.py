@@ -71,7 +71,7 @@ class Assembly:
                 changed += write_byte(image, group, value, origin)
         else:
             for i, channel in enumerate(self.slots):
-                word = int.from_bytes(data[2 * i:2 * i + 2], "little")
+                word = int.from_bytes(data[2 * i : 2 * i + 2], "little")
                 try:
                     if image.write_output(channel.id, value_of_word(channel, word), origin):
                         changed.append(channel.id)
@@ -116,7 +116,9 @@ class Assemblies:
         """Write a consumed I/O message (every output assembly, concatenated)."""
         changed, offset = [], 0
         for assembly in self.outputs:
-            changed += assembly.write(self.image, data[offset:offset + assembly.size], self.origin)
+            changed += assembly.write(
+                self.image, data[offset : offset + assembly.size], self.origin
+            )
             offset += assembly.size
         return changed
 

@@ -69,7 +69,11 @@ class Connection:
 
     def open(self, now: float) -> None:
         if self.instance == EXPLICIT:
-            self.state, self.epr_ms, self.action = State.ESTABLISHED, EXPLICIT_DEFAULT_EPR_MS, TimeoutAction.AUTO_DELETE
+            self.state, self.epr_ms, self.action = (
+                State.ESTABLISHED,
+                EXPLICIT_DEFAULT_EPR_MS,
+                TimeoutAction.AUTO_DELETE,
+            )
         else:
             self.state, self.epr_ms, self.action = State.CONFIGURING, 0, TimeoutAction.TIMED_OUT
         self.kick(now)
@@ -91,7 +95,11 @@ class Connection:
 
     def kick(self, now: float) -> None:
         """A consumed message (or a new EPR): re-arm the inactivity watchdog."""
-        self.watchdog_at = now + WATCHDOG_FACTOR * self.epr_ms / 1000.0 if self.established and self.watched else None
+        self.watchdog_at = (
+            now + WATCHDOG_FACTOR * self.epr_ms / 1000.0
+            if self.established and self.watched
+            else None
+        )
 
     def expired(self, now: float) -> bool:
         return self.watchdog_at is not None and now >= self.watchdog_at

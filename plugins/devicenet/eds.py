@@ -28,7 +28,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -44,8 +44,12 @@ IDENTITY, DEVICENET, ASSEMBLY, CONNECTION, APPLICATION = 0x01, 0x03, 0x04, 0x05,
 # I/O type mask bits (PollInfo, Input/Output entries)
 POLL_BIT, STROBE_BIT, COS_BIT, CYCLIC_BIT = 0x0001, 0x0002, 0x0004, 0x0008
 # CIP device profiles (Identity attribute 2) by name; others are written by number
-DEVICE_TYPES = {0x00: "Generic Device", 0x07: "General Purpose Discrete I/O", 0x0C: "Communications Adapter",
-                0x2B: "Generic Device (keyable)"}
+DEVICE_TYPES = {
+    0x00: "Generic Device",
+    0x07: "General Purpose Discrete I/O",
+    0x0C: "Communications Adapter",
+    0x2B: "Generic Device (keyable)",
+}
 VENDOR_NAMES = {803: "ICP DAS"}  # seed-003 §3.1 (the I-7241D's statement of compliance)
 # EDS parameter data types and descriptor bits
 BOOL, USINT = 0xC1, 0xC6
@@ -60,6 +64,7 @@ class EdsError(Exception):
 @dataclass
 class IoEntry:
     """One ``InputN``/``OutputN`` entry: the data one or more connection types carry."""
+
     size: int
     mask: int
     name: str
@@ -87,6 +92,7 @@ class Param:
 @dataclass
 class Description:
     """Everything the EDS states, read from one slave."""
+
     front: str
     gateway: str
     vendor_id: int
@@ -97,7 +103,9 @@ class Description:
     product_name: str
     inputs: list[IoEntry]
     outputs: list[IoEntry]
-    defaults: dict[str, tuple[int, int]]  # connection type -> (default InputN, default OutputN), 0 = none
+    defaults: dict[
+        str, tuple[int, int]
+    ]  # connection type -> (default InputN, default OutputN), 0 = none
     params: list[Param]
     groups: list[tuple[str, list[int]]]
 
@@ -121,11 +129,15 @@ def attribute_path(class_id: int, instance: int, attr: int) -> bytes:
 
 
 def members(assemblies: Sequence[Assembly]) -> str:
-    return " + ".join(f"{a.kind.value.upper()} assembly 0x{a.instance:02X} ({a.size} byte{'s' if a.size != 1 else ''})"
-                      for a in assemblies)
+    return " + ".join(
+        f"{a.kind.value.upper()} assembly 0x{a.instance:02X} ({a.size} byte{'s' if a.size != 1 else ''})"
+        for a in assemblies
+    )
 
 
-def io_entry(assemblies: Sequence[Assembly], size: int, mask: int, name: str, note: str = "") -> IoEntry:
+def io_entry(
+    assemblies: Sequence[Assembly], size: int, mask: int, name: str, note: str = ""
+) -> IoEntry:
     """The data of ``assemblies`` concatenated (its first ``size`` bytes)."""
     whole = sum(a.size for a in assemblies)
     path = assembly_path(assemblies[0].instance) if len(assemblies) == 1 and size == whole else b""
@@ -141,11 +153,16 @@ def connection_sizes(slave: DeviceNetSlave) -> dict[int, tuple[int, int]]:
     sizes = {}
     for instance in (POLL, STROBE, COS_CYCLIC):
         slave.open_connection(instance, 0.0)
-        sizes[instance] = (number(attribute(slave, CONNECTION, instance, 7)), number(attribute(slave, CONNECTION, instance, 8)))
+        sizes[instance] = (
+            number(attribute(slave, CONNECTION, instance, 7)),
+            number(attribute(slave, CONNECTION, instance, 8)),
+        )
     return sizes
 
 
-def io_entries(slave: DeviceNetSlave) -> tuple[list[IoEntry], list[IoEntry], dict[str, tuple[int, int]]]:
+def io_entries(
+    slave: DeviceNetSlave,
+) -> tuple[list[IoEntry], list[IoEntry], dict[str, tuple[int, int]]]:
     sizes = connection_sizes(slave)
     ins, outs = slave.assemblies.inputs, slave.assemblies.outputs
     (poll_in, poll_out), (strobe_in, _), (cos_in, _) = sizes[POLL], sizes[STROBE], sizes[COS_CYCLIC]
@@ -153,60 +170,137 @@ def io_entries(slave: DeviceNetSlave) -> tuple[list[IoEntry], list[IoEntry], dic
     outputs: list[IoEntry] = []
     strobe_input = 0
     if poll_in:
-        mask = POLL_BIT | (COS_BIT | CYCLIC_BIT if cos_in == poll_in else 0) | (STROBE_BIT if strobe_in == poll_in else 0)
+        mask = (
+            POLL_BIT
+            | (COS_BIT | CYCLIC_BIT if cos_in == poll_in else 0)
+            | (STROBE_BIT if strobe_in == poll_in else 0)
+        )
         inputs.append(io_entry(ins, poll_in, mask, "Input data"))
         strobe_input = 1 if strobe_in == poll_in else 0
     if strobe_in and not strobe_input:
-        inputs.append(io_entry(ins, strobe_in, STROBE_BIT, "Strobe input data", f": the first {strobe_in} bytes"))
+        inputs.append(
+            io_entry(
+                ins, strobe_in, STROBE_BIT, "Strobe input data", f": the first {strobe_in} bytes"
+            )
+        )
         strobe_input = len(inputs)
     if poll_out:
         outputs.append(io_entry(outs, poll_out, POLL_BIT, "Output data"))
     first_in, first_out = (1 if inputs else 0), (1 if outputs else 0)
     cos_input = first_in if cos_in else 0
-    defaults = {"Poll": (first_in, first_out), "Strobe": (strobe_input, 0), "COS": (cos_input, 0), "Cyclic": (cos_input, 0)}
+    defaults = {
+        "Poll": (first_in, first_out),
+        "Strobe": (strobe_input, 0),
+        "COS": (cos_input, 0),
+        "Cyclic": (cos_input, 0),
+    }
     return inputs, outputs, defaults
 
 
 def parameters(slave: DeviceNetSlave) -> tuple[list[Param], list[tuple[str, list[int]]]]:
     """The attributes a configurator may set, with the values the slave starts with."""
     params = [
-        Param("Heartbeat interval", attribute_path(IDENTITY, 1, 10), USINT, 0, 255, number(attribute(slave, IDENTITY, 1, 10)),
-              "Identity heartbeat message interval; 0 = no heartbeat", units="s"),
-        Param("Bus-off interrupt", attribute_path(DEVICENET, 1, 3), BOOL, 0, 1, number(attribute(slave, DEVICENET, 1, 3)),
-              "What the node does on CAN bus-off", enum={0: "Hold in bus-off", 1: "Reset and continue"}),
+        Param(
+            "Heartbeat interval",
+            attribute_path(IDENTITY, 1, 10),
+            USINT,
+            0,
+            255,
+            number(attribute(slave, IDENTITY, 1, 10)),
+            "Identity heartbeat message interval; 0 = no heartbeat",
+            units="s",
+        ),
+        Param(
+            "Bus-off interrupt",
+            attribute_path(DEVICENET, 1, 3),
+            BOOL,
+            0,
+            1,
+            number(attribute(slave, DEVICENET, 1, 3)),
+            "What the node does on CAN bus-off",
+            enum={0: "Hold in bus-off", 1: "Reset and continue"},
+        ),
     ]
     groups = [("DeviceNet", [1, 2])]
     application = slave.objects[APPLICATION]
-    dcon = [(instance, module) for instance, module in enumerate(application.modules, start=1)
-            if slave.host_watchdogs.has(module.back, module.address)]
+    dcon = [
+        (instance, module)
+        for instance, module in enumerate(application.modules, start=1)
+        if slave.host_watchdogs.has(module.back, module.address)
+    ]
     if dcon:
         on_off = {0: "Off", 1: "On"}
-        params.append(Param("Host OK", attribute_path(APPLICATION, 0, HOST_OK), USINT, 0, 1,
-                            number(attribute(slave, APPLICATION, 0, HOST_OK)),
-                            "DCON backs may send the host-OK broadcast (~**); 0 lets watchdog-enabled modules time out",
-                            enum=on_off))
+        params.append(
+            Param(
+                "Host OK",
+                attribute_path(APPLICATION, 0, HOST_OK),
+                USINT,
+                0,
+                1,
+                number(attribute(slave, APPLICATION, 0, HOST_OK)),
+                "DCON backs may send the host-OK broadcast (~**); 0 lets watchdog-enabled modules time out",
+                enum=on_off,
+            )
+        )
         watchdog = [len(params)]
         for instance, module in dcon:
-            tenths = number(attribute(slave, APPLICATION, instance, WATCHDOG_TIME)) or WATCHDOG_DEFAULT_TENTHS
+            tenths = (
+                number(attribute(slave, APPLICATION, instance, WATCHDOG_TIME))
+                or WATCHDOG_DEFAULT_TENTHS
+            )
             label = f"Module {module.address} ({module.back})"
-            params.append(Param(f"{label} watchdog", attribute_path(APPLICATION, instance, WATCHDOG_ENABLE), USINT, 0, 1,
-                                number(attribute(slave, APPLICATION, instance, WATCHDOG_ENABLE)),
-                                f"DCON host watchdog of module {module.address}", enum=on_off))
-            params.append(Param(f"{label} watchdog time", attribute_path(APPLICATION, instance, WATCHDOG_TIME), USINT, 1, 255,
-                                tenths, f"DCON host watchdog time of module {module.address}", units="x0.1 s"))
+            params.append(
+                Param(
+                    f"{label} watchdog",
+                    attribute_path(APPLICATION, instance, WATCHDOG_ENABLE),
+                    USINT,
+                    0,
+                    1,
+                    number(attribute(slave, APPLICATION, instance, WATCHDOG_ENABLE)),
+                    f"DCON host watchdog of module {module.address}",
+                    enum=on_off,
+                )
+            )
+            params.append(
+                Param(
+                    f"{label} watchdog time",
+                    attribute_path(APPLICATION, instance, WATCHDOG_TIME),
+                    USINT,
+                    1,
+                    255,
+                    tenths,
+                    f"DCON host watchdog time of module {module.address}",
+                    units="x0.1 s",
+                )
+            )
             watchdog += [len(params) - 1, len(params)]
         groups.append(("DCON host watchdog", watchdog))
     return params, groups
 
 
 def describe(front: Any, slave: DeviceNetSlave) -> Description:
-    vendor, device_type, product_code = (number(attribute(slave, IDENTITY, 1, a)) for a in (1, 2, 3))
+    vendor, device_type, product_code = (
+        number(attribute(slave, IDENTITY, 1, a)) for a in (1, 2, 3)
+    )
     major, minor = attribute(slave, IDENTITY, 1, 4)
     name = attribute(slave, IDENTITY, 1, 7)
     params, groups = parameters(slave)
     inputs, outputs, defaults = io_entries(slave)
-    return Description(front.name, front.context.topology.gateway.name or "fieldgate", vendor, device_type, product_code, major, minor,
-                       name[1:1 + name[0]].decode("latin-1"), inputs, outputs, defaults, params, groups)
+    return Description(
+        front.name,
+        front.context.topology.gateway.name or "fieldgate",
+        vendor,
+        device_type,
+        product_code,
+        major,
+        minor,
+        name[1 : 1 + name[0]].decode("latin-1"),
+        inputs,
+        outputs,
+        defaults,
+        params,
+        groups,
+    )
 
 
 # -- the EDS text -----------------------------------------------------------------------------
@@ -223,7 +317,9 @@ def entry(key: str, fields: Sequence[tuple[str, str]]) -> list[str]:
     lines = [f"        {key} ="]
     for n, (value, comment) in enumerate(fields):
         text = value + (";" if n == len(fields) - 1 else ",")
-        lines.append(f"                {text:<23} $ {comment}" if comment else f"                {text}")
+        lines.append(
+            f"                {text:<23} $ {comment}" if comment else f"                {text}"
+        )
     return lines
 
 
@@ -233,41 +329,52 @@ def single(key: str, value: str, comment: str = "") -> str:
 
 
 def io_lines(key: str, io: IoEntry) -> list[str]:
-    return entry(key, [
-        (str(io.size), "size in bytes"),
-        ("0", "significant bits (0 = all)"),
-        (f"0x{io.mask:04X}", "I/O type mask"),
-        (quoted(io.name), "name"),
-        (str(len(io.path)), "path size"),
-        (hex_path(io.path), "path" if io.path else "path: none (several assemblies)"),
-        (quoted(io.help), "help"),
-    ])
+    return entry(
+        key,
+        [
+            (str(io.size), "size in bytes"),
+            ("0", "significant bits (0 = all)"),
+            (f"0x{io.mask:04X}", "I/O type mask"),
+            (quoted(io.name), "name"),
+            (str(len(io.path)), "path size"),
+            (hex_path(io.path), "path" if io.path else "path: none (several assemblies)"),
+            (quoted(io.help), "help"),
+        ],
+    )
 
 
 def param_lines(number_: int, p: Param) -> list[str]:
-    lines = entry(f"Param{number_}", [
-        ("0", "reserved, shall equal 0"),
-        (f"{len(p.path)},{hex_path(p.path)}", "link path size, link path"),
-        (f"0x{p.descriptor:04X}", "descriptor"),
-        (f"0x{p.data_type:02X}", "data type"),
-        ("1", "data size in bytes"),
-        (quoted(p.name), "name"),
-        (quoted(p.units), "units"),
-        (quoted(p.help), "help string"),
-        (f"{p.minimum},{p.maximum},{p.default}", "min, max, default"),
-        (",,,", "mult, div, base, offset scaling"),
-        (",,,", "mult, div, base, offset links"),
-        ("", "decimal places"),
-    ])
+    lines = entry(
+        f"Param{number_}",
+        [
+            ("0", "reserved, shall equal 0"),
+            (f"{len(p.path)},{hex_path(p.path)}", "link path size, link path"),
+            (f"0x{p.descriptor:04X}", "descriptor"),
+            (f"0x{p.data_type:02X}", "data type"),
+            ("1", "data size in bytes"),
+            (quoted(p.name), "name"),
+            (quoted(p.units), "units"),
+            (quoted(p.help), "help string"),
+            (f"{p.minimum},{p.maximum},{p.default}", "min, max, default"),
+            (",,,", "mult, div, base, offset scaling"),
+            (",,,", "mult, div, base, offset links"),
+            ("", "decimal places"),
+        ],
+    )
     if p.enum:
-        lines += entry(f"Enum{number_}", [(f"{value},{quoted(text)}", "") for value, text in p.enum.items()])
+        lines += entry(
+            f"Enum{number_}", [(f"{value},{quoted(text)}", "") for value, text in p.enum.items()]
+        )
     return lines
 
 
 def eds_text(d: Description, now: datetime | None = None, vendor_name: str | None = None) -> str:
-    now = now or datetime.now(timezone.utc)
+    now = now or datetime.now(UTC)
     vendor_name = vendor_name or VENDOR_NAMES.get(d.vendor_id, "fieldgate")
-    type_name = DEVICE_TYPES.get(d.device_type, "Vendor Specific" if 100 <= d.device_type <= 199 else f"Device type {d.device_type}")
+    type_name = DEVICE_TYPES.get(
+        d.device_type,
+        "Vendor Specific" if 100 <= d.device_type <= 199 else f"Device type {d.device_type}",
+    )
     lines = [
         f"$ DeviceNet EDS of fieldgate front {d.front!r} (gateway {d.gateway!r}), written by `fieldgate devicenet eds`.",
         "$ It describes this topology's I/O sizes: regenerate it when the modules change, and change",
@@ -296,34 +403,57 @@ def eds_text(d: Description, now: datetime | None = None, vendor_name: str | Non
         "        $ I/O type mask: 0x0001 poll, 0x0002 bit-strobe, 0x0004 change of state, 0x0008 cyclic",
         single("Default", f"0x{POLL_BIT:04X}", "poll"),
     ]
-    combine = {"Poll": POLL_BIT | STROBE_BIT | COS_BIT | CYCLIC_BIT, "Strobe": POLL_BIT | STROBE_BIT | COS_BIT | CYCLIC_BIT,
-               "COS": POLL_BIT | STROBE_BIT | COS_BIT, "Cyclic": POLL_BIT | STROBE_BIT | CYCLIC_BIT}
+    combine = {
+        "Poll": POLL_BIT | STROBE_BIT | COS_BIT | CYCLIC_BIT,
+        "Strobe": POLL_BIT | STROBE_BIT | COS_BIT | CYCLIC_BIT,
+        "COS": POLL_BIT | STROBE_BIT | COS_BIT,
+        "Cyclic": POLL_BIT | STROBE_BIT | CYCLIC_BIT,
+    }
     for kind, mask in combine.items():
         default_in, default_out = d.defaults[kind]
-        lines += entry(f"{kind}Info", [(f"0x{mask:04X}", "may be combined with"),
-                                       (str(default_in), "default input (0 = none)"),
-                                       (str(default_out), "default output (0 = none)")])
+        lines += entry(
+            f"{kind}Info",
+            [
+                (f"0x{mask:04X}", "may be combined with"),
+                (str(default_in), "default input (0 = none)"),
+                (str(default_out), "default output (0 = none)"),
+            ],
+        )
     for n, io in enumerate(d.inputs, start=1):
         lines += io_lines(f"Input{n}", io)
     for n, io in enumerate(d.outputs, start=1):
         lines += io_lines(f"Output{n}", io)
-    lines += ["", "[ParamClass]",
-              single("MaxInst", "0", "no Parameter object: configurators use the link paths"),
-              single("Descriptor", "0x0000"),
-              single("CfgAssembly", "0", "no configuration assembly"),
-              "", "[Params]"]
+    lines += [
+        "",
+        "[ParamClass]",
+        single("MaxInst", "0", "no Parameter object: configurators use the link paths"),
+        single("Descriptor", "0x0000"),
+        single("CfgAssembly", "0", "no configuration assembly"),
+        "",
+        "[Params]",
+    ]
     for n, p in enumerate(d.params, start=1):
         lines += param_lines(n, p)
     lines += ["", "[Groups]"]
     for n, (name, numbers) in enumerate(d.groups, start=1):
-        lines += entry(f"Group{n}", [(quoted(name), "name"), (str(len(numbers)), "number of parameters"),
-                                     (",".join(map(str, numbers)), "parameters")])
+        lines += entry(
+            f"Group{n}",
+            [
+                (quoted(name), "name"),
+                (str(len(numbers)), "number of parameters"),
+                (",".join(map(str, numbers)), "parameters"),
+            ],
+        )
     return "\n".join(lines) + "\n"
 
 
 # -- topology -> EDS ------------------------------------------------------------------------
-def front_slave(topology_source: str | Path | dict, front_name: str | None = None, registry: Registry | None = None,
-                overrides: dict | None = None) -> tuple[Any, DeviceNetSlave]:
+def front_slave(
+    topology_source: str | Path | dict,
+    front_name: str | None = None,
+    registry: Registry | None = None,
+    overrides: dict | None = None,
+) -> tuple[Any, DeviceNetSlave]:
     """The devicenet front and a slave built as the gateway builds it (no bus, no clock)."""
     registry = registry or load_registry()
     topology = load_topology(topology_source, registry, overrides)
@@ -333,8 +463,10 @@ def front_slave(topology_source: str | Path | dict, front_name: str | None = Non
             known = ", ".join(f"{f.name} ({f.type})" for f in topology.fronts) or "none"
             raise EdsError(f"no front named {front_name!r} (fronts: {known})")
         if named[0].type != "devicenet":
-            raise EdsError(f"front {front_name!r} is a {named[0].type} front, not devicenet"
-                           + (" (its EDS: fieldgate eds)" if named[0].type == "canopen" else ""))
+            raise EdsError(
+                f"front {front_name!r} is a {named[0].type} front, not devicenet"
+                + (" (its EDS: fieldgate eds)" if named[0].type == "canopen" else "")
+            )
         cfg = named[0]
     else:
         fronts = [f for f in topology.fronts if f.type == "devicenet"]
@@ -346,15 +478,22 @@ def front_slave(topology_source: str | Path | dict, front_name: str | None = Non
     return front, front.build()
 
 
-def write_eds(topology_source: str | Path | dict, front_name: str | None = None, dest: str | Path | None = None,
-              registry: Registry | None = None, now: datetime | None = None, vendor_name: str | None = None,
-              overrides: dict | None = None) -> str:
+def write_eds(
+    topology_source: str | Path | dict,
+    front_name: str | None = None,
+    dest: str | Path | None = None,
+    registry: Registry | None = None,
+    now: datetime | None = None,
+    vendor_name: str | None = None,
+    overrides: dict | None = None,
+) -> str:
     """The EDS text, also written to ``dest`` when given (OSError when it cannot be: the
     folder must exist, a directory is refused)."""
     front, slave = front_slave(topology_source, front_name, registry, overrides)
     text = eds_text(describe(front, slave), now, vendor_name)
     if dest is not None:
         from fieldgate.persist import write_atomic
+
         write_atomic(Path(dest), text.encode("latin-1", "replace"), make_parents=False)
     return text
 
@@ -366,7 +505,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("topology", help="topology YAML file")
     parser.add_argument("--front", help="devicenet front name (default: the first devicenet front)")
     parser.add_argument("-o", "--output", help="EDS file to write (default: standard output)")
-    parser.add_argument("--vendor-name", help="VendName (default: ICP DAS for vendor 803, else fieldgate)")
+    parser.add_argument(
+        "--vendor-name", help="VendName (default: ICP DAS for vendor 803, else fieldgate)"
+    )
     add_overrides_argument(parser, "fronts.dnet.identity.product_code=7")
 
 
@@ -381,7 +522,13 @@ def run(args: argparse.Namespace) -> int:
     from fieldgate.cli import parse_overrides
 
     try:
-        text = write_eds(args.topology, args.front, args.output, vendor_name=args.vendor_name, overrides=parse_overrides(args.set))
+        text = write_eds(
+            args.topology,
+            args.front,
+            args.output,
+            vendor_name=args.vendor_name,
+            overrides=parse_overrides(args.set),
+        )
     except TopologyError as exc:
         return to_stderr(*map(str, exc.issues))
     except EdsError as exc:
@@ -389,10 +536,14 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         return to_stderr(f"{args.output}: cannot write the EDS: {exc.strerror or exc}")
     if args.output is not None:
-        return to_stderr(f"{args.output}: EDS written for {args.front or 'the first devicenet front'}", code=0)
+        return to_stderr(
+            f"{args.output}: EDS written for {args.front or 'the first devicenet front'}", code=0
+        )
     sys.stdout.write(text)
     return 0
 
 
 def register_command(registry: Registry) -> None:
-    registry.add_command(("devicenet", "eds"), "write the DeviceNet EDS of a devicenet front", configure, run)
+    registry.add_command(
+        ("devicenet", "eds"), "write the DeviceNet EDS of a devicenet front", configure, run
+    )

@@ -26,7 +26,7 @@ from fieldgate.host_watchdog import HostWatchdogs
 from . import cip, ids
 from .allocation import BIT_ACK_SUPPRESS, BIT_COS, CONNECTION_BITS, UNALLOCATED, Allocation
 from .application import ApplicationObject, module_views
-from .assembly import Assembly, Assemblies
+from .assembly import Assemblies, Assembly
 from .cip import CipError
 from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, Connection, State, TimeoutAction
 from .fragment import ACK, ACK_OK, ACK_TOO_MUCH, EXPLICIT_CHUNK, Reassembler, io_frames, split
@@ -54,7 +54,9 @@ class Settings:
     minor_revision: int = 1
     serial: int = 1
     product_name: str = "fieldgate"
-    tolerate_trailing_bytes: bool = True  # the seed's Set requests carry a stray byte (extract §9.2)
+    tolerate_trailing_bytes: bool = (
+        True  # the seed's Set requests carry a stray byte (extract §9.2)
+    )
     dup_mac_interval_s: float = DUP_MAC_INTERVAL_S
 
 
@@ -91,11 +93,30 @@ class DeviceNetSlave:
         self.fault_reason = ""
         self.connections = {i: Connection(i) for i in (EXPLICIT, POLL, STROBE, COS_CYCLIC)}
         self.allocation = Allocation(self)
-        self.module_errors: Callable[[str, int], int] = lambda back, address: 0  # the front reads module health
-        self.host_watchdogs = HostWatchdogs()  # the front gives the gateway's (Application attributes 0x08-0x0B)
-        application = ApplicationObject(self, module_views(assemblies.channels), lambda back, address: self.module_errors(back, address))
-        self.objects = {o.class_id: o for o in (IdentityObject(self), DeviceNetObject(self), AssemblyObject(self), ConnectionObject(self), application)}
-        explicit_size = max(EXPLICIT_MIN_SIZE, max((a.size for a in assemblies.instances.values()), default=0) + 4)
+        self.module_errors: Callable[[str, int], int] = lambda back, address: (
+            0
+        )  # the front reads module health
+        self.host_watchdogs = (
+            HostWatchdogs()
+        )  # the front gives the gateway's (Application attributes 0x08-0x0B)
+        application = ApplicationObject(
+            self,
+            module_views(assemblies.channels),
+            lambda back, address: self.module_errors(back, address),
+        )
+        self.objects = {
+            o.class_id: o
+            for o in (
+                IdentityObject(self),
+                DeviceNetObject(self),
+                AssemblyObject(self),
+                ConnectionObject(self),
+                application,
+            )
+        }
+        explicit_size = max(
+            EXPLICIT_MIN_SIZE, max((a.size for a in assemblies.instances.values()), default=0) + 4
+        )
         self.explicit_in = Reassembler(explicit_size)
         self.explicit_size = explicit_size
         self.io_in = Reassembler(assemblies.consumed_size)
@@ -162,7 +183,9 @@ class DeviceNetSlave:
         try:
             self._dispatch(frame, now)
             if self.state == "online" and self._produce_at is not None and now >= self._produce_at:
-                self._produce(now)  # a connection just established produces at once, after its response
+                self._produce(
+                    now
+                )  # a connection just established produces at once, after its response
         except Exception:  # never let a frame stop the gateway; count it (and show the first)
             self.counters["rx_internal_errors"] += 1
             if self.counters["rx_internal_errors"] == 1:
@@ -207,7 +230,11 @@ class DeviceNetSlave:
 
     # -- duplicate MAC ID check ---------------------------------------------------------------
     def _dup_mac_payload(self, response: bool) -> bytes:
-        return bytes([0x80 if response else 0x00]) + u16(self.settings.vendor_id) + self.settings.serial.to_bytes(4, "little")
+        return (
+            bytes([0x80 if response else 0x00])
+            + u16(self.settings.vendor_id)
+            + self.settings.serial.to_bytes(4, "little")
+        )
 
     def _send_dup_mac(self, response: bool) -> None:
         self._send(ids.group2_id(self.mac_id, ids.G2_DUP_MAC), self._dup_mac_payload(response))
@@ -231,7 +258,9 @@ class DeviceNetSlave:
             return
         response = bool(data[0] & 0x80)
         if self.state == "dup-mac-check":
-            self._enter_fault(f"duplicate MAC ID {self.mac_id}: another node {'answered our check' if response else 'checks the same MAC'} (vendor {int.from_bytes(data[1:3], 'little')}, serial {int.from_bytes(data[3:7], 'little')})")
+            self._enter_fault(
+                f"duplicate MAC ID {self.mac_id}: another node {'answered our check' if response else 'checks the same MAC'} (vendor {int.from_bytes(data[1:3], 'little')}, serial {int.from_bytes(data[3:7], 'little')})"
+            )
         elif self.state == "online" and not response:
             self.counters["dup_mac_checks_answered"] += 1
             self._send_dup_mac(response=True)
@@ -240,9 +269,18 @@ class DeviceNetSlave:
 
     def _offline_request(self, data: bytes, now: float) -> None:
         """Offline Connection Set (seed-003 §2.7): identify faulted nodes, or give one a new MAC ID."""
-        if len(data) >= 2 and data[1] == cip.ALLOCATE and not data[0] & 0x40:  # identify, match bit clear
-            self._send(ids.group4_id(ids.G4_FAULTED_RESPONSE), self._dup_mac_payload(response=False))
-        elif len(data) == 8 and data[1] == cip.HEARTBEAT and data[2:] == self._dup_mac_payload(False)[1:] and data[0] <= 63:
+        if (
+            len(data) >= 2 and data[1] == cip.ALLOCATE and not data[0] & 0x40
+        ):  # identify, match bit clear
+            self._send(
+                ids.group4_id(ids.G4_FAULTED_RESPONSE), self._dup_mac_payload(response=False)
+            )
+        elif (
+            len(data) == 8
+            and data[1] == cip.HEARTBEAT
+            and data[2:] == self._dup_mac_payload(False)[1:]
+            and data[0] <= 63
+        ):
             self.counters["offline_mac_changes"] += 1
             self.mac_id, self.fault_reason = data[0], ""
             self.settings_changed()
@@ -304,7 +342,9 @@ class DeviceNetSlave:
                 raise CipError(cip.NOT_ENOUGH_DATA)
             if data[2] != DeviceNetObject.class_id or data[3] != 1:
                 raise CipError(cip.OBJECT_DOES_NOT_EXIST)
-            reply = bytes([header, service | cip.RESPONSE]) + self.allocation.handle(service, data[4:], now)
+            reply = bytes([header, service | cip.RESPONSE]) + self.allocation.handle(
+                service, data[4:], now
+            )
         except CipError as err:
             reply = self._error(header, err)
         self._send_explicit(reply)
@@ -425,7 +465,9 @@ class DeviceNetSlave:
 
     def _send_heartbeat(self) -> None:
         header = self.master_mac if self.master_mac != UNALLOCATED else self.mac_id
-        self._send_explicit(bytes([header, cip.HEARTBEAT | cip.RESPONSE, 0x01, 0x00, 0x03, 0x00, 0x00, 0x00]))
+        self._send_explicit(
+            bytes([header, cip.HEARTBEAT | cip.RESPONSE, 0x01, 0x00, 0x03, 0x00, 0x00, 0x00])
+        )
 
     def schedule_restart(self, class_id: int) -> None:
         self._restart = class_id
@@ -438,7 +480,12 @@ class DeviceNetSlave:
     def _restart_device(self, class_id: int, header: int, now: float) -> None:
         """Device Shutdown from the current MAC, connections gone, dup-MAC check at the new MAC/baud."""
         shutdown_header = self.master_mac if self.master_mac != UNALLOCATED else header
-        self._send_explicit(bytes([shutdown_header, cip.SHUTDOWN | cip.RESPONSE]) + u16(class_id) + u16(1) + u16(SHUTDOWN_CODE))
+        self._send_explicit(
+            bytes([shutdown_header, cip.SHUTDOWN | cip.RESPONSE])
+            + u16(class_id)
+            + u16(1)
+            + u16(SHUTDOWN_CODE)
+        )
         for instance in self.connections:
             self.close_connection(instance, "device reset")
         self.master_mac, self.allocation_choice = UNALLOCATED, 0
@@ -471,15 +518,24 @@ class DeviceNetSlave:
         c.open(now)
         produced, consumed = self.assemblies.produced_size, self.assemblies.consumed_size
         if instance == EXPLICIT:
-            c.produced_id, c.consumed_id = ids.group2_id(m, ids.G2_EXPLICIT_RESPONSE), ids.group2_id(m, ids.G2_EXPLICIT_REQUEST)
+            c.produced_id, c.consumed_id = (
+                ids.group2_id(m, ids.G2_EXPLICIT_RESPONSE),
+                ids.group2_id(m, ids.G2_EXPLICIT_REQUEST),
+            )
             c.produced_size = c.consumed_size = self.explicit_size
             c.transport, c.comm_characteristics = 0x83, 0x21
         elif instance == POLL:
-            c.produced_id, c.consumed_id = ids.group1_id(ids.G1_POLL_RESPONSE, m), ids.group2_id(m, ids.G2_POLL)
+            c.produced_id, c.consumed_id = (
+                ids.group1_id(ids.G1_POLL_RESPONSE, m),
+                ids.group2_id(m, ids.G2_POLL),
+            )
             c.produced_size, c.consumed_size = produced, consumed
             c.transport, c.comm_characteristics = 0x82, 0x01
         elif instance == STROBE:
-            c.produced_id, c.consumed_id = ids.group1_id(ids.G1_STROBE_RESPONSE, m), ids.group2_id(master, ids.G2_STROBE)
+            c.produced_id, c.consumed_id = (
+                ids.group1_id(ids.G1_STROBE_RESPONSE, m),
+                ids.group2_id(master, ids.G2_STROBE),
+            )
             c.produced_size, c.consumed_size = min(produced, 8), 8
             c.transport, c.comm_characteristics = 0x82, 0x02
         else:
@@ -487,7 +543,9 @@ class DeviceNetSlave:
             c.produced_id = ids.group1_id(ids.G1_COS_CYCLIC, m)
             c.consumed_id = ids.group2_id(m, ids.G2_COS_ACK) if c.acked else 0xFFFF
             c.produced_size, c.consumed_size = produced, 0
-            c.transport = (0x10 if self.allocation_choice & BIT_COS else 0x00) | (0x02 if c.acked else 0x00)
+            c.transport = (0x10 if self.allocation_choice & BIT_COS else 0x00) | (
+                0x02 if c.acked else 0x00
+            )
             c.comm_characteristics = 0x01 if c.acked else 0x0F
             c.inhibit_ms = 0
         self.io_in.reset()
@@ -496,7 +554,9 @@ class DeviceNetSlave:
         c = self.connections[instance]
         was_running = c.is_io and c.state is State.ESTABLISHED
         c.close()
-        if instance == EXPLICIT and self.outgoing is not None:  # a fragmented answer dies with its connection
+        if (
+            instance == EXPLICIT and self.outgoing is not None
+        ):  # a fragmented answer dies with its connection
             self.counters["tx_fragments_dropped"] += 1
             self.outgoing = None
         bits = dict(CONNECTION_BITS)[instance]
@@ -573,7 +633,9 @@ class DeviceNetSlave:
             self.counters["rx_strobe_wrong_size"] += 1
             return
         c.kick(now)
-        self._send(ids.group1_id(ids.G1_STROBE_RESPONSE, self.mac_id), self.assemblies.produced()[:8])
+        self._send(
+            ids.group1_id(ids.G1_STROBE_RESPONSE, self.mac_id), self.assemblies.produced()[:8]
+        )
 
     def _cos_ack(self, now: float) -> None:
         c = self.connections[COS_CYCLIC]
@@ -610,11 +672,19 @@ class DeviceNetSlave:
 
     def status(self) -> dict:
         return {
-            "state": self.state, "mac_id": self.mac_id, "bitrate": self.bitrate, "fault": self.fault_reason or None,
+            "state": self.state,
+            "mac_id": self.mac_id,
+            "bitrate": self.bitrate,
+            "fault": self.fault_reason or None,
             "master_mac": None if self.master_mac == UNALLOCATED else self.master_mac,
             "allocation_choice": self.allocation_choice,
-            "connections": {_NAMES[i]: {"state": c.state.name.lower(), "epr_ms": c.epr_ms} for i, c in self.connections.items() if c.exists},
-            "produced_size": self.assemblies.produced_size, "consumed_size": self.assemblies.consumed_size,
+            "connections": {
+                _NAMES[i]: {"state": c.state.name.lower(), "epr_ms": c.epr_ms}
+                for i, c in self.connections.items()
+                if c.exists
+            },
+            "produced_size": self.assemblies.produced_size,
+            "consumed_size": self.assemblies.consumed_size,
             **self.counters,
         }
 

@@ -16,7 +16,7 @@ ACK_TOO_MUCH = 0x01
 
 def split(payload: bytes, chunk: int) -> list[tuple[int, bytes]]:
     """``[(fragment byte, data), ...]`` for a payload that does not fit one frame."""
-    pieces = [payload[i:i + chunk] for i in range(0, len(payload), chunk)] or [b""]
+    pieces = [payload[i : i + chunk] for i in range(0, len(payload), chunk)] or [b""]
     out = []
     for count, piece in enumerate(pieces):
         kind = FIRST if count == 0 else LAST if count == len(pieces) - 1 else MIDDLE

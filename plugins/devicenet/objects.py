@@ -77,7 +77,10 @@ class CipObject:
         return [1]
 
     def class_attributes(self) -> dict[int, Attribute]:
-        return {1: Attribute(const(u16(self.revision))), 2: Attribute(lambda: u16(max(self.instances(), default=0)))}
+        return {
+            1: Attribute(const(u16(self.revision))),
+            2: Attribute(lambda: u16(max(self.instances(), default=0))),
+        }
 
     def instance_attributes(self, instance: int) -> dict[int, Attribute]:
         return {}
@@ -154,7 +157,12 @@ class DeviceNetObject(CipObject):
         slave = self.slave
         return {
             1: Attribute(lambda: u8(slave.mac_id), self._set_mac),
-            2: Attribute(lambda: u8(slave.baud_code if slave.pending_baud_code is None else slave.pending_baud_code), self._set_baud),
+            2: Attribute(
+                lambda: u8(
+                    slave.baud_code if slave.pending_baud_code is None else slave.pending_baud_code
+                ),
+                self._set_baud,
+            ),
             3: Attribute(lambda: u8(slave.bus_off_interrupt), self._set_boi),
             4: Attribute(lambda: u8(slave.bus_off_count), self._set_bus_off_count),
             5: Attribute(lambda: bytes([slave.allocation_choice, slave.master_mac])),
@@ -209,6 +217,7 @@ class AssemblyObject(CipObject):
                 raise CipError(cip.TOO_MUCH_DATA)
             self.slave.write_assembly(assembly, data)
             return b""
+
         return {3: Attribute(assembly.data, write if assembly.is_output else None)}
 
 

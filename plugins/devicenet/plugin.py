@@ -17,11 +17,11 @@ from typing import Any, Literal
 
 from pydantic import Field
 
+from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Change
 from fieldgate.plugin import Front, GatewayContext, hookimpl
-from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
@@ -31,25 +31,55 @@ from .store import NetworkStore
 
 
 class DeviceNetIdentity(StrictModel):
-    vendor_id: int = Field(0, ge=0, le=0xFFFF, description="Identity attr 1 (also in the duplicate MAC check); the I-7241D uses 803")
+    vendor_id: int = Field(
+        0,
+        ge=0,
+        le=0xFFFF,
+        description="Identity attr 1 (also in the duplicate MAC check); the I-7241D uses 803",
+    )
     device_type: int = Field(0, ge=0, le=0xFFFF, description="Identity attr 2 (0 = generic device)")
     product_code: int = Field(1, ge=0, le=0xFFFF, description="Identity attr 3")
     major_revision: int = Field(1, ge=1, le=127, description="Identity attr 4, major")
     minor_revision: int = Field(0, ge=0, le=255, description="Identity attr 4, minor")
-    serial: int = Field(1, ge=0, le=0xFFFFFFFF, description="Identity attr 6; make it unique per gateway on one network")
-    product_name: str = Field("fieldgate", min_length=1, max_length=32, description="Identity attr 7 (SHORT_STRING)")
+    serial: int = Field(
+        1,
+        ge=0,
+        le=0xFFFFFFFF,
+        description="Identity attr 6; make it unique per gateway on one network",
+    )
+    product_name: str = Field(
+        "fieldgate", min_length=1, max_length=32, description="Identity attr 7 (SHORT_STRING)"
+    )
 
 
 class DeviceNetFrontConfig(FrontConfig):
     type: Literal["devicenet"] = "devicenet"
-    interface: str = Field("socketcan", description="python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...")
+    interface: str = Field(
+        "socketcan",
+        description="python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...",
+    )
     channel: str | None = Field("can0", description="python-can channel")
-    baudrate: Literal[125_000, 250_000, 500_000] = Field(125_000, description="DeviceNet bit rate in bit/s")
+    baudrate: Literal[125_000, 250_000, 500_000] = Field(
+        125_000, description="DeviceNet bit rate in bit/s"
+    )
     mac_id: int = Field(63, ge=0, le=63, description="MAC ID 0..63")
-    bus_options: dict[str, Any] = Field(default_factory=dict, description="extra keyword arguments for can.Bus")
-    dup_mac_timeout_ms: int = Field(1000, ge=10, le=5000, description="wait after each duplicate MAC ID request (DeviceNet: 1 s)")
-    store_file: str | None = Field(None, description="file keeping a MAC ID / baud rate set over the network (relative to the state dir); default <front name>.devicenet.json")
-    strict_lengths: bool = Field(False, description="refuse Set requests with trailing bytes (0x15); default tolerates them as the I-7241D does")
+    bus_options: dict[str, Any] = Field(
+        default_factory=dict, description="extra keyword arguments for can.Bus"
+    )
+    dup_mac_timeout_ms: int = Field(
+        1000,
+        ge=10,
+        le=5000,
+        description="wait after each duplicate MAC ID request (DeviceNet: 1 s)",
+    )
+    store_file: str | None = Field(
+        None,
+        description="file keeping a MAC ID / baud rate set over the network (relative to the state dir); default <front name>.devicenet.json",
+    )
+    strict_lengths: bool = Field(
+        False,
+        description="refuse Set requests with trailing bytes (0x15); default tolerates them as the I-7241D does",
+    )
     identity: DeviceNetIdentity = Field(default_factory=DeviceNetIdentity)
 
 
@@ -67,15 +97,25 @@ class DeviceNetFront(Front):
     def build(self) -> DeviceNetSlave:
         cfg, ident = self.config, self.config.identity
         path = Path(cfg.store_file or f"{self.name}.devicenet.json")
-        store = NetworkStore(path if path.is_absolute() else self.context.state_dir / path, (cfg.mac_id, BAUD_RATES.index(cfg.baudrate)))
+        store = NetworkStore(
+            path if path.is_absolute() else self.context.state_dir / path,
+            (cfg.mac_id, BAUD_RATES.index(cfg.baudrate)),
+        )
         mac_id, baud_code = store.load() or (cfg.mac_id, BAUD_RATES.index(cfg.baudrate))
         channels = self.context.front_channels(cfg)
         assemblies = Assemblies(self.context.image, channels, origin=f"{self.name}:devicenet")
         settings = Settings(
-            mac_id=mac_id, baud_code=baud_code, vendor_id=ident.vendor_id,
-            device_type=ident.device_type, product_code=ident.product_code, major_revision=ident.major_revision,
-            minor_revision=ident.minor_revision, serial=ident.serial, product_name=ident.product_name,
-            tolerate_trailing_bytes=not cfg.strict_lengths, dup_mac_interval_s=cfg.dup_mac_timeout_ms / 1000.0,
+            mac_id=mac_id,
+            baud_code=baud_code,
+            vendor_id=ident.vendor_id,
+            device_type=ident.device_type,
+            product_code=ident.product_code,
+            major_revision=ident.major_revision,
+            minor_revision=ident.minor_revision,
+            serial=ident.serial,
+            product_name=ident.product_name,
+            tolerate_trailing_bytes=not cfg.strict_lengths,
+            dup_mac_interval_s=cfg.dup_mac_timeout_ms / 1000.0,
         )
         slave = DeviceNetSlave(settings, assemblies)
         self.outputs = assemblies.output_ids()
@@ -92,15 +132,29 @@ class DeviceNetFront(Front):
         loop = asyncio.get_running_loop()
         self.slave = slave = self.build()
         bus = open_bus(cfg.interface, cfg.channel, slave.bitrate, cfg.bus_options)
-        self.adapter = CanAdapter(slave, bus, loop, on_bus_state=self._bus_state,
-                                  reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options))
+        self.adapter = CanAdapter(
+            slave,
+            bus,
+            loop,
+            on_bus_state=self._bus_state,
+            reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
+        )
         self.adapter.start()
-        self._subscription = self.context.image.subscribe(self._input_changed, ids=slave.assemblies.input_ids())
+        self._subscription = self.context.image.subscribe(
+            self._input_changed, ids=slave.assemblies.input_ids()
+        )
         if not self._health_subscribed:
             self._health_subscribed = True
             self.context.health.subscribe(self._module_health)
-        self.log.info("DeviceNet MAC %d on %s/%s at %d bit/s: %d bytes produced, %d consumed", slave.mac_id, cfg.interface, cfg.channel,
-                      slave.bitrate, slave.assemblies.produced_size, slave.assemblies.consumed_size)
+        self.log.info(
+            "DeviceNet MAC %d on %s/%s at %d bit/s: %d bytes produced, %d consumed",
+            slave.mac_id,
+            cfg.interface,
+            cfg.channel,
+            slave.bitrate,
+            slave.assemblies.produced_size,
+            slave.assemblies.consumed_size,
+        )
 
     async def run(self) -> None:
         """Everything is callback-driven; raises only when receiving from the bus has died."""
@@ -147,12 +201,22 @@ class DeviceNetFront(Front):
     def status(self) -> dict:
         if self.slave is None:
             return {}
-        return {**self.slave.status(), "bus": self.adapter.status() if self.adapter else None,
-                "interface": self.config.interface, "channel": self.config.channel}
+        return {
+            **self.slave.status(),
+            "bus": self.adapter.status() if self.adapter else None,
+            "interface": self.config.interface,
+            "channel": self.config.channel,
+        }
 
 
 @hookimpl
 def fieldgate_register(registry) -> None:
-    registry.add_front("devicenet", DeviceNetFrontConfig, DeviceNetFront, "DeviceNet Group 2 Only slave on any python-can bus")
+    registry.add_front(
+        "devicenet",
+        DeviceNetFrontConfig,
+        DeviceNetFront,
+        "DeviceNet Group 2 Only slave on any python-can bus",
+    )
     from .eds import register_command
+
     register_command(registry)

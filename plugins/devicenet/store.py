@@ -30,7 +30,9 @@ class NetworkStore:
         if not isinstance(data, dict) or data.get("configured") != self.configured:
             return None
         mac, baud = data.get("mac_id"), data.get("baud_code")
-        if not (isinstance(mac, int) and 0 <= mac <= 63 and isinstance(baud, int) and 0 <= baud <= 2):
+        if not (
+            isinstance(mac, int) and 0 <= mac <= 63 and isinstance(baud, int) and 0 <= baud <= 2
+        ):
             log.warning("ignoring the DeviceNet store %s: values out of range", self.path)
             return None
         return mac, baud
@@ -38,6 +40,8 @@ class NetworkStore:
     def save(self, mac_id: int, baud_code: int) -> None:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            write_json_atomic(self.path, {"configured": self.configured, "mac_id": mac_id, "baud_code": baud_code})
+            write_json_atomic(
+                self.path, {"configured": self.configured, "mac_id": mac_id, "baud_code": baud_code}
+            )
         except OSError as exc:
             log.error("cannot store the DeviceNet MAC ID / baud rate in %s: %s", self.path, exc)

@@ -16,7 +16,14 @@ from .back import ModbusBack
 from .config import ChannelGroup, ModbusBackConfig, ModbusModuleConfig
 from .simulator import Fault, ModbusSimulator
 
-__all__ = ["ChannelGroup", "Fault", "ModbusBack", "ModbusBackConfig", "ModbusModuleConfig", "ModbusSimulator"]
+__all__ = [
+    "ChannelGroup",
+    "Fault",
+    "ModbusBack",
+    "ModbusBackConfig",
+    "ModbusModuleConfig",
+    "ModbusSimulator",
+]
 
 
 def _simulator(config: ModbusBackConfig, port: str, animate: bool = False) -> ModbusSimulator:
@@ -25,6 +32,16 @@ def _simulator(config: ModbusBackConfig, port: str, animate: bool = False) -> Mo
 
 @hookimpl
 def fieldgate_register(registry) -> None:
-    registry.add_back("modbus", ModbusBackConfig, ModbusBack, "Modbus RTU master (RS-485 I/O modules such as ICP DAS M-7000)")
+    registry.add_back(
+        "modbus",
+        ModbusBackConfig,
+        ModbusBack,
+        "Modbus RTU master (RS-485 I/O modules such as ICP DAS M-7000)",
+    )
     registry.add_simulator("modbus", _simulator)
-    registry.add_command(("simulate", "modbus"), "simulated Modbus RTU modules on a serial port or pty", cli.configure, cli.run)
+    registry.add_command(
+        ("simulate", "modbus"),
+        "simulated Modbus RTU modules on a serial port or pty",
+        cli.configure,
+        cli.run,
+    )

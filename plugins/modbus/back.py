@@ -27,7 +27,16 @@ log = logging.getLogger("fieldgate.modbus")
 class ModbusModule(PolledModule):
     """One Modbus slave: its read plan, its outputs, and the points it refused."""
 
-    def __init__(self, config: ModbusModuleConfig, specs: list[ChannelSpec], link: ModbusLink, points: list[Point], *, retry_period: float = 5.0, clock: Callable[[], float]):
+    def __init__(
+        self,
+        config: ModbusModuleConfig,
+        specs: list[ChannelSpec],
+        link: ModbusLink,
+        points: list[Point],
+        *,
+        retry_period: float = 5.0,
+        clock: Callable[[], float],
+    ):
         super().__init__(config, specs)
         self.link = link
         self.unit = config.address
@@ -82,7 +91,11 @@ class ModbusModule(PolledModule):
     async def probe(self) -> None:
         """One read, due or not (an offline module must prove it answers); an exception is an answer."""
         points = {p.channel: p for p in self._readable}
-        block = self.blocks[0] if self.blocks else next((ReadBlock(p.table, p.address, p.width, [p]) for p in points.values()), None)
+        block = (
+            self.blocks[0]
+            if self.blocks
+            else next((ReadBlock(p.table, p.address, p.width, [p]) for p in points.values()), None)
+        )
         if block is None:
             return
         try:
@@ -98,9 +111,19 @@ class ModbusModule(PolledModule):
 
     async def _fallback(self, block: ReadBlock, exc: ModbusExceptionError) -> dict[str, object]:
         """A coalesced read was refused: read its points one by one, drop the ones refused."""
-        self._log_once(("block", block.describe()), "module %d: %s answered exception %d; reading its points one by one", self.unit, block.describe(), exc.code)
+        self._log_once(
+            ("block", block.describe()),
+            "module %d: %s answered exception %d; reading its points one by one",
+            self.unit,
+            block.describe(),
+            exc.code,
+        )
         readings: dict[str, object] = {}
-        singles = [ReadBlock(block.table, p.address, p.width, [p]) for p in block.points] if len(block.points) > 1 else []
+        singles = (
+            [ReadBlock(block.table, p.address, p.width, [p]) for p in block.points]
+            if len(block.points) > 1
+            else []
+        )
         for single in singles:
             try:
                 readings.update(decode_block(single, await self._read(single)))
@@ -114,7 +137,15 @@ class ModbusModule(PolledModule):
 
     def _refused(self, p: Point, exc: ModbusExceptionError) -> dict[str, object]:
         self.bad[p.channel] = self.clock() + self.retry_period
-        self._log_once(("point", p.channel), "module %d: %s (%s %d) refused with exception %d; quality config-error", self.unit, p.channel, p.table.value, p.address, exc.code)
+        self._log_once(
+            ("point", p.channel),
+            "module %d: %s (%s %d) refused with exception %d; quality config-error",
+            self.unit,
+            p.channel,
+            p.table.value,
+            p.address,
+            exc.code,
+        )
         return {p.channel: (self.last.get(p.channel, _zero(p)), Quality.CONFIG_ERROR)}
 
     async def _retry_bad(self, now: float) -> dict[str, object]:
@@ -141,10 +172,16 @@ class ModbusModule(PolledModule):
 
     # -- writes -----------------------------------------------------------------------
     async def write_outputs(self, values: dict[str, object]) -> None:
-        changes = [(self.outputs_by_id[cid], v) for cid, v in values.items() if cid in self.outputs_by_id]
-        for op in plan_writes([(p, v) for p, v in changes if p.bit is None], self.allow_multiple_writes):
+        changes = [
+            (self.outputs_by_id[cid], v) for cid, v in values.items() if cid in self.outputs_by_id
+        ]
+        for op in plan_writes(
+            [(p, v) for p, v in changes if p.bit is None], self.allow_multiple_writes
+        ):
             await self._write(op.function, op.address, op.values, op.points)
-        in_registers = sorted(((p, v) for p, v in changes if p.bit is not None), key=lambda pv: pv[0].address)
+        in_registers = sorted(
+            ((p, v) for p, v in changes if p.bit is not None), key=lambda pv: pv[0].address
+        )
         for address, items in groupby(in_registers, key=lambda pv: pv[0].address):
             await self._write_bits_of_register(address, list(items))
 
@@ -152,23 +189,54 @@ class ModbusModule(PolledModule):
         try:
             await self.link.write(self.unit, function, address, words)
         except ModbusExceptionError as exc:
-            multiple = function in (Function.WRITE_MULTIPLE_COILS, Function.WRITE_MULTIPLE_REGISTERS)
-            if multiple and exc.code == ExceptionCode.ILLEGAL_FUNCTION and self.allow_multiple_writes:
+            multiple = function in (
+                Function.WRITE_MULTIPLE_COILS,
+                Function.WRITE_MULTIPLE_REGISTERS,
+            )
+            if (
+                multiple
+                and exc.code == ExceptionCode.ILLEGAL_FUNCTION
+                and self.allow_multiple_writes
+            ):
                 self.allow_multiple_writes = False
-                log.warning("module %d refuses FC%d; writing with single-write functions from now on", self.unit, function)
-                single = Function.WRITE_SINGLE_COIL if function == Function.WRITE_MULTIPLE_COILS else Function.WRITE_SINGLE_REGISTER
+                log.warning(
+                    "module %d refuses FC%d; writing with single-write functions from now on",
+                    self.unit,
+                    function,
+                )
+                single = (
+                    Function.WRITE_SINGLE_COIL
+                    if function == Function.WRITE_MULTIPLE_COILS
+                    else Function.WRITE_SINGLE_REGISTER
+                )
                 for i, word in enumerate(words):
                     await self._write(single, address + i, [word], points)
                 return
             # The module will not take this value: keep the line going, count it, say it once.
-            self._log_once(("write", function, address), "module %d refused FC%d at %d with exception %d (%s)", self.unit, function, address, exc.code, ", ".join(p.channel for p in points))
+            self._log_once(
+                ("write", function, address),
+                "module %d refused FC%d at %d with exception %d (%s)",
+                self.unit,
+                function,
+                address,
+                exc.code,
+                ", ".join(p.channel for p in points),
+            )
 
-    async def _write_bits_of_register(self, address: int, items: list[tuple[Point, object]]) -> None:
+    async def _write_bits_of_register(
+        self, address: int, items: list[tuple[Point, object]]
+    ) -> None:
         """Digital outputs inside a holding register: read, change the bits, write back."""
-        (current,) = await self.link.read_registers(self.unit, Function.READ_HOLDING_REGISTERS, address, 1)
+        (current,) = await self.link.read_registers(
+            self.unit, Function.READ_HOLDING_REGISTERS, address, 1
+        )
         for p, value in items:
             current = regvalues.set_bit(current, p.bit, bool(value))
-        forced = Function.WRITE_MULTIPLE_REGISTERS if any(p.write_fc == 16 for p, _ in items) else Function.WRITE_SINGLE_REGISTER
+        forced = (
+            Function.WRITE_MULTIPLE_REGISTERS
+            if any(p.write_fc == 16 for p, _ in items)
+            else Function.WRITE_SINGLE_REGISTER
+        )
         await self._write(forced, address, [current], [p for p, _ in items])
 
     def _log_once(self, key: tuple, message: str, *args) -> None:
@@ -198,7 +266,14 @@ class ModbusBack(SerialBack):
 
     def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> ModbusModule:
         points = module_points(self.name, config)
-        module = ModbusModule(config, specs, self.link, points, retry_period=self.config.offline_probe_ms / 1000, clock=self.context.clock)
+        module = ModbusModule(
+            config,
+            specs,
+            self.link,
+            points,
+            retry_period=self.config.offline_probe_ms / 1000,
+            clock=self.context.clock,
+        )
         self.modules[config.address] = module
         return module
 
@@ -216,6 +291,8 @@ class ModbusBack(SerialBack):
             status["modbus"] = {
                 **self.link.stats.as_dict(),
                 "refused_points": sorted(cid for m in self.modules.values() for cid in m.bad),
-                "single_writes_only": sorted(a for a, m in self.modules.items() if not m.allow_multiple_writes),
+                "single_writes_only": sorted(
+                    a for a, m in self.modules.items() if not m.allow_multiple_writes
+                ),
             }
         return status

@@ -31,17 +31,49 @@ from .simulator import FAULT_KINDS, Fault, ModbusSimulator
 def configure(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--port", help="serial port (or pyserial URL) to serve the modules on")
-    where.add_argument("--pty", action="store_true", help="create a pseudo-terminal pair and print the gateway's end")
+    where.add_argument(
+        "--pty",
+        action="store_true",
+        help="create a pseudo-terminal pair and print the gateway's end",
+    )
     parser.add_argument("--topology", help="take the modules from this topology file (with --back)")
-    parser.add_argument("--back", help="name of the modbus back in --topology (default: the first modbus back)")
-    parser.add_argument("--module", action="append", default=[], metavar="ADDR:MODEL", help="a module by preset, e.g. 3:M-7055D (repeatable)")
-    parser.add_argument("--name", default="rs485", help="back name used in channel ids with --module (default rs485)")
+    parser.add_argument(
+        "--back", help="name of the modbus back in --topology (default: the first modbus back)"
+    )
+    parser.add_argument(
+        "--module",
+        action="append",
+        default=[],
+        metavar="ADDR:MODEL",
+        help="a module by preset, e.g. 3:M-7055D (repeatable)",
+    )
+    parser.add_argument(
+        "--name",
+        default="rs485",
+        help="back name used in channel ids with --module (default rs485)",
+    )
     parser.add_argument("--baudrate", type=int, help="baud rate (default: the topology's, or 9600)")
     # --baud, the name simulate dcon used to take: accepted everywhere, not in the help
-    parser.add_argument("--baud", type=int, dest="baudrate", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
-    parser.add_argument("--animate", action="store_true", help="move unwired inputs and wire DO->DI, AO->AI like the I-7232D demo")
-    parser.add_argument("--set", action="append", default=[], metavar="CHANNEL=VALUE", help="initial input value (repeatable)")
-    parser.add_argument("--duration", type=float, help="stop after this many seconds (default: until quit or Ctrl-C)")
+    parser.add_argument(
+        "--baud", type=int, dest="baudrate", default=argparse.SUPPRESS, help=argparse.SUPPRESS
+    )
+    parser.add_argument(
+        "--animate",
+        action="store_true",
+        help="move unwired inputs and wire DO->DI, AO->AI like the I-7232D demo",
+    )
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="CHANNEL=VALUE",
+        help="initial input value (repeatable)",
+    )
+    parser.add_argument(
+        "--duration",
+        type=float,
+        help="stop after this many seconds (default: until quit or Ctrl-C)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,9 +98,15 @@ def build_config(args: argparse.Namespace) -> ModbusBackConfig:
             topology = load_topology(args.topology, load_registry())
         except TopologyError as exc:
             raise ValueError("; ".join(str(i) for i in exc.issues)) from None
-        backs = [b for b in topology.backs if b.type == "modbus" and (args.back is None or b.name == args.back)]
+        backs = [
+            b
+            for b in topology.backs
+            if b.type == "modbus" and (args.back is None or b.name == args.back)
+        ]
         if not backs:
-            raise ValueError(f"{args.topology} has no modbus back{' named ' + args.back if args.back else ''}")
+            raise ValueError(
+                f"{args.topology} has no modbus back{' named ' + args.back if args.back else ''}"
+            )
         data = backs[0].model_dump(exclude_unset=True) | {"port": port}
     elif args.module:
         modules = []
@@ -85,7 +123,9 @@ def build_config(args: argparse.Namespace) -> ModbusBackConfig:
     try:
         return ModbusBackConfig.model_validate(data)
     except ValidationError as exc:
-        raise ValueError("; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())) from None
+        raise ValueError(
+            "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        ) from None
 
 
 async def _serve(config: ModbusBackConfig, args: argparse.Namespace) -> int:
@@ -93,7 +133,9 @@ async def _serve(config: ModbusBackConfig, args: argparse.Namespace) -> int:
         return await _serve_until(stop, config, args)
 
 
-async def _serve_until(stop: asyncio.Event, config: ModbusBackConfig, args: argparse.Namespace) -> int:
+async def _serve_until(
+    stop: asyncio.Event, config: ModbusBackConfig, args: argparse.Namespace
+) -> int:
     pair = None
     port = args.port
     if args.pty:
@@ -112,8 +154,14 @@ async def _serve_until(stop: asyncio.Event, config: ModbusBackConfig, args: argp
         if pair:
             pair.close()
         return 2
-    addresses = ", ".join(f"{m.address}{' (' + m.model + ')' if m.model else ''}" for m in config.modules)
-    print(f"simulating modules {addresses} on {port}" + (f"; point the gateway at {pair.a}" if pair else ""), flush=True)
+    addresses = ", ".join(
+        f"{m.address}{' (' + m.model + ')' if m.model else ''}" for m in config.modules
+    )
+    print(
+        f"simulating modules {addresses} on {port}"
+        + (f"; point the gateway at {pair.a}" if pair else ""),
+        flush=True,
+    )
     try:
         await _command_loop(sim, stop, args.duration)
     finally:
@@ -148,6 +196,7 @@ async def _command_loop(sim: ModbusSimulator, stop: asyncio.Event, duration: flo
 def _read_stdin(loop: asyncio.AbstractEventLoop, lines: asyncio.Queue[str]) -> None:
     """Feed stdin's lines to ``lines`` from a daemon thread: a read blocked on a terminal
     must not keep the process alive once it is stopped (asyncio.to_thread's worker would)."""
+
     def read() -> None:
         for line in sys.stdin or ():
             try:
@@ -178,10 +227,18 @@ def execute(sim: ModbusSimulator, line: str) -> str:
             options = {k: v for k, _, v in (w.partition("=") for w in rest[2:] if "=" in w)}
             counts = [int(w) for w in rest[2:] if w.isdigit()]
             address = int(options["address"]) if "address" in options else None
-            fault = Fault(rest[1], count=counts[0] if counts else None, code=int(options.get("code", 4)), delay=float(options.get("delay", 0.5)), address=address)
+            fault = Fault(
+                rest[1],
+                count=counts[0] if counts else None,
+                code=int(options.get("code", 4)),
+                delay=float(options.get("delay", 0.5)),
+                address=address,
+            )
             sim.inject(int(rest[0]), fault)
             where = "" if address is None else f" on requests touching address {address}"
-            return f"module {rest[0]}: {fault.kind}{where}" + (f" for {fault.count} replies" if fault.count else " until cleared")
+            return f"module {rest[0]}: {fault.kind}{where}" + (
+                f" for {fault.count} replies" if fault.count else " until cleared"
+            )
         if cmd == "clear":
             sim.clear_faults(int(rest[0]) if rest else None)
             return "faults cleared"

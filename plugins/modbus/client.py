@@ -38,7 +38,9 @@ from fieldgate.serial_link import char_time
 from .codec import Function, diagnose
 
 log = logging.getLogger("fieldgate.modbus")
-logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # we log failures ourselves, once per burst
+logging.getLogger("pymodbus").setLevel(
+    logging.CRITICAL
+)  # we log failures ourselves, once per burst
 
 
 class ModbusExceptionError(CommError):
@@ -74,12 +76,27 @@ class ModbusStats:
 class ModbusLink:
     """One RS-485 line spoken to through pymodbus. One transaction at a time (the scheduler's rule)."""
 
-    def __init__(self, port: str, *, baudrate: int = 9600, bytesize: int = 8, parity: str = "N", stopbits: int = 1, timeout: float = 0.2, inter_frame: float | None = None):
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = 9600,
+        bytesize: int = 8,
+        parity: str = "N",
+        stopbits: int = 1,
+        timeout: float = 0.2,
+        inter_frame: float | None = None,
+    ):
         self.port = port
         self.timeout = timeout
         self.gap = inter_frame_gap(baudrate) if inter_frame is None else inter_frame
         self.stats = ModbusStats()
-        self._settings = {"baudrate": baudrate, "bytesize": bytesize, "parity": parity, "stopbits": stopbits}
+        self._settings = {
+            "baudrate": baudrate,
+            "bytesize": bytesize,
+            "parity": parity,
+            "stopbits": stopbits,
+        }
         self._client: AsyncModbusSerialClient | None = None
         self._rx = bytearray()
         self._rx_last = b""
@@ -88,12 +105,26 @@ class ModbusLink:
     @classmethod
     def from_config(cls, config) -> ModbusLink:
         gap = None if config.inter_frame_ms is None else config.inter_frame_ms / 1000
-        return cls(config.port, baudrate=config.baudrate, bytesize=config.bytesize, parity=config.parity, stopbits=config.stopbits, timeout=config.timeout_ms / 1000, inter_frame=gap)
+        return cls(
+            config.port,
+            baudrate=config.baudrate,
+            bytesize=config.bytesize,
+            parity=config.parity,
+            stopbits=config.stopbits,
+            timeout=config.timeout_ms / 1000,
+            inter_frame=gap,
+        )
 
     async def open(self) -> None:
         _check_port(self.port, self._settings)
         self._client = AsyncModbusSerialClient(
-            self.port, framer=FramerType.RTU, timeout=self.timeout, retries=0, reconnect_delay=0, trace_packet=self._trace, **self._settings
+            self.port,
+            framer=FramerType.RTU,
+            timeout=self.timeout,
+            retries=0,
+            reconnect_delay=0,
+            trace_packet=self._trace,
+            **self._settings,
         )
         if not await self._client.connect():
             raise PluginStartError(f"cannot open serial port {self.port}")
@@ -106,23 +137,39 @@ class ModbusLink:
     def _trace(self, sending: bool, data: bytes) -> bytes:
         if not sending:
             # pymodbus passes its whole receive buffer each time; keep only what is new
-            new = data[len(self._rx_last) :] if self._rx_last and data.startswith(self._rx_last) else data
+            new = (
+                data[len(self._rx_last) :]
+                if self._rx_last and data.startswith(self._rx_last)
+                else data
+            )
             self._rx += new
             self._rx_last = data
         return data
 
     # -- transactions -----------------------------------------------------------
     async def read_bits(self, unit: int, function: int, address: int, count: int) -> list[bool]:
-        call = self._client.read_coils if function == Function.READ_COILS else self._client.read_discrete_inputs
-        reply = await self._transact(unit, function, lambda: call(address, count=count, device_id=unit))
+        call = (
+            self._client.read_coils
+            if function == Function.READ_COILS
+            else self._client.read_discrete_inputs
+        )
+        reply = await self._transact(
+            unit, function, lambda: call(address, count=count, device_id=unit)
+        )
         bits = list(getattr(reply, "bits", []))
         if len(bits) < count:
             raise self._bad(function, f"reply carries {len(bits)} bits, {count} asked")
         return bits[:count]
 
     async def read_registers(self, unit: int, function: int, address: int, count: int) -> list[int]:
-        call = self._client.read_holding_registers if function == Function.READ_HOLDING_REGISTERS else self._client.read_input_registers
-        reply = await self._transact(unit, function, lambda: call(address, count=count, device_id=unit))
+        call = (
+            self._client.read_holding_registers
+            if function == Function.READ_HOLDING_REGISTERS
+            else self._client.read_input_registers
+        )
+        reply = await self._transact(
+            unit, function, lambda: call(address, count=count, device_id=unit)
+        )
         registers = list(getattr(reply, "registers", []))
         if len(registers) != count:
             raise self._bad(function, f"reply carries {len(registers)} registers, {count} asked")
@@ -197,7 +244,13 @@ def _check_port(port: str, settings: dict) -> None:
         serial.serial_for_url(port, **settings, timeout=0).close()
     except serial.SerialException as exc:
         text = str(exc)
-        cause = "no such device" if "No such file" in text or exc.errno == 2 else "permission denied" if exc.errno == 13 else text
+        cause = (
+            "no such device"
+            if "No such file" in text or exc.errno == 2
+            else "permission denied"
+            if exc.errno == 13
+            else text
+        )
         raise PluginStartError(f"cannot open serial port {port}: {cause}") from None
     except ValueError as exc:
         raise PluginStartError(f"invalid serial settings for {port}: {exc}") from None

@@ -149,7 +149,13 @@ def parse_request(adu: bytes) -> Request:
     if fc == 16:
         if word * 2 != len(data):
             raise ValueError("byte count does not match the register count")
-        return Request(unit, fc, address, word, tuple(int.from_bytes(data[i : i + 2], "big") for i in range(0, len(data), 2)))
+        return Request(
+            unit,
+            fc,
+            address,
+            word,
+            tuple(int.from_bytes(data[i : i + 2], "big") for i in range(0, len(data), 2)),
+        )
     raise ValueError(f"unknown function code {fc}")
 
 

@@ -35,13 +35,22 @@ class Table(StrEnum):
 
     @property
     def read_function(self) -> int:
-        return {Table.COILS: 1, Table.DISCRETE_INPUTS: 2, Table.HOLDING_REGISTERS: 3, Table.INPUT_REGISTERS: 4}[self]
+        return {
+            Table.COILS: 1,
+            Table.DISCRETE_INPUTS: 2,
+            Table.HOLDING_REGISTERS: 3,
+            Table.INPUT_REGISTERS: 4,
+        }[self]
 
 
 def _invalid(message: str, loc: tuple = ()) -> PydanticCustomError:
     """A validation error whose message is ours alone (no "Value error," prefix); ``loc``
     names the field below the validated object it is about (core reports it there)."""
-    return PydanticCustomError("modbus_config", message.replace("{", "{{").replace("}", "}}"), {"loc": loc} if loc else None)
+    return PydanticCustomError(
+        "modbus_config",
+        message.replace("{", "{{").replace("}", "}}"),
+        {"loc": loc} if loc else None,
+    )
 
 
 # Which tables each channel kind may live in.
@@ -62,26 +71,49 @@ class ChannelGroup(StrictModel):
     table: Table
     address: int = Field(ge=0, le=0xFFFF, description="first PDU address (0-based, as on the wire)")
     count: int = Field(1, ge=1, le=2000, description="number of channels")
-    type: RegisterType | None = Field(None, description="analog channels: register data type (default int16)")
-    word_order: Literal["big", "little"] = Field("big", description="32-bit types: big = high word first, little = low word first")
-    first_bit: int = Field(0, ge=0, le=15, description="digital channels in registers: bit of the first channel; the next ones follow, LSB first, across registers")
-    write_fc: Literal[5, 6, 15, 16] | None = Field(None, description="outputs: force a write function (default: single writes for one point, multiple for runs)")
-    poll_ms: int | None = Field(None, ge=1, le=3_600_000, description="read this group at most this often (default: every module poll)")
+    type: RegisterType | None = Field(
+        None, description="analog channels: register data type (default int16)"
+    )
+    word_order: Literal["big", "little"] = Field(
+        "big", description="32-bit types: big = high word first, little = low word first"
+    )
+    first_bit: int = Field(
+        0,
+        ge=0,
+        le=15,
+        description="digital channels in registers: bit of the first channel; the next ones follow, LSB first, across registers",
+    )
+    write_fc: Literal[5, 6, 15, 16] | None = Field(
+        None,
+        description="outputs: force a write function (default: single writes for one point, multiple for runs)",
+    )
+    poll_ms: int | None = Field(
+        None,
+        ge=1,
+        le=3_600_000,
+        description="read this group at most this often (default: every module poll)",
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> ChannelGroup:
         kind = Kind(self.kind)
         if self.table not in _ALLOWED[kind]:
             allowed = ", ".join(sorted(t.value for t in _ALLOWED[kind]))
-            raise _invalid(f"{self.kind} channels cannot live in {self.table.value}; use one of: {allowed}")
+            raise _invalid(
+                f"{self.kind} channels cannot live in {self.table.value}; use one of: {allowed}"
+            )
         if self.type is not None and (kind.is_digital or self.table.is_bits):
-            raise _invalid(f"type applies to analog channels in registers, not to {self.kind} channels")
+            raise _invalid(
+                f"type applies to analog channels in registers, not to {self.kind} channels"
+            )
         if self.write_fc is not None:
             if not kind.is_output:
                 raise _invalid("write_fc applies to outputs (do, ao) only")
             expected = (5, 15) if self.table is Table.COILS else (6, 16)
             if self.write_fc not in expected:
-                raise _invalid(f"write_fc {self.write_fc} does not write {self.table.value}; use {expected[0]} or {expected[1]}")
+                raise _invalid(
+                    f"write_fc {self.write_fc} does not write {self.table.value}; use {expected[0]} or {expected[1]}"
+                )
             if self.write_fc == 6 and WORDS[self.dtype] == 2:
                 raise _invalid("32-bit values need write_fc 16 (two registers written at once)")
         if self.last_address > 0xFFFF:
@@ -106,19 +138,36 @@ class ChannelGroup(StrictModel):
 class ModbusModuleConfig(ModuleConfig):
     address: int = Field(ge=1, le=247, description="Modbus unit id (slave address)")
     model: str | None = Field(None, description=f"preset: {', '.join(presets.names())}")
-    channels: list[ChannelGroup] = Field(default_factory=list, description="channel groups (after the preset's, if any)")
-    counts: dict[Literal["di", "do", "ai", "ao"], int] = Field(
-        default_factory=dict, description="use only the first N channels of a kind from the preset, e.g. {ai: 1}; at most what the preset has"
+    channels: list[ChannelGroup] = Field(
+        default_factory=list, description="channel groups (after the preset's, if any)"
     )
-    max_read_registers: int = Field(MAX_READ_REGISTERS, ge=1, le=MAX_READ_REGISTERS, description="largest coalesced register read")
-    max_read_bits: int = Field(MAX_READ_BITS, ge=1, le=MAX_READ_BITS, description="largest coalesced bit read")
-    coalesce_gap: int = Field(0, ge=0, le=100, description="also read across holes of up to this many unused registers/bits")
+    counts: dict[Literal["di", "do", "ai", "ao"], int] = Field(
+        default_factory=dict,
+        description="use only the first N channels of a kind from the preset, e.g. {ai: 1}; at most what the preset has",
+    )
+    max_read_registers: int = Field(
+        MAX_READ_REGISTERS,
+        ge=1,
+        le=MAX_READ_REGISTERS,
+        description="largest coalesced register read",
+    )
+    max_read_bits: int = Field(
+        MAX_READ_BITS, ge=1, le=MAX_READ_BITS, description="largest coalesced bit read"
+    )
+    coalesce_gap: int = Field(
+        0,
+        ge=0,
+        le=100,
+        description="also read across holes of up to this many unused registers/bits",
+    )
 
     @field_validator("model")
     @classmethod
     def _known_model(cls, model: str | None) -> str | None:
         if model is not None and presets.find(model) is None:
-            raise _invalid(f"unknown model '{model}'; presets: {', '.join(presets.names())}; or leave model out and declare channels")
+            raise _invalid(
+                f"unknown model '{model}'; presets: {', '.join(presets.names())}; or leave model out and declare channels"
+            )
         return model
 
     @model_validator(mode="after")
@@ -136,10 +185,17 @@ class ModbusModuleConfig(ModuleConfig):
             if n < 0:
                 raise _invalid(f"must be 0 or more (got {n})", ("counts", kind))
             if preset is None:
-                raise _invalid("counts applies to a model preset's channels; this module has no model", ("counts", kind))
+                raise _invalid(
+                    "counts applies to a model preset's channels; this module has no model",
+                    ("counts", kind),
+                )
             have = sum(g["count"] for g in preset.groups if g["kind"] == kind)
             if n > have:
-                has = f"{have} {kind.upper()}" if have else f"no {kind.upper()}, only {preset.description}"
+                has = (
+                    f"{have} {kind.upper()}"
+                    if have
+                    else f"no {kind.upper()}, only {preset.description}"
+                )
                 raise _invalid(f"{preset.model} has {has} (got {n})", ("counts", kind))
 
     def groups(self) -> list[ChannelGroup]:
@@ -174,7 +230,10 @@ def _cells(g: ChannelGroup):
     if g.table.is_bits:
         return [(g.table, a) for a in range(g.address, g.address + g.count)]
     if Kind(g.kind).is_digital:
-        return [(g.table, g.address + (g.first_bit + i) // 16, (g.first_bit + i) % 16) for i in range(g.count)]
+        return [
+            (g.table, g.address + (g.first_bit + i) // 16, (g.first_bit + i) % 16)
+            for i in range(g.count)
+        ]
     return [(g.table, a) for a in range(g.address, g.last_address + 1)]
 
 
@@ -215,12 +274,29 @@ def module_points(back: str, module: ModbusModuleConfig) -> list[Point]:
             cid = channel_id(back, module.address, kind, index)
             common = {"write_fc": g.write_fc, "period": period, "word_order": g.word_order}
             if g.table.is_bits:
-                points.append(Point(cid, kind, index, g.table, g.address + i, DataType.BOOL, **common))
+                points.append(
+                    Point(cid, kind, index, g.table, g.address + i, DataType.BOOL, **common)
+                )
             elif kind.is_digital:
                 bit = g.first_bit + i
-                points.append(Point(cid, kind, index, g.table, g.address + bit // 16, DataType.BOOL, bit=bit % 16, **common))
+                points.append(
+                    Point(
+                        cid,
+                        kind,
+                        index,
+                        g.table,
+                        g.address + bit // 16,
+                        DataType.BOOL,
+                        bit=bit % 16,
+                        **common,
+                    )
+                )
             else:
-                points.append(Point(cid, kind, index, g.table, g.address + i * WORDS[g.dtype], g.dtype, **common))
+                points.append(
+                    Point(
+                        cid, kind, index, g.table, g.address + i * WORDS[g.dtype], g.dtype, **common
+                    )
+                )
     return points
 
 
@@ -228,7 +304,10 @@ class ModbusBackConfig(SerialBackConfig):
     type: Literal["modbus"] = "modbus"
     modules: list[ModbusModuleConfig] = Field(min_length=1)
     inter_frame_ms: float | None = Field(
-        None, ge=0, le=1000, description="silence kept before each request; default 3.5 character times (1.75 ms above 19200 baud)"
+        None,
+        ge=0,
+        le=1000,
+        description="silence kept before each request; default 3.5 character times (1.75 ms above 19200 baud)",
     )
 
     def channel_specs(self) -> list[ChannelSpec]:
@@ -238,7 +317,15 @@ class ModbusBackConfig(SerialBackConfig):
                 extra = {}
                 if p.kind.is_output:
                     extra["error_mode"], extra["shutdown_mode"] = m.output_modes(p.kind, p.index)
-                specs.append(ChannelSpec(p.channel, p.kind, Source(self.name, m.address, p.index), dtype=p.dtype, **extra))
+                specs.append(
+                    ChannelSpec(
+                        p.channel,
+                        p.kind,
+                        Source(self.name, m.address, p.index),
+                        dtype=p.dtype,
+                        **extra,
+                    )
+                )
         return specs
 
     def points(self) -> dict[int, list[Point]]:

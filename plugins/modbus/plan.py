@@ -39,7 +39,9 @@ class ReadBlock:
         return f"FC{self.function} {self.table.value} {self.address}..{self.end - 1}"
 
 
-def plan_reads(points: list[Point], max_registers: int = 125, max_bits: int = 2000, gap: int = 0) -> list[ReadBlock]:
+def plan_reads(
+    points: list[Point], max_registers: int = 125, max_bits: int = 2000, gap: int = 0
+) -> list[ReadBlock]:
     """Coalesce input points into as few read requests as the limits allow."""
     blocks: list[ReadBlock] = []
     by_table: dict[Table, list[Point]] = {}
@@ -49,7 +51,11 @@ def plan_reads(points: list[Point], max_registers: int = 125, max_bits: int = 20
         limit = max_bits if table.is_bits else max_registers
         current: ReadBlock | None = None
         for p in sorted(pts, key=lambda p: (p.address, p.bit or 0)):
-            if current is not None and p.address <= current.end + gap and max(current.end, p.end) - current.address <= limit:
+            if (
+                current is not None
+                and p.address <= current.end + gap
+                and max(current.end, p.end) - current.address <= limit
+            ):
                 current.count = max(current.end, p.end) - current.address
                 current.points.append(p)
                 continue
@@ -72,7 +78,9 @@ def decode_block(block: ReadBlock, data: list) -> dict[str, object]:
             readings[p.channel] = regvalues.get_bit(data[offset], p.bit)
         else:
             try:
-                readings[p.channel] = regvalues.decode(p.dtype, data[offset : offset + p.width], p.word_order)
+                readings[p.channel] = regvalues.decode(
+                    p.dtype, data[offset : offset + p.width], p.word_order
+                )
             except ValueError:
                 readings[p.channel] = (0.0, Quality.OVER_RANGE)
     return readings
@@ -92,14 +100,37 @@ class WriteOp:
 def plan_writes(changes: list[tuple[Point, object]], allow_multiple: bool = True) -> list[WriteOp]:
     """Write requests for changed coil and register outputs (not bits inside registers)."""
     ops: list[WriteOp] = []
-    coils = sorted(((p, v) for p, v in changes if p.table is Table.COILS), key=lambda pv: pv[0].address)
-    registers = sorted(((p, v) for p, v in changes if p.table is Table.HOLDING_REGISTERS and p.bit is None), key=lambda pv: pv[0].address)
+    coils = sorted(
+        ((p, v) for p, v in changes if p.table is Table.COILS), key=lambda pv: pv[0].address
+    )
+    registers = sorted(
+        ((p, v) for p, v in changes if p.table is Table.HOLDING_REGISTERS and p.bit is None),
+        key=lambda pv: pv[0].address,
+    )
     for run in _runs(coils):
         words = [bool(v) for _, v in run]
-        ops.extend(_ops(run, words, Function.WRITE_SINGLE_COIL, Function.WRITE_MULTIPLE_COILS, MAX_WRITE_BITS, allow_multiple))
+        ops.extend(
+            _ops(
+                run,
+                words,
+                Function.WRITE_SINGLE_COIL,
+                Function.WRITE_MULTIPLE_COILS,
+                MAX_WRITE_BITS,
+                allow_multiple,
+            )
+        )
     for run in _runs(registers):
         words = [w for p, v in run for w in regvalues.encode(p.dtype, v, p.word_order)]
-        ops.extend(_ops(run, words, Function.WRITE_SINGLE_REGISTER, Function.WRITE_MULTIPLE_REGISTERS, MAX_WRITE_REGISTERS, allow_multiple))
+        ops.extend(
+            _ops(
+                run,
+                words,
+                Function.WRITE_SINGLE_REGISTER,
+                Function.WRITE_MULTIPLE_REGISTERS,
+                MAX_WRITE_REGISTERS,
+                allow_multiple,
+            )
+        )
     return ops
 
 
@@ -108,14 +139,21 @@ def _runs(items: list[tuple[Point, object]]) -> list[list[tuple[Point, object]]]
     runs: list[list[tuple[Point, object]]] = []
     for p, v in items:
         last = runs[-1][-1][0] if runs else None
-        if last is not None and p.address == last.end and p.write_fc == last.write_fc and p.write_fc not in (5, 6):
+        if (
+            last is not None
+            and p.address == last.end
+            and p.write_fc == last.write_fc
+            and p.write_fc not in (5, 6)
+        ):
             runs[-1].append((p, v))
         else:
             runs.append([(p, v)])
     return runs
 
 
-def _ops(run, words: list, single: int, multiple: int, limit: int, allow_multiple: bool) -> list[WriteOp]:
+def _ops(
+    run, words: list, single: int, multiple: int, limit: int, allow_multiple: bool
+) -> list[WriteOp]:
     points = [p for p, _ in run]
     forced = points[0].write_fc
     use_single = forced == single or (forced is None and len(words) == 1) or not allow_multiple
@@ -124,4 +162,7 @@ def _ops(run, words: list, single: int, multiple: int, limit: int, allow_multipl
     if any(p.width == 2 for p in points):
         limit -= limit % 2  # never split a 32-bit value across two requests
     start = points[0].address
-    return [WriteOp(multiple, start + i, words[i : i + limit], points) for i in range(0, len(words), limit)]
+    return [
+        WriteOp(multiple, start + i, words[i : i + limit], points)
+        for i in range(0, len(words), limit)
+    ]

@@ -39,12 +39,14 @@ from .codec import (
     Request,
     crc_ok,
     exception_response,
-    frame as rtu_frame,
     parse_request,
     read_bits_response,
     read_registers_response,
     request_length,
     write_response,
+)
+from .codec import (
+    frame as rtu_frame,
 )
 from .config import ModbusBackConfig, Point, Table
 
@@ -53,8 +55,16 @@ log = logging.getLogger("fieldgate.modbus.simulator")
 MAX_ADU = 256
 FAULT_KINDS = ("no_answer", "crc", "exception", "delay", "garbage", "truncate", "wrong_address")
 
-_TABLE_OF = {1: Table.COILS, 2: Table.DISCRETE_INPUTS, 3: Table.HOLDING_REGISTERS, 4: Table.INPUT_REGISTERS,
-             5: Table.COILS, 6: Table.HOLDING_REGISTERS, 15: Table.COILS, 16: Table.HOLDING_REGISTERS}
+_TABLE_OF = {
+    1: Table.COILS,
+    2: Table.DISCRETE_INPUTS,
+    3: Table.HOLDING_REGISTERS,
+    4: Table.INPUT_REGISTERS,
+    5: Table.COILS,
+    6: Table.HOLDING_REGISTERS,
+    15: Table.COILS,
+    16: Table.HOLDING_REGISTERS,
+}
 
 
 @dataclass
@@ -79,7 +89,10 @@ class Fault:
     def matches(self, request: Request) -> bool:
         if self.table is not None and _TABLE_OF.get(request.function) is not self.table:
             return False
-        return self.address is None or request.address <= self.address < request.address + request.count
+        return (
+            self.address is None
+            or request.address <= self.address < request.address + request.count
+        )
 
 
 @dataclass
@@ -118,7 +131,9 @@ class SimModule:
             return cells[p.address]
         if p.bit is not None:
             return regvalues.get_bit(cells[p.address], p.bit)
-        return regvalues.decode(p.dtype, [cells[p.address + i] for i in range(p.width)], p.word_order)
+        return regvalues.decode(
+            p.dtype, [cells[p.address + i] for i in range(p.width)], p.word_order
+        )
 
     # -- requests -------------------------------------------------------------------
     def handle(self, req: Request) -> bytes:
@@ -126,7 +141,14 @@ class SimModule:
         table = _TABLE_OF.get(fc)
         if table is None:
             return exception_response(self.address, fc, ExceptionCode.ILLEGAL_FUNCTION)
-        limit = {1: MAX_READ_BITS, 2: MAX_READ_BITS, 3: MAX_READ_REGISTERS, 4: MAX_READ_REGISTERS, 15: MAX_WRITE_BITS, 16: MAX_WRITE_REGISTERS}.get(fc, 1)
+        limit = {
+            1: MAX_READ_BITS,
+            2: MAX_READ_BITS,
+            3: MAX_READ_REGISTERS,
+            4: MAX_READ_REGISTERS,
+            15: MAX_WRITE_BITS,
+            16: MAX_WRITE_REGISTERS,
+        }.get(fc, 1)
         if not 1 <= req.count <= limit:
             return exception_response(self.address, fc, ExceptionCode.ILLEGAL_DATA_VALUE)
         cells = self.tables[table]
@@ -140,7 +162,9 @@ class SimModule:
         before = {a: cells[a] for a in span}
         for a, v in zip(span, req.values):
             cells[a] = bool(v) if table.is_bits else v
-        if not self._values_valid(table, span):  # e.g. a float32 pair that is NaN: refused, as a module would
+        if not self._values_valid(
+            table, span
+        ):  # e.g. a float32 pair that is NaN: refused, as a module would
             cells.update(before)
             return exception_response(self.address, fc, ExceptionCode.ILLEGAL_DATA_VALUE)
         if self.on_write is not None:
@@ -232,7 +256,11 @@ class RtuResponder:
 
     def _malformed(self, adu: bytes) -> Reply | None:
         module = self.modules.get(adu[0])
-        return None if module is None else Reply(exception_response(adu[0], adu[1], ExceptionCode.ILLEGAL_DATA_VALUE))
+        return (
+            None
+            if module is None
+            else Reply(exception_response(adu[0], adu[1], ExceptionCode.ILLEGAL_DATA_VALUE))
+        )
 
     def _answer(self, req: Request) -> Reply | None:
         self.log.append(req)
@@ -268,7 +296,14 @@ def _distort(fault: Fault, frame: bytes) -> Reply | None:
 class ModbusSimulator(Simulator):
     """The modules of one ``modbus`` back, served on ``port``."""
 
-    def __init__(self, config: ModbusBackConfig, port: str, animate: bool = False, *, animate_period: float = 0.25):
+    def __init__(
+        self,
+        config: ModbusBackConfig,
+        port: str,
+        animate: bool = False,
+        *,
+        animate_period: float = 0.25,
+    ):
         self.config = config
         self.port_name = port
         self.animate = animate
@@ -280,7 +315,9 @@ class ModbusSimulator(Simulator):
             self.modules[address] = module
             for p in points:
                 self.channels[p.channel] = (module, p)
-        gap = max(0.02, 4 * 3.5 * char_time(config.baudrate))  # four t3.5 without the fixed 1.75 ms cap
+        gap = max(
+            0.02, 4 * 3.5 * char_time(config.baudrate)
+        )  # four t3.5 without the fixed 1.75 ms cap
         self.responder = RtuResponder(self.modules, gap)
         self.wiring = demo_wiring(config) if animate else []
         self._source_of = {dst: src for src, dst in self.wiring}
@@ -288,10 +325,19 @@ class ModbusSimulator(Simulator):
         for module in self.modules.values():
             module.on_write = self._propagate
         c = config
-        self.server = PortServer(port, self._received, baudrate=c.baudrate, bytesize=c.bytesize, parity=c.parity, stopbits=c.stopbits)
+        self.server = PortServer(
+            port,
+            self._received,
+            baudrate=c.baudrate,
+            bytesize=c.bytesize,
+            parity=c.parity,
+            stopbits=c.stopbits,
+        )
         self._task: asyncio.Task | None = None
         self.output_listeners: list[Callable[[str, object], None]] = []
-        self._outputs_seen = {cid: m.get_point(p) for cid, (m, p) in self.channels.items() if p.kind.is_output}
+        self._outputs_seen = {
+            cid: m.get_point(p) for cid, (m, p) in self.channels.items() if p.kind.is_output
+        }
 
     # -- life cycle -----------------------------------------------------------------
     async def start(self) -> None:
@@ -317,13 +363,17 @@ class ModbusSimulator(Simulator):
         try:
             return self.channels[channel_id]
         except KeyError:
-            raise KeyError(f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})") from None
+            raise KeyError(
+                f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})"
+            ) from None
 
     def set_input(self, channel_id: str, value) -> None:
         module, point = self._lookup(channel_id)
         if point.kind.is_output:
             raise ValueError(f"{channel_id} is an output; the gateway writes it")
-        module.set_point(point, point.dtype.check(value) if point.dtype is not DataType.FLOAT32 else float(value))
+        module.set_point(
+            point, point.dtype.check(value) if point.dtype is not DataType.FLOAT32 else float(value)
+        )
 
     def get_output(self, channel_id: str):
         module, point = self._lookup(channel_id)
@@ -386,7 +436,9 @@ class ModbusSimulator(Simulator):
 
 def _animated_value(p: Point, tick: int):
     if p.kind is Kind.DI:
-        return bool((tick // 4) >> p.index & 1)  # a binary count, one step a second at the default period
+        return bool(
+            (tick // 4) >> p.index & 1
+        )  # a binary count, one step a second at the default period
     phase = (tick + 8 * p.index) % 80 / 80
     wave = 1 - abs(2 * phase - 1)  # triangle 0..1..0 over 20 s
     if p.dtype is DataType.FLOAT32:
@@ -407,7 +459,9 @@ def demo_wiring(config: ModbusBackConfig) -> list[tuple[str, str]]:
         out = []
         for address in sorted(points):
             pts = points[address]
-            if any(p.kind is kind for p in pts) and not (without and any(p.kind.is_output for p in pts)):
+            if any(p.kind is kind for p in pts) and not (
+                without and any(p.kind.is_output for p in pts)
+            ):
                 out.append([p for p in pts if p.kind is kind])
         return out
 

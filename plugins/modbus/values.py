@@ -31,7 +31,9 @@ def decode(dtype: DataType, words: list[int], word_order: str = "big") -> int | 
         raw = words[0] & 0xFFFF
         return raw - 0x10000 if raw & 0x8000 else raw
     high, low = (words[0], words[1]) if word_order == "big" else (words[1], words[0])
-    value = struct.unpack(_FORMAT[dtype], (high & 0xFFFF).to_bytes(2, "big") + (low & 0xFFFF).to_bytes(2, "big"))[0]
+    value = struct.unpack(
+        _FORMAT[dtype], (high & 0xFFFF).to_bytes(2, "big") + (low & 0xFFFF).to_bytes(2, "big")
+    )[0]
     if dtype is DataType.FLOAT32 and not math.isfinite(value):
         raise ValueError(f"register pair {words} is not a finite float32")
     return value

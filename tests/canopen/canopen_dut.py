@@ -34,18 +34,43 @@ def bus_under_test() -> tuple[str, str, bool]:
 def topology(state_dir: Path, node_id: int = 5, **front) -> dict:
     return {
         "gateway": {"name": "canopen-test", "state_dir": str(state_dir)},
-        "fronts": [{"name": FRONT, "type": "canopen", "interface": "virtual", "channel": "unused", "node_id": node_id,
-                    "identity": {"vendor_id": 0x0000ABCD, "product_code": 0x7232, "revision": 0x00010000, "serial": 42, "device_name": "fieldgate test node"},
-                    **front}],
-        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}]}],
+        "fronts": [
+            {
+                "name": FRONT,
+                "type": "canopen",
+                "interface": "virtual",
+                "channel": "unused",
+                "node_id": node_id,
+                "identity": {
+                    "vendor_id": 0x0000ABCD,
+                    "product_code": 0x7232,
+                    "revision": 0x00010000,
+                    "serial": 42,
+                    "device_name": "fieldgate test node",
+                },
+                **front,
+            }
+        ],
+        "backs": [
+            {
+                "name": "io",
+                "type": "loopback",
+                "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}],
+            }
+        ],
     }
 
 
 class InProcessDut:
     """The gateway on its own event loop in a thread of the test process."""
 
-    def __init__(self, topo: dict, interface: str, channel: str, loop_factory=asyncio.new_event_loop):
-        self.topo = {**topo, "fronts": [{**topo["fronts"][0], "interface": interface, "channel": channel}]}
+    def __init__(
+        self, topo: dict, interface: str, channel: str, loop_factory=asyncio.new_event_loop
+    ):
+        self.topo = {
+            **topo,
+            "fronts": [{**topo["fronts"][0], "interface": interface, "channel": channel}],
+        }
         self.loop_factory = loop_factory  # what ``fieldgate run --loop`` would run
         self.gateway = None
         self._thread: threading.Thread | None = None
@@ -104,9 +129,20 @@ class ProcessDut:
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> None:
-        cmd = [sys.executable, "-m", "fieldgate", "run", str(self.path),
-               "--set", f"fronts.{FRONT}.interface={self.interface}", "--set", f"fronts.{FRONT}.channel={self.channel}"]
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        cmd = [
+            sys.executable,
+            "-m",
+            "fieldgate",
+            "run",
+            str(self.path),
+            "--set",
+            f"fronts.{FRONT}.interface={self.interface}",
+            "--set",
+            f"fronts.{FRONT}.channel={self.channel}",
+        ]
+        self.proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        )
 
     def call(self, fn):
         raise NotImplementedError("the gateway runs in another process")
@@ -123,4 +159,8 @@ class ProcessDut:
 
 
 def make_dut(topo: dict, interface: str, channel: str, external: bool, workdir: Path):
-    return ProcessDut(topo, interface, channel, workdir) if external else InProcessDut(topo, interface, channel)
+    return (
+        ProcessDut(topo, interface, channel, workdir)
+        if external
+        else InProcessDut(topo, interface, channel)
+    )

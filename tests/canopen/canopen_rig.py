@@ -17,17 +17,26 @@ def frame(text: str) -> Frame:
 
 
 def show(frames) -> list[str]:
-    return [f"{f.can_id:03X} {f.data.hex(' ').upper()}".strip() if not f.rtr else f"{f.can_id:03X} RTR" for f in frames]
+    return [
+        f"{f.can_id:03X} {f.data.hex(' ').upper()}".strip() if not f.rtr else f"{f.can_id:03X} RTR"
+        for f in frames
+    ]
 
 
 def seed_node(node_id: int = 1, **settings):
     """A node with the I-7232D examples' objects: 0x1008 = "CPS_DCON\\0", an 0x1400 stand-in."""
-    identity = settings.pop("identity", Identity(device_type=0x000F0191, device_name="CPS_DCON\x00", vendor_id=0x1234))
+    identity = settings.pop(
+        "identity", Identity(device_type=0x000F0191, device_name="CPS_DCON\x00", vendor_id=0x1234)
+    )
     node = build_node(NodeSettings(node_id=node_id, identity=identity, **settings))
-    node.od.add_record(0x1400, "RxPDO1 communication (test stand-in)", [
-        (1, "COB-ID", dt.UNSIGNED32, "rw", 0x200, {"relative": True}),
-        (2, "Transmission type", dt.UNSIGNED8, "rw", 0xFF),
-    ])
+    node.od.add_record(
+        0x1400,
+        "RxPDO1 communication (test stand-in)",
+        [
+            (1, "COB-ID", dt.UNSIGNED32, "rw", 0x200, {"relative": True}),
+            (2, "Transmission type", dt.UNSIGNED8, "rw", 0xFF),
+        ],
+    )
     node.od.add_variable(0x2100, "test string", dt.VISIBLE_STRING, "rw", "", max_size=64)
     node.od.add_variable(0x2101, "test domain", dt.DOMAIN, "rw", b"", max_size=4096)
     node.od.add_variable(0x2102, "test limited", dt.INTEGER16, "rw", 0, minimum=-100, maximum=1000)

@@ -5,11 +5,11 @@ Not a test module (no ``test_`` prefix); the I/O-device tests import it.
 
 from __future__ import annotations
 
+from fieldgate.can.frame import Frame
 from fieldgate.health import HealthRegistry, ModuleHealth
 from fieldgate.image import ChannelSpec, DataType, ErrorMode, Kind, ProcessImage, Source, channel_id
 from fieldgate.layout import default_order
 from fieldgate.masters import MasterMonitor
-from fieldgate.can.frame import Frame
 from fieldgate.plugins.canopen.iodevice import IoDevice, IoSettings
 from fieldgate.plugins.canopen.slave import Identity, NodeSettings, build_node
 
@@ -31,11 +31,24 @@ def make_image(modules, clock=None, *, dtypes=None) -> ProcessImage:
         for kind, count in zip((Kind.DI, Kind.DO, Kind.AI, Kind.AO), counts):
             for i in range(count):
                 dtype = (dtypes or {}).get((address, kind))
-                image.add(ChannelSpec(channel_id(BACK, address, kind, i), kind, Source(BACK, address, i), dtype=dtype))
+                image.add(
+                    ChannelSpec(
+                        channel_id(BACK, address, kind, i),
+                        kind,
+                        Source(BACK, address, i),
+                        dtype=dtype,
+                    )
+                )
     return image
 
 
-def wire(image: ProcessImage, out_address: int, in_address: int, kind: Kind = Kind.DO, invert: bool = False) -> None:
+def wire(
+    image: ProcessImage,
+    out_address: int,
+    in_address: int,
+    kind: Kind = Kind.DO,
+    invert: bool = False,
+) -> None:
     """Loop outputs of one module to inputs of another, like the manuals' demo benches."""
     in_kind = Kind.DI if kind is Kind.DO else Kind.AI
 
@@ -56,14 +69,39 @@ def wire(image: ProcessImage, out_address: int, in_address: int, kind: Kind = Ki
 class Bench:
     """A booted node (node-ID 1 by default) with the I/O device, driven frame by frame."""
 
-    def __init__(self, image: ProcessImage, settings: IoSettings | None = None, *, node_id: int = 1, health: HealthRegistry | None = None, guard: tuple[int, int] = (0, 0), store_path=None, **io_options):
+    def __init__(
+        self,
+        image: ProcessImage,
+        settings: IoSettings | None = None,
+        *,
+        node_id: int = 1,
+        health: HealthRegistry | None = None,
+        guard: tuple[int, int] = (0, 0),
+        store_path=None,
+        **io_options,
+    ):
         self.clock = image.clock if isinstance(image.clock, Clock) else Clock()
         self.image = image
         self.health = health or HealthRegistry()
         self.masters = MasterMonitor(image)
         self.masters.register("can")
-        self.io = IoDevice(settings or IoSettings(), image, default_order(image), origin="can", health=self.health, masters=self.masters, front="can", **io_options)
-        node_settings = NodeSettings(node_id=node_id, identity=Identity(device_type=self.io.device_type), guard_time_ms=guard[0], life_time_factor=guard[1], store_path=store_path)
+        self.io = IoDevice(
+            settings or IoSettings(),
+            image,
+            default_order(image),
+            origin="can",
+            health=self.health,
+            masters=self.masters,
+            front="can",
+            **io_options,
+        )
+        node_settings = NodeSettings(
+            node_id=node_id,
+            identity=Identity(device_type=self.io.device_type),
+            guard_time_ms=guard[0],
+            life_time_factor=guard[1],
+            store_path=store_path,
+        )
         self.node = build_node(node_settings)
         self.node.add_service(self.io)
         self.node.service("store").load()
@@ -112,7 +150,9 @@ class Bench:
 
     def write(self, index: int, sub: int, value: int, size: int) -> str:
         cs = {1: 0x2F, 2: 0x2B, 4: 0x23}[size]
-        req = bytes([cs, index & 0xFF, index >> 8, sub]) + value.to_bytes(size, "little", signed=value < 0).ljust(4, b"\x00")
+        req = bytes([cs, index & 0xFF, index >> 8, sub]) + value.to_bytes(
+            size, "little", signed=value < 0
+        ).ljust(4, b"\x00")
         return self.sdo(req.hex())
 
     def read(self, index: int, sub: int) -> str:
@@ -143,4 +183,16 @@ def module_health(bench_health: HealthRegistry, address: int, back: str = BACK) 
     return bench_health.add(ModuleHealth(back, address))
 
 
-__all__ = ["BACK", "Bench", "Clock", "DataType", "ErrorMode", "Kind", "demo_7231d", "demo_7232d", "make_image", "module_health", "wire"]
+__all__ = [
+    "BACK",
+    "Bench",
+    "Clock",
+    "DataType",
+    "ErrorMode",
+    "Kind",
+    "demo_7231d",
+    "demo_7232d",
+    "make_image",
+    "module_health",
+    "wire",
+]

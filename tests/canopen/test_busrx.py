@@ -19,7 +19,9 @@ def channel() -> str:
 
 
 def message(n: int) -> can.Message:
-    return can.Message(arbitration_id=0x600 + (n % 100), data=n.to_bytes(4, "little"), is_extended_id=False)
+    return can.Message(
+        arbitration_id=0x600 + (n % 100), data=n.to_bytes(4, "little"), is_extended_id=False
+    )
 
 
 async def collect(receiver_bus, send, count, timeout=5.0):
@@ -207,7 +209,9 @@ class ErroringSocketBus(can.BusABC):
 
     def _recv_internal(self, timeout):
         try:
-            data = self.sock.recv(8)  # the pending error is raised here once (ConnectionRefusedError)
+            data = self.sock.recv(
+                8
+            )  # the pending error is raised here once (ConnectionRefusedError)
         except BlockingIOError:
             return None, False
         return can.Message(arbitration_id=0x181, data=data, is_extended_id=False), False
@@ -223,7 +227,11 @@ class ErroringSocketBus(can.BusABC):
 @pytest.mark.parametrize("loop_name", ["asyncio", "uvloop"])
 def test_a_descriptor_that_reported_an_error_is_still_heard_afterwards(loop_name):
     """uvloop stops watching a descriptor after an error event; the receiver registers it again."""
-    factory = asyncio.new_event_loop if loop_name == "asyncio" else pytest.importorskip("uvloop").new_event_loop
+    factory = (
+        asyncio.new_event_loop
+        if loop_name == "asyncio"
+        else pytest.importorskip("uvloop").new_event_loop
+    )
 
     async def scenario():
         loop = asyncio.get_running_loop()
@@ -270,7 +278,9 @@ async def test_with_a_quick_answerer_the_virtual_bus_gets_a_receive_thread_that_
         answered.append(n)
         return True
 
-    receiver = start_receiver(rx, loop, lambda msg: on_loop.append(int.from_bytes(msg.data, "little")), quick)
+    receiver = start_receiver(
+        rx, loop, lambda msg: on_loop.append(int.from_bytes(msg.data, "little")), quick
+    )
     assert receiver.mode == "thread"
     for n in range(40):
         tx.send(message(n))
@@ -291,8 +301,12 @@ async def test_the_quick_answerer_is_not_asked_while_an_earlier_message_waits_fo
     bus = ThreadOnlyBus(channel())
     loop = asyncio.get_running_loop()
     asked, on_loop = [], []
-    receiver = start_receiver(bus, loop, lambda msg: on_loop.append(msg.data[0]),
-                              lambda msg: asked.append(msg.data[0]) or msg.data[0] != 1)
+    receiver = start_receiver(
+        bus,
+        loop,
+        lambda msg: on_loop.append(msg.data[0]),
+        lambda msg: asked.append(msg.data[0]) or msg.data[0] != 1,
+    )
     try:
         one, two, three = (can.Message(arbitration_id=0x601, data=[n]) for n in (1, 2, 3))
         receiver._from_thread(one)  # declined: handed to the loop, which has not run since
@@ -331,9 +345,13 @@ async def test_a_handler_that_raises_on_the_loop_does_not_stop_quick_answers():
     def on_message(msg):
         raise RuntimeError("handler bug")
 
-    receiver = start_receiver(bus, loop, on_message, lambda msg: asked.append(msg.data[0]) or msg.data[0] != 1)
+    receiver = start_receiver(
+        bus, loop, on_message, lambda msg: asked.append(msg.data[0]) or msg.data[0] != 1
+    )
     try:
-        receiver._from_thread(can.Message(arbitration_id=0x601, data=[1]))  # declined: to the loop, which raises
+        receiver._from_thread(
+            can.Message(arbitration_id=0x601, data=[1])
+        )  # declined: to the loop, which raises
         await asyncio.sleep(0)
         assert isinstance(errors[0], RuntimeError) and receiver.idle
         receiver._from_thread(can.Message(arbitration_id=0x601, data=[2]))

@@ -10,11 +10,11 @@ import can
 import pytest
 from canopen_rig import seed_node
 
-from fieldgate.plugin import PluginStartError
 from fieldgate.can import adapter as adapter_mod
 from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.can.busrx import start_receiver
 from fieldgate.can.frame import Frame
+from fieldgate.plugin import PluginStartError
 
 
 async def _recv(bus: can.BusABC, can_id: int, timeout: float = 2.0) -> can.Message:
@@ -33,9 +33,16 @@ async def setup():
     peer = can.Bus(interface="virtual", channel=channel)
     node = seed_node(heartbeat_ms=20)
     lost = []
-    adapter = CanAdapter(node, open_bus("virtual", channel, 125000), asyncio.get_running_loop(),
-                         on_bus_state=lambda off, now: (lost.append(off), node.service("error_control").bus_state(off, now)),
-                         reopen=lambda rate: open_bus("virtual", channel, rate))
+    adapter = CanAdapter(
+        node,
+        open_bus("virtual", channel, 125000),
+        asyncio.get_running_loop(),
+        on_bus_state=lambda off, now: (
+            lost.append(off),
+            node.service("error_control").bus_state(off, now),
+        ),
+        reopen=lambda rate: open_bus("virtual", channel, rate),
+    )
     adapter.start()
     yield adapter, peer, lost
     adapter.close()
@@ -55,17 +62,25 @@ async def test_bit_rate_switch_reopens_the_bus(setup):
     adapter.node.request_bit_timing(250000, 0.0)
     await asyncio.sleep(0.05)
     assert adapter.bus is not old and adapter.counters["bit_timing_switches"] == 1
-    peer.send(can.Message(arbitration_id=0x601, data=bytes.fromhex("4000140000000000"), is_extended_id=False))
+    peer.send(
+        can.Message(
+            arbitration_id=0x601, data=bytes.fromhex("4000140000000000"), is_extended_id=False
+        )
+    )
     assert bytes((await _recv(peer, 0x581)).data) == bytes.fromhex("4F00140002000000")
 
 
 async def test_bus_state_error_is_bus_off(setup, monkeypatch):
     adapter, peer, lost = setup
     monkeypatch.setattr(adapter_mod, "STATE_POLL_S", 0.01)
-    monkeypatch.setattr(type(adapter.bus), "state", property(lambda self: can.BusState.ERROR), raising=False)
+    monkeypatch.setattr(
+        type(adapter.bus), "state", property(lambda self: can.BusState.ERROR), raising=False
+    )
     adapter._poll_bus_state()
     assert lost == [True]
-    monkeypatch.setattr(type(adapter.bus), "state", property(lambda self: can.BusState.ACTIVE), raising=False)
+    monkeypatch.setattr(
+        type(adapter.bus), "state", property(lambda self: can.BusState.ACTIVE), raising=False
+    )
     adapter._poll_bus_state()
     assert lost == [True, False]
     assert bytes((await _recv(peer, 0x81)).data) == bytes.fromhex("4081110800000000")
@@ -78,7 +93,6 @@ def test_open_bus_errors_are_one_line():
     with pytest.raises(PluginStartError) as err:
         open_bus("socketcan", "fieldgate-nope0", 125000)
     assert "\n" not in str(err.value)
-
 
 
 class RaisingBus(can.BusABC):
@@ -115,10 +129,14 @@ async def test_dead_receiver_fails_the_adapter(setup):
 
         adapter.failed = asyncio.get_running_loop().create_future()
         bus = RaisingBus()
-        adapter._receiver = receiver = start_receiver(bus, asyncio.get_running_loop(), lambda msg: None)
+        adapter._receiver = receiver = start_receiver(
+            bus, asyncio.get_running_loop(), lambda msg: None
+        )
         assert receiver.mode == "thread"
         receiver._thread.join(2)
-        assert not receiver._thread.is_alive() and isinstance(receiver.exception, can.CanOperationError)
+        assert not receiver._thread.is_alive() and isinstance(
+            receiver.exception, can.CanOperationError
+        )
         adapter._check_receiver()
         with pytest.raises(RuntimeError, match="interface went down"):
             adapter.failed.result()
@@ -153,11 +171,21 @@ async def test_pump_on_every_loop_turn_does_not_postpone_the_timers(setup):
     assert len(beats) >= 3 and set(beats) == {b"\x7f"}  # 20 ms heartbeat over 200 ms, under load
 
 
-@pytest.mark.parametrize("frame", [Frame(0x585, bytes(range(8))), Frame(0x185, b"\x01"), Frame(0x705, b""), Frame(0x705, b"", rtr=True, dlc=1)])
+@pytest.mark.parametrize(
+    "frame",
+    [
+        Frame(0x585, bytes(range(8))),
+        Frame(0x185, b"\x01"),
+        Frame(0x705, b""),
+        Frame(0x705, b"", rtr=True, dlc=1),
+    ],
+)
 def test_frames_become_the_same_messages_as_with_keyword_arguments(frame):
     """to_message builds can.Message positionally for speed: it must match the keyword form field by field."""
     if frame.rtr:
-        expected = can.Message(arbitration_id=frame.can_id, is_extended_id=False, is_remote_frame=True, dlc=1)
+        expected = can.Message(
+            arbitration_id=frame.can_id, is_extended_id=False, is_remote_frame=True, dlc=1
+        )
     else:
         expected = can.Message(arbitration_id=frame.can_id, is_extended_id=False, data=frame.data)
     got = adapter_mod.to_message(frame)
@@ -168,7 +196,9 @@ def test_frames_become_the_same_messages_as_with_keyword_arguments(frame):
     assert adapter_mod.to_frame(got) == frame
 
 
-READ_1014 = can.Message(arbitration_id=0x601, data=bytes.fromhex("4014100000000000"), is_extended_id=False)
+READ_1014 = can.Message(
+    arbitration_id=0x601, data=bytes.fromhex("4014100000000000"), is_extended_id=False
+)
 
 
 async def _routed(adapter, peer) -> None:
@@ -180,8 +210,14 @@ async def _routed(adapter, peer) -> None:
 
 async def test_quick_answers_stop_while_the_bus_is_reopened_and_after_close(setup):
     adapter, peer, _ = setup
-    peer.send(can.Message(arbitration_id=0x601, data=bytes.fromhex("2B17100000000000"), is_extended_id=False))
-    assert bytes((await _recv(peer, 0x581)).data)[:1] == b"\x60"  # heartbeat off: no timer falls due
+    peer.send(
+        can.Message(
+            arbitration_id=0x601, data=bytes.fromhex("2B17100000000000"), is_extended_id=False
+        )
+    )
+    assert (
+        bytes((await _recv(peer, 0x581)).data)[:1] == b"\x60"
+    )  # heartbeat off: no timer falls due
     await _routed(adapter, peer)
     during = []
     reopen = adapter._reopen
@@ -208,7 +244,11 @@ async def test_a_quick_answer_whose_send_fails_is_not_answered_again(setup):
     def broken_send(msg, timeout=None):
         raise TypeError("driver bug")
 
-    rx, answered, uploads = adapter.rx_frames, adapter.quick_answers, adapter.node.service("sdo").expedited_uploads
+    rx, answered, uploads = (
+        adapter.rx_frames,
+        adapter.quick_answers,
+        adapter.node.service("sdo").expedited_uploads,
+    )
     adapter.bus.send = broken_send
     assert adapter._quick(READ_1014)  # handled: the loop must not read and count it again
     assert (adapter.rx_frames, adapter.quick_answers) == (rx + 1, answered + 1)

@@ -23,7 +23,9 @@ async def test_eds_lists_the_extra_sdo_channels_and_time(tmp_path):
     assert 0x1201 in eds and 0x1202 in eds and 0x1203 not in eds
     for sub in (1, 2):
         assert eds[0x1202][sub].default == 0x80000000 and eds[0x1202][sub].access_type == "rw"
-    assert eds[0x1201][3].data_type == canopen.objectdictionary.UNSIGNED8 and eds[0x1201][3].max == 127
+    assert (
+        eds[0x1201][3].data_type == canopen.objectdictionary.UNSIGNED8 and eds[0x1201][3].max == 127
+    )
     assert eds[0x1200][1].default == 0x605 and eds[0x1200][1].access_type == "ro"
     assert eds[0x1012].default == 0x80000100 and eds[0x1012].access_type == "rw"
     result = dcfchk(path)

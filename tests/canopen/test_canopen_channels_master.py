@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import struct
 import threading
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import canopen
 import pytest
@@ -27,7 +27,9 @@ def master(tmp_path):
     network.connect(interface=interface, channel=channel)
     booted = threading.Event()
     network.subscribe(0x700 + NODE, lambda *_: booted.set())
-    dut = make_dut(topology(tmp_path / "state", NODE, sdo_servers=2), interface, channel, external, tmp_path)
+    dut = make_dut(
+        topology(tmp_path / "state", NODE, sdo_servers=2), interface, channel, external, tmp_path
+    )
     dut.start()
     assert booted.wait(10), "no boot-up"
     node = network.add_node(canopen.RemoteNode(NODE, canopen.ObjectDictionary()))
@@ -40,7 +42,9 @@ def master(tmp_path):
 def test_second_sdo_channel_with_the_canopen_master(master):
     network, node, dut, _ = master
     second = node.add_sdo(RX, TX)
-    second.network = network  # canopen 2.4.1's add_sdo subscribes the channel but does not give it the network
+    second.network = (
+        network  # canopen 2.4.1's add_sdo subscribes the channel but does not give it the network
+    )
     second.RESPONSE_TIMEOUT = 0.2
     with pytest.raises(SdoCommunicationError):  # not configured yet: silent, the client times out
         second.upload(0x1000, 0)
@@ -69,7 +73,10 @@ def test_second_sdo_channel_with_the_canopen_master(master):
         except BaseException as exc:  # noqa: BLE001 - reported below
             errors.append(exc)
 
-    threads = [threading.Thread(target=hammer, args=(node.sdo, None)), threading.Thread(target=hammer, args=(second, 300))]
+    threads = [
+        threading.Thread(target=hammer, args=(node.sdo, None)),
+        threading.Thread(target=hammer, args=(second, 300)),
+    ]
     for t in threads:
         t.start()
     for t in threads:
@@ -88,9 +95,11 @@ def test_time_from_the_canopen_time_producer(master):
     network, node, dut, external = master
     if external:
         pytest.skip("reads the TIME service inside the gateway process")
-    when = datetime(2026, 11, 22, 7, 38, 54, 250000, tzinfo=timezone.utc)
+    when = datetime(2026, 11, 22, 7, 38, 54, 250000, tzinfo=UTC)
     received = threading.Event()
-    dut.call(lambda: dut.gateway.component(FRONT).node.service("time").on_time(lambda _: received.set()))
+    dut.call(
+        lambda: dut.gateway.component(FRONT).node.service("time").on_time(lambda _: received.set())
+    )
     network.time.transmit(when.timestamp())
     assert received.wait(3)
     status = dut.call(lambda: dut.gateway.status()["fronts"][FRONT]["services"]["time"])

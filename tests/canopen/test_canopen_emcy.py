@@ -30,12 +30,20 @@ def test_tv19_pdo_length_error_history_and_register(rig):
 
 def test_module_failure_code_and_partial_clear(rig):
     emcy = rig.node.emcy
-    assert emit(rig, emcy.raise_error, 0xFF00, 0x81, bytes([0x0B, 5])) == ["081 [8] 00 FF 81 0B 05 00 00 00"]
-    assert emit(rig, emcy.raise_error, 0xFF00, 0x81, bytes([0x0B, 6])) == ["081 [8] 00 FF 81 0B 06 00 00 00"]
+    assert emit(rig, emcy.raise_error, 0xFF00, 0x81, bytes([0x0B, 5])) == [
+        "081 [8] 00 FF 81 0B 05 00 00 00"
+    ]
+    assert emit(rig, emcy.raise_error, 0xFF00, 0x81, bytes([0x0B, 6])) == [
+        "081 [8] 00 FF 81 0B 06 00 00 00"
+    ]
     assert rig.sdo("40 03 10 01 00 00 00 00") == "43 03 10 01 00 FF 0B 06"
     # one clears, the other remains: reset code with the remaining register
-    assert emit(rig, emcy.clear_error, 0xFF00, bytes([0x0B, 5])) == ["081 [8] 00 00 81 00 00 00 00 00"]
-    assert emit(rig, emcy.clear_error, 0xFF00, bytes([0x0B, 6])) == ["081 [8] 00 00 00 00 00 00 00 00"]
+    assert emit(rig, emcy.clear_error, 0xFF00, bytes([0x0B, 5])) == [
+        "081 [8] 00 00 81 00 00 00 00 00"
+    ]
+    assert emit(rig, emcy.clear_error, 0xFF00, bytes([0x0B, 6])) == [
+        "081 [8] 00 00 00 00 00 00 00 00"
+    ]
 
 
 def test_history_depth_newest_first_and_clear(rig):
@@ -96,10 +104,19 @@ def test_emcy_on_nmt_reset_option():
     assert icpdas.sdo("40 03 10 01 00 00 00 00") == "43 03 10 01 00 FF 0A 00"
 
 
-@pytest.mark.parametrize("can_id", [0x000, 0x07F, 0x101, 0x180, 0x581, 0x601, 0x6E0, 0x701, 0x77F, 0x780, 0x7FF])
+@pytest.mark.parametrize(
+    "can_id", [0x000, 0x07F, 0x101, 0x180, 0x581, 0x601, 0x6E0, 0x701, 0x77F, 0x780, 0x7FF]
+)
 def test_cob_id_restricted_can_ids_are_refused(rig, can_id):
-    assert rig.sdo("23 14 10 00 81 00 00 80") == "60 14 10 00 00 00 00 00"  # EMCY off: the ID may change
-    assert rig.sdo("23 14 10 00 " + can_id.to_bytes(4, "little").hex(" ")) == "80 14 10 00 30 00 09 06"
+    assert (
+        rig.sdo("23 14 10 00 81 00 00 80") == "60 14 10 00 00 00 00 00"
+    )  # EMCY off: the ID may change
+    assert (
+        rig.sdo("23 14 10 00 " + can_id.to_bytes(4, "little").hex(" ")) == "80 14 10 00 30 00 09 06"
+    )
     assert rig.node.od.get(0x1014) == 0x80000081
-    assert rig.sdo("23 14 10 00 " + (can_id | 1 << 31).to_bytes(4, "little").hex(" ")) == "60 14 10 00 00 00 00 00"  # not in use
+    assert (
+        rig.sdo("23 14 10 00 " + (can_id | 1 << 31).to_bytes(4, "little").hex(" "))
+        == "60 14 10 00 00 00 00 00"
+    )  # not in use
     assert rig.sdo("23 14 10 00 00 01 00 00") == "60 14 10 00 00 00 00 00"  # 0x100: allowed

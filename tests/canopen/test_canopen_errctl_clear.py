@@ -35,17 +35,22 @@ def guard_lost(rig) -> None:
 
 def heartbeat_lost(rig, producer: int = 0x7F, sub: int = 1) -> None:
     """Consumer entry ``sub`` watches ``producer`` every 200 ms; one heartbeat, then silence."""
-    assert rig.sdo(f"23 16 10 {sub:02X} C8 00 {producer:02X} 00") == f"60 16 10 {sub:02X} 00 00 00 00"
+    assert (
+        rig.sdo(f"23 16 10 {sub:02X} C8 00 {producer:02X} 00") == f"60 16 10 {sub:02X} 00 00 00 00"
+    )
     rig.send(f"{0x700 + producer:03X} 05")
     assert rig.advance(0.25) == [f"081 30 81 11 07 {producer:02X} 00 00 00"]
 
 
 # -- life guarding switched off ---------------------------------------------------------------
-@pytest.mark.parametrize("write", [
-    "2B 0C 10 00 00 00 00 00",  # guard time 0
-    "2F 0D 10 00 00 00 00 00",  # life time factor 0
-    "2B 17 10 00 E8 03 00 00",  # heartbeat producer on: heartbeat replaces guarding
-])
+@pytest.mark.parametrize(
+    "write",
+    [
+        "2B 0C 10 00 00 00 00 00",  # guard time 0
+        "2F 0D 10 00 00 00 00 00",  # life time factor 0
+        "2B 17 10 00 E8 03 00 00",  # heartbeat producer on: heartbeat replaces guarding
+    ],
+)
 def test_guarding_switched_off_clears_the_life_guarding_error(write):
     rig = make_rig(guard_time_ms=100, life_time_factor=2)
     guard_lost(rig)
@@ -67,7 +72,11 @@ def test_guarding_switched_back_on_starts_at_the_next_rtr_and_raises_a_new_error
     assert rig.advance(5.0) == []  # not started again before an RTR
     assert rig.send("701 RTR") == ["701 FF"]  # the toggle runs on (no reset communication)
     assert rig.advance(0.25) == [LIFE_GUARD]  # a new error: its EMCY again
-    assert rig.master == [(False, "life guarding timeout"), (True, "life guarding switched off"), (False, "life guarding timeout")]
+    assert rig.master == [
+        (False, "life guarding timeout"),
+        (True, "life guarding switched off"),
+        (False, "life guarding timeout"),
+    ]
 
 
 def test_guard_time_changed_but_still_on_keeps_the_error_until_the_master_is_back():
@@ -93,7 +102,9 @@ def test_heartbeat_producer_on_stops_a_running_life_guard():
     rig = make_rig(guard_time_ms=100, life_time_factor=2)
     rig.send("701 RTR")
     rig.sdo("2B 17 10 00 E8 03 00 00")
-    assert [f for f in rig.advance(0.5) if f.startswith("081")] == []  # RTRs are ignored now: no timeout either
+    assert [
+        f for f in rig.advance(0.5) if f.startswith("081")
+    ] == []  # RTRs are ignored now: no timeout either
     assert rig.master == []
 
 
@@ -104,7 +115,10 @@ def test_consumer_entry_cleared_or_moved_clears_that_nodes_error(entry):
     heartbeat_lost(rig)
     assert rig.send(f"601 23 16 10 01 {entry}") == [RESET, "581 60 16 10 01 00 00 00 00"]
     assert register(rig) == 0
-    assert rig.master == [(False, "heartbeat of node 127 timed out"), (True, "heartbeat consumer for node 127 switched off")]
+    assert rig.master == [
+        (False, "heartbeat of node 127 timed out"),
+        (True, "heartbeat consumer for node 127 switched off"),
+    ]
     assert rig.send("77F 05") == []  # node 127 is no longer consumed
     assert rig.advance(1.0) == []  # node 0x20 (if now watched) starts at its first heartbeat
 
@@ -270,7 +284,12 @@ def test_clear_errors_sends_one_emcy_and_skips_inactive_ones():
     emcy.raise_error(0x8140, 0x11, b"\x08")
     emcy.raise_error(0xFF00, 0x81, b"\x0b\x03")
     rig.node.flush()
-    assert emcy.clear_errors([(0x8130, b"\x07"), (0x8140, b"\x08"), (0x8130, b"\x07\x10"), (0x8130, b"\x07")]) == 2
+    assert (
+        emcy.clear_errors(
+            [(0x8130, b"\x07"), (0x8140, b"\x08"), (0x8130, b"\x07\x10"), (0x8130, b"\x07")]
+        )
+        == 2
+    )
     assert [str(f) for f in rig.node.flush()] == ["081 [8] 00 00 81 00 00 00 00 00"]
     assert emcy.clear_errors([(0x8130, b"\x07")]) == 0
     assert rig.node.flush() == []

@@ -29,7 +29,16 @@ class Peer:
         self.bus = can.Bus(interface="virtual", channel=channel)
 
     def send(self, can_id: int, data: bytes = b"", rtr: bool = False, error: bool = False) -> None:
-        self.bus.send(can.Message(arbitration_id=can_id, data=data, is_remote_frame=rtr, is_error_frame=error, is_extended_id=False, dlc=len(data) if not rtr else 1))
+        self.bus.send(
+            can.Message(
+                arbitration_id=can_id,
+                data=data,
+                is_remote_frame=rtr,
+                is_error_frame=error,
+                is_extended_id=False,
+                dlc=len(data) if not rtr else 1,
+            )
+        )
 
     async def expect(self, can_id: int, timeout: float = 2.0) -> bytes:
         loop = asyncio.get_running_loop()
@@ -148,7 +157,9 @@ async def test_sdo_reads_are_answered_on_the_receive_thread_and_counted(gw):
         peer.send(0x600 + NODE, READ_1000)
         assert (await peer.expect(0x580 + NODE))[:4] == bytes.fromhex("43001000")
     bus = gateway.status()["fronts"]["plc"]["bus"]
-    assert bus["quick_answers"] >= 10  # the first read routes the COB-ID on the loop; a due timer may take one
+    assert (
+        bus["quick_answers"] >= 10
+    )  # the first read routes the COB-ID on the loop; a due timer may take one
     assert bus["rx"] >= 20 and bus["tx"] >= 21  # boot-up and answers, whichever thread sent them
 
 
@@ -201,12 +212,15 @@ async def test_dead_bus_restarts_the_front(tmp_path, registry):
         peer.bus.shutdown()
 
 
-@pytest.mark.parametrize("expose, expected", [
-    (None, 0x000F0191),
-    (["io/m3/di*"], 0x00010191),
-    (["io/m3/do*", "io/m3/ai*"], 0x00060191),
-    (["io/m3/ao*"], 0x00080191),
-])
+@pytest.mark.parametrize(
+    "expose, expected",
+    [
+        (None, 0x000F0191),
+        (["io/m3/di*"], 0x00010191),
+        (["io/m3/do*", "io/m3/ai*"], 0x00060191),
+        (["io/m3/ao*"], 0x00080191),
+    ],
+)
 def test_device_type_is_the_io_layouts(tmp_path, registry, expose, expected):
     """0x1000 has one source, the CiA 401 layout of the channels the front serves."""
     from fieldgate.plugins.canopen.plugin import CanopenFront
@@ -222,7 +236,9 @@ def test_device_type_is_the_io_layouts(tmp_path, registry, expose, expected):
     assert front(topo).build().od.get(0x1000) == 0x12345678
 
 
-@pytest.mark.parametrize("cob_id, ok", [(0x80, True), (0x100, True), (0x601, False), (0x07F, False), (0x701, False)])
+@pytest.mark.parametrize(
+    "cob_id, ok", [(0x80, True), (0x100, True), (0x601, False), (0x07F, False), (0x701, False)]
+)
 def test_configured_sync_cob_id_follows_the_restricted_can_id_rule(tmp_path, registry, cob_id, ok):
     from fieldgate.topology import TopologyError
 

@@ -21,15 +21,28 @@ def registry():
 def topology(tmp_path, *backs) -> dict:
     return {
         "gateway": {"name": "i7231d", "state_dir": str(tmp_path)},
-        "fronts": [{"name": "can", "type": "canopen", "interface": "virtual", "channel": "unused", "node_id": 1}],
+        "fronts": [
+            {
+                "name": "can",
+                "type": "canopen",
+                "interface": "virtual",
+                "channel": "unused",
+                "node_id": 1,
+            }
+        ],
         "backs": list(backs),
     }
 
 
-DCON = {"name": "rs485", "type": "dcon", "port": "simulated", "modules": [
-    {"address": 1, "model": "I-7060", "watchdog": {"enabled": True, "timeout_ms": 300}},
-    {"address": 2, "model": "I-7052"},
-]}
+DCON = {
+    "name": "rs485",
+    "type": "dcon",
+    "port": "simulated",
+    "modules": [
+        {"address": 1, "model": "I-7060", "watchdog": {"enabled": True, "timeout_ms": 300}},
+        {"address": 2, "model": "I-7052"},
+    ],
+}
 LOOPBACK = {"name": "io", "type": "loopback", "modules": [{"address": 3, "digital": 2}]}
 
 
@@ -49,7 +62,11 @@ def test_configured_watchdogs_are_served_before_the_back_runs(tmp_path, registry
     assert node.od.get(0x2003, 1) == 0
     expected = HostWatchdogs.from_context(gateway.context)
     served = front.io.manufacturer.host_watchdogs
-    assert (served.capable, served.configured) == (expected.capable, expected.configured) == ({"rs485"}, {("rs485", 1): (True, 300)})
+    assert (
+        (served.capable, served.configured)
+        == (expected.capable, expected.configured)
+        == ({"rs485"}, {("rs485", 1): (True, 300)})
+    )
     assert served.backs is gateway.context.backs  # running backs are looked up live
 
 

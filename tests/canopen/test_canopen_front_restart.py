@@ -45,7 +45,14 @@ async def running(tmp_path, registry):
     """The gateway with life guarding 100 ms x 2 configured, booted, and the test's bus end."""
     channel = f"restart-{uuid.uuid4().hex[:8]}"
     peer = Peer(channel)
-    topo = topology(tmp_path / "state", NODE, channel=channel, restart_backoff_s=0.05, guard_time_ms=100, life_time_factor=2)
+    topo = topology(
+        tmp_path / "state",
+        NODE,
+        channel=channel,
+        restart_backoff_s=0.05,
+        guard_time_ms=100,
+        life_time_factor=2,
+    )
     gateway = Gateway.load(topo, registry=registry)
     await gateway.start()
     try:

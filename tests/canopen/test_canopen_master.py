@@ -47,7 +47,11 @@ class Master:
 
     def guard(self, timeout: float = 1.0) -> int:
         before = len(self.frames.get(0x700 + NODE, []))
-        self.network.bus.send(can.Message(arbitration_id=0x700 + NODE, is_remote_frame=True, is_extended_id=False, dlc=1))
+        self.network.bus.send(
+            can.Message(
+                arbitration_id=0x700 + NODE, is_remote_frame=True, is_extended_id=False, dlc=1
+            )
+        )
         got = self.wait_frame(0x700 + NODE, before + 1, timeout)
         assert len(got) > before, "no guarding answer"
         assert len(got[-1]) == 1

@@ -31,7 +31,9 @@ def monitor(lost_before: bool = False) -> tuple[MasterMonitor, list]:
     return masters, events
 
 
-def make_rig(stopped_is_error: bool = True, lost_before: bool = False, stored=None, **settings) -> Rig:
+def make_rig(
+    stopped_is_error: bool = True, lost_before: bool = False, stored=None, **settings
+) -> Rig:
     node = seed_node(**settings)
     if stored:
         node.od.set_stored(stored)
@@ -98,7 +100,13 @@ def test_error_behaviour_stopped_then_master_heard_then_started():
     assert rig.events == [(False, "life guarding timeout")]
     rig.send("000 01 01")
     assert rig.events == [(False, "life guarding timeout"), (True, "left NMT Stopped")]
-    assert rig.state.status() == {"lost": False, "reason": "left NMT Stopped", "monitoring_lost": False, "stopped_error": False, "losses": 1}
+    assert rig.state.status() == {
+        "lost": False,
+        "reason": "left NMT Stopped",
+        "monitoring_lost": False,
+        "stopped_error": False,
+        "losses": 1,
+    }
 
 
 def test_reset_from_stopped_with_guarding_lost_is_one_ok():
@@ -152,13 +160,16 @@ def test_restart_with_the_master_lost_stays_lost_until_a_guard_request():
     assert rig.events[-1] == (False, "life guarding timeout")
 
 
-@pytest.mark.parametrize("frame, reason", [
-    ("000 01 01", "NMT OPERATIONAL"),
-    ("000 02 00", None),  # broadcast stop: heard, and Stopped is itself an error here
-    ("000 82 01", "reset communication"),
-    ("77F 05", "heartbeat of node 127"),
-    ("601 2B 17 10 00 E8 03 00 00", "monitoring configured"),
-])
+@pytest.mark.parametrize(
+    "frame, reason",
+    [
+        ("000 01 01", "NMT OPERATIONAL"),
+        ("000 02 00", None),  # broadcast stop: heard, and Stopped is itself an error here
+        ("000 82 01", "reset communication"),
+        ("77F 05", "heartbeat of node 127"),
+        ("601 2B 17 10 00 E8 03 00 00", "monitoring configured"),
+    ],
+)
 def test_restart_master_heard_by_nmt_heartbeat_or_monitoring_write(frame, reason):
     rig = make_rig(lost_before=True, stored={(0x1016, 1): 0x7F00C8})
     assert not rig.masters.is_ok(FRONT)
@@ -171,14 +182,17 @@ def test_restart_master_heard_by_nmt_heartbeat_or_monitoring_write(frame, reason
     assert rig.events == [(True, reason)] and rig.masters.is_ok(FRONT)
 
 
-@pytest.mark.parametrize("frame", [
-    "601 40 00 10 00 00 00 00 00",  # an SDO read: a configuration tool, not necessarily the master
-    "080",  # SYNC
-    "000 01 02",  # NMT for another node
-    "000 01",  # malformed NMT
-    "77E 05",  # heartbeat of a node nobody watches
-    "702 RTR",  # guarding of another node
-])
+@pytest.mark.parametrize(
+    "frame",
+    [
+        "601 40 00 10 00 00 00 00 00",  # an SDO read: a configuration tool, not necessarily the master
+        "080",  # SYNC
+        "000 01 02",  # NMT for another node
+        "000 01",  # malformed NMT
+        "77E 05",  # heartbeat of a node nobody watches
+        "702 RTR",  # guarding of another node
+    ],
+)
 def test_restart_master_not_heard_by_other_traffic(frame):
     rig = make_rig(lost_before=True, stored={(0x1016, 1): 0x7F00C8})
     rig.send(frame)
@@ -201,7 +215,9 @@ def test_own_error_behaviour_state_change_is_not_the_master():
     assert rig.events[-1] == (False, "test: unheard again")
     rig.send("77F 05")
     assert rig.events[-1] == (True, "heartbeat of node 127")
-    assert rig.advance(0.25) == ["081 30 81 11 07 7F 00 00 00"]  # 0x1029 = 2: Stopped by the node itself
+    assert rig.advance(0.25) == [
+        "081 30 81 11 07 7F 00 00 00"
+    ]  # 0x1029 = 2: Stopped by the node itself
     assert rig.node.state is NmtState.STOPPED
     ec.assume_master_lost("test: unheard again")
     ec.bus_state(True, rig.now)

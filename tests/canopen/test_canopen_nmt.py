@@ -19,7 +19,10 @@ def test_boot_up_then_pre_operational(rig):
     assert rig.node.state is NmtState.PRE_OPERATIONAL
 
 
-@pytest.mark.parametrize("command, state", [("01", NmtState.OPERATIONAL), ("02", NmtState.STOPPED), ("80", NmtState.PRE_OPERATIONAL)])
+@pytest.mark.parametrize(
+    "command, state",
+    [("01", NmtState.OPERATIONAL), ("02", NmtState.STOPPED), ("80", NmtState.PRE_OPERATIONAL)],
+)
 def test_tv07_nmt_with_dlc_8_and_broadcast(rig, command, state):
     assert rig.send(f"000 {command} 01 00 00 00 00 00 00") == []
     assert rig.node.state is state
@@ -129,7 +132,10 @@ def test_bus_off_is_master_lost_and_recovery_emcy(rig):
     ec.bus_state(False, rig.now)
     # nothing monitors the master here (no guarding, no 0x1016 entry): the recovery EMCY
     # is an event, reset at once (with monitoring it waits for the master: test_canopen_errctl_clear)
-    assert [str(f) for f in rig.node.flush()] == ["081 [8] 40 81 11 08 00 00 00 00", "081 [8] 00 00 00 00 00 00 00 00"]
+    assert [str(f) for f in rig.node.flush()] == [
+        "081 [8] 40 81 11 08 00 00 00 00",
+        "081 [8] 00 00 00 00 00 00 00 00",
+    ]
     assert rig.master[-1] == (True, "recovered from bus-off")
     assert rig.node.od.get(0x1001) == 0
 
@@ -160,7 +166,10 @@ def test_frame_helper_round_trip():
     assert frame("701 RTR").rtr and frame("601 40 00").data == b"\x40\x00"
 
 
-@pytest.mark.parametrize("behaviour, state", [(0, NmtState.PRE_OPERATIONAL), (1, NmtState.OPERATIONAL), (2, NmtState.STOPPED)])
+@pytest.mark.parametrize(
+    "behaviour, state",
+    [(0, NmtState.PRE_OPERATIONAL), (1, NmtState.OPERATIONAL), (2, NmtState.STOPPED)],
+)
 def test_error_behaviour_1029_on_life_guarding(behaviour, state):
     r = Rig(seed_node(guard_time_ms=100, life_time_factor=2))
     assert r.sdo(f"2F 29 10 01 {behaviour:02X} 00 00 00") == "60 29 10 01 00 00 00 00"

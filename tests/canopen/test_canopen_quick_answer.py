@@ -29,13 +29,21 @@ def rig():
 
 def test_a_routed_read_gets_the_answer_receive_gives(rig):
     assert quick(rig, UPLOAD_1000) == [ANSWER_1000]
-    for request in ("601 40 00 14 02 00 00 00 00", "601 40 17 10 00 00 00 00 00", "601 40 18 10 01 00 00 00 00"):
+    for request in (
+        "601 40 00 14 02 00 00 00 00",
+        "601 40 17 10 00 00 00 00 00",
+        "601 40 18 10 01 00 00 00 00",
+    ):
         assert quick(rig, request) == rig.send(request)
 
 
 def test_it_changes_nothing_but_counters(rig):
     sdo = rig.node.service("sdo")
-    deadline, requests, rx = rig.node.next_deadline(), sdo.status()["requests"], rig.node.status()["counters"]["rx"]
+    deadline, requests, rx = (
+        rig.node.next_deadline(),
+        sdo.status()["requests"],
+        rig.node.status()["counters"]["rx"],
+    )
     assert quick(rig, UPLOAD_1000) == [ANSWER_1000]
     assert rig.node.next_deadline() == deadline and rig.node.deadline_after_call == deadline
     assert sdo.status()["phase"] == "idle" and rig.node.flush() == []
@@ -43,18 +51,21 @@ def test_it_changes_nothing_but_counters(rig):
     assert rig.node.status()["counters"]["rx"] == rx + 1
 
 
-@pytest.mark.parametrize("request_", [
-    "601 40 00 20 00 00 00 00 00",  # no such object: the abort is the loop's
-    "601 40 00 10 01 00 00 00 00",  # no such sub-index
-    "601 40 03 21 00 00 00 00 00",  # write-only
-    "601 40 08 10 00 00 00 00 00",  # 0x1008 is 9 bytes: segmented
-    "601 2B 17 10 00 C8 00 00 00",  # a write
-    "601 A0 00 10 00 7F 00 00 00",  # block upload initiate
-    "601 40 00 10 00 00 00 00",  # DLC 7
-    "601 E0 00 10 00 00 00 00 00",  # unknown command specifier
-    "602 40 00 10 00 00 00 00 00",  # another node's SDO
-    "000 01 00",  # NMT
-])
+@pytest.mark.parametrize(
+    "request_",
+    [
+        "601 40 00 20 00 00 00 00 00",  # no such object: the abort is the loop's
+        "601 40 00 10 01 00 00 00 00",  # no such sub-index
+        "601 40 03 21 00 00 00 00 00",  # write-only
+        "601 40 08 10 00 00 00 00 00",  # 0x1008 is 9 bytes: segmented
+        "601 2B 17 10 00 C8 00 00 00",  # a write
+        "601 A0 00 10 00 7F 00 00 00",  # block upload initiate
+        "601 40 00 10 00 00 00 00",  # DLC 7
+        "601 E0 00 10 00 00 00 00 00",  # unknown command specifier
+        "602 40 00 10 00 00 00 00 00",  # another node's SDO
+        "000 01 00",  # NMT
+    ],
+)
 def test_anything_but_a_plain_expedited_read_is_declined(rig, request_):
     sdo = rig.node.service("sdo")
     before = sdo.status()
@@ -100,7 +111,9 @@ def test_a_failing_getter_is_declined_and_the_loop_path_aborts(rig):
     rig.node.od.bind(0x1017, 0, getter=broken)
     rig.send(UPLOAD_1000)  # route again after the binding
     assert quick(rig, "601 40 17 10 00 00 00 00 00") is None
-    assert rig.send("601 40 17 10 00 00 00 00 00") == ["581 80 17 10 00 00 00 06 06"]  # hardware error
+    assert rig.send("601 40 17 10 00 00 00 00 00") == [
+        "581 80 17 10 00 00 00 06 06"
+    ]  # hardware error
 
 
 def test_extra_sdo_channels_answer_quickly_too():
@@ -116,8 +129,11 @@ def test_extra_sdo_channels_answer_quickly_too():
 # Process-image getters are the event loop's (the image has no locks): a read of 8 DI
 # channels packed in 0x6000 could mix two updates, and 0x6422 clears what it reads.
 
+
 def io_quick(b, index: int, sub: int) -> str | None:
-    answer = b.node.quick_answer(0x601, bytes([0x40, index & 0xFF, index >> 8, sub, 0, 0, 0, 0]), b.clock.t)
+    answer = b.node.quick_answer(
+        0x601, bytes([0x40, index & 0xFF, index >> 8, sub, 0, 0, 0, 0]), b.clock.t
+    )
     return None if answer is None else answer.data.hex(" ").upper()
 
 
@@ -127,7 +143,15 @@ def io():
 
     b = demo_7232d()
     b.start()
-    for index, sub in ((0x1000, 0), (0x6000, 1), (0x6401, 1), (0x6422, 1), (0x1001, 0), (0x1003, 0), (0x1010, 1)):
+    for index, sub in (
+        (0x1000, 0),
+        (0x6000, 1),
+        (0x6401, 1),
+        (0x6422, 1),
+        (0x1001, 0),
+        (0x1003, 0),
+        (0x1010, 1),
+    ):
         b.read(index, sub)  # routes the SDO server and fills the read cache
     return b
 

@@ -15,14 +15,18 @@ from canopen_dut import FRONT, InProcessDut, topology
 
 NODE = 5
 uvloop = pytest.importorskip("uvloop")
-pytestmark = pytest.mark.skipif(bool(os.environ.get("FIELDGATE_TEST_CAN")),
-                                reason="about the virtual bus's receive thread; on SocketCAN the loop reads the socket")
+pytestmark = pytest.mark.skipif(
+    bool(os.environ.get("FIELDGATE_TEST_CAN")),
+    reason="about the virtual bus's receive thread; on SocketCAN the loop reads the socket",
+)
 
 
 @pytest.fixture
 def dut_and_master(tmp_path):
     channel = f"quick-{uuid.uuid4().hex[:8]}"
-    dut = InProcessDut(topology(tmp_path, NODE), "virtual", channel, loop_factory=uvloop.new_event_loop)
+    dut = InProcessDut(
+        topology(tmp_path, NODE), "virtual", channel, loop_factory=uvloop.new_event_loop
+    )
     dut.start()
     network = canopen.Network()
     network.connect(interface="virtual", channel=channel)
@@ -38,12 +42,16 @@ def quick_answers(dut) -> int:
 
 def test_plain_reads_on_the_receive_thread_image_reads_on_the_loop(dut_and_master):
     dut, node = dut_and_master
-    assert dut.call(lambda: type(dut.gateway.component(FRONT).adapter.loop).__module__.startswith("uvloop"))
+    assert dut.call(
+        lambda: type(dut.gateway.component(FRONT).adapter.loop).__module__.startswith("uvloop")
+    )
     node.sdo.upload(0x1000, 0)  # routes the SDO COB-ID (on the loop)
     before = quick_answers(dut)
     for _ in range(50):
         assert len(node.sdo.upload(0x1000, 0)) == 4
-    assert quick_answers(dut) - before >= 48  # a heartbeat falling due may send one or two to the loop
+    assert (
+        quick_answers(dut) - before >= 48
+    )  # a heartbeat falling due may send one or two to the loop
 
     node.sdo.download(0x6200, 1, bytes([0x5A]))  # DO 0-7 of module 3, looped back to its DI
     node.sdo.download(0x6411, 1, (1234).to_bytes(2, "little"))  # AO 0 -> AI 0

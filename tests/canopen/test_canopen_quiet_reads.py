@@ -37,23 +37,32 @@ def test_the_sdo_server_reports_quiet_only_for_a_successful_expedited_read(rig):
     from canopen_rig import frame
 
     assert sdo.on_frame(frame(UPLOAD_1000), 0.0) is QUIET
-    assert sdo.on_frame(frame("601 40 00 20 00 00 00 00 00"), 0.0) is True  # no object: abort, general path
-    assert sdo.on_frame(frame("601 40 08 10 00 00 00 00 00"), 0.0) is True  # 0x1008 is 9 bytes: segmented
+    assert (
+        sdo.on_frame(frame("601 40 00 20 00 00 00 00 00"), 0.0) is True
+    )  # no object: abort, general path
+    assert (
+        sdo.on_frame(frame("601 40 08 10 00 00 00 00 00"), 0.0) is True
+    )  # 0x1008 is 9 bytes: segmented
     assert sdo.deadline() is not None  # the segmented upload is open and timed
 
 
-@pytest.mark.parametrize(("request_", "answer"), [
-    ("601 40 00 20 00 00 00 00 00", "581 80 00 20 00 00 00 02 06"),  # object does not exist
-    ("601 40 00 10 01 00 00 00 00", "581 80 00 10 01 11 00 09 06"),  # sub-index does not exist
-    ("601 40 03 21 00 00 00 00 00", "581 80 03 21 00 01 00 01 06"),  # write-only
-    ("601 40 00 14 02 00 00 00 00", "581 4F 00 14 02 FF 00 00 00"),  # one byte, n = 3
-])
+@pytest.mark.parametrize(
+    ("request_", "answer"),
+    [
+        ("601 40 00 20 00 00 00 00 00", "581 80 00 20 00 00 00 02 06"),  # object does not exist
+        ("601 40 00 10 01 00 00 00 00", "581 80 00 10 01 11 00 09 06"),  # sub-index does not exist
+        ("601 40 03 21 00 00 00 00 00", "581 80 03 21 00 01 00 01 06"),  # write-only
+        ("601 40 00 14 02 00 00 00 00", "581 4F 00 14 02 FF 00 00 00"),  # one byte, n = 3
+    ],
+)
 def test_reads_that_leave_the_short_path_are_answered_as_before(rig, request_, answer):
     assert rig.send(request_) == [answer]
 
 
 def test_a_read_during_an_open_transfer_supersedes_it_as_before(rig):
-    assert rig.send("601 21 00 21 00 0A 00 00 00") == ["581 60 00 21 00 00 00 00 00"]  # segmented download of 10 bytes
+    assert rig.send("601 21 00 21 00 0A 00 00 00") == [
+        "581 60 00 21 00 00 00 00 00"
+    ]  # segmented download of 10 bytes
     assert rig.send(UPLOAD_1000) == [ANSWER_1000]
     sdo = rig.node.service("sdo")
     assert sdo.status()["superseded"] == 1 and sdo.status()["phase"] == "idle"
@@ -86,7 +95,9 @@ def test_without_any_timer_a_read_skips_the_timer_pass_and_a_later_timer_still_r
     rig = Rig(seed_node())  # no heartbeat, no guarding: no deadline at all
     assert rig.node.deadline_after_call is None
     assert rig.send(UPLOAD_1000) == [ANSWER_1000]
-    assert rig.send("601 2B 17 10 00 64 00 00 00") == ["581 60 17 10 00 00 00 00 00"]  # heartbeat 100 ms: a write
+    assert rig.send("601 2B 17 10 00 64 00 00 00") == [
+        "581 60 17 10 00 00 00 00 00"
+    ]  # heartbeat 100 ms: a write
     assert rig.node.deadline_after_call == pytest.approx(0.1)
     rig.now = 0.1
     assert rig.send(UPLOAD_1000) == [ANSWER_1000, "701 7F"]

@@ -17,9 +17,42 @@ def test_random_frames_never_raise_and_answers_are_well_formed():
     for i in range(20_000):
         can_id = rng.choice(IDS) if rng.random() < 0.9 else rng.randrange(0x800)
         if can_id == 0x601 and rng.random() < 0.7:  # mostly plausible SDO requests
-            data = bytes([rng.choice([0x20, 0x23, 0x2B, 0x2F, 0x40, 0x60, 0x70, 0x00, 0x10, 0x80, 0xA0, 0xA3, 0xA2, 0xA1, 0xC0, 0xC6, 0x81, 0x01])]) + rng.choice([b"\x00\x10", b"\x08\x10", b"\x03\x10", b"\x01\x21", b"\x00\x14", b"\x16\x10"]) + bytes(rng.randrange(256) for _ in range(5))
+            data = (
+                bytes(
+                    [
+                        rng.choice(
+                            [
+                                0x20,
+                                0x23,
+                                0x2B,
+                                0x2F,
+                                0x40,
+                                0x60,
+                                0x70,
+                                0x00,
+                                0x10,
+                                0x80,
+                                0xA0,
+                                0xA3,
+                                0xA2,
+                                0xA1,
+                                0xC0,
+                                0xC6,
+                                0x81,
+                                0x01,
+                            ]
+                        )
+                    ]
+                )
+                + rng.choice(
+                    [b"\x00\x10", b"\x08\x10", b"\x03\x10", b"\x01\x21", b"\x00\x14", b"\x16\x10"]
+                )
+                + bytes(rng.randrange(256) for _ in range(5))
+            )
         elif can_id == 0x000 and rng.random() < 0.3:
-            data = bytes([rng.choice([0x01, 0x02, 0x80]), rng.choice([0, 1])])  # never a reset: keep state
+            data = bytes(
+                [rng.choice([0x01, 0x02, 0x80]), rng.choice([0, 1])]
+            )  # never a reset: keep state
         else:
             data = bytes(rng.randrange(256) for _ in range(rng.randrange(9)))
         rtr = rng.random() < 0.05
@@ -112,9 +145,18 @@ def test_integer_encoding_matches_canopens_and_refuses_bad_values():
         var.data_type = data_type
         size = var.STRUCT_TYPES[data_type].size
         signed = data_type in cdt.SIGNED_TYPES
-        for value in ((-(1 << (8 * size - 1)), -1, 0, 1, (1 << (8 * size - 1)) - 1) if signed else (0, 1, (1 << (8 * size)) - 1)):
+        for value in (
+            (-(1 << (8 * size - 1)), -1, 0, 1, (1 << (8 * size - 1)) - 1)
+            if signed
+            else (0, 1, (1 << (8 * size)) - 1)
+        ):
             assert encode(var, value) == var.encode_raw(value)
-        if size in (1, 2, 4, 8):  # canopen's 24/40/48/56-bit packers truncate silently (theirs, unchanged)
+        if size in (
+            1,
+            2,
+            4,
+            8,
+        ):  # canopen's 24/40/48/56-bit packers truncate silently (theirs, unchanged)
             with pytest.raises(ValueError):
                 encode(var, 1 << (8 * size))
         with pytest.raises(TypeError):
@@ -124,9 +166,17 @@ def test_integer_encoding_matches_canopens_and_refuses_bad_values():
 def test_frames_are_immutable_values():
     import pytest
 
-    a, b = Frame(0x605, b"\x40\x00\x10\x00\x00\x00\x00\x00"), Frame(0x605, bytes.fromhex("4000100000000000"))
-    assert a == b and hash(a) == hash(b) and a != Frame(0x605, b"\x40", rtr=False) and len({a, b}) == 1
+    a, b = (
+        Frame(0x605, b"\x40\x00\x10\x00\x00\x00\x00\x00"),
+        Frame(0x605, bytes.fromhex("4000100000000000")),
+    )
+    assert (
+        a == b and hash(a) == hash(b) and a != Frame(0x605, b"\x40", rtr=False) and len({a, b}) == 1
+    )
     with pytest.raises(AttributeError):
         a.can_id = 0x606
-    assert str(Frame(0x705, b"", rtr=True, dlc=1)) == "705 RTR [1]" and Frame(0x705, b"", rtr=True, dlc=1).length == 1
+    assert (
+        str(Frame(0x705, b"", rtr=True, dlc=1)) == "705 RTR [1]"
+        and Frame(0x705, b"", rtr=True, dlc=1).length == 1
+    )
     assert str(a) == "605 [8] 40 00 10 00 00 00 00 00"

@@ -35,7 +35,10 @@ def test_tv02_segmented_upload_of_device_name(rig):
 
 def test_tv03_block_upload_without_crc(rig):
     assert rig.sdo("A0 08 10 00 7F 00 00 00") == "C2 08 10 00 09 00 00 00"
-    assert rig.send("601 A3 00 00 00 00 00 00 00") == ["581 01 43 50 53 5F 44 43 4F", "581 82 4E 00 00 00 00 00 00"]
+    assert rig.send("601 A3 00 00 00 00 00 00 00") == [
+        "581 01 43 50 53 5F 44 43 4F",
+        "581 82 4E 00 00 00 00 00 00",
+    ]
     assert rig.sdo("A2 02 7F 00 00 00 00 00") == "D5 00 00 00 00 00 00 00"
     assert rig.send("601 A1 00 00 00 00 00 00 00") == []
     assert rig.node.service("sdo").phase.name == "IDLE"
@@ -65,23 +68,26 @@ def test_tv06_abort_missing_subindex(rig):
     assert rig.sdo("40 08 10 01 00 00 00 00") == "80 08 10 01 11 00 09 06"
 
 
-@pytest.mark.parametrize("request_, code", [
-    ("40 00 30 00 00 00 00 00", 0x06020000),  # no object
-    ("40 18 10 07 00 00 00 00", 0x06090011),  # no sub-index
-    ("23 00 10 00 00 00 00 00", 0x06010002),  # 0x1000 read-only
-    ("23 08 10 00 41 42 43 44", 0x06010002),  # const string
-    ("40 03 21 00 00 00 00 00", 0x06010001),  # write-only
-    ("2B 00 14 02 05 00 00 00", 0x06070012),  # 2 bytes into U8
-    ("2F 0C 10 00 05 00 00 00", 0x06070013),  # 1 byte into U16
-    ("2B 02 21 00 E9 03 00 00", 0x06090031),  # 1001 > max 1000
-    ("2B 02 21 00 9B FF 00 00", 0x06090032),  # -101 < min -100
-    ("2B 0C 10 00 00 80 00 00", 0x06090031),  # guard time > 32767
-    ("2F 03 10 00 01 00 00 00", 0x06090030),  # 0x1003:0 only accepts 0
-    ("23 10 10 01 73 61 76 66", 0x08000020),  # wrong "save" signature
-    ("E0 00 10 00 00 00 00 00", 0x05040001),  # ccs 7
-    ("A0 08 10 00 00 00 00 00", 0x05040002),  # block size 0
-    ("A0 08 10 00 80 00 00 00", 0x05040002),  # block size 128
-])
+@pytest.mark.parametrize(
+    "request_, code",
+    [
+        ("40 00 30 00 00 00 00 00", 0x06020000),  # no object
+        ("40 18 10 07 00 00 00 00", 0x06090011),  # no sub-index
+        ("23 00 10 00 00 00 00 00", 0x06010002),  # 0x1000 read-only
+        ("23 08 10 00 41 42 43 44", 0x06010002),  # const string
+        ("40 03 21 00 00 00 00 00", 0x06010001),  # write-only
+        ("2B 00 14 02 05 00 00 00", 0x06070012),  # 2 bytes into U8
+        ("2F 0C 10 00 05 00 00 00", 0x06070013),  # 1 byte into U16
+        ("2B 02 21 00 E9 03 00 00", 0x06090031),  # 1001 > max 1000
+        ("2B 02 21 00 9B FF 00 00", 0x06090032),  # -101 < min -100
+        ("2B 0C 10 00 00 80 00 00", 0x06090031),  # guard time > 32767
+        ("2F 03 10 00 01 00 00 00", 0x06090030),  # 0x1003:0 only accepts 0
+        ("23 10 10 01 73 61 76 66", 0x08000020),  # wrong "save" signature
+        ("E0 00 10 00 00 00 00 00", 0x05040001),  # ccs 7
+        ("A0 08 10 00 00 00 00 00", 0x05040002),  # block size 0
+        ("A0 08 10 00 80 00 00 00", 0x05040002),  # block size 128
+    ],
+)
 def test_aborts(rig, request_, code):
     assert abort_of(rig.sdo(request_)) == code
 
@@ -146,13 +152,15 @@ def _segments(data: bytes, blksize: int = 127):
     for i in range(0, len(data), 7):
         seq += 1
         last = i + 7 >= len(data)
-        frames.append(bytes([seq | (0x80 if last else 0)]) + data[i:i + 7].ljust(7, b"\0"))
+        frames.append(bytes([seq | (0x80 if last else 0)]) + data[i : i + 7].ljust(7, b"\0"))
     return frames
 
 
 def test_block_download_with_crc_and_lost_segment(rig):
     payload = bytes(range(40))
-    assert rig.sdo("C6 01 21 00" + struct.pack("<I", len(payload)).hex()) == "A4 01 21 00 7F 00 00 00"
+    assert (
+        rig.sdo("C6 01 21 00" + struct.pack("<I", len(payload)).hex()) == "A4 01 21 00 7F 00 00 00"
+    )
     segs = _segments(payload)
     assert rig.send(segs[0].hex()[:0] + "601 " + segs[0].hex()) == []
     # segment 2 is lost; 3..6 arrive, the last one is acknowledged short (ackseq 1)
@@ -166,7 +174,10 @@ def test_block_download_with_crc_and_lost_segment(rig):
     assert rig.sdo(again[-1].hex()) == f"A2 {len(again):02X} 7F 00 00 00 00 00"
     n = 7 - (len(payload) % 7 or 7)
     crc = crc16(payload)
-    assert rig.sdo(f"{0xC1 | (n << 2):02X}" + struct.pack("<H", crc).hex() + "00" * 5) == "A1 00 00 00 00 00 00 00"
+    assert (
+        rig.sdo(f"{0xC1 | (n << 2):02X}" + struct.pack("<H", crc).hex() + "00" * 5)
+        == "A1 00 00 00 00 00 00 00"
+    )
     assert rig.node.od.get(0x2101) == payload
 
 
@@ -178,7 +189,10 @@ def test_block_download_crc_error(rig):
     rig.sdo(segs[1].hex())
     n = 7 - len(payload) % 7
     bad = crc16(payload) ^ 1
-    assert abort_of(rig.sdo(f"{0xC1 | (n << 2):02X}" + struct.pack("<H", bad).hex() + "00" * 5)) == 0x05040004
+    assert (
+        abort_of(rig.sdo(f"{0xC1 | (n << 2):02X}" + struct.pack("<H", bad).hex() + "00" * 5))
+        == 0x05040004
+    )
     assert rig.node.od.get(0x2101) == b""
 
 
@@ -192,7 +206,10 @@ def test_block_upload_with_crc_small_blocks_and_resend(rig):
     rig.node.od.set(0x2101, 0, payload)
     assert rig.sdo("A4 01 21 00 02 00 00 00") == "C6 01 21 00 1E 00 00 00"
     out = rig.send("601 A3 00 00 00 00 00 00 00")
-    assert out == ["581 01 " + payload[0:7].hex(" ").upper(), "581 02 " + payload[7:14].hex(" ").upper()]
+    assert out == [
+        "581 01 " + payload[0:7].hex(" ").upper(),
+        "581 02 " + payload[7:14].hex(" ").upper(),
+    ]
     # the client lost segment 2: ackseq 1 -> the server resends from byte 7
     out = rig.send("601 A2 01 03 00 00 00 00 00")
     assert [o[4:6] for o in out] == ["01", "02", "03"]

@@ -45,7 +45,9 @@ def test_next_sync_ends_the_loss_and_supervision_runs_on(rig):
 
 def test_sync_of_the_wrong_length_does_not_end_the_loss(rig):
     sync_lost(rig)
-    assert rig.send("080 01") == []  # no counter configured: DLC 1 is not a SYNC (CANopenNode: neither)
+    assert (
+        rig.send("080 01") == []
+    )  # no counter configured: DLC 1 is not a SYNC (CANopenNode: neither)
     assert register(rig) == 0x11
     assert rig.node.service("sync").counters["bad_length"] == 1
 
@@ -133,7 +135,9 @@ def test_reset_ends_sync_loss_and_life_guarding_error_with_one_emcy():
     assert rig.advance(0.25) == ["081 30 81 11 07 00 00 00 00"]
     assert rig.send("000 82 01") == ["701 00", RESET]  # both end together: one error reset
     assert register(rig) == 0
-    assert rig.sdo("40 03 10 00 00 00 00 00") == "4F 03 10 00 03 00 00 00"  # loss, guarding, one reset
+    assert (
+        rig.sdo("40 03 10 00 00 00 00 00") == "4F 03 10 00 03 00 00 00"
+    )  # loss, guarding, one reset
 
 
 def test_reset_keeps_other_errors_and_reports_them_in_the_reset_emcy(rig):

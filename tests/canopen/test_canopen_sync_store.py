@@ -97,10 +97,22 @@ def test_store_communication_area_only(tmp_path):
     assert r.sdo("23 11 10 01 6C 6F 61 65") == "80 11 10 01 20 00 00 08"
 
 
-@pytest.mark.parametrize("content, emcy", [
-    (b"{not json", "081 00 50 81 02 00 00 00 00"),
-    (json.dumps({"format": "fieldgate-canopen-store/1", "fingerprint": "set-B", "values": {"1017.00": 500}}).encode(), "081 00 63 81 0C 00 00 00 00"),
-])
+@pytest.mark.parametrize(
+    "content, emcy",
+    [
+        (b"{not json", "081 00 50 81 02 00 00 00 00"),
+        (
+            json.dumps(
+                {
+                    "format": "fieldgate-canopen-store/1",
+                    "fingerprint": "set-B",
+                    "values": {"1017.00": 500},
+                }
+            ).encode(),
+            "081 00 63 81 0C 00 00 00 00",
+        ),
+    ],
+)
 def test_bad_store_falls_back_to_defaults_with_emcy(tmp_path, caplog, content, emcy):
     path = tmp_path / "node.json"
     path.write_bytes(content)
@@ -111,7 +123,10 @@ def test_bad_store_falls_back_to_defaults_with_emcy(tmp_path, caplog, content, e
     assert node.od.get(0x1017) == 0
     assert len([rec for rec in caplog.records if "store" in rec.name]) == 1
     # a successful save clears the error
-    assert sorted(r.send("601 23 10 10 01 73 61 76 65")) == ["081 00 00 00 00 00 00 00 00", "581 60 10 10 01 00 00 00 00"]
+    assert sorted(r.send("601 23 10 10 01 73 61 76 65")) == [
+        "081 00 00 00 00 00 00 00 00",
+        "581 60 10 10 01 00 00 00 00",
+    ]
 
 
 def test_store_without_file_aborts():
@@ -146,7 +161,9 @@ def test_store_path_that_cannot_be_read_falls_back(tmp_path):
 def test_sync_cob_id_rules(rig):
     assert rig.sdo("23 05 10 00 80 00 00 20") == "80 05 10 00 30 00 09 06"  # 29-bit
     assert rig.sdo("23 05 10 00 80 00 00 40") == "60 05 10 00 00 00 00 00"  # producer on
-    assert rig.sdo("23 05 10 00 81 00 00 40") == "80 05 10 00 30 00 09 06"  # id change while producing
+    assert (
+        rig.sdo("23 05 10 00 81 00 00 40") == "80 05 10 00 30 00 09 06"
+    )  # id change while producing
     assert rig.sdo("23 05 10 00 80 00 00 00") == "60 05 10 00 00 00 00 00"
     assert rig.sdo("23 05 10 00 90 00 00 00") == "60 05 10 00 00 00 00 00"
     rig.send("090")
@@ -155,8 +172,16 @@ def test_sync_cob_id_rules(rig):
 
 def test_store_of_another_module_set_drops_its_sections_too(tmp_path, caplog):
     path = tmp_path / "node.json"
-    path.write_text(json.dumps({"format": "fieldgate-canopen-store/1", "fingerprint": "set-B",
-                                "values": {"1017.00": 500}, "sections": {"io401": {"pdo": [1, 2]}}}))
+    path.write_text(
+        json.dumps(
+            {
+                "format": "fieldgate-canopen-store/1",
+                "fingerprint": "set-B",
+                "values": {"1017.00": 500},
+                "sections": {"io401": {"pdo": [1, 2]}},
+            }
+        )
+    )
     node = seed_node(store_path=path, fingerprint="set-A")
     store = node.service("store")
     store.load()
@@ -204,14 +229,37 @@ def test_resets_reload_values_without_calling_write_listeners():
     assert r.advance(1.0) == []  # the heartbeat producer follows the reloaded 0x1017 = 0
 
 
-@pytest.mark.parametrize("can_id", [0x000, 0x001, 0x07F, 0x101, 0x180, 0x581, 0x5FF, 0x601, 0x67F, 0x6E0, 0x6FF, 0x701, 0x77F, 0x780, 0x7FF])
+@pytest.mark.parametrize(
+    "can_id",
+    [
+        0x000,
+        0x001,
+        0x07F,
+        0x101,
+        0x180,
+        0x581,
+        0x5FF,
+        0x601,
+        0x67F,
+        0x6E0,
+        0x6FF,
+        0x701,
+        0x77F,
+        0x780,
+        0x7FF,
+    ],
+)
 def test_sync_cob_id_restricted_can_ids_are_refused(rig, can_id):
-    request = "23 05 10 00 " + (can_id | 1 << 31).to_bytes(4, "little").hex(" ")  # bit 31 is "don't care" for SYNC
+    request = "23 05 10 00 " + (can_id | 1 << 31).to_bytes(4, "little").hex(
+        " "
+    )  # bit 31 is "don't care" for SYNC
     assert rig.sdo(request) == "80 05 10 00 30 00 09 06"
     assert rig.node.od.get(0x1005) == 0x80
 
 
 @pytest.mark.parametrize("can_id", [0x080, 0x100, 0x181, 0x580, 0x600, 0x680, 0x6DF, 0x700])
 def test_sync_cob_id_unrestricted_can_ids_are_taken(rig, can_id):
-    assert rig.sdo("23 05 10 00 " + can_id.to_bytes(4, "little").hex(" ")) == "60 05 10 00 00 00 00 00"
+    assert (
+        rig.sdo("23 05 10 00 " + can_id.to_bytes(4, "little").hex(" ")) == "60 05 10 00 00 00 00 00"
+    )
     assert rig.node.od.get(0x1005) == can_id

@@ -33,11 +33,29 @@ async def test_watchdog_objects_drive_the_dcon_back(tmp_path):
         pytest.skip("the dcon back plugin is not installed")
     topology = {
         "gateway": {"name": "i7231d", "state_dir": str(tmp_path)},
-        "fronts": [{"name": "can", "type": "canopen", "interface": "virtual", "channel": f"fg-dcon-{uuid.uuid4().hex[:8]}", "node_id": 1}],
-        "backs": [{"name": "rs485", "type": "dcon", "port": "simulated", "timeout_ms": 60, "poll_ms": 10, "offline_probe_ms": 100, "modules": [
-            {"address": 1, "model": "I-7060", "watchdog": WD},
-            {"address": 2, "model": "I-7052"},
-        ]}],
+        "fronts": [
+            {
+                "name": "can",
+                "type": "canopen",
+                "interface": "virtual",
+                "channel": f"fg-dcon-{uuid.uuid4().hex[:8]}",
+                "node_id": 1,
+            }
+        ],
+        "backs": [
+            {
+                "name": "rs485",
+                "type": "dcon",
+                "port": "simulated",
+                "timeout_ms": 60,
+                "poll_ms": 10,
+                "offline_probe_ms": 100,
+                "modules": [
+                    {"address": 1, "model": "I-7060", "watchdog": WD},
+                    {"address": 2, "model": "I-7052"},
+                ],
+            }
+        ],
     }
     gw = Gateway.load(topology, registry=registry, simulate=True)
     await gw.start()
@@ -59,7 +77,9 @@ async def test_watchdog_objects_drive_the_dcon_back(tmp_path):
             od.write(0x2003, 1, bytes([1]))
         assert refused.value.code == 0x06090030
         od.write(0x2003, 1, bytes([0]))
-        await wait_for(lambda: not sim.module(1).timed_out and sim.get_output("rs485/m1/do1") is True)
+        await wait_for(
+            lambda: not sim.module(1).timed_out and sim.get_output("rs485/m1/do1") is True
+        )
         assert od.get(0x2003, 1) == 0
         with pytest.raises(SdoAbort):
             od.write(0x2002, 1, bytes([0]))

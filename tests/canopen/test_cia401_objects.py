@@ -48,7 +48,9 @@ def test_error_mode_objects_are_the_image_error_modes():
     b.write(0x6443, 1, 0, 1)
     assert image["bus/m3/ao0"].error_mode == ErrorMode(False, -5)
     assert b.write(0x6443, 1, 2, 1) == "80 43 64 01 30 00 09 06"
-    assert b.write(0x6444, 1, 70000, 4) == "80 44 64 01 30 00 09 06"  # outside the channel's INTEGER16
+    assert (
+        b.write(0x6444, 1, 70000, 4) == "80 44 64 01 30 00 09 06"
+    )  # outside the channel's INTEGER16
 
 
 @pytest.mark.parametrize("before, after", [(0x00, 0x01), (0xFF, 0xBF), (0x5A, 0x1B)])
@@ -92,7 +94,9 @@ def test_heartbeat_consumer_loss_applies_error_values():
 
 
 def test_uint16_and_float_analog_channels():
-    image = make_image([(1, 0, 0, 1, 1)], dtypes={(1, Kind.AI): DataType.UINT16, (1, Kind.AO): DataType.UINT16})
+    image = make_image(
+        [(1, 0, 0, 1, 1)], dtypes={(1, Kind.AI): DataType.UINT16, (1, Kind.AO): DataType.UINT16}
+    )
     b = Bench(image)
     b.start()
     image.update_input("bus/m1/ai0", 0xFFF0)

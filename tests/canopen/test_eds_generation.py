@@ -22,17 +22,37 @@ DCFCHK = shutil.which("dcfchk") or str(Path(sys.executable).with_name("dcfchk"))
 def topology(tmp_path: Path, **front) -> dict:
     return {
         "gateway": {"name": "eds-test", "state_dir": str(tmp_path / "state")},
-        "fronts": [{"name": "plc", "type": "canopen", "interface": "virtual", "channel": f"eds-{uuid.uuid4().hex[:8]}", "node_id": 5,
-                    "identity": {"vendor_id": 0xABCD, "product_code": 0x7232, "device_name": "fieldgate I-7232D"}, **front}],
-        "backs": [{"name": "io", "type": "loopback", "modules": [
-            {"address": 1, "digital": 8, "analog": 2, "error_mode": {"value": 0}},
-            {"address": 3, "digital": 12},
-        ]}],
+        "fronts": [
+            {
+                "name": "plc",
+                "type": "canopen",
+                "interface": "virtual",
+                "channel": f"eds-{uuid.uuid4().hex[:8]}",
+                "node_id": 5,
+                "identity": {
+                    "vendor_id": 0xABCD,
+                    "product_code": 0x7232,
+                    "device_name": "fieldgate I-7232D",
+                },
+                **front,
+            }
+        ],
+        "backs": [
+            {
+                "name": "io",
+                "type": "loopback",
+                "modules": [
+                    {"address": 1, "digital": 8, "analog": 2, "error_mode": {"value": 0}},
+                    {"address": 3, "digital": 12},
+                ],
+            }
+        ],
     }
 
 
 def write_topology(tmp_path: Path, **front) -> Path:
     from ruamel.yaml import YAML
+
     path = tmp_path / "topo.yaml"
     with path.open("w") as f:
         YAML().dump(topology(tmp_path, **front), f)
@@ -47,33 +67,53 @@ def generate(tmp_path: Path, **front) -> Path:
 
 
 def dcfchk(path: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([DCFCHK, "-n", "5", str(path)], capture_output=True, text=True, timeout=60)
+    return subprocess.run(
+        [DCFCHK, "-n", "5", str(path)], capture_output=True, text=True, timeout=60
+    )
 
 
 @pytest.mark.parametrize("style", ["icpdas", "na9161"])
 def test_eds_imports_with_canopen_and_describes_the_layout(tmp_path, style):
     od = canopen.import_od(str(generate(tmp_path, style=style)), node_id=5)
     assert od[0x1000].default == 0x000F0191
-    assert od[0x6000][0].default == 3 and od[0x6200][0].default == 3  # 1 byte + 2 bytes (12 DO of module 3)
+    assert (
+        od[0x6000][0].default == 3 and od[0x6200][0].default == 3
+    )  # 1 byte + 2 bytes (12 DO of module 3)
     assert od[0x6401][0].default == 2 and od[0x6411][0].default == 2
     assert od[0x1800][1].default == 0x185 and od[0x1800][1].relative
-    assert od[0x1A00][1].default == 0x60000108 and od[0x6200][1].access_type == "rw" and od[0x6200][1].pdo_mappable
-    assert od[0x6401][1].data_type == canopen.objectdictionary.INTEGER16 and not od[0x6000][1].access_type.startswith("w")
+    assert (
+        od[0x1A00][1].default == 0x60000108
+        and od[0x6200][1].access_type == "rw"
+        and od[0x6200][1].pdo_mappable
+    )
+    assert od[0x6401][1].data_type == canopen.objectdictionary.INTEGER16 and not od[0x6000][
+        1
+    ].access_type.startswith("w")
     assert od[0x2000][0].default == 2 and od[0x2010][2].default == 3
     count = 32 if style == "icpdas" else 8
-    assert od.device_information.nr_of_TXPDO == count and (0x1800 + count - 1) in od and (0x1800 + count) not in od
+    assert (
+        od.device_information.nr_of_TXPDO == count
+        and (0x1800 + count - 1) in od
+        and (0x1800 + count) not in od
+    )
     assert od[0x1800][2].default == (255 if style == "icpdas" else 254)
 
 
-@pytest.mark.parametrize("options", [{"style": "icpdas", "pdo_count": 64}, {"style": "na9161", "compressed": False}])
+@pytest.mark.parametrize(
+    "options", [{"style": "icpdas", "pdo_count": 64}, {"style": "na9161", "compressed": False}]
+)
 def test_eds_passes_lely_dcfchk(tmp_path, options):
     assert Path(DCFCHK).exists(), "dcf-tools is in the test extra"
     path = generate(tmp_path, **options)
     result = dcfchk(path)
-    assert result.returncode == 0 and "Warning" not in result.stderr and "rror" not in result.stderr, result.stderr
+    assert (
+        result.returncode == 0 and "Warning" not in result.stderr and "rror" not in result.stderr
+    ), result.stderr
     # the check can fail: a default outside its limits is reported
     broken = tmp_path / "broken.eds"
-    broken.write_text(path.read_text().replace("[1A00sub1]\n", "[1A00sub1]\nLowLimit=0x0\nHighLimit=0x1\n", 1))
+    broken.write_text(
+        path.read_text().replace("[1A00sub1]\n", "[1A00sub1]\nLowLimit=0x0\nHighLimit=0x1\n", 1)
+    )
     assert dcfchk(broken).returncode != 0
 
 
@@ -84,14 +124,19 @@ def test_cli_with_an_unknown_front_fails_with_a_message(tmp_path, capsys):
     assert not (tmp_path / "plc.eds").exists()
 
 
-@pytest.mark.parametrize("output, reason", [("no/such/dir/x.eds", "No such file or directory"), ("outdir", "Is a directory")])
+@pytest.mark.parametrize(
+    "output, reason",
+    [("no/such/dir/x.eds", "No such file or directory"), ("outdir", "Is a directory")],
+)
 def test_an_output_that_cannot_be_written_is_one_line_and_exit_1(tmp_path, capsys, output, reason):
     path = write_topology(tmp_path)
     (tmp_path / "outdir").mkdir()
     out = tmp_path / output
     assert cli_main(["eds", str(path), "-o", str(out)]) == 1
     assert capsys.readouterr().err == f"{out}: cannot write the EDS: {reason}\n"
-    assert not (tmp_path / "no").exists() and not any((tmp_path / "outdir").iterdir())  # no folder made, no temporary left
+    assert not (tmp_path / "no").exists() and not any(
+        (tmp_path / "outdir").iterdir()
+    )  # no folder made, no temporary left
 
 
 def test_the_eds_file_gets_the_umask_mode_and_its_own_file_name(tmp_path, capsys):
@@ -104,7 +149,9 @@ def test_the_eds_file_gets_the_umask_mode_and_its_own_file_name(tmp_path, capsys
         os.umask(old)
     assert out.stat().st_mode & 0o777 == 0o644
     assert "\nFileName=my.eds\n" in out.read_text()
-    assert cli_main(["eds", str(path)]) == 0 and "\nFileName=plc.eds\n" in capsys.readouterr().out  # standard output: the front's name
+    assert (
+        cli_main(["eds", str(path)]) == 0 and "\nFileName=plc.eds\n" in capsys.readouterr().out
+    )  # standard output: the front's name
 
 
 def test_set_overrides_the_topology_as_run_does(tmp_path, capsys):
@@ -118,13 +165,21 @@ def test_set_overrides_the_topology_as_run_does(tmp_path, capsys):
 def assert_served_as_described(eds: canopen.ObjectDictionary, node) -> None:
     in_eds = set()
     for obj in eds.values():
-        for var in [obj] if isinstance(obj, canopen.objectdictionary.ODVariable) else obj.subindices.values():
+        for var in (
+            [obj]
+            if isinstance(obj, canopen.objectdictionary.ODVariable)
+            else obj.subindices.values()
+        ):
             in_eds.add((var.index, var.subindex))
             served = node.od.variable(var.index, var.subindex)
-            assert (served.access_type, served.data_type) == (var.access_type, var.data_type), f"0x{var.index:04X}:{var.subindex}"
+            assert (served.access_type, served.data_type) == (var.access_type, var.data_type), (
+                f"0x{var.index:04X}:{var.subindex}"
+            )
             if var.index == 0x1003 and var.subindex:
                 continue  # empty error history answers 0800 0024
-            assert decode(served, node.od.read(var.index, var.subindex)) == var.default, f"0x{var.index:04X}:{var.subindex}"
+            assert decode(served, node.od.read(var.index, var.subindex)) == var.default, (
+                f"0x{var.index:04X}:{var.subindex}"
+            )
     assert {(v.index, v.subindex) for v in node.od.variables()} == in_eds
 
 
@@ -144,9 +199,25 @@ async def test_dcon_watchdog_objects_in_the_eds_match_the_running_gateway(tmp_pa
     if registry.lookup("back", "dcon") is None:
         pytest.skip("the dcon back plugin is not installed")
     topo = topology(tmp_path)
-    topo["backs"] = [{"name": "rs485", "type": "dcon", "port": "simulated", "timeout_ms": 60, "poll_ms": 10, "modules": [
-        {"address": 1, "model": "I-7060", "watchdog": {"enabled": True, "timeout_ms": 1500}}, {"address": 2, "model": "I-7017"}]}]
+    topo["backs"] = [
+        {
+            "name": "rs485",
+            "type": "dcon",
+            "port": "simulated",
+            "timeout_ms": 60,
+            "poll_ms": 10,
+            "modules": [
+                {
+                    "address": 1,
+                    "model": "I-7060",
+                    "watchdog": {"enabled": True, "timeout_ms": 1500},
+                },
+                {"address": 2, "model": "I-7017"},
+            ],
+        }
+    ]
     from ruamel.yaml import YAML
+
     path = tmp_path / "dcon.yaml"
     with path.open("w") as f:
         YAML().dump(topo, f)
@@ -154,7 +225,9 @@ async def test_dcon_watchdog_objects_in_the_eds_match_the_running_gateway(tmp_pa
     assert cli_main(["eds", str(path), "-o", str(out)]) == 0
     assert dcfchk(out).returncode == 0
     eds = canopen.import_od(str(out), node_id=5)
-    assert eds[0x2001][1].default == 1 and eds[0x2002][1].default == 15 and eds[0x2003][0].default == 2
+    assert (
+        eds[0x2001][1].default == 1 and eds[0x2002][1].default == 15 and eds[0x2003][0].default == 2
+    )
     gw = Gateway.load(topo, registry=registry, simulate=True)
     await gw.start()
     try:
@@ -167,4 +240,7 @@ def test_cli_on_a_devicenet_topology_points_to_the_devicenet_command(capsys):
     example = Path(__file__).resolve().parents[2] / "examples" / "i7241d-style.yaml"
     assert cli_main(["eds", str(example)]) == 1
     err = capsys.readouterr().err
-    assert "no canopen front in the topology (it has a devicenet front; for DeviceNet: fieldgate devicenet eds)" in err
+    assert (
+        "no canopen front in the topology (it has a devicenet front; for DeviceNet: fieldgate devicenet eds)"
+        in err
+    )

@@ -63,8 +63,13 @@ def test_switch_global_with_unknown_mode_is_dropped():
     assert slave.counters.dropped_malformed == 1
 
 
-def selective(slave, vendor=ADDRESS.vendor, product=ADDRESS.product, revision=ADDRESS.revision,
-              serial=ADDRESS.serial):
+def selective(
+    slave,
+    vendor=ADDRESS.vendor,
+    product=ADDRESS.product,
+    revision=ADDRESS.revision,
+    serial=ADDRESS.serial,
+):
     out = []
     for cs, value in ((0x40, vendor), (0x41, product), (0x42, revision), (0x43, serial)):
         out += send(slave, f"{cs:02x} {u32(value)} 00 00 00")
@@ -165,14 +170,26 @@ def test_configure_bit_timing_defaults_to_the_cia_table():
     assert slave.pending_bitrate == 250_000
     # The CiA 305 table is also the NA-9161's baud switch code table (seed-004 TV-27).
     assert [BIT_TIMING_TABLES["cia"][i] for i in range(9)] == [
-        1_000_000, 800_000, 500_000, 250_000, 125_000, 100_000, 50_000, 20_000, 10_000]
+        1_000_000,
+        800_000,
+        500_000,
+        250_000,
+        125_000,
+        100_000,
+        50_000,
+        20_000,
+        10_000,
+    ]
 
 
-@pytest.mark.parametrize(("table", "request_hex"), [
-    ("cia", "13 00 09"),  # auto bit rate: not offered
-    ("cia", "13 01 00"),  # no user-defined tables
-    ("i7232d", "13 00 08"),
-])
+@pytest.mark.parametrize(
+    ("table", "request_hex"),
+    [
+        ("cia", "13 00 09"),  # auto bit rate: not offered
+        ("cia", "13 01 00"),  # no user-defined tables
+        ("i7232d", "13 00 08"),
+    ],
+)
 def test_configure_bit_timing_unsupported_answers_error_1(table, request_hex):
     slave = configuring(node_id=1, table=table)
     assert send(slave, request_hex + " 00 00 00 00 00") == [frame("13 01 00 00 00 00 00 00")]
@@ -229,13 +246,16 @@ def test_store_that_cannot_write_answers_access_error(tmp_path):
     assert send(slave, "17 00 00 00 00 00 00 00") == [frame("17 02 00 00 00 00 00 00")]
 
 
-@pytest.mark.parametrize("content", [
-    b"{not json",
-    json.dumps({"format": "other", "node_id": 5, "bitrate": None}).encode(),
-    json.dumps({"format": "fieldgate-lss/1", "node_id": 200, "bitrate": None}).encode(),
-    json.dumps({"format": "fieldgate-lss/1", "node_id": 5, "bitrate": "fast"}).encode(),
-    json.dumps([1, 2]).encode(),
-])
+@pytest.mark.parametrize(
+    "content",
+    [
+        b"{not json",
+        json.dumps({"format": "other", "node_id": 5, "bitrate": None}).encode(),
+        json.dumps({"format": "fieldgate-lss/1", "node_id": 200, "bitrate": None}).encode(),
+        json.dumps({"format": "fieldgate-lss/1", "node_id": 5, "bitrate": "fast"}).encode(),
+        json.dumps([1, 2]).encode(),
+    ],
+)
 def test_unusable_store_is_ignored_with_one_log_line(tmp_path, caplog, content):
     path = tmp_path / "lss.json"
     path.write_bytes(content)
@@ -269,23 +289,37 @@ def test_tv21_inquire_identity_and_node_id():
 # -- identify ------------------------------------------------------------------------
 
 
-def identify(slave, vendor=ADDRESS.vendor, product=ADDRESS.product, rev=(0, 0xFFFFFFFF),
-             serial=(0, 0xFFFFFFFF)):
+def identify(
+    slave,
+    vendor=ADDRESS.vendor,
+    product=ADDRESS.product,
+    rev=(0, 0xFFFFFFFF),
+    serial=(0, 0xFFFFFFFF),
+):
     out = []
-    for cs, value in ((0x46, vendor), (0x47, product), (0x48, rev[0]), (0x49, rev[1]),
-                      (0x4A, serial[0]), (0x4B, serial[1])):
+    for cs, value in (
+        (0x46, vendor),
+        (0x47, product),
+        (0x48, rev[0]),
+        (0x49, rev[1]),
+        (0x4A, serial[0]),
+        (0x4B, serial[1]),
+    ):
         out += send(slave, f"{cs:02x} {u32(value)} 00 00 00")
     return out
 
 
-@pytest.mark.parametrize(("rev", "serial", "answers"), [
-    ((0, 0xFFFFFFFF), (0, 0xFFFFFFFF), True),
-    ((ADDRESS.revision, ADDRESS.revision), (ADDRESS.serial, ADDRESS.serial), True),  # inclusive
-    ((ADDRESS.revision + 1, 0xFFFFFFFF), (0, 0xFFFFFFFF), False),
-    ((0, ADDRESS.revision - 1), (0, 0xFFFFFFFF), False),
-    ((0, 0xFFFFFFFF), (ADDRESS.serial + 1, 0xFFFFFFFF), False),
-    ((0, 0xFFFFFFFF), (0, ADDRESS.serial - 1), False),
-])
+@pytest.mark.parametrize(
+    ("rev", "serial", "answers"),
+    [
+        ((0, 0xFFFFFFFF), (0, 0xFFFFFFFF), True),
+        ((ADDRESS.revision, ADDRESS.revision), (ADDRESS.serial, ADDRESS.serial), True),  # inclusive
+        ((ADDRESS.revision + 1, 0xFFFFFFFF), (0, 0xFFFFFFFF), False),
+        ((0, ADDRESS.revision - 1), (0, 0xFFFFFFFF), False),
+        ((0, 0xFFFFFFFF), (ADDRESS.serial + 1, 0xFFFFFFFF), False),
+        ((0, 0xFFFFFFFF), (0, ADDRESS.serial - 1), False),
+    ],
+)
 def test_identify_remote_slave_with_ranges(rev, serial, answers):
     for state in ("04 00", "04 01"):  # in either state
         slave = LssSlave(ADDRESS, node_id=4)
@@ -330,7 +364,12 @@ def fastscan_master(slave: LssSlave) -> list[int] | None:
 
 def test_fastscan_finds_an_unconfigured_node_and_selects_it():
     slave = LssSlave(ADDRESS)
-    assert fastscan_master(slave) == [ADDRESS.vendor, ADDRESS.product, ADDRESS.revision, ADDRESS.serial]
+    assert fastscan_master(slave) == [
+        ADDRESS.vendor,
+        ADDRESS.product,
+        ADDRESS.revision,
+        ADDRESS.serial,
+    ]
     assert slave.state == LssState.CONFIGURATION
     assert fastscan_master(slave) is None  # a selected node no longer takes part
 
@@ -346,7 +385,9 @@ def test_fastscan_mismatch_stays_silent_and_bad_fields_are_dropped():
     assert send(slave, "51 00 00 00 00 80 00 00") == [frame("4F 00 00 00 00 00 00 00")]
     wrong_vendor = ADDRESS.vendor ^ 0x100
     assert slave.on_frame(0x7E5, struct.pack("<BIBBB", 0x51, wrong_vendor, 0, 0, 1), 0) == []
-    assert slave.on_frame(0x7E5, struct.pack("<BIBBB", 0x51, ADDRESS.product, 0, 1, 2), 0) == []  # wrong sub
+    assert (
+        slave.on_frame(0x7E5, struct.pack("<BIBBB", 0x51, ADDRESS.product, 0, 1, 2), 0) == []
+    )  # wrong sub
     before = slave.counters.dropped_malformed
     assert send(slave, "51 00 00 00 00 20 00 00") == []  # bit 32
     assert send(slave, "51 00 00 00 00 00 04 00") == []  # sub 4
@@ -372,8 +413,28 @@ def test_random_frames_never_raise():
     slave = LssSlave(ADDRESS)
     for n in range(20000):
         length = rng.choice((0, 1, 7, 8, 8, 8, 8))
-        data = bytes([rng.choice((0x04, 0x11, 0x13, 0x15, 0x17, 0x40, 0x43, 0x46, 0x4B, 0x4C,
-                                  0x51, 0x5A, 0x5E, rng.randrange(256)))])[:length]
+        data = bytes(
+            [
+                rng.choice(
+                    (
+                        0x04,
+                        0x11,
+                        0x13,
+                        0x15,
+                        0x17,
+                        0x40,
+                        0x43,
+                        0x46,
+                        0x4B,
+                        0x4C,
+                        0x51,
+                        0x5A,
+                        0x5E,
+                        rng.randrange(256),
+                    )
+                )
+            ]
+        )[:length]
         data += bytes(rng.randrange(256) for _ in range(length - len(data)))
         if data[:1] == b"\x15":
             data = data[:1] + b"\x00\x00" + data[3:]  # keep switch delays at zero

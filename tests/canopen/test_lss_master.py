@@ -82,8 +82,12 @@ def device(bus, network, boot_ups, state_dir, tmp_path):
     running = []
 
     def start(node_id=None, expect_boot_up=None, **front):
-        identity = {"vendor_id": IDENTITY.vendor, "product_code": IDENTITY.product,
-                    "revision": IDENTITY.revision, "serial": IDENTITY.serial}
+        identity = {
+            "vendor_id": IDENTITY.vendor,
+            "product_code": IDENTITY.product,
+            "revision": IDENTITY.revision,
+            "serial": IDENTITY.serial,
+        }
         topo = topology(state_dir, node_id, identity=identity, **front)
         dut = make_dut(topo, interface, channel, external, tmp_path)
         dut.start()
@@ -127,8 +131,12 @@ def test_switch_state_selective_matches_only_the_exact_address(network, device):
     lss = network.lss
     lss.RESPONSE_TIMEOUT = 0.3
     with pytest.raises(LssError, match="No LSS response"):
-        lss.send_switch_state_selective(IDENTITY.vendor, IDENTITY.product, IDENTITY.revision, IDENTITY.serial + 1)
-    assert lss.send_switch_state_selective(IDENTITY.vendor, IDENTITY.product, IDENTITY.revision, IDENTITY.serial)
+        lss.send_switch_state_selective(
+            IDENTITY.vendor, IDENTITY.product, IDENTITY.revision, IDENTITY.serial + 1
+        )
+    assert lss.send_switch_state_selective(
+        IDENTITY.vendor, IDENTITY.product, IDENTITY.revision, IDENTITY.serial
+    )
     assert lss.inquire_node_id() == 4  # now in configuration state
 
 
@@ -172,7 +180,11 @@ def test_bit_timing_store_and_power_cycle(network, device, state_dir):
     lss.configure_bit_timing(4)  # CiA table: 125 kbit/s
     lss.configure_node_id(0x30)
     lss.store_configuration()
-    assert lss_store(state_dir) == {"format": "fieldgate-lss/1", "node_id": 0x30, "bitrate": 125_000}
+    assert lss_store(state_dir) == {
+        "format": "fieldgate-lss/1",
+        "node_id": 0x30,
+        "bitrate": 125_000,
+    }
     lss.activate_bit_timing(20)
     time.sleep(0.3)  # silent 20 ms, switch, silent 20 ms
     assert lss.inquire_node_id() == 4  # still on the bus after the switch
@@ -203,11 +215,13 @@ def _identify_answer(lss, timeout=0.3):
 def test_identify_remote_slave_by_ranges(network, device):
     device(node_id=4)
     lss = network.lss
-    lss.send_identify_remote_slave(IDENTITY.vendor, IDENTITY.product, 0, 0xFFFFFFFF,
-                                   IDENTITY.serial, IDENTITY.serial + 10)
+    lss.send_identify_remote_slave(
+        IDENTITY.vendor, IDENTITY.product, 0, 0xFFFFFFFF, IDENTITY.serial, IDENTITY.serial + 10
+    )
     assert _identify_answer(lss, 2) == bytes.fromhex("4F 00 00 00 00 00 00 00")
-    lss.send_identify_remote_slave(IDENTITY.vendor, IDENTITY.product, IDENTITY.revision + 1,
-                                   0xFFFFFFFF, 0, 0xFFFFFFFF)
+    lss.send_identify_remote_slave(
+        IDENTITY.vendor, IDENTITY.product, IDENTITY.revision + 1, 0xFFFFFFFF, 0, 0xFFFFFFFF
+    )
     assert _identify_answer(lss) is None
 
 

@@ -16,12 +16,16 @@ VENDOR, PRODUCT, REVISION, SERIAL = 0x0000_0301, 0x0000_7232, 0x0002_0001, 0x001
 
 def identity_od() -> Dictionary:
     od = Dictionary()
-    od.add_record(0x1018, "Identity object", [
-        (1, "Vendor-ID", dt.UNSIGNED32, "ro", VENDOR),
-        (2, "Product code", dt.UNSIGNED32, "ro", PRODUCT),
-        (3, "Revision number", dt.UNSIGNED32, "ro", REVISION),
-        (4, "Serial number", dt.UNSIGNED32, "ro", SERIAL),
-    ])
+    od.add_record(
+        0x1018,
+        "Identity object",
+        [
+            (1, "Vendor-ID", dt.UNSIGNED32, "ro", VENDOR),
+            (2, "Product code", dt.UNSIGNED32, "ro", PRODUCT),
+            (3, "Revision number", dt.UNSIGNED32, "ro", REVISION),
+            (4, "Serial number", dt.UNSIGNED32, "ro", SERIAL),
+        ],
+    )
     return od
 
 

@@ -28,16 +28,24 @@ async def wait_for(master: can.BusABC, predicate, timeout: float = 3.0) -> list[
         seen.append(msg)
         if predicate(msg):
             return seen
-    raise AssertionError(f"not seen within {timeout} s: {[(hex(m.arbitration_id), m.data.hex()) for m in seen]}")
+    raise AssertionError(
+        f"not seen within {timeout} s: {[(hex(m.arbitration_id), m.data.hex()) for m in seen]}"
+    )
 
 
 def send(master: can.BusABC, can_id: int, data: bytes) -> None:
     master.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
 
 
-async def sdo_write(master: can.BusABC, node: int, index: int, sub: int, value: int, size: int) -> None:
+async def sdo_write(
+    master: can.BusABC, node: int, index: int, sub: int, value: int, size: int
+) -> None:
     cs = {1: 0x2F, 2: 0x2B, 4: 0x23}[size]
-    send(master, 0x600 + node, bytes([cs, index & 0xFF, index >> 8, sub]) + value.to_bytes(size, "little").ljust(4, b"\0"))
+    send(
+        master,
+        0x600 + node,
+        bytes([cs, index & 0xFF, index >> 8, sub]) + value.to_bytes(size, "little").ljust(4, b"\0"),
+    )
     seen = await wait_for(master, lambda m: m.arbitration_id == 0x580 + node)
     assert seen[-1].data[0] == 0x60, seen[-1].data.hex()
 
@@ -46,8 +54,16 @@ async def test_loopback_di_change_rpdo_and_master_lost(tmp_path):
     ch = channel()
     topology = {
         "gateway": {"name": "e2e", "state_dir": str(tmp_path)},
-        "fronts": [{"name": "can", "type": "canopen", "interface": "virtual", "channel": ch, "node_id": 3}],
-        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 1, "digital": 8, "analog": 1, "error_mode": {"value": 0}}]}],
+        "fronts": [
+            {"name": "can", "type": "canopen", "interface": "virtual", "channel": ch, "node_id": 3}
+        ],
+        "backs": [
+            {
+                "name": "io",
+                "type": "loopback",
+                "modules": [{"address": 1, "digital": 8, "analog": 1, "error_mode": {"value": 0}}],
+            }
+        ],
     }
     gw = Gateway.load(topology, registry=load_registry())
     await gw.start()
@@ -58,16 +74,31 @@ async def test_loopback_di_change_rpdo_and_master_lost(tmp_path):
         send(master, 0x000, b"\x01\x03")
         await wait_for(master, lambda m: m.arbitration_id == 0x183)  # TPDOs on entering Operational
         # RPDO -> DO written -> looped back to DI -> TPDO1 on the bus
-        send(master, 0x203, b"\x5A")
+        send(master, 0x203, b"\x5a")
         seen = await wait_for(master, lambda m: m.arbitration_id == 0x183 and m.data == b"\x5a")
-        assert [m.data for m in seen if m.arbitration_id == 0x183] == [b"\x5a"]  # one TPDO for 4 bit changes
-        assert [gw.read(f"io/m1/do{i}") for i in range(8)] == [False, True, False, True, True, False, True, False]
+        assert [m.data for m in seen if m.arbitration_id == 0x183] == [
+            b"\x5a"
+        ]  # one TPDO for 4 bit changes
+        assert [gw.read(f"io/m1/do{i}") for i in range(8)] == [
+            False,
+            True,
+            False,
+            True,
+            True,
+            False,
+            True,
+            False,
+        ]
         # a DI change from the back side alone also goes out
         gw.image.update_input("io/m1/di7", True)
         await wait_for(master, lambda m: m.arbitration_id == 0x183 and m.data == b"\xda")
         # master lost: heartbeat stops -> EMCY 8130 and the outputs go to their error values
-        await wait_for(master, lambda m: m.arbitration_id == 0x83 and m.data[:2] == b"\x30\x81", timeout=2)
-        await wait_for(master, lambda m: m.arbitration_id == 0x183 and m.data == b"\x80")  # DO -> 0, di7 stays 1
+        await wait_for(
+            master, lambda m: m.arbitration_id == 0x83 and m.data[:2] == b"\x30\x81", timeout=2
+        )
+        await wait_for(
+            master, lambda m: m.arbitration_id == 0x183 and m.data == b"\x80"
+        )  # DO -> 0, di7 stays 1
         assert [gw.read(f"io/m1/do{i}") for i in range(8)] == [False] * 8
         assert gw.masters.is_ok("can") is False
     finally:
@@ -82,20 +113,39 @@ async def test_modbus_simulated_modules_end_to_end(tmp_path):
     ch = channel()
     topology = {
         "gateway": {"name": "i7232d", "state_dir": str(tmp_path)},
-        "fronts": [{"name": "can", "type": "canopen", "interface": "virtual", "channel": ch, "node_id": 1}],
-        "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "baudrate": 115200, "poll_ms": 10, "timeout_ms": 100, "modules": [
-            {"address": 1, "model": "M-7052D"},
-            {"address": 3, "model": "M-7055D", "counts": {"di": 0}},
-            {"address": 4, "model": "M-7024", "counts": {"ao": 1}},
-            {"address": 5, "model": "M-7017R", "counts": {"ai": 1}},
-        ]}],
+        "fronts": [
+            {"name": "can", "type": "canopen", "interface": "virtual", "channel": ch, "node_id": 1}
+        ],
+        "backs": [
+            {
+                "name": "rs485",
+                "type": "modbus",
+                "port": "/dev/null",
+                "baudrate": 115200,
+                "poll_ms": 10,
+                "timeout_ms": 100,
+                "modules": [
+                    {"address": 1, "model": "M-7052D"},
+                    {"address": 3, "model": "M-7055D", "counts": {"di": 0}},
+                    {"address": 4, "model": "M-7024", "counts": {"ao": 1}},
+                    {"address": 5, "model": "M-7017R", "counts": {"ai": 1}},
+                ],
+            }
+        ],
     }
     gw = Gateway.load(topology, registry=registry, simulate=True)
     await gw.start()
     sim = gw.bench.simulator("rs485")
     master = can.Bus(interface="virtual", channel=ch)
     try:
-        for index, sub, value, size in ((0x6206, 1, 0x31, 1), (0x6207, 1, 0xF8, 1), (0x6443, 1, 1, 1), (0x6444, 1, 0, 4), (0x100C, 0, 100, 2), (0x100D, 0, 2, 1)):
+        for index, sub, value, size in (
+            (0x6206, 1, 0x31, 1),
+            (0x6207, 1, 0xF8, 1),
+            (0x6443, 1, 1, 1),
+            (0x6444, 1, 0, 4),
+            (0x100C, 0, 100, 2),
+            (0x100D, 0, 2, 1),
+        ):
             await sdo_write(master, 1, index, sub, value, size)
         send(master, 0x000, b"\x01\x01")
         await asyncio.sleep(0.05)
@@ -107,13 +157,19 @@ async def test_modbus_simulated_modules_end_to_end(tmp_path):
         send(master, 0x301, b"\x34\x12")
         loop = asyncio.get_running_loop()
         deadline = loop.time() + 3
-        while loop.time() < deadline and not (sim.get_output("rs485/m3/do3") is True and sim.get_output("rs485/m4/ao0") == 0x1234):
+        while loop.time() < deadline and not (
+            sim.get_output("rs485/m3/do3") is True and sim.get_output("rs485/m4/ao0") == 0x1234
+        ):
             await asyncio.sleep(0.01)
         assert [sim.get_output(f"rs485/m3/do{i}") for i in range(8)] == [True] * 4 + [False] * 4
         assert sim.get_output("rs485/m4/ao0") == 0x1234
         # master lost (life guarding: one RTR, then silence) -> TV-23 error values written to the modules
-        master.send(can.Message(arbitration_id=0x701, is_remote_frame=True, dlc=1, is_extended_id=False))
-        await wait_for(master, lambda m: m.arbitration_id == 0x81 and m.data[:2] == b"\x30\x81", timeout=2)
+        master.send(
+            can.Message(arbitration_id=0x701, is_remote_frame=True, dlc=1, is_extended_id=False)
+        )
+        await wait_for(
+            master, lambda m: m.arbitration_id == 0x81 and m.data[:2] == b"\x30\x81", timeout=2
+        )
         deadline = loop.time() + 3
         while loop.time() < deadline and sim.get_output("rs485/m4/ao0") != 0:
             await asyncio.sleep(0.01)
@@ -129,7 +185,9 @@ async def test_fast_changing_input_is_never_starved(tmp_path):
     ch = channel()
     topology = {
         "gateway": {"name": "e2e", "state_dir": str(tmp_path)},
-        "fronts": [{"name": "can", "type": "canopen", "interface": "virtual", "channel": ch, "node_id": 2}],
+        "fronts": [
+            {"name": "can", "type": "canopen", "interface": "virtual", "channel": ch, "node_id": 2}
+        ],
         "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 1, "digital": 8}]}],
     }
     gw = Gateway.load(topology, registry=load_registry())

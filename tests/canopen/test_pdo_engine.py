@@ -8,9 +8,11 @@ import random
 from io_bench import Bench, demo_7232d, make_image, wire
 
 
-
 def abort(index, sub, code):
-    return f"80 {index & 0xFF:02X} {index >> 8:02X} {sub:02X} " + code.to_bytes(4, "little").hex(" ").upper()
+    return (
+        f"80 {index & 0xFF:02X} {index >> 8:02X} {sub:02X} "
+        + code.to_bytes(4, "little").hex(" ").upper()
+    )
 
 
 def ok(index, sub):
@@ -30,7 +32,9 @@ def test_cob_id_changes_only_while_invalid():
     assert b.rx(0x201, "77") == []  # TPDO1 invalid: no frame on the DI change
     assert b.write(0x1800, 1, 0x1A1, 4) == ok(0x1800, 1)
     assert b.rx(0x201, "78") == ["1A1 [1] 78"]
-    assert b.write(0x1800, 1, 0x1A1 | 1 << 30, 4) == abort(0x1800, 1, 0x06090030)  # bit 30 too while valid
+    assert b.write(0x1800, 1, 0x1A1 | 1 << 30, 4) == abort(
+        0x1800, 1, 0x06090030
+    )  # bit 30 too while valid
 
 
 def test_cob_id_format_restricted_ids_and_clashes_are_refused():
@@ -54,12 +58,18 @@ def test_transmission_types_reserved_values_are_refused():
 def test_mapping_rules_and_abort_codes():
     b = started()
     assert b.write(0x1A00, 1, 0x64010110, 4) == abort(0x1A00, 1, 0x08000022)  # sub 0 is not 0
-    assert b.write(0x1A05, 1, 0x60020108, 4) == abort(0x1A05, 1, 0x06040041)  # polarity: not mappable
+    assert b.write(0x1A05, 1, 0x60020108, 4) == abort(
+        0x1A05, 1, 0x06040041
+    )  # polarity: not mappable
     assert b.write(0x1A05, 1, 0x60000110, 4) == abort(0x1A05, 1, 0x06040041)  # wrong length
     assert b.write(0x1A05, 1, 0x70000108, 4) == abort(0x1A05, 1, 0x06020000)  # no such object
-    assert b.write(0x1A05, 1, 0x10000020, 4) == abort(0x1A05, 1, 0x06040041)  # device type: exists, not mappable
+    assert b.write(0x1A05, 1, 0x10000020, 4) == abort(
+        0x1A05, 1, 0x06040041
+    )  # device type: exists, not mappable
     assert b.write(0x1A05, 1, 0x60000908, 4) == abort(0x1A05, 1, 0x06090011)  # no such sub-index
-    assert b.write(0x1605, 1, 0x64010110, 4) == abort(0x1605, 1, 0x06040041)  # AI is read-only: no RPDO
+    assert b.write(0x1605, 1, 0x64010110, 4) == abort(
+        0x1605, 1, 0x06040041
+    )  # AI is read-only: no RPDO
     for sub in range(1, 6):
         assert b.write(0x1A05, sub, 0x64010110, 4) == ok(0x1A05, sub)
     assert b.write(0x1A05, 0, 5, 1) == abort(0x1A05, 0, 0x06040042)  # 80 bits
@@ -144,7 +154,9 @@ def test_reset_communication_restores_defaults():
     b.write(0x1800, 2, 1, 1)
     b.write(0x1A00, 0, 0, 1)
     b.nmt(0x82)
-    assert b.value(0x1800, 2) == 255 and b.value(0x1A00, 0) == 1 and b.value(0x1A00, 1) == 0x60000108
+    assert (
+        b.value(0x1800, 2) == 255 and b.value(0x1A00, 0) == 1 and b.value(0x1A00, 1) == 0x60000108
+    )
     assert b.rx(0x201, "34") == []  # pre-operational after the reset
 
 
@@ -161,6 +173,7 @@ def test_garbage_never_raises_and_never_answers_with_junk():
 
 def test_start_policy_na9161_sends_every_mapped_tpdo_once():
     from fieldgate.plugins.canopen.iodevice import IoSettings
+
     image = make_image([(1, 8, 0, 0, 0), (2, 0, 0, 2, 0)])
     b = Bench(image, IoSettings(style="na9161"), node_id=5)
     assert b.start() == ["185 [1] 00", "285 [4] 00 00 00 00"]
@@ -203,6 +216,7 @@ def test_stored_parameters_of_another_module_set_are_ignored(tmp_path):
 
 def test_512_pdos_per_direction():
     from fieldgate.plugins.canopen.iodevice import IoSettings
+
     b = Bench(make_image([(1, 8, 8, 0, 0)]), IoSettings(pdo_count=512))
     assert 0x15FF in b.node.od and 0x1BFF in b.node.od and 0x1C00 not in b.node.od
     assert b.write(0x19FF, 1, 0x1F0, 4) == ok(0x19FF, 1)
@@ -221,7 +235,9 @@ def test_io_parameters_and_node_values_share_one_store_write_and_fingerprint(tmp
     path = tmp_path / "node.json"
     writes = []
     real_write = store_module.write_atomic
-    monkeypatch.setattr(store_module, "write_atomic", lambda p, data: (writes.append(p), real_write(p, data)))
+    monkeypatch.setattr(
+        store_module, "write_atomic", lambda p, data: (writes.append(p), real_write(p, data))
+    )
     b = Bench(make_image([(1, 8, 8, 0, 0)]), IoSettings(style="icpdas"), store_path=path)
     b.write(0x1017, 0, 100, 2)
     b.write(0x1800, 2, 7, 1)
@@ -230,5 +246,9 @@ def test_io_parameters_and_node_values_share_one_store_write_and_fingerprint(tmp
     assert list(tmp_path.iterdir()) == [path]
     same = Bench(make_image([(1, 8, 8, 0, 0)]), IoSettings(style="icpdas"), store_path=path)
     assert same.value(0x1017, 0) == 100 and same.value(0x1800, 2) == 7
-    other_style = Bench(make_image([(1, 8, 8, 0, 0)]), IoSettings(style="icpdas", mapping_closed=True), store_path=path)
+    other_style = Bench(
+        make_image([(1, 8, 8, 0, 0)]),
+        IoSettings(style="icpdas", mapping_closed=True),
+        store_path=path,
+    )
     assert other_style.value(0x1017, 0) == 0 and other_style.value(0x1800, 2) == 255

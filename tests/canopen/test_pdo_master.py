@@ -27,7 +27,12 @@ def master_and_dut(tmp_path):
     source = tmp_path / "eds-topology.yaml"
     source.write_text(json.dumps(topo))
     eds = tmp_path / "dut.eds"
-    done = subprocess.run([sys.executable, "-m", "fieldgate", "eds", str(source), "-o", str(eds)], capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "fieldgate", "eds", str(source), "-o", str(eds)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode == 0, done.stderr
     network = canopen.Network()
     network.NOTIFIER_CYCLE = 0.05

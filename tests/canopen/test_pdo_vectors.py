@@ -79,7 +79,11 @@ def test_tv08_to_tv19_i7232d_demo_walk_through():
     assert do_byte(b) == 0x54
     assert b.read(0x1003, 1) == "43 03 10 01 10 82 09 00"
     assert b.read(0x1001, 0)[:14] == "4F 01 10 00 11"
-    assert b.rx(0x201, "00") == ["081 [8] 00 00 00 00 00 00 00 00", "181 [1] 00", "182 [3] 00 00 00"]
+    assert b.rx(0x201, "00") == [
+        "081 [8] 00 00 00 00 00 00 00 00",
+        "181 [1] 00",
+        "182 [3] 00 00 00",
+    ]
     assert b.read(0x1003, 1) == "43 03 10 01 00 00 00 00"
     assert b.read(0x1003, 2) == "43 03 10 02 10 82 09 00"
     assert b.read(0x1001, 0)[:14] == "4F 01 10 00 00"
@@ -117,6 +121,7 @@ def test_tv20_tv23_life_guarding_drives_outputs_to_their_error_values():
 def test_tv22_module_failure_emcy_counter_and_clear():
     image = make_image([(1, 8, 0, 0, 0), (3, 0, 8, 0, 0), (4, 0, 0, 0, 1), (5, 0, 0, 1, 0)])
     from fieldgate.health import ErrorKind, HealthRegistry
+
     health = HealthRegistry()
     mods = {a: module_health(health, a) for a in (1, 3, 4, 5)}
     b = Bench(image, health=health)
@@ -130,7 +135,10 @@ def test_tv22_module_failure_emcy_counter_and_clear():
     assert b.read(0x1001, 0)[:14] == "4F 01 10 00 81"
     assert b.read(0x1003, 1) == "43 03 10 01 00 FF 0B 05"
     # seed-001 TV-E04: writing 0 clears the counter and sends the error reset
-    assert sorted(b.rx(0x601, "2B 00 20 04 00 00 00 00")) == ["081 [8] 00 00 00 00 00 00 00 00", "581 [8] 60 00 20 04 00 00 00 00"]
+    assert sorted(b.rx(0x601, "2B 00 20 04 00 00 00 00")) == [
+        "081 [8] 00 00 00 00 00 00 00 00",
+        "581 [8] 60 00 20 04 00 00 00 00",
+    ]
     assert mods[5].error_counter == 0
     assert b.write(0x2000, 4, 7, 2) == "80 00 20 04 30 00 09 06"
     # the counter wraps at 16 bits

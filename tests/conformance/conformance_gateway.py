@@ -24,11 +24,30 @@ DOCUMENTED_SKIPS = {
 def topology(state_dir: Path, channel: str) -> dict:
     return {
         "gateway": {"name": "conformance", "state_dir": str(state_dir)},
-        "fronts": [{
-            "name": "plc", "type": "canopen", "interface": "virtual", "channel": channel, "node_id": NODE_ID, "sdo_timeout_ms": 300,
-            "identity": {"vendor_id": 0x0000ABCD, "product_code": 0x7232, "revision": 0x00010000, "serial": 42, "device_name": "fieldgate conformance"},
-        }],
-        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}]}],
+        "fronts": [
+            {
+                "name": "plc",
+                "type": "canopen",
+                "interface": "virtual",
+                "channel": channel,
+                "node_id": NODE_ID,
+                "sdo_timeout_ms": 300,
+                "identity": {
+                    "vendor_id": 0x0000ABCD,
+                    "product_code": 0x7232,
+                    "revision": 0x00010000,
+                    "serial": 42,
+                    "device_name": "fieldgate conformance",
+                },
+            }
+        ],
+        "backs": [
+            {
+                "name": "io",
+                "type": "loopback",
+                "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}],
+            }
+        ],
     }
 
 
@@ -48,7 +67,12 @@ def write_eds(topo: dict, workdir: Path) -> Path:
     source = workdir / "topology.yaml"
     source.write_text(json.dumps(topo))  # JSON is YAML
     eds = workdir / "gateway.eds"
-    done = subprocess.run([sys.executable, "-m", "fieldgate", "eds", str(source), "-o", str(eds)], capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "fieldgate", "eds", str(source), "-o", str(eds)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     if done.returncode != 0:
         raise RuntimeError(f"fieldgate eds failed: {done.stderr.strip()}")
     return eds

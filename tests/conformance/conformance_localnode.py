@@ -10,9 +10,25 @@ from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 NODE_ID = 7
 
 
-def _var(name: str, index: int, sub: int, dtype: int, access: str, default, mappable: bool = False, low=None, high=None) -> ODVariable:
+def _var(
+    name: str,
+    index: int,
+    sub: int,
+    dtype: int,
+    access: str,
+    default,
+    mappable: bool = False,
+    low=None,
+    high=None,
+) -> ODVariable:
     var = ODVariable(name, index, sub)
-    var.data_type, var.access_type, var.default, var.value, var.pdo_mappable = dtype, access, default, default, mappable
+    var.data_type, var.access_type, var.default, var.value, var.pdo_mappable = (
+        dtype,
+        access,
+        default,
+        default,
+        mappable,
+    )
     var.min, var.max = low, high
     return var
 
@@ -25,7 +41,12 @@ def _record(od, cls, name: str, index: int, subs: list[tuple]) -> None:
 
 
 def build_od(node_id: int = NODE_ID) -> canopen.ObjectDictionary:
-    U8, U16, U32, VS = datatypes.UNSIGNED8, datatypes.UNSIGNED16, datatypes.UNSIGNED32, datatypes.VISIBLE_STRING
+    U8, U16, U32, VS = (
+        datatypes.UNSIGNED8,
+        datatypes.UNSIGNED16,
+        datatypes.UNSIGNED32,
+        datatypes.VISIBLE_STRING,
+    )
     od = canopen.ObjectDictionary()
     od.node_id = node_id
     od.device_information.product_name = "canopen LocalNode"
@@ -37,14 +58,64 @@ def build_od(node_id: int = NODE_ID) -> canopen.ObjectDictionary:
     od.add_object(_var("Life time factor", 0x100D, 0, U8, "rw", 0))
     od.add_object(_var("COB-ID EMCY", 0x1014, 0, U32, "rw", 0x80 + node_id))
     od.add_object(_var("Producer heartbeat time", 0x1017, 0, U16, "rw", 0))
-    _record(od, ODRecord, "Identity", 0x1018, [(0, "n", U8, "const", 4), (1, "Vendor", U32, "ro", 0x1234), (2, "Product", U32, "ro", 1), (3, "Revision", U32, "ro", 1), (4, "Serial", U32, "ro", 99)])
-    _record(od, ODRecord, "RPDO1 comm", 0x1400, [(0, "n", U8, "const", 2), (1, "COB-ID", U32, "rw", 0x200 + node_id), (2, "Type", U8, "rw", 255)])
-    _record(od, ODRecord, "RPDO1 map", 0x1600, [(0, "n", U8, "rw", 1), (1, "e1", U32, "rw", 0x62000108)])
-    _record(od, ODRecord, "TPDO1 comm", 0x1800, [(0, "n", U8, "const", 5), (1, "COB-ID", U32, "rw", 0x180 + node_id), (2, "Type", U8, "rw", 255), (3, "Inhibit", U16, "rw", 0), (5, "Event timer", U16, "rw", 0)])
-    _record(od, ODRecord, "TPDO1 map", 0x1A00, [(0, "n", U8, "rw", 1), (1, "e1", U32, "rw", 0x60000108)])
+    _record(
+        od,
+        ODRecord,
+        "Identity",
+        0x1018,
+        [
+            (0, "n", U8, "const", 4),
+            (1, "Vendor", U32, "ro", 0x1234),
+            (2, "Product", U32, "ro", 1),
+            (3, "Revision", U32, "ro", 1),
+            (4, "Serial", U32, "ro", 99),
+        ],
+    )
+    _record(
+        od,
+        ODRecord,
+        "RPDO1 comm",
+        0x1400,
+        [
+            (0, "n", U8, "const", 2),
+            (1, "COB-ID", U32, "rw", 0x200 + node_id),
+            (2, "Type", U8, "rw", 255),
+        ],
+    )
+    _record(
+        od, ODRecord, "RPDO1 map", 0x1600, [(0, "n", U8, "rw", 1), (1, "e1", U32, "rw", 0x62000108)]
+    )
+    _record(
+        od,
+        ODRecord,
+        "TPDO1 comm",
+        0x1800,
+        [
+            (0, "n", U8, "const", 5),
+            (1, "COB-ID", U32, "rw", 0x180 + node_id),
+            (2, "Type", U8, "rw", 255),
+            (3, "Inhibit", U16, "rw", 0),
+            (5, "Event timer", U16, "rw", 0),
+        ],
+    )
+    _record(
+        od, ODRecord, "TPDO1 map", 0x1A00, [(0, "n", U8, "rw", 1), (1, "e1", U32, "rw", 0x60000108)]
+    )
     od.add_object(_var("Setpoint", 0x2000, 0, U32, "rw", 100, False, 0, 1000))
-    _record(od, ODArray, "Read input 8-bit", 0x6000, [(0, "n", U8, "ro", 1), (1, "DI1", U8, "ro", 0, True)])
-    _record(od, ODArray, "Write output 8-bit", 0x6200, [(0, "n", U8, "ro", 1), (1, "DO1", U8, "rw", 0, True)])
+    _record(
+        od,
+        ODArray,
+        "Read input 8-bit",
+        0x6000,
+        [(0, "n", U8, "ro", 1), (1, "DI1", U8, "ro", 0, True)],
+    )
+    _record(
+        od,
+        ODArray,
+        "Write output 8-bit",
+        0x6200,
+        [(0, "n", U8, "ro", 1), (1, "DO1", U8, "rw", 0, True)],
+    )
     return od
 
 

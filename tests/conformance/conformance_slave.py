@@ -43,16 +43,41 @@ ACCESS = {"ro": "ro", "rw": "rw", "const": "const"}
 
 def eds_text() -> str:
     """The slave's EDS, written by hand from OBJECTS."""
-    out = ["[FileInfo]", "FileName=tiny.eds", "EDSVersion=4.0", "", "[DeviceInfo]", "VendorName=fieldgate tests", "ProductName=TinySlave",
-           "LSS_Supported=0", "", "[MandatoryObjects]", "SupportedObjects=2", "1=0x1000", "2=0x1001", "", "[OptionalObjects]"]
+    out = [
+        "[FileInfo]",
+        "FileName=tiny.eds",
+        "EDSVersion=4.0",
+        "",
+        "[DeviceInfo]",
+        "VendorName=fieldgate tests",
+        "ProductName=TinySlave",
+        "LSS_Supported=0",
+        "",
+        "[MandatoryObjects]",
+        "SupportedObjects=2",
+        "1=0x1000",
+        "2=0x1001",
+        "",
+        "[OptionalObjects]",
+    ]
     opt = sorted({i for i, _ in OBJECTS if i not in (0x1000, 0x1001, 0x2000, 0x2001)})
-    out += [f"SupportedObjects={len(opt)}"] + [f"{n}=0x{i:04X}" for n, i in enumerate(opt, 1)] + ["", "[ManufacturerObjects]", "SupportedObjects=2", "1=0x2000", "2=0x2001", ""]
+    out += (
+        [f"SupportedObjects={len(opt)}"]
+        + [f"{n}=0x{i:04X}" for n, i in enumerate(opt, 1)]
+        + ["", "[ManufacturerObjects]", "SupportedObjects=2", "1=0x2000", "2=0x2001", ""]
+    )
     for index in sorted({i for i, _ in OBJECTS}):
         subs = sorted(s for i, s in OBJECTS if i == index)
         if subs == [0]:
             out += _var(f"{index:04X}", index, 0)
         else:
-            out += [f"[{index:04X}]", f"ParameterName=Object {index:04X}", "ObjectType=0x9", f"SubNumber={len(subs)}", ""]
+            out += [
+                f"[{index:04X}]",
+                f"ParameterName=Object {index:04X}",
+                "ObjectType=0x9",
+                f"SubNumber={len(subs)}",
+                "",
+            ]
             for s in subs:
                 out += _var(f"{index:04X}sub{s}", index, s)
     return "\n".join(out) + "\n"
@@ -60,8 +85,15 @@ def eds_text() -> str:
 
 def _var(section: str, index: int, sub: int) -> list[str]:
     size, access, default, lo, hi = OBJECTS[(index, sub)]
-    lines = [f"[{section}]", f"ParameterName=Entry {index:04X}:{sub}", "ObjectType=0x7", f"DataType={TYPES[size]}", f"AccessType={ACCESS[access]}",
-             f"DefaultValue={default.decode() if isinstance(default, bytes) else hex(default)}", "PDOMapping=0"]
+    lines = [
+        f"[{section}]",
+        f"ParameterName=Entry {index:04X}:{sub}",
+        "ObjectType=0x7",
+        f"DataType={TYPES[size]}",
+        f"AccessType={ACCESS[access]}",
+        f"DefaultValue={default.decode() if isinstance(default, bytes) else hex(default)}",
+        "PDOMapping=0",
+    ]
     if lo is not None:
         lines += [f"LowLimit={lo}", f"HighLimit={hi}"]
     return lines + [""]
@@ -182,7 +214,9 @@ class TinySlave:
             return self._abort(index, sub, error)
         value = self.values[(index, sub)]
         if len(value) <= 4:
-            return self._reply(bytes([0x43 | (4 - len(value)) << 2]) + struct.pack("<HB", index, sub) + value)
+            return self._reply(
+                bytes([0x43 | (4 - len(value)) << 2]) + struct.pack("<HB", index, sub) + value
+            )
         self.transfer = ("up", index, sub, value, 0, time.monotonic())
         self._reply(bytes([0x41]) + struct.pack("<HBI", index, sub, len(value)))
 

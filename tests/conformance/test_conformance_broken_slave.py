@@ -66,12 +66,35 @@ def test_healthy_slave_passes_every_applicable_case(healthy):
     report = text_report(list(healthy.values()))
     assert failed(list(healthy.values())) == [], report
     must_pass = {
-        "od.eds_check", "od.read_all", "od.defaults", "od.write_read_only", "od.missing_object", "od.missing_subindex",
-        "od.length_mismatch", "od.value_range", "sdo.expedited_upload", "sdo.expedited_download", "sdo.segmented_upload",
-        "sdo.segmented_download", "sdo.upload_toggle_error", "sdo.download_toggle_error", "sdo.unknown_command",
-        "sdo.client_abort", "sdo.server_timeout", "nmt.bootup_reset_node", "nmt.bootup_reset_comm", "nmt.transitions",
-        "nmt.sdo_gated", "nmt.reset_comm_vs_node", "errctl.heartbeat_period", "errctl.heartbeat_disable",
-        "errctl.guarding_toggle", "errctl.guarding_state", "store.unsaved_lost", "seed.tv02_segmented_upload", "seed.tv06_abort",
+        "od.eds_check",
+        "od.read_all",
+        "od.defaults",
+        "od.write_read_only",
+        "od.missing_object",
+        "od.missing_subindex",
+        "od.length_mismatch",
+        "od.value_range",
+        "sdo.expedited_upload",
+        "sdo.expedited_download",
+        "sdo.segmented_upload",
+        "sdo.segmented_download",
+        "sdo.upload_toggle_error",
+        "sdo.download_toggle_error",
+        "sdo.unknown_command",
+        "sdo.client_abort",
+        "sdo.server_timeout",
+        "nmt.bootup_reset_node",
+        "nmt.bootup_reset_comm",
+        "nmt.transitions",
+        "nmt.sdo_gated",
+        "nmt.reset_comm_vs_node",
+        "errctl.heartbeat_period",
+        "errctl.heartbeat_disable",
+        "errctl.guarding_toggle",
+        "errctl.guarding_state",
+        "store.unsaved_lost",
+        "seed.tv02_segmented_upload",
+        "seed.tv06_abort",
     }
     assert {cid for cid, r in healthy.items() if r.verdict is Verdict.PASS} >= must_pass, report
 
@@ -116,7 +139,20 @@ def test_each_fault_alone_fails_its_cases(eds, fault, healthy):
 def test_cli_exit_code_junit_and_selection(eds, tmp_path, capsys):
     channel = f"tiny-{uuid.uuid4().hex[:8]}"
     junit = tmp_path / "report.xml"
-    args = ["--interface", "virtual", "--channel", channel, "--node-id", "5", "--eds", eds, "--timeout", "0.2", "--silence", "0.1"]
+    args = [
+        "--interface",
+        "virtual",
+        "--channel",
+        channel,
+        "--node-id",
+        "5",
+        "--eds",
+        eds,
+        "--timeout",
+        "0.2",
+        "--silence",
+        "0.1",
+    ]
     with TinySlave(channel, 5, {"no_toggle_check"}):
         code = conformance_main(args + ["--profile", "sdo", "-k", "toggle", "--junit", str(junit)])
         out = capsys.readouterr().out

@@ -10,10 +10,19 @@ import uuid
 
 import can
 import pytest
-from conformance_gateway import DOCUMENTED_SKIPS, KNOWN_FINDINGS, NODE_ID, GatewayThread, front_unavailable, topology, write_eds
+from conformance_gateway import (
+    DOCUMENTED_SKIPS,
+    KNOWN_FINDINGS,
+    NODE_ID,
+    GatewayThread,
+    front_unavailable,
+    topology,
+    write_eds,
+)
 
 from fieldgate.conformance import Options, SuiteConfig, Timing, Verdict, run_suite
 from fieldgate.conformance.report import text_report
+
 
 def run_gateway(work, style: str = "icpdas", **select):
     reason = front_unavailable()
@@ -27,7 +36,12 @@ def run_gateway(work, style: str = "icpdas", **select):
     with GatewayThread(topo):
         bus = can.Bus(interface="virtual", channel=channel)
         try:
-            return run_suite(SuiteConfig(NODE_ID, str(eds), timing=timing, options=Options(loopback=True), **select), bus=bus)
+            return run_suite(
+                SuiteConfig(
+                    NODE_ID, str(eds), timing=timing, options=Options(loopback=True), **select
+                ),
+                bus=bus,
+            )
         finally:
             bus.shutdown()
 
@@ -44,14 +58,26 @@ def test_every_case_passes_or_is_a_documented_skip(results):
     assert failures <= set(KNOWN_FINDINGS), report
     for cid, r in by_id.items():
         if r.verdict is Verdict.SKIP:
-            assert cid in DOCUMENTED_SKIPS and DOCUMENTED_SKIPS[cid] in r.reason, f"undocumented SKIP {cid}: {r.reason}"
+            assert cid in DOCUMENTED_SKIPS and DOCUMENTED_SKIPS[cid] in r.reason, (
+                f"undocumented SKIP {cid}: {r.reason}"
+            )
 
 
 def test_the_suite_really_exercised_the_gateway(results):
     passed = {r.case.id for r in results if r.verdict is Verdict.PASS}
     assert len(passed) >= 100
-    for cid in ("sdo.block_download_crc", "lss.fastscan", "sync-pdo.sync_type_n", "cia401.error_mode_do", "seed.tv19_emcy_length_error", "store.save_across_reset",
-                "errctl.guard_off_ends_error", "errctl.consumer_reset_ends_error", "sync-pdo.sync_loss_ends_on_sync", "sync-pdo.sync_loss_ends_period_0"):
+    for cid in (
+        "sdo.block_download_crc",
+        "lss.fastscan",
+        "sync-pdo.sync_type_n",
+        "cia401.error_mode_do",
+        "seed.tv19_emcy_length_error",
+        "store.save_across_reset",
+        "errctl.guard_off_ends_error",
+        "errctl.consumer_reset_ends_error",
+        "sync-pdo.sync_loss_ends_on_sync",
+        "sync-pdo.sync_loss_ends_period_0",
+    ):
         assert cid in passed
 
 
@@ -65,7 +91,15 @@ def test_known_findings_still_fail(results):
 def test_na9161_layout_passes_the_layout_sensitive_cases(tmp_path):
     """The same suite on the front's NA-9161 layout (8 PDOs, PDO sub 0 = 5, 500 ms default TPDO
     inhibit): nothing in the generic profiles may assume the I-7232D layout."""
-    patterns = ["sync-pdo.event_timer", "sync-pdo.inhibit_time", "sync-pdo.sync_type1", "sync-pdo.tpdo_rtr", "sync-pdo.rpdo_gated", "cia401.*", "od.eds_check"]
+    patterns = [
+        "sync-pdo.event_timer",
+        "sync-pdo.inhibit_time",
+        "sync-pdo.sync_type1",
+        "sync-pdo.tpdo_rtr",
+        "sync-pdo.rpdo_gated",
+        "cia401.*",
+        "od.eds_check",
+    ]
     results = run_gateway(tmp_path, style="na9161", patterns=patterns)
     assert len(results) >= 12
     assert [r.case.id for r in results if r.verdict is not Verdict.PASS] == [], text_report(results)

@@ -35,8 +35,16 @@ PROBE_GAPS = {
     "sync-pdo.rpdo_gated": "RPDO data never reach the object dictionary",
 }
 PROBE_WORKS = {
-    "sdo.expedited_upload", "sdo.expedited_download", "sdo.segmented_upload", "sdo.segmented_download",
-    "od.missing_object", "od.write_read_only", "od.length_mismatch", "errctl.heartbeat_period", "nmt.transitions", "emcy.cobid",
+    "sdo.expedited_upload",
+    "sdo.expedited_download",
+    "sdo.segmented_upload",
+    "sdo.segmented_download",
+    "od.missing_object",
+    "od.write_read_only",
+    "od.length_mismatch",
+    "errctl.heartbeat_period",
+    "nmt.transitions",
+    "emcy.cobid",
 }
 
 
@@ -69,7 +77,10 @@ def test_suite_passes_what_localnode_does_well(results):
 
 def test_features_outside_its_eds_are_skipped(results):
     assert "0x1016" in results["errctl.heartbeat_consumer"].reason
-    assert "0x1016" in results["errctl.consumer_off_ends_error"].reason and "0x1006" in results["sync-pdo.sync_loss_ends_on_sync"].reason
+    assert (
+        "0x1016" in results["errctl.consumer_off_ends_error"].reason
+        and "0x1006" in results["sync-pdo.sync_loss_ends_on_sync"].reason
+    )
     assert results["lss.fastscan"].verdict is Verdict.SKIP
 
 
@@ -78,4 +89,9 @@ if __name__ == "__main__":
 
     with tempfile.TemporaryDirectory() as tmp:
         out = run_localnode(Path(tmp))
-    sys.stdout.write(text_report(out, header=f"fieldgate conformance against canopen {__import__('canopen').__version__} LocalNode (node {NODE_ID}, virtual bus)\n"))
+    sys.stdout.write(
+        text_report(
+            out,
+            header=f"fieldgate conformance against canopen {__import__('canopen').__version__} LocalNode (node {NODE_ID}, virtual bus)\n",
+        )
+    )

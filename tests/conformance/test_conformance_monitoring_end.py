@@ -20,12 +20,41 @@ TIMING = Timing(response=0.3, silence=0.1, heartbeat_ms=50, bootup=1.0, sdo_serv
 # fault: (class, method that must end the error, the call inside it that is dropped), the cases it
 # fails, and the cases run with it: the same error ended another way must still pass
 FAULTS = {
-    "guard_off_keeps_error": (("errctl", "ErrorControl"), "_guarding_written", "_end", {"errctl.guard_off_ends_error"}, "errctl.guard_*"),
-    "consumer_off_keeps_error": (("errctl", "ErrorControl"), "_consumers_written", "_end", {"errctl.consumer_off_ends_error"}, "errctl.consumer_*"),
-    "reset_keeps_errors": (("errctl", "ErrorControl"), "on_nmt_state", "_end",
-                           {"errctl.guard_reset_ends_error", "errctl.consumer_reset_ends_error"}, "errctl.*_ends_error"),
-    "sync_keeps_loss": (("sync", "SyncService"), "_consume", "_end_loss", {"sync-pdo.sync_loss_ends_on_sync"}, "sync-pdo.sync_loss_*"),
-    "period_0_keeps_loss": (("sync", "SyncService"), "_configure", "_end_loss", {"sync-pdo.sync_loss_ends_period_0"}, "sync-pdo.sync_loss_*"),
+    "guard_off_keeps_error": (
+        ("errctl", "ErrorControl"),
+        "_guarding_written",
+        "_end",
+        {"errctl.guard_off_ends_error"},
+        "errctl.guard_*",
+    ),
+    "consumer_off_keeps_error": (
+        ("errctl", "ErrorControl"),
+        "_consumers_written",
+        "_end",
+        {"errctl.consumer_off_ends_error"},
+        "errctl.consumer_*",
+    ),
+    "reset_keeps_errors": (
+        ("errctl", "ErrorControl"),
+        "on_nmt_state",
+        "_end",
+        {"errctl.guard_reset_ends_error", "errctl.consumer_reset_ends_error"},
+        "errctl.*_ends_error",
+    ),
+    "sync_keeps_loss": (
+        ("sync", "SyncService"),
+        "_consume",
+        "_end_loss",
+        {"sync-pdo.sync_loss_ends_on_sync"},
+        "sync-pdo.sync_loss_*",
+    ),
+    "period_0_keeps_loss": (
+        ("sync", "SyncService"),
+        "_configure",
+        "_end_loss",
+        {"sync-pdo.sync_loss_ends_period_0"},
+        "sync-pdo.sync_loss_*",
+    ),
 }
 
 
@@ -80,7 +109,10 @@ def test_each_fault_fails_exactly_its_cases(gateway, monkeypatch, fault):
     assert set(failed(list(results.values()))) == fails and len(results) > len(fails), report
     assert all(r.verdict is Verdict.PASS for cid, r in results.items() if cid not in fails), report
     for cid in fails:
-        assert results[cid].expected.startswith("EMCY 00 00") and results[cid].seen == "no error-reset EMCY", report
+        assert (
+            results[cid].expected.startswith("EMCY 00 00")
+            and results[cid].seen == "no error-reset EMCY"
+        ), report
 
 
 def test_an_error_reset_with_the_old_register_fails(gateway, monkeypatch):
@@ -98,5 +130,7 @@ def test_an_error_reset_with_the_old_register_fails(gateway, monkeypatch):
     monkeypatch.setattr(EmcyProducer, "_clear", stale_register)
     results = run(gateway, ["errctl.guard_off_ends_error"])
     bad = results["errctl.guard_off_ends_error"]
-    assert bad.verdict is Verdict.FAIL and "byte 2 must be the error register left" in bad.reason, text_report(list(results.values()))
+    assert bad.verdict is Verdict.FAIL and "byte 2 must be the error register left" in bad.reason, (
+        text_report(list(results.values()))
+    )
     assert bad.expected.startswith("00 00 00") and bad.seen.endswith("[8] 00 00 11 00 00 00 00 00")

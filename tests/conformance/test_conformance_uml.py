@@ -15,13 +15,23 @@ from pathlib import Path
 
 import can
 import pytest
-from conformance_gateway import DOCUMENTED_SKIPS, KNOWN_FINDINGS, NODE_ID, front_unavailable, topology, write_eds
+from conformance_gateway import (
+    DOCUMENTED_SKIPS,
+    KNOWN_FINDINGS,
+    NODE_ID,
+    front_unavailable,
+    topology,
+    write_eds,
+)
 
 CHANNEL = "vcan0"
 
 pytestmark = [
     pytest.mark.uml,
-    pytest.mark.skipif(not Path(f"/sys/class/net/{CHANNEL}").exists(), reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/uml/run)"),
+    pytest.mark.skipif(
+        not Path(f"/sys/class/net/{CHANNEL}").exists(),
+        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/uml/run)",
+    ),
 ]
 
 
@@ -30,7 +40,11 @@ def wait_bootup(timeout: float) -> bool:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             msg = bus.recv(0.5)
-            if msg is not None and msg.arbitration_id == 0x700 + NODE_ID and bytes(msg.data) == b"\x00":
+            if (
+                msg is not None
+                and msg.arbitration_id == 0x700 + NODE_ID
+                and bytes(msg.data) == b"\x00"
+            ):
                 return True
     return False
 
@@ -45,24 +59,54 @@ def test_suite_over_vcan0_against_the_gateway_process(tmp_path):
     source = tmp_path / "topology.yaml"
     source.write_text(json.dumps(topo))
     log = (tmp_path / "gateway.log").open("w")
-    gateway = subprocess.Popen([sys.executable, "-m", "fieldgate", "run", str(source)], stdout=log, stderr=subprocess.STDOUT)
+    gateway = subprocess.Popen(
+        [sys.executable, "-m", "fieldgate", "run", str(source)],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
     try:
         assert wait_bootup(30), (tmp_path / "gateway.log").read_text()
         junit = tmp_path / "conformance.xml"
         run = subprocess.run(
-            [sys.executable, "-m", "fieldgate.conformance", "--interface", "socketcan", "--channel", CHANNEL, "--node-id", str(NODE_ID),
-             "--eds", str(eds), "--profile", "all", "--loopback", "--junit", str(junit), "--heartbeat-ms", "100", "--tolerance-ms", "40"],
-            capture_output=True, text=True, timeout=600,
+            [
+                sys.executable,
+                "-m",
+                "fieldgate.conformance",
+                "--interface",
+                "socketcan",
+                "--channel",
+                CHANNEL,
+                "--node-id",
+                str(NODE_ID),
+                "--eds",
+                str(eds),
+                "--profile",
+                "all",
+                "--loopback",
+                "--junit",
+                str(junit),
+                "--heartbeat-ms",
+                "100",
+                "--tolerance-ms",
+                "40",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=600,
         )
         assert run.returncode in (0, 1), run.stdout[-3000:] + run.stderr[-2000:]
         suite = ET.parse(junit).getroot().find("testsuite")
-        failures = {tc.get("name") for tc in suite.iter("testcase") if tc.find("failure") is not None}
+        failures = {
+            tc.get("name") for tc in suite.iter("testcase") if tc.find("failure") is not None
+        }
         assert failures <= set(KNOWN_FINDINGS), run.stdout[-8000:]
         for tc in suite.iter("testcase"):
             skipped = tc.find("skipped")
             if skipped is not None:
                 name = tc.get("name")
-                assert name in DOCUMENTED_SKIPS and DOCUMENTED_SKIPS[name] in skipped.get("message"), f"undocumented SKIP {name}"
+                assert name in DOCUMENTED_SKIPS and DOCUMENTED_SKIPS[name] in skipped.get(
+                    "message"
+                ), f"undocumented SKIP {name}"
         assert int(suite.get("tests")) >= 100
     finally:
         gateway.terminate()

@@ -18,7 +18,13 @@ def make_topology_dict(**front):
                 "name": "io",
                 "type": "loopback",
                 "modules": [
-                    {"address": 3, "digital": 2, "analog": 1, "error_mode": {"value": 1}, "shutdown_mode": {"value": 0}},
+                    {
+                        "address": 3,
+                        "digital": 2,
+                        "analog": 1,
+                        "error_mode": {"value": 1},
+                        "shutdown_mode": {"value": 0},
+                    },
                     {"address": 1, "digital": 10},
                 ],
             }

@@ -11,7 +11,9 @@ from canopen_sdo import TIE, verdict  # noqa: E402
 
 def test_faster_needs_both_ratios():
     assert verdict(1.02, 1.01, [0.99, 1.02, 1.05]) == "faster"
-    assert verdict(1.02, 0.99, [1.01, 1.02, 1.05]) == "slower"  # every round faster, yet fewer req/s
+    assert (
+        verdict(1.02, 0.99, [1.01, 1.02, 1.05]) == "slower"
+    )  # every round faster, yet fewer req/s
 
 
 def test_a_tie_lies_inside_the_spread_of_the_rounds():

@@ -21,13 +21,19 @@ def parser():
     return build_parser(load_registry())
 
 
-@pytest.mark.parametrize("argv, level", [
-    (["validate", "x.yaml"], "info"),
-    (["--log-level", "debug", "validate", "x.yaml"], "debug"),
-    (["validate", "x.yaml", "--log-level", "error"], "error"),
-    (["--log-level", "debug", "run", "x.yaml", "--log-level", "warning"], "warning"),  # the later one wins
-    (["simulate", "dcon", "--pty", "--log-level", "debug"], "debug"),  # a plugin's command
-])
+@pytest.mark.parametrize(
+    "argv, level",
+    [
+        (["validate", "x.yaml"], "info"),
+        (["--log-level", "debug", "validate", "x.yaml"], "debug"),
+        (["validate", "x.yaml", "--log-level", "error"], "error"),
+        (
+            ["--log-level", "debug", "run", "x.yaml", "--log-level", "warning"],
+            "warning",
+        ),  # the later one wins
+        (["simulate", "dcon", "--pty", "--log-level", "debug"], "debug"),  # a plugin's command
+    ],
+)
 def test_log_level_before_or_after_the_command(parser, argv, level):
     assert parser.parse_args(argv).log_level == level
 
@@ -43,9 +49,26 @@ def test_seconds_must_be_zero_or_more(parser, capsys, option, value):
 
 
 def test_status_lines_start_with_their_legend():
-    result = subprocess.run([sys.executable, "-m", "fieldgate", "--log-level", "warning", "run", str(EXAMPLE), "--simulate",
-                             "--status-every", "0.3", "--duration", "1"], capture_output=True, text=True, timeout=60,
-                            cwd=REPO)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "fieldgate",
+            "--log-level",
+            "warning",
+            "run",
+            str(EXAMPLE),
+            "--simulate",
+            "--status-every",
+            "0.3",
+            "--duration",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=REPO,
+    )
     lines = result.stdout.splitlines()
     assert result.returncode == 0, result.stderr
     assert lines[0] == STATUS_LEGEND and "channel 0 first" in lines[0]
@@ -53,8 +76,13 @@ def test_status_lines_start_with_their_legend():
 
 
 def test_the_demo_names_a_missing_topology_instead_of_running_another(tmp_path):
-    result = subprocess.run(["bash", str(REPO / "scripts" / "demo"), "examples/i7231d.yaml"], capture_output=True,
-                            text=True, timeout=60, cwd=REPO)
+    result = subprocess.run(
+        ["bash", str(REPO / "scripts" / "demo"), "examples/i7231d.yaml"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=REPO,
+    )
     assert result.returncode == 1
     assert "no such topology file: examples/i7231d.yaml" in result.stderr
     assert "examples/i7231d-style.yaml" in result.stderr  # what there is

@@ -11,8 +11,17 @@ def test_capable_backs_and_configured_settings_come_from_the_back_configs(regist
     if registry.lookup("back", "dcon") is None:
         pytest.skip("the dcon back plugin is not installed")
     data = topology_dict()
-    data["backs"].append({"name": "rs485", "type": "dcon", "port": "simulated", "modules": [
-        {"address": 4, "model": "I-7060", "watchdog": {"timeout_ms": 700}}, {"address": 6, "model": "I-7052"}]})
+    data["backs"].append(
+        {
+            "name": "rs485",
+            "type": "dcon",
+            "port": "simulated",
+            "modules": [
+                {"address": 4, "model": "I-7060", "watchdog": {"timeout_ms": 700}},
+                {"address": 6, "model": "I-7052"},
+            ],
+        }
+    )
     context = GatewayContext.build(load_topology(data, registry))
     wd = HostWatchdogs.from_context(context)
     assert wd.capable == {"rs485"}  # the loopback back has no host watchdog protocol
@@ -64,7 +73,11 @@ def test_host_ok_switch_goes_to_every_running_capable_back():
     wd = HostWatchdogs({"a": a, "b": b, "other": Back()}, {"a", "b", "c"})
     assert wd.host_ok() is True
     wd.set_host_ok(0)
-    assert (a.host_ok_enabled, b.host_ok_enabled, wd.backs["other"].host_ok_enabled) == (False, False, True)
+    assert (a.host_ok_enabled, b.host_ok_enabled, wd.backs["other"].host_ok_enabled) == (
+        False,
+        False,
+        True,
+    )
     assert wd.host_ok() is False
     b.host_ok_enabled = True
     assert wd.host_ok() is False  # only when every back may send it

@@ -4,7 +4,16 @@ import asyncio
 
 import pytest
 
-from fieldgate import ChannelSpec, DataType, ErrorMode, Kind, ProcessImage, Quality, Source, channel_id
+from fieldgate import (
+    ChannelSpec,
+    DataType,
+    ErrorMode,
+    Kind,
+    ProcessImage,
+    Quality,
+    Source,
+    channel_id,
+)
 
 
 class FakeClock:
@@ -43,7 +52,11 @@ def test_quality_transitions_and_timestamps():
     assert (ch.value, ch.quality, ch.timestamp) == (1234, Quality.GOOD, 10.0)
     clock.t = 11.0
     image.set_quality(["rs485/m3/ai0"], Quality.STALE)
-    assert (ch.value, ch.quality, ch.timestamp) == (1234, Quality.STALE, 10.0)  # last good time kept
+    assert (ch.value, ch.quality, ch.timestamp) == (
+        1234,
+        Quality.STALE,
+        10.0,
+    )  # last good time kept
     image.set_quality(["rs485/m3/ai0"], Quality.COMM_FAULT)
     assert ch.quality is Quality.COMM_FAULT
     clock.t = 12.0
@@ -166,7 +179,11 @@ def test_shutdown_modes_only_touch_configured_outputs():
     image = ProcessImage()
     image.add(ChannelSpec("b/m1/do0", Kind.DO, Source("b", 1, 0), shutdown_mode=ErrorMode.to(True)))
     image.add(ChannelSpec("b/m1/do1", Kind.DO, Source("b", 1, 1)))
-    image.add(ChannelSpec("b/m1/ao0", Kind.AO, Source("b", 1, 0), initial=7, shutdown_mode=ErrorMode.hold()))
+    image.add(
+        ChannelSpec(
+            "b/m1/ao0", Kind.AO, Source("b", 1, 0), initial=7, shutdown_mode=ErrorMode.hold()
+        )
+    )
     assert image.value("b/m1/ao0") == 7
     assert image.apply_shutdown_modes() == ["b/m1/do0"]
     assert image.value("b/m1/do1") is False and image.value("b/m1/ao0") == 7

@@ -8,7 +8,9 @@ def build(modules):
     image = ProcessImage()
     for back, address, kind, count in modules:
         for i in range(count):
-            image.add(ChannelSpec(channel_id(back, address, kind, i), kind, Source(back, address, i)))
+            image.add(
+                ChannelSpec(channel_id(back, address, kind, i), kind, Source(back, address, i))
+            )
     return image
 
 
@@ -20,7 +22,9 @@ def test_modules_ascending_and_digital_bytes_never_shared_between_modules():
     assert len(di_bytes) == 3  # m1: 8 + 2 (padded), m5: 3 (padded)
     assert [c.id if c else None for c in di_bytes[1]] == ["b/m1/di8", "b/m1/di9"] + [None] * 6
     assert di_bytes[2][0].id == "b/m5/di0"
-    assert len(pack_bits(of_kind(order, Kind.DI), per_module=False)) == 2  # NA-9161 style packs across modules
+    assert (
+        len(pack_bits(of_kind(order, Kind.DI), per_module=False)) == 2
+    )  # NA-9161 style packs across modules
 
 
 def test_backs_follow_topology_order():

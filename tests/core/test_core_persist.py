@@ -83,4 +83,6 @@ def test_a_directory_target_is_refused_and_leaves_nothing_behind(tmp_path):
     (tmp_path / "outdir").mkdir()
     with pytest.raises(IsADirectoryError):
         persist.write_atomic(tmp_path / "outdir", b"x")
-    assert [p.name for p in tmp_path.iterdir()] == ["outdir"] and not any((tmp_path / "outdir").iterdir())
+    assert [p.name for p in tmp_path.iterdir()] == ["outdir"] and not any(
+        (tmp_path / "outdir").iterdir()
+    )

@@ -4,14 +4,15 @@ import importlib.metadata
 import subprocess
 import sys
 
-
 from fieldgate import hookimpl, load_registry
 from fieldgate.plugin import ENTRY_POINT_GROUP
 
 
 def test_external_package_is_found_through_its_entry_point_alone():
     eps = {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
-    assert eps["loopback"].dist.name == "fieldgate-loopback"  # installed from tests/plugin_pkg, not part of fieldgate
+    assert (
+        eps["loopback"].dist.name == "fieldgate-loopback"
+    )  # installed from tests/plugin_pkg, not part of fieldgate
     registry = load_registry()
     info = registry.plugins["loopback"]
     assert (info.version, info.distribution, info.error) == ("1.0.0", "fieldgate-loopback", "")
@@ -57,13 +58,19 @@ def test_commands_count_as_what_a_plugin_provides():
 
         @hookimpl
         def fieldgate_register(self, registry):
-            registry.add_command(("scan", "thing"), "finds things", lambda parser: None, lambda args: 0)
+            registry.add_command(
+                ("scan", "thing"), "finds things", lambda parser: None, lambda args: 0
+            )
 
     registry = load_registry(extra_plugins=[Tool()])
     assert registry.plugins["tool"].provides == ["command:scan thing"]
 
 
 def test_fieldgate_plugins_lists_name_version_and_what_each_provides():
-    out = subprocess.run([sys.executable, "-m", "fieldgate", "plugins"], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "fieldgate", "plugins"], capture_output=True, text=True, check=True
+    ).stdout
     line = next(l for l in out.splitlines() if l.startswith("loopback"))
-    assert "1.0.0" in line and "back:loopback, front:memory" in line and "(fieldgate-loopback)" in line
+    assert (
+        "1.0.0" in line and "back:loopback, front:memory" in line and "(fieldgate-loopback)" in line
+    )

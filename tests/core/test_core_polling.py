@@ -1,9 +1,17 @@
 """The shared line scheduler, driven step by step with a fake clock and scripted modules."""
 
-from fieldgate import ChannelSpec, ErrorKind, Kind, ModuleHealth, ProcessImage, Quality, Source, channel_id
+from fieldgate import (
+    ChannelSpec,
+    ErrorKind,
+    Kind,
+    ModuleHealth,
+    ProcessImage,
+    Quality,
+    Source,
+    channel_id,
+)
 from fieldgate.polling import CommError, LineJob, LineScheduler, PolledModule
 from fieldgate.topology import ModuleConfig
-
 
 TICK = 0.125  # exact in binary, so due times compare exactly
 
@@ -20,8 +28,18 @@ class ScriptedModule(PolledModule):
     """A module whose answers come from a script: None = answer, an ErrorKind = fail that way."""
 
     def __init__(self, address, image, n_in=2, n_out=2, poll_ms=None, log=None):
-        specs = [ChannelSpec(channel_id("line", address, Kind.DI, i), Kind.DI, Source("line", address, i)) for i in range(n_in)]
-        specs += [ChannelSpec(channel_id("line", address, Kind.DO, i), Kind.DO, Source("line", address, i)) for i in range(n_out)]
+        specs = [
+            ChannelSpec(
+                channel_id("line", address, Kind.DI, i), Kind.DI, Source("line", address, i)
+            )
+            for i in range(n_in)
+        ]
+        specs += [
+            ChannelSpec(
+                channel_id("line", address, Kind.DO, i), Kind.DO, Source("line", address, i)
+            )
+            for i in range(n_out)
+        ]
         for s in specs:
             image.add(s)
         super().__init__(ModuleConfig(address=address, poll_ms=poll_ms), specs)
@@ -52,9 +70,21 @@ class ScriptedModule(PolledModule):
 def make_line(n_modules=2, **kw):
     clock, image, log = Clock(), ProcessImage(), []
     image.clock = clock
-    modules = [ScriptedModule(a, image, log=log, poll_ms=kw.pop(f"poll_ms_{a}", None)) for a in range(1, n_modules + 1)]
+    modules = [
+        ScriptedModule(a, image, log=log, poll_ms=kw.pop(f"poll_ms_{a}", None))
+        for a in range(1, n_modules + 1)
+    ]
     health = {m.address: ModuleHealth("line", m.address, fail_threshold=3) for m in modules}
-    line = LineScheduler("line", modules, image, health, poll_period=TICK, offline_probe_period=5.0, clock=clock, **kw)
+    line = LineScheduler(
+        "line",
+        modules,
+        image,
+        health,
+        poll_period=TICK,
+        offline_probe_period=5.0,
+        clock=clock,
+        **kw,
+    )
     line.attach()
     return line, modules, image, health, clock, log
 
@@ -80,7 +110,7 @@ async def test_polls_each_module_then_waits_for_the_period():
 
 
 async def test_per_module_poll_period():
-    line, modules, *_ , clock, log = make_line(poll_ms_2=1000)
+    line, modules, *_, clock, log = make_line(poll_ms_2=1000)
     await drain(line)
     for step in range(1, 6):
         clock.t = step * TICK
@@ -242,7 +272,9 @@ async def test_run_yields_to_the_loop_even_when_polls_do_no_io():
 
     clock_line = make_line(n_modules=1)
     line = clock_line[0]
-    line._states[0].period = 0.0  # poll_ms 0: as fast as the line allows, and the module never awaits I/O
+    line._states[
+        0
+    ].period = 0.0  # poll_ms 0: as fast as the line allows, and the module never awaits I/O
     ticks = []
 
     async def other_task():
@@ -284,8 +316,15 @@ async def test_a_cancellation_swallowed_inside_a_transaction_still_stops_the_lin
 
     clock, image = Clock(), ProcessImage()
     module = SwallowingModule(1, image)
-    line = LineScheduler("line", [module], image, {1: ModuleHealth("line", 1)}, poll_period=0.0,
-                         offline_probe_period=5.0, clock=clock)
+    line = LineScheduler(
+        "line",
+        [module],
+        image,
+        {1: ModuleHealth("line", 1)},
+        poll_period=0.0,
+        offline_probe_period=5.0,
+        clock=clock,
+    )
     task = asyncio.create_task(line.run())
     await asyncio.wait_for(module.waiting.wait(), 2.0)
     task.cancel()

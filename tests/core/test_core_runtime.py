@@ -27,8 +27,14 @@ async def test_master_lost_applies_error_modes_once(registry, topology_dict):
     async with Gateway.load(topology_dict(), registry=registry) as gw:
         front = gw.component("plc")
         changed = front.lose_master()
-        assert sorted(changed) == ["io/m3/ao0", "io/m3/do0", "io/m3/do1"]  # module 3 has error_mode value 1
-        assert gw.read("io/m3/ao0") == 1 and gw.read("io/m3/di0") is True  # looped back to the input
+        assert sorted(changed) == [
+            "io/m3/ao0",
+            "io/m3/do0",
+            "io/m3/do1",
+        ]  # module 3 has error_mode value 1
+        assert (
+            gw.read("io/m3/ao0") == 1 and gw.read("io/m3/di0") is True
+        )  # looped back to the input
         assert gw.read("io/m1/do0") is False  # module 1 holds
         gw.write("io/m3/do0", False)
         assert front.lose_master() == []  # already lost: nothing re-applied
@@ -47,14 +53,18 @@ async def test_stop_applies_shutdown_values(registry, topology_dict):
 
 async def test_start_failure_names_component_and_cause_and_stops_the_rest(registry, topology_dict):
     gw = Gateway.load(topology_dict(fail_start="permission denied on can0"), registry=registry)
-    with pytest.raises(GatewayStartError, match=r"^front plc \(memory\): permission denied on can0$"):
+    with pytest.raises(
+        GatewayStartError, match=r"^front plc \(memory\): permission denied on can0$"
+    ):
         await gw.start()
     back = gw.component("io")
     assert back._sub is None  # the back that had started was stopped again
     assert not gw.running
 
 
-async def test_run_time_failure_marks_channels_comm_fault_and_restarts_with_backoff(registry, topology_dict, caplog):
+async def test_run_time_failure_marks_channels_comm_fault_and_restarts_with_backoff(
+    registry, topology_dict, caplog
+):
     topo = topology_dict()
     topo["backs"][0].update(fail_after_s=0.05, restart_backoff_s=0.05)
     gw = Gateway.load(topo, registry=registry)
@@ -70,7 +80,10 @@ async def test_run_time_failure_marks_channels_comm_fault_and_restarts_with_back
         assert back.starts >= 3
         assert Quality.COMM_FAULT in seen
         assert gw.status()["backs"]["io"]["restarts"] >= 2
-        assert "back io failed: RuntimeError: injected run-time failure; restarting in 0.1 s" in caplog.text
+        assert (
+            "back io failed: RuntimeError: injected run-time failure; restarting in 0.1 s"
+            in caplog.text
+        )
     finally:
         await gw.stop()
 
@@ -95,10 +108,19 @@ def cli(*args):
 def test_cli_start_failure_is_one_clear_line_and_exit_2(tmp_path):
     path = tmp_path / "t.yaml"
     path.write_text(TOPOLOGY)
-    result = subprocess.run(cli("run", str(path), "--set", "backs.io.fail_start=cannot open /dev/ttyS9: no such device"), capture_output=True, text=True, timeout=30)
+    result = subprocess.run(
+        cli(
+            "run", str(path), "--set", "backs.io.fail_start=cannot open /dev/ttyS9: no such device"
+        ),
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert result.returncode == 2
     errors = [l for l in result.stderr.splitlines() if "ERROR" in l]
-    assert len(errors) == 1 and errors[0].endswith("cannot start: back io (loopback): cannot open /dev/ttyS9: no such device")
+    assert len(errors) == 1 and errors[0].endswith(
+        "cannot start: back io (loopback): cannot open /dev/ttyS9: no such device"
+    )
     assert "Traceback" not in result.stderr
 
 
@@ -114,7 +136,9 @@ def test_cli_invalid_file_exit_1_with_line(tmp_path):
 def test_cli_signal_stops_cleanly_with_exit_0_and_shutdown_values(tmp_path, sig):
     path = tmp_path / "t.yaml"
     path.write_text(TOPOLOGY)
-    proc = subprocess.Popen(cli("--log-level", "info", "run", str(path)), stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        cli("--log-level", "info", "run", str(path)), stderr=subprocess.PIPE, text=True
+    )
     lines = []
     for line in proc.stderr:
         lines.append(line)
@@ -157,11 +181,22 @@ async def test_simulated_lines_drop_parity_a_pty_cannot_carry(registry):
     from fieldgate.simulation import SimulationBench
     from fieldgate.topology import load_topology
 
-    topo = load_topology({
-        "gateway": {"name": "sim"},
-        "fronts": [{"name": "plc", "type": "memory"}],
-        "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "parity": "E", "modules": [{"address": 1, "model": "M-7055D"}]}],
-    }, registry)
+    topo = load_topology(
+        {
+            "gateway": {"name": "sim"},
+            "fronts": [{"name": "plc", "type": "memory"}],
+            "backs": [
+                {
+                    "name": "rs485",
+                    "type": "modbus",
+                    "port": "/dev/null",
+                    "parity": "E",
+                    "modules": [{"address": 1, "model": "M-7055D"}],
+                }
+            ],
+        },
+        registry,
+    )
     bench = SimulationBench(topo, registry)
     await bench.start()
     try:
@@ -181,7 +216,9 @@ async def run_and_stop_with_back_run(run, registry, topology_dict, monkeypatch) 
     return gw
 
 
-async def test_stop_cancels_again_a_component_that_swallows_its_cancellation(registry, topology_dict, monkeypatch, caplog):
+async def test_stop_cancels_again_a_component_that_swallows_its_cancellation(
+    registry, topology_dict, monkeypatch, caplog
+):
     """Gateway.stop() never hangs on a task that lost a cancellation (asyncio.wait_for in 3.11 can)."""
     from fieldgate import runtime
 
@@ -200,10 +237,18 @@ async def test_stop_cancels_again_a_component_that_swallows_its_cancellation(reg
 
     gw = await run_and_stop_with_back_run(stubborn_run, registry, topology_dict, monkeypatch)
     assert swallowed == 3 and not gw.running
-    assert sum("still running" in r.getMessage() and "back io" in r.getMessage() for r in caplog.records) == 3
+    assert (
+        sum(
+            "still running" in r.getMessage() and "back io" in r.getMessage()
+            for r in caplog.records
+        )
+        == 3
+    )
 
 
-async def test_stop_gives_up_on_a_component_that_never_stops_and_says_so(registry, topology_dict, monkeypatch, caplog):
+async def test_stop_gives_up_on_a_component_that_never_stops_and_says_so(
+    registry, topology_dict, monkeypatch, caplog
+):
     from fieldgate import runtime
 
     monkeypatch.setattr(runtime, "CANCEL_GRACE_S", 0.01)

@@ -56,7 +56,9 @@ async def test_fault_hook_and_baud_pacing():
 
 
 async def test_open_errors_are_one_line_causes(tmp_path):
-    with pytest.raises(PluginStartError, match=r"cannot open serial port /nonexistent/ttyX: no such device"):
+    with pytest.raises(
+        PluginStartError, match=r"cannot open serial port /nonexistent/ttyX: no such device"
+    ):
         await AsyncSerial.open("/nonexistent/ttyX")
     with pytest.raises(PluginStartError, match="invalid serial settings"):
         await AsyncSerial.open("/dev/null", bytesize=9)

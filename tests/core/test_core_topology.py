@@ -58,7 +58,11 @@ def test_valid_file_loads_with_channels_and_error_modes(tmp_path, registry):
 
 
 def test_dict_source_and_overrides_by_name_and_index(registry, topology_dict):
-    topo = load_topology(topology_dict(), registry, overrides={"fronts.plc.expose": ["io/m1/di0"], "backs.0.modules.1.digital": 3})
+    topo = load_topology(
+        topology_dict(),
+        registry,
+        overrides={"fronts.plc.expose": ["io/m1/di0"], "backs.0.modules.1.digital": 3},
+    )
     assert topo.fronts[0].expose == ["io/m1/di0"]
     assert sum(1 for s in topo.channel_specs if s.source.module == 1) == 6
     with pytest.raises(TopologyError, match="no list entry named 'nope'"):
@@ -68,23 +72,107 @@ def test_dict_source_and_overrides_by_name_and_index(registry, topology_dict):
 # Each broken file: the text, the line the first issue must point at, the field path, and words of the message.
 BROKEN = {
     "duplicate-key": (
-        VALID.replace("    type: memory\n", "    type: memory\n    type: memory\n"), 6, "", "duplicate key \"type\" in the mapping that starts on line 4"),
-    "yaml-syntax": (VALID.replace('expose: ["io/m1/*", "io/m3/ao0"]', 'expose: ["io/m1/*", "io/m3/ao0"'), 7, "", "YAML syntax"),
-    "unknown-top-level-key": (VALID.replace("fronts:", "frnts:"), 3, "frnts", "unknown field 'frnts'; did you mean 'fronts'?"),
-    "unknown-front-field": (VALID.replace("expose:", "expse:"), 6, "fronts[0].expse", "did you mean 'expose'?"),
-    "unknown-field-no-suggestion": (VALID.replace("        digital: 10", "        digital: 10\n        colour: red"), 19, "backs[0].modules[1].colour", "expected one of: address, analog, digital, error_mode"),
-    "missing-gateway-name": (VALID.replace("  name: bench\n", "  description: x\n"), 2, "gateway.name", "required field is missing"),
-    "wrong-type": (VALID.replace("        digital: 10", "        digital: ten"), 18, "backs[0].modules[1].digital", "valid integer"),
-    "out-of-range": (VALID.replace("        digital: 10", "        digital: 100"), 18, "backs[0].modules[1].digital", "less than or equal to 64"),
-    "plugin-not-installed": (VALID.replace("type: memory", "type: profibus"), 5, "fronts[0].type", "no installed plugin provides front type 'profibus'"),
-    "type-typo": (VALID.replace("type: loopback", "type: lopback"), 9, "backs[0].type", "did you mean 'loopback'?"),
-    "duplicate-names": (VALID.replace("  - name: io", "  - name: plc"), 8, "backs[0].name", "already used by fronts[0]"),
-    "duplicate-address": (VALID.replace("      - address: 1\n", "      - address: 3\n"), 17, "backs[0].modules[1].address", "address 3 is already used by modules[0]"),
-    "expose-matches-nothing": (VALID.replace('"io/m3/ao0"', '"io/m3/ao9"'), 6, "fronts[0].expose[1]", "'io/m3/ao9' matches no channel"),
-    "bad-error-mode": (VALID.replace("error_mode: {value: 1}", "error_mode: {valu: 1}"), 14, "backs[0].modules[0].error_mode.valu", "unknown field 'valu'; did you mean 'value'?"),
-    "bad-name": (VALID.replace("name: bench", "name: 9bench"), 2, "gateway.name", "should match pattern"),
-    "missing-type": (VALID.replace("    type: loopback\n", ""), 8, "backs[0].type", "required field is missing: the back type, one of: "),
-    "empty-fronts": ("gateway:\n  name: g\nfronts: []\nbacks:\n  - {name: io, type: loopback, modules: [{address: 1, digital: 1}]}\n", 3, "fronts", "at least 1 item"),
+        VALID.replace("    type: memory\n", "    type: memory\n    type: memory\n"),
+        6,
+        "",
+        'duplicate key "type" in the mapping that starts on line 4',
+    ),
+    "yaml-syntax": (
+        VALID.replace('expose: ["io/m1/*", "io/m3/ao0"]', 'expose: ["io/m1/*", "io/m3/ao0"'),
+        7,
+        "",
+        "YAML syntax",
+    ),
+    "unknown-top-level-key": (
+        VALID.replace("fronts:", "frnts:"),
+        3,
+        "frnts",
+        "unknown field 'frnts'; did you mean 'fronts'?",
+    ),
+    "unknown-front-field": (
+        VALID.replace("expose:", "expse:"),
+        6,
+        "fronts[0].expse",
+        "did you mean 'expose'?",
+    ),
+    "unknown-field-no-suggestion": (
+        VALID.replace("        digital: 10", "        digital: 10\n        colour: red"),
+        19,
+        "backs[0].modules[1].colour",
+        "expected one of: address, analog, digital, error_mode",
+    ),
+    "missing-gateway-name": (
+        VALID.replace("  name: bench\n", "  description: x\n"),
+        2,
+        "gateway.name",
+        "required field is missing",
+    ),
+    "wrong-type": (
+        VALID.replace("        digital: 10", "        digital: ten"),
+        18,
+        "backs[0].modules[1].digital",
+        "valid integer",
+    ),
+    "out-of-range": (
+        VALID.replace("        digital: 10", "        digital: 100"),
+        18,
+        "backs[0].modules[1].digital",
+        "less than or equal to 64",
+    ),
+    "plugin-not-installed": (
+        VALID.replace("type: memory", "type: profibus"),
+        5,
+        "fronts[0].type",
+        "no installed plugin provides front type 'profibus'",
+    ),
+    "type-typo": (
+        VALID.replace("type: loopback", "type: lopback"),
+        9,
+        "backs[0].type",
+        "did you mean 'loopback'?",
+    ),
+    "duplicate-names": (
+        VALID.replace("  - name: io", "  - name: plc"),
+        8,
+        "backs[0].name",
+        "already used by fronts[0]",
+    ),
+    "duplicate-address": (
+        VALID.replace("      - address: 1\n", "      - address: 3\n"),
+        17,
+        "backs[0].modules[1].address",
+        "address 3 is already used by modules[0]",
+    ),
+    "expose-matches-nothing": (
+        VALID.replace('"io/m3/ao0"', '"io/m3/ao9"'),
+        6,
+        "fronts[0].expose[1]",
+        "'io/m3/ao9' matches no channel",
+    ),
+    "bad-error-mode": (
+        VALID.replace("error_mode: {value: 1}", "error_mode: {valu: 1}"),
+        14,
+        "backs[0].modules[0].error_mode.valu",
+        "unknown field 'valu'; did you mean 'value'?",
+    ),
+    "bad-name": (
+        VALID.replace("name: bench", "name: 9bench"),
+        2,
+        "gateway.name",
+        "should match pattern",
+    ),
+    "missing-type": (
+        VALID.replace("    type: loopback\n", ""),
+        8,
+        "backs[0].type",
+        "required field is missing: the back type, one of: ",
+    ),
+    "empty-fronts": (
+        "gateway:\n  name: g\nfronts: []\nbacks:\n  - {name: io, type: loopback, modules: [{address: 1, digital: 1}]}\n",
+        3,
+        "fronts",
+        "at least 1 item",
+    ),
     "not-a-mapping": ("- just\n- a list\n", 1, "", "must be a mapping"),
 }
 

@@ -16,7 +16,9 @@ def topology(modules, **back):
     return {
         "gateway": {"name": "dcon-test"},
         "fronts": [{"name": "plc", "type": "memory"}],
-        "backs": [{"name": "rs485", "type": "dcon", "port": "simulated", **settings, "modules": modules}],
+        "backs": [
+            {"name": "rs485", "type": "dcon", "port": "simulated", **settings, "modules": modules}
+        ],
     }
 
 
@@ -39,6 +41,8 @@ def gateway(dcon_registry):
     """``async with gateway(modules, **back) as gw``: a running gateway on simulated modules."""
 
     def make(modules, animate=False, **back):
-        return Gateway.load(topology(modules, **back), registry=dcon_registry, simulate=True, animate=animate)
+        return Gateway.load(
+            topology(modules, **back), registry=dcon_registry, simulate=True, animate=animate
+        )
 
     return make

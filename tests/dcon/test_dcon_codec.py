@@ -31,7 +31,9 @@ def test_frame_without_checksum_is_text_and_cr():
 
 def test_unframe_checks_and_strips_the_checksum():
     assert codec.unframe(b"!01200600AA\r", True) == "!01200600"
-    assert codec.unframe(b"!01200600aa\r", True) == "!01200600"  # lower-case hex accepted on receive
+    assert (
+        codec.unframe(b"!01200600aa\r", True) == "!01200600"
+    )  # lower-case hex accepted on receive
     with pytest.raises(CommError) as exc:
         codec.unframe(b"!01200600AB\r", True)
     assert exc.value.kind is ErrorKind.CRC
@@ -106,7 +108,16 @@ def test_data_replies():
     assert codec.status_data("!0F0000") == "0F0000"  # $AA6 of a digital module: no address
 
 
-@pytest.mark.parametrize("text, kind", [(">", None), ("!", ErrorKind.WATCHDOG), ("?", ErrorKind.EXCEPTION), (">00", ErrorKind.GARBAGE), ("#", ErrorKind.GARBAGE)])
+@pytest.mark.parametrize(
+    "text, kind",
+    [
+        (">", None),
+        ("!", ErrorKind.WATCHDOG),
+        ("?", ErrorKind.EXCEPTION),
+        (">00", ErrorKind.GARBAGE),
+        ("#", ErrorKind.GARBAGE),
+    ],
+)
 def test_write_acknowledgement(text, kind):
     if kind is None:
         codec.write_ack(text)
@@ -118,7 +129,12 @@ def test_write_acknowledgement(text, kind):
 
 def test_config_reply():
     reply = codec.parse_config("!01080642", 1)
-    assert (reply.type_code, reply.baud_code, reply.data_format, reply.checksum) == (0x08, 0x06, 2, True)
+    assert (reply.type_code, reply.baud_code, reply.data_format, reply.checksum) == (
+        0x08,
+        0x06,
+        2,
+        True,
+    )
     assert codec.BAUD_CODES[reply.baud_code] == 9600
     with pytest.raises(CommError) as exc:
         codec.parse_config("!010806", 1)
@@ -144,9 +160,14 @@ def test_random_input_only_ever_raises_comm_error():
     for address, model in ((1, "I-7055"), (2, "I-7017"), (3, "I-7024"), (4, "I-7012")):
         bus.add(SimModule(find_profile(model), address))
     parsers = [
-        lambda t: codec.addressed(t, 1), lambda t: codec.data(t, 1), lambda t: codec.status_data(t, 1), codec.write_ack,
-        lambda t: codec.parse_config(t, 1), lambda t: profile.decode_dio(t[1:]),
-        lambda t: split_values(t[1:], DataFormat.ENGINEERING, 2), lambda t: text_to_raw(t[1:], DataFormat.HEX, table),
+        lambda t: codec.addressed(t, 1),
+        lambda t: codec.data(t, 1),
+        lambda t: codec.status_data(t, 1),
+        codec.write_ack,
+        lambda t: codec.parse_config(t, 1),
+        lambda t: profile.decode_dio(t[1:]),
+        lambda t: split_values(t[1:], DataFormat.ENGINEERING, 2),
+        lambda t: text_to_raw(t[1:], DataFormat.HEX, table),
         lambda t: text_to_raw(t[1:], DataFormat.ENGINEERING, table),
     ]
     for _ in range(3000):

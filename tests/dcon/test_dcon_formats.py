@@ -33,7 +33,9 @@ def test_tv_c2_i7012_readings(raw, volts):
     rng = A.get(0x08)
     assert round(raw_to_engineering(raw, rng), 3) == volts
     # the same reading sent in engineering units (1 mV = 3.3 LSB) comes back within the text's resolution
-    back, quality = text_to_raw(raw_to_text(raw, DataFormat.ENGINEERING, rng), DataFormat.ENGINEERING, rng)
+    back, quality = text_to_raw(
+        raw_to_text(raw, DataFormat.ENGINEERING, rng), DataFormat.ENGINEERING, rng
+    )
     assert quality is Quality.GOOD and abs(back - raw) <= 2
 
 
@@ -98,7 +100,10 @@ def test_engineering_over_and_under_range_clamp_and_flag():
 
 def test_hex_format_is_twos_complement_on_bipolar_ranges_and_unsigned_otherwise():
     assert text_to_raw("8000", DataFormat.HEX, A.get(0x08)) == (-32768, Quality.GOOD)
-    assert text_to_raw("1999", DataFormat.HEX, A.get(0x09)) == (0x1999, Quality.GOOD)  # +1 V on +/-5 V, the ND-6017 example
+    assert text_to_raw("1999", DataFormat.HEX, A.get(0x09)) == (
+        0x1999,
+        Quality.GOOD,
+    )  # +1 V on +/-5 V, the ND-6017 example
     assert round(raw_to_engineering(0x1999, A.get(0x09)), 2) == 1.0
     assert ao_text_to_raw("FFF", DataFormat.HEX, AO12.get(0x32)) == (4095, Quality.GOOD)
     assert ao_text_to_raw("8000", DataFormat.HEX, AO24.get(0x33)) == (-32768, Quality.GOOD)
@@ -115,14 +120,26 @@ def test_engineering_text_has_the_dcon_shape():
     assert raw_to_text(0x4000, DataFormat.PERCENT, A.get(0x08)) == "+050.00"
 
 
-@pytest.mark.parametrize("table, code, signed", [("ao-12bit", 0x32, False), ("ao-12bit", 0x31, False), ("ao-7024", 0x33, True), ("ao-7024", 0x34, True)])
+@pytest.mark.parametrize(
+    "table, code, signed",
+    [
+        ("ao-12bit", 0x32, False),
+        ("ao-12bit", 0x31, False),
+        ("ao-7024", 0x33, True),
+        ("ao-7024", 0x34, True),
+    ],
+)
 @pytest.mark.parametrize("fmt", [DataFormat.ENGINEERING, DataFormat.PERCENT, DataFormat.HEX])
 def test_ao_set_points_survive_the_round_trip_through_the_module(table, code, signed, fmt):
     """The back rounds text up; a module truncating it lands on the raw value (or within the text's resolution)."""
     rng = TABLES[table].get(code)
     width = 3 if rng.hmax == 0xFFF else 4
     step = 1 if rng.hmax == 0xFFF else 97
-    resolution = {DataFormat.HEX: 0, DataFormat.ENGINEERING: 0, DataFormat.PERCENT: 1}[fmt] if rng.hmax == 0xFFF else 4
+    resolution = (
+        {DataFormat.HEX: 0, DataFormat.ENGINEERING: 0, DataFormat.PERCENT: 1}[fmt]
+        if rng.hmax == 0xFFF
+        else 4
+    )
     for raw in range(rng.hmin, rng.hmax + 1, step):
         text = raw_to_text(raw, fmt, rng, hex_width=width, signed_text=signed, round_up=True)
         back, quality = ao_text_to_raw(text, fmt, rng)
@@ -136,7 +153,9 @@ def test_ohms_format_uses_the_rtd_curves():
     assert rtd_resistance("pt385", -100) == pytest.approx(60.25, abs=0.02)
     assert rtd_resistance("pt3916", 100) == pytest.approx(139.16, abs=0.02)
     assert rtd_temperature("pt385", 100.0) == pytest.approx(0.0, abs=1e-6)
-    assert rtd_temperature("pt385", rtd_resistance("pt385", -57.3)) == pytest.approx(-57.3, abs=1e-4)
+    assert rtd_temperature("pt385", rtd_resistance("pt385", -57.3)) == pytest.approx(
+        -57.3, abs=1e-4
+    )
     rng = RTD.get(0x20)
     raw, quality = text_to_raw("+138.50", DataFormat.OHMS, rng)
     assert quality is Quality.GOOD and raw == pytest.approx(0x7FFF, abs=15)
@@ -148,7 +167,11 @@ def test_ohms_format_uses_the_rtd_curves():
 
 
 def test_split_values():
-    assert split_values("+05.123+04.153-00.001", DataFormat.ENGINEERING, 3) == ["+05.123", "+04.153", "-00.001"]
+    assert split_values("+05.123+04.153-00.001", DataFormat.ENGINEERING, 3) == [
+        "+05.123",
+        "+04.153",
+        "-00.001",
+    ]
     assert split_values("4C53FFFF", DataFormat.HEX, 2) == ["4C53", "FFFF"]
     for bad in ("+05.123+04.153", "05.123+04.153+1.000", "+05.1+04.1+0.1+1.0"):
         with pytest.raises(CommError):
@@ -170,12 +193,19 @@ def test_every_table_row_is_consistent():
             assert engineering_to_raw(rng.fmin, rng)[0] == rng.hmin
 
 
-@pytest.mark.parametrize("text, fmt, rng", [
-    ("-" + "9" * 155, DataFormat.OHMS, RTD.get(0x20)),  # an RTD resistance off every curve (was NaN -> ValueError)
-    ("-1" + "0" * 202, DataFormat.OHMS, RTD.get(0x20)),  # was OverflowError
-    ("+1" + "0" * 310, DataFormat.ENGINEERING, A.get(0x08)),  # inf
-    ("+1" + "0" * 310, DataFormat.PERCENT, A.get(0x08)),
-])
+@pytest.mark.parametrize(
+    "text, fmt, rng",
+    [
+        (
+            "-" + "9" * 155,
+            DataFormat.OHMS,
+            RTD.get(0x20),
+        ),  # an RTD resistance off every curve (was NaN -> ValueError)
+        ("-1" + "0" * 202, DataFormat.OHMS, RTD.get(0x20)),  # was OverflowError
+        ("+1" + "0" * 310, DataFormat.ENGINEERING, A.get(0x08)),  # inf
+        ("+1" + "0" * 310, DataFormat.PERCENT, A.get(0x08)),
+    ],
+)
 def test_a_number_no_module_sends_is_garbage_not_a_crash(text, fmt, rng):
     with pytest.raises(CommError) as err:
         text_to_raw(text, fmt, rng)

@@ -22,7 +22,15 @@ class Master:
 
     def send(self, cob, data="", rtr=False):
         payload = bytes.fromhex(data)
-        self.bus.send(can.Message(arbitration_id=cob, data=payload, is_extended_id=False, is_remote_frame=rtr, dlc=0 if rtr else len(payload)))
+        self.bus.send(
+            can.Message(
+                arbitration_id=cob,
+                data=payload,
+                is_extended_id=False,
+                is_remote_frame=rtr,
+                dlc=0 if rtr else len(payload),
+            )
+        )
 
     async def until(self, cob, predicate=lambda data: True, timeout=3.0):
         """The first frame on ``cob`` whose data satisfies ``predicate``; earlier ones are skipped."""
@@ -53,13 +61,20 @@ def registry(dcon_registry):
 
 async def test_i7231d_example_on_simulated_dcon_modules(registry, tmp_path):
     channel = f"fg-7231d-{uuid.uuid4().hex[:8]}"
-    overrides = {"fronts.can.channel": channel, "backs.rs485.poll_ms": 10, "backs.rs485.timeout_ms": 150, "gateway.state_dir": str(tmp_path)}
+    overrides = {
+        "fronts.can.channel": channel,
+        "backs.rs485.poll_ms": 10,
+        "backs.rs485.timeout_ms": 150,
+        "gateway.state_dir": str(tmp_path),
+    }
     gw = Gateway.load(EXAMPLE, overrides, registry, simulate=True)
     await gw.start()
     master = Master(channel)
     try:
         sim = gw.bench.simulator("rs485")
-        for n in range(16):  # the manual's bench: I-7043 DO n drives I-7053 DI n, a DI reads 1 when OFF
+        for n in range(
+            16
+        ):  # the manual's bench: I-7043 DO n drives I-7053 DI n, a DI reads 1 when OFF
             sim.wire((1, "do", n), (2, "di", n), invert=True)
         sim.wire((3, "ao", 0), (4, "ai", 0))  # I-7021 AO0 -> I-7012 AI0
         sim.set_input("rs485/m4/di0", True)  # I-7012 DI0 OFF
@@ -69,7 +84,9 @@ async def test_i7231d_example_on_simulated_dcon_modules(registry, tmp_path):
         assert await master.until(0x181) == bytes.fromhex("FF FF 01")
         # P01: RxPDO1 writes the I-7043 outputs; the wired I-7053 inputs change -> TxPDO1
         master.send(0x201, "34 12 00 00 00 00 00 00")
-        assert await master.until(0x181, lambda d: d == bytes.fromhex("CB ED 01")) == bytes.fromhex("CB ED 01")
+        assert await master.until(0x181, lambda d: d == bytes.fromhex("CB ED 01")) == bytes.fromhex(
+            "CB ED 01"
+        )
         assert sim.module(1).do_bits == 0x1234
         # P02: RxPDO2 writes AO0 = 0x07FF (5 V); read AI0 with an RTR: about 0x3FF5 (a few LSB of "noise")
         master.send(0x301, "FF 07 00 00 00 00 00 00")
@@ -90,7 +107,9 @@ async def test_i7231d_example_on_simulated_dcon_modules(registry, tmp_path):
         await asyncio.sleep(0.2)
         assert sim.module(1).do_bits == 0x1234  # not yet
         master.send(0x080)
-        assert await master.until(0x181, lambda d: d == bytes.fromhex("87 A9 01")) == bytes.fromhex("87 A9 01")
+        assert await master.until(0x181, lambda d: d == bytes.fromhex("87 A9 01")) == bytes.fromhex(
+            "87 A9 01"
+        )
         assert sim.module(1).do_bits == 0x5678
         # the module status objects: every module online, no errors on the line
         assert all(m["online"] and m["error_counter"] == 0 for m in gw.status()["modules"])

@@ -4,11 +4,62 @@ import pytest
 
 from fieldgate import Quality
 
-I7000 = ["I-7041", "I-7042", "I-7043", "I-7044", "I-7045", "I-7050", "I-7051", "I-7052", "I-7053", "I-7055", "I-7058", "I-7060",
-         "I-7063", "I-7065", "I-7066", "I-7067", "I-7011", "I-7012", "I-7014", "I-7016", "I-7013", "I-7015", "I-7017", "I-7018",
-         "I-7019", "I-7033", "I-7021", "I-7022", "I-7024"]
-I87K = ["I-87013", "I-87016", "I-87017", "I-87018", "I-87019", "I-87022", "I-87024", "I-87026", "I-87040", "I-87041", "I-87051",
-        "I-87052", "I-87053", "I-87054", "I-87055", "I-87057", "I-87058", "I-87063", "I-87064", "I-87065", "I-87066", "I-87068", "I-87069"]
+I7000 = [
+    "I-7041",
+    "I-7042",
+    "I-7043",
+    "I-7044",
+    "I-7045",
+    "I-7050",
+    "I-7051",
+    "I-7052",
+    "I-7053",
+    "I-7055",
+    "I-7058",
+    "I-7060",
+    "I-7063",
+    "I-7065",
+    "I-7066",
+    "I-7067",
+    "I-7011",
+    "I-7012",
+    "I-7014",
+    "I-7016",
+    "I-7013",
+    "I-7015",
+    "I-7017",
+    "I-7018",
+    "I-7019",
+    "I-7033",
+    "I-7021",
+    "I-7022",
+    "I-7024",
+]
+I87K = [
+    "I-87013",
+    "I-87016",
+    "I-87017",
+    "I-87018",
+    "I-87019",
+    "I-87022",
+    "I-87024",
+    "I-87026",
+    "I-87040",
+    "I-87041",
+    "I-87051",
+    "I-87052",
+    "I-87053",
+    "I-87054",
+    "I-87055",
+    "I-87057",
+    "I-87058",
+    "I-87063",
+    "I-87064",
+    "I-87065",
+    "I-87066",
+    "I-87068",
+    "I-87069",
+]
 
 
 def _stimulate(sim, gw, address, profile, phase):
@@ -46,11 +97,19 @@ async def test_every_family_reads_inputs_and_writes_outputs(gateway, models, wai
                 ins, outs = _stimulate(sim, gw, address, back.modules[address].profile, phase)
                 expect_in.update(ins)
                 expect_out.update(outs)
-            await wait_for(lambda: all(gw.read(c) == v for c, v in expect_in.items()) and all(sim.get_output(c) == v for c, v in expect_out.items()), timeout=5)
+            await wait_for(
+                lambda: (
+                    all(gw.read(c) == v for c, v in expect_in.items())
+                    and all(sim.get_output(c) == v for c, v in expect_out.items())
+                ),
+                timeout=5,
+            )
             assert all(gw.image[c].quality is Quality.GOOD for c in expect_in)
         status = gw.status()["backs"]["rs485"]
         assert status["errors"] == {} and all(m["online"] for m in status["modules"])
-        assert {m["name"] for m in status["dcon_modules"]} == {m[2:] for m in models}  # identified by $AAM
+        assert {m["name"] for m in status["dcon_modules"]} == {
+            m[2:] for m in models
+        }  # identified by $AAM
 
 
 @pytest.mark.parametrize("fmt", ["engineering", "percent"])
@@ -69,18 +128,28 @@ async def test_analog_values_in_engineering_and_percent_formats(gateway, fmt, wa
         gw.write("rs485/m2/ao1", -12345)
         gw.write("rs485/m3/ao0", 0x7FF)  # TV-C3: 5 V
         tolerance = 2 if fmt == "engineering" else 3  # the text's resolution (1 mV, 0.01 %)
-        await wait_for(lambda: abs(gw.read("rs485/m1/ai0") - 0x1234) <= tolerance and gw.read("rs485/m1/ai7") == -0x8000
-                       and abs(gw.read("rs485/m4/ai3") - 0x7FFF) <= tolerance and sim.get_output("rs485/m3/ao0") == 0x7FF
-                       and abs(sim.get_output("rs485/m2/ao1") + 12345) <= 4)
+        await wait_for(
+            lambda: (
+                abs(gw.read("rs485/m1/ai0") - 0x1234) <= tolerance
+                and gw.read("rs485/m1/ai7") == -0x8000
+                and abs(gw.read("rs485/m4/ai3") - 0x7FFF) <= tolerance
+                and sim.get_output("rs485/m3/ao0") == 0x7FF
+                and abs(sim.get_output("rs485/m2/ao1") + 12345) <= 4
+            )
+        )
         assert gw.component("rs485").modules[1].status()["data_format"] == fmt
 
 
 async def test_checksum_line(gateway, wait_for):
-    async with gateway([{"address": 0x21, "model": "I-7055"}, {"address": 0xFF, "model": "I-7017"}], checksum=True) as gw:
+    async with gateway(
+        [{"address": 0x21, "model": "I-7055"}, {"address": 0xFF, "model": "I-7017"}], checksum=True
+    ) as gw:
         sim = gw.bench.simulator("rs485")
         sim.set_input("rs485/m33/di7", True)
         gw.write("rs485/m33/do6", True)
-        await wait_for(lambda: gw.read("rs485/m33/di7") is True and sim.get_output("rs485/m33/do6") is True)
+        await wait_for(
+            lambda: gw.read("rs485/m33/di7") is True and sim.get_output("rs485/m33/do6") is True
+        )
         assert gw.status()["backs"]["rs485"]["errors"] == {}
 
 
@@ -100,9 +169,16 @@ async def test_type_code_outside_the_model_table_is_a_config_error(gateway, wait
         sim.module(1).type_code = 0x20  # an RTD code on an I-7017
         await wait_for(lambda: gw.image["rs485/m1/ai0"].quality is Quality.CONFIG_ERROR)
         assert "not a I-7017 range" in gw.component("rs485").modules[1].status()["config_error"]
-        sim.module(1).type_code = 0x08  # set right (DCON utility): the back sees it at the next poll
+        sim.module(
+            1
+        ).type_code = 0x08  # set right (DCON utility): the back sees it at the next poll
         sim.set_input("rs485/m1/ai0", 0x0100)
-        await wait_for(lambda: gw.image["rs485/m1/ai0"].quality is Quality.GOOD and gw.read("rs485/m1/ai0") == 0x0100)
+        await wait_for(
+            lambda: (
+                gw.image["rs485/m1/ai0"].quality is Quality.GOOD
+                and gw.read("rs485/m1/ai0") == 0x0100
+            )
+        )
 
 
 async def test_safe_and_power_on_values_are_stored_in_the_modules(gateway, wait_for):
@@ -115,9 +191,20 @@ async def test_safe_and_power_on_values_are_stored_in_the_modules(gateway, wait_
     async with gateway(modules) as gw:
         sim = gw.bench.simulator("rs485")
         gw.write("rs485/m1/do15", True)
-        await wait_for(lambda: sim.module(1).safe_do == 0x00FF and sim.module(1).power_on_do == 0x0F00 and sim.get_output("rs485/m1/do15"))
+        await wait_for(
+            lambda: (
+                sim.module(1).safe_do == 0x00FF
+                and sim.module(1).power_on_do == 0x0F00
+                and sim.get_output("rs485/m1/do15")
+            )
+        )
         await wait_for(lambda: (sim.module(2).power_on_do, sim.module(2).safe_do) == (1, 2))
-        await wait_for(lambda: sim.module(3).safe_ao == [100, 200, 300, 400] and sim.module(4).power_on_ao == [0x400])
+        await wait_for(
+            lambda: (
+                sim.module(3).safe_ao == [100, 200, 300, 400]
+                and sim.module(4).power_on_ao == [0x400]
+            )
+        )
         assert sim.module(1).do_bits == 0x8000  # the image's value is back after the latching
         assert sim.module(3).ao_raw == [0, 0, 0, 0]
 

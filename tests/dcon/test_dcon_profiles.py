@@ -10,17 +10,59 @@ from fieldgate.topology import TopologyError, load_topology
 
 # seed-003 §5.1 / seed-001 §2.1: model -> (DI, DO, AI, AO)
 SEED_CHANNELS = {
-    "I-7011": (1, 2, 1, 0), "I-7012": (1, 2, 1, 0), "I-7013": (0, 0, 1, 0), "I-7014": (1, 2, 1, 0), "I-7015": (0, 0, 6, 0),
-    "I-7016": (1, 4, 2, 0), "I-7016P": (1, 4, 1, 0), "I-7017": (0, 0, 8, 0), "I-7018": (0, 0, 8, 0), "I-7019R": (0, 0, 8, 0),
-    "I-7021": (0, 0, 0, 1), "I-7022": (0, 0, 0, 2), "I-7024": (0, 0, 0, 4), "I-7033": (0, 0, 3, 0), "I-7041": (14, 0, 0, 0),
-    "I-7042": (0, 13, 0, 0), "I-7043": (0, 16, 0, 0), "I-7044": (4, 8, 0, 0), "I-7045": (0, 16, 0, 0), "I-7050": (7, 8, 0, 0),
-    "I-7051": (16, 0, 0, 0), "I-7052": (8, 0, 0, 0), "I-7053": (16, 0, 0, 0), "I-7055": (8, 8, 0, 0), "I-7058": (8, 0, 0, 0),
-    "I-7060": (4, 4, 0, 0), "I-7063": (8, 3, 0, 0), "I-7065": (4, 5, 0, 0), "I-7066": (0, 7, 0, 0), "I-7067": (0, 7, 0, 0),
-    "I-87013": (0, 0, 4, 0), "I-87016": (0, 0, 2, 0), "I-87017": (0, 0, 8, 0), "I-87018": (0, 0, 8, 0), "I-87019R": (0, 0, 8, 0),
-    "I-87022": (0, 0, 0, 2), "I-87024": (0, 0, 0, 4), "I-87026": (0, 0, 0, 2), "I-87040": (32, 0, 0, 0), "I-87041": (0, 32, 0, 0),
-    "I-87051": (16, 0, 0, 0), "I-87052": (8, 0, 0, 0), "I-87053": (16, 0, 0, 0), "I-87054": (8, 8, 0, 0), "I-87055": (8, 8, 0, 0),
-    "I-87057": (0, 16, 0, 0), "I-87058": (8, 0, 0, 0), "I-87063": (4, 4, 0, 0), "I-87064": (0, 8, 0, 0), "I-87065": (0, 8, 0, 0),
-    "I-87066": (0, 8, 0, 0), "I-87068": (0, 8, 0, 0), "I-87069": (0, 8, 0, 0),
+    "I-7011": (1, 2, 1, 0),
+    "I-7012": (1, 2, 1, 0),
+    "I-7013": (0, 0, 1, 0),
+    "I-7014": (1, 2, 1, 0),
+    "I-7015": (0, 0, 6, 0),
+    "I-7016": (1, 4, 2, 0),
+    "I-7016P": (1, 4, 1, 0),
+    "I-7017": (0, 0, 8, 0),
+    "I-7018": (0, 0, 8, 0),
+    "I-7019R": (0, 0, 8, 0),
+    "I-7021": (0, 0, 0, 1),
+    "I-7022": (0, 0, 0, 2),
+    "I-7024": (0, 0, 0, 4),
+    "I-7033": (0, 0, 3, 0),
+    "I-7041": (14, 0, 0, 0),
+    "I-7042": (0, 13, 0, 0),
+    "I-7043": (0, 16, 0, 0),
+    "I-7044": (4, 8, 0, 0),
+    "I-7045": (0, 16, 0, 0),
+    "I-7050": (7, 8, 0, 0),
+    "I-7051": (16, 0, 0, 0),
+    "I-7052": (8, 0, 0, 0),
+    "I-7053": (16, 0, 0, 0),
+    "I-7055": (8, 8, 0, 0),
+    "I-7058": (8, 0, 0, 0),
+    "I-7060": (4, 4, 0, 0),
+    "I-7063": (8, 3, 0, 0),
+    "I-7065": (4, 5, 0, 0),
+    "I-7066": (0, 7, 0, 0),
+    "I-7067": (0, 7, 0, 0),
+    "I-87013": (0, 0, 4, 0),
+    "I-87016": (0, 0, 2, 0),
+    "I-87017": (0, 0, 8, 0),
+    "I-87018": (0, 0, 8, 0),
+    "I-87019R": (0, 0, 8, 0),
+    "I-87022": (0, 0, 0, 2),
+    "I-87024": (0, 0, 0, 4),
+    "I-87026": (0, 0, 0, 2),
+    "I-87040": (32, 0, 0, 0),
+    "I-87041": (0, 32, 0, 0),
+    "I-87051": (16, 0, 0, 0),
+    "I-87052": (8, 0, 0, 0),
+    "I-87053": (16, 0, 0, 0),
+    "I-87054": (8, 8, 0, 0),
+    "I-87055": (8, 8, 0, 0),
+    "I-87057": (0, 16, 0, 0),
+    "I-87058": (8, 0, 0, 0),
+    "I-87063": (4, 4, 0, 0),
+    "I-87064": (0, 8, 0, 0),
+    "I-87065": (0, 8, 0, 0),
+    "I-87066": (0, 8, 0, 0),
+    "I-87068": (0, 8, 0, 0),
+    "I-87069": (0, 8, 0, 0),
 }
 
 
@@ -33,8 +75,18 @@ def test_channel_counts_follow_the_seeds(model, counts):
 
 @pytest.mark.parametrize(
     "name, model",
-    [("7017", "I-7017"), ("7017RC", "I-7017"), ("I-7053D", "I-7053"), ("M-7055D", "I-7055"), ("7012FD", "I-7012"), ("87017R", "I-87017"),
-     ("I-7018BL", "I-7018"), ("m-7017r-a5", "I-7017"), ("7016P", "I-7016P"), ("7063BD", "I-7063")],
+    [
+        ("7017", "I-7017"),
+        ("7017RC", "I-7017"),
+        ("I-7053D", "I-7053"),
+        ("M-7055D", "I-7055"),
+        ("7012FD", "I-7012"),
+        ("87017R", "I-87017"),
+        ("I-7018BL", "I-7018"),
+        ("m-7017r-a5", "I-7017"),
+        ("7016P", "I-7016P"),
+        ("7063BD", "I-7063"),
+    ],
 )
 def test_model_names_as_modules_report_them(name, model):
     assert find_profile(name).model == model
@@ -75,11 +127,20 @@ def test_every_profile_round_trips_its_digital_data():
 
 
 def _back(**module):
-    return {"name": "rs485", "type": "dcon", "port": "/dev/null", "modules": [{"address": 1, "model": "I-7017", **module}]}
+    return {
+        "name": "rs485",
+        "type": "dcon",
+        "port": "/dev/null",
+        "modules": [{"address": 1, "model": "I-7017", **module}],
+    }
 
 
 def _topology(back):
-    return {"gateway": {"name": "g"}, "fronts": [{"name": "plc", "type": "memory"}], "backs": [back]}
+    return {
+        "gateway": {"name": "g"},
+        "fronts": [{"name": "plc", "type": "memory"}],
+        "backs": [back],
+    }
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +160,13 @@ def registry():
         (_back(data_format="octal"), "data_format"),
         (_back(watchdog={"timeout_ms": 50}), "timeout_ms"),
         ({**_back(watchdog={"timeout_ms": 1000}), "host_ok_ms": 600}, "less than half"),
-        ({**_back(), "modules": [{"address": 1, "model": "I-7017"}, {"address": 1, "model": "I-7053"}]}, "two modules at address 1"),
+        (
+            {
+                **_back(),
+                "modules": [{"address": 1, "model": "I-7017"}, {"address": 1, "model": "I-7053"}],
+            },
+            "two modules at address 1",
+        ),
         (_back(address=256), "address"),
     ],
 )
@@ -110,14 +177,28 @@ def test_topology_errors(registry, back, message):
 
 
 def test_channel_specs_follow_the_model(registry):
-    back = {"name": "rs485", "type": "dcon", "port": "/dev/null", "modules": [
-        {"address": 4, "model": "I-7012", "type_code": 0x08, "error_mode": {"value": 1}},
-        {"address": 1, "model": "I-87026"},
-    ]}
+    back = {
+        "name": "rs485",
+        "type": "dcon",
+        "port": "/dev/null",
+        "modules": [
+            {"address": 4, "model": "I-7012", "type_code": 0x08, "error_mode": {"value": 1}},
+            {"address": 1, "model": "I-87026"},
+        ],
+    }
     topo = load_topology(_topology(back), registry)
     specs = {s.id: s for s in topo.channel_specs}
-    assert sorted(specs) == ["rs485/m1/ao0", "rs485/m1/ao1", "rs485/m4/ai0", "rs485/m4/di0", "rs485/m4/do0", "rs485/m4/do1"]
-    assert specs["rs485/m4/do1"].error_mode.use_value and specs["rs485/m4/do1"].error_mode.value == 1
+    assert sorted(specs) == [
+        "rs485/m1/ao0",
+        "rs485/m1/ao1",
+        "rs485/m4/ai0",
+        "rs485/m4/di0",
+        "rs485/m4/do0",
+        "rs485/m4/do1",
+    ]
+    assert (
+        specs["rs485/m4/do1"].error_mode.use_value and specs["rs485/m4/do1"].error_mode.value == 1
+    )
     assert specs["rs485/m4/ai0"].scaling.eng_max == 10.0 and specs["rs485/m4/ai0"].kind is Kind.AI
     assert specs["rs485/m1/ao0"].data_type.value == "uint16"  # I-87026: 0..0xFFFF
     assert DconBackConfig.model_validate({**back, "host_ok_ms": None}).host_ok_period() is None

@@ -20,7 +20,7 @@ def ask(b, text, now=0.0, checksum=None):
     replies = b.feed(codec.frame(text, use), now)
     if not replies:
         return None
-    (raw, _delay), = replies
+    ((raw, _delay),) = replies
     return codec.unframe(raw, b.checksum)
 
 
@@ -29,7 +29,9 @@ def test_identity_config_and_reset_status():
     assert ask(b, "$01M") == "!017017"
     assert ask(b, "$012") == "!01080602"  # type 08, 9600 bit/s, hex format
     assert ask(b, "$01F").startswith("!01")
-    assert ask(b, "$015") == "!011" and ask(b, "$015") == "!010"  # 1 only on the first read after power-on
+    assert (
+        ask(b, "$015") == "!011" and ask(b, "$015") == "!010"
+    )  # 1 only on the first read after power-on
 
 
 def test_silence_on_unknown_commands_addresses_and_noise():
@@ -52,10 +54,16 @@ def test_checksum_line_ignores_frames_with_bad_or_missing_checksum():
     assert raw.endswith(codec.checksum(raw[:-3].decode()).encode() + b"\r")
 
 
-@pytest.mark.parametrize("model, write, readback", [
-    ("I-7060", "@01A", ">0A00"), ("I-7044", "@0181", ">8100"), ("I-7043", "@01F00F", ">F00F"),
-    ("I-87041", "@0180000001", ">80000001"), ("I-7067", "@017F", ">7F00"),
-])
+@pytest.mark.parametrize(
+    "model, write, readback",
+    [
+        ("I-7060", "@01A", ">0A00"),
+        ("I-7044", "@0181", ">8100"),
+        ("I-7043", "@01F00F", ">F00F"),
+        ("I-87041", "@0180000001", ">80000001"),
+        ("I-7067", "@017F", ">7F00"),
+    ],
+)
 def test_digital_outputs_and_readback(model, write, readback):
     b = bus((1, model))
     assert ask(b, write) == ">"
@@ -81,8 +89,12 @@ def test_do_group_and_channel_commands():
 
 
 def test_analog_inputs_in_each_format():
-    b = bus((1, "I-7017", {"type_code": 0x08}), (2, "I-7012", {"type_code": 0x08, "data_format": DataFormat.ENGINEERING}),
-            (3, "I-7013", {"data_format": DataFormat.OHMS}), (4, "I-7018", {"type_code": 0x0E, "data_format": DataFormat.PERCENT}))
+    b = bus(
+        (1, "I-7017", {"type_code": 0x08}),
+        (2, "I-7012", {"type_code": 0x08, "data_format": DataFormat.ENGINEERING}),
+        (3, "I-7013", {"data_format": DataFormat.OHMS}),
+        (4, "I-7018", {"type_code": 0x0E, "data_format": DataFormat.PERCENT}),
+    )
     b.modules[1].ai_raw = [0x1234, -1, 0, 0, 0, 0, 0, 0x7FFF]
     assert ask(b, "#01") == ">" + "1234" + "FFFF" + "0000" * 5 + "7FFF"
     assert ask(b, "#017") == ">7FFF" and ask(b, "#018") == "?01"
@@ -107,7 +119,9 @@ def test_aidio_family_commands():
 def test_analog_outputs():
     b = bus((1, "I-7021"), (2, "I-7024", {"data_format": DataFormat.ENGINEERING}))
     assert ask(b, "#017FF") == ">" and b.modules[1].ao_raw == [0x7FF]
-    assert ask(b, "#0117FF") is None or b.modules[1].ao_raw == [0x7FF]  # a single-channel module takes no channel digit
+    assert ask(b, "#0117FF") is None or b.modules[1].ao_raw == [
+        0x7FF
+    ]  # a single-channel module takes no channel digit
     assert ask(b, "#021+05.000") == ">" and b.modules[2].ao_raw[1] == 16383
     assert ask(b, "#025+05.000") == "?"  # no channel 5
     assert ask(b, "#020+11.000") == "?"  # out of range
@@ -175,7 +189,9 @@ def test_faults():
 
 def test_wires_copy_outputs_to_inputs():
     b = bus((1, "I-7043"), (2, "I-7053"), (3, "I-7021"), (4, "I-7012", {"type_code": 0x08}))
-    b.wires += [Wire((1, "do", n), (2, "di", n), invert=True) for n in range(16)] + [Wire((3, "ao", 0), (4, "ai", 0))]
+    b.wires += [Wire((1, "do", n), (2, "di", n), invert=True) for n in range(16)] + [
+        Wire((3, "ao", 0), (4, "ai", 0))
+    ]
     ask(b, "@011234")
     assert b.modules[2].di_bits == 0xEDCB  # the I-7231D demo: DI = NOT DO
     ask(b, "#037FF")

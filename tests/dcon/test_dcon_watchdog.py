@@ -8,37 +8,59 @@ WD = {"enabled": True, "timeout_ms": 300}
 async def test_host_ok_keeps_modules_alive_while_the_master_is_healthy(gateway, wait_for):
     async with gateway([{"address": 1, "model": "I-7055", "watchdog": WD}]) as gw:
         sim, back = gw.bench.simulator("rs485"), gw.component("rs485")
-        await wait_for(lambda: sim.module(1).watchdog_enabled and sim.module(1).watchdog_tenths == 3)  # ~AA3EVV = ~01303
+        await wait_for(
+            lambda: sim.module(1).watchdog_enabled and sim.module(1).watchdog_tenths == 3
+        )  # ~AA3EVV = ~01303
         gw.write("rs485/m1/do0", True)
-        await wait_for(lambda: back.host_ok_sent >= 8, timeout=3)  # 0.1 s period: ~0.8 s, more than twice the timeout
+        await wait_for(
+            lambda: back.host_ok_sent >= 8, timeout=3
+        )  # 0.1 s period: ~0.8 s, more than twice the timeout
         assert not sim.module(1).timed_out and sim.get_output("rs485/m1/do0") is True
         assert gw.status()["backs"]["rs485"]["host_ok"]["period_ms"] == 100
 
 
 async def test_master_lost_stops_host_ok_and_modules_fall_to_safe_values(gateway, wait_for):
-    modules = [{"address": 1, "model": "I-7043", "watchdog": WD, "safe_value": 0x00F0}, {"address": 2, "model": "I-7024", "watchdog": WD, "safe_value": [7, 7, 7, 7]}]
+    modules = [
+        {"address": 1, "model": "I-7043", "watchdog": WD, "safe_value": 0x00F0},
+        {"address": 2, "model": "I-7024", "watchdog": WD, "safe_value": [7, 7, 7, 7]},
+    ]
     async with gateway(modules) as gw:
         sim, back = gw.bench.simulator("rs485"), gw.component("rs485")
         gw.write("rs485/m1/do0", True)
         gw.write("rs485/m2/ao0", 1000)
-        await wait_for(lambda: sim.get_output("rs485/m1/do0") and sim.get_output("rs485/m2/ao0") == 1000 and back.host_ok_sent > 2)
+        await wait_for(
+            lambda: (
+                sim.get_output("rs485/m1/do0")
+                and sim.get_output("rs485/m2/ao0") == 1000
+                and back.host_ok_sent > 2
+            )
+        )
         gw.component("plc").lose_master("heartbeat timeout")
         sent = back.host_ok_sent
         await wait_for(lambda: sim.module(1).timed_out and sim.module(2).timed_out, timeout=2)
         assert back.host_ok_sent == sent  # not one ~** after the loss
         assert sim.module(1).do_bits == 0x00F0 and sim.module(2).ao_raw == [7, 7, 7, 7]
         # the back notices (it reads ~AA0 while host OK is suspended): outputs say WATCHDOG, status too
-        await wait_for(lambda: gw.image["rs485/m1/do0"].quality is Quality.WATCHDOG and gw.image["rs485/m2/ao3"].quality is Quality.WATCHDOG)
+        await wait_for(
+            lambda: (
+                gw.image["rs485/m1/do0"].quality is Quality.WATCHDOG
+                and gw.image["rs485/m2/ao3"].quality is Quality.WATCHDOG
+            )
+        )
         assert back.watchdog_status(1) and back.watchdog_status(2)
         entry = next(m for m in gw.status()["backs"]["rs485"]["dcon_modules"] if m["address"] == 1)
         assert entry["watchdog"]["timed_out"] is True and entry["watchdog"]["events"] == 1
 
 
 async def test_write_answered_with_bang_sets_watchdog_quality_and_clear_recovers(gateway, wait_for):
-    async with gateway([{"address": 1, "model": "I-7060", "watchdog": WD}, {"address": 2, "model": "I-7052"}]) as gw:
+    async with gateway(
+        [{"address": 1, "model": "I-7060", "watchdog": WD}, {"address": 2, "model": "I-7052"}]
+    ) as gw:
         sim, back = gw.bench.simulator("rs485"), gw.component("rs485")
         await wait_for(lambda: sim.module(1).watchdog_enabled)
-        sim.module(1).tick(sim.module(1).last_host_ok + 10)  # the module times out (as if ~** had been lost on the wire)
+        sim.module(1).tick(
+            sim.module(1).last_host_ok + 10
+        )  # the module times out (as if ~** had been lost on the wire)
         gw.write("rs485/m1/do2", True)
         await wait_for(lambda: gw.image["rs485/m1/do2"].quality is Quality.WATCHDOG)
         health = gw.health.get("rs485", 1)
@@ -46,7 +68,9 @@ async def test_write_answered_with_bang_sets_watchdog_quality_and_clear_recovers
         assert sim.get_output("rs485/m1/do2") is False and sim.module(1).ignored_writes == 1
         gw.write("rs485/m1/do3", True)  # ignored by the module, so not even sent: no second '!'
         await wait_for(lambda: back.scheduler.pending_writes == 0)
-        assert sim.module(1).ignored_writes == 1 and health.online  # reads still work: the module stays online
+        assert (
+            sim.module(1).ignored_writes == 1 and health.online
+        )  # reads still work: the module stays online
         assert gw.image["rs485/m2/di0"].quality is Quality.GOOD  # other modules are not affected
         # explicit recovery (the I-7231D's 0x2003 write): ~AA1, then the image's outputs are written again
         assert await back.clear_watchdog(1) is True
@@ -61,9 +85,13 @@ async def test_i7012_family_reports_the_timeout_through_its_status(gateway, wait
         await wait_for(lambda: sim.module(4).watchdog_enabled)
         sim.module(4).tick(sim.module(4).last_host_ok + 10)
         gw.write("rs485/m4/do1", True)  # @AADO answers !AA even when ignored: ~AA0 tells
-        await wait_for(lambda: back.watchdog_status(4) and gw.image["rs485/m4/do1"].quality is Quality.WATCHDOG)
+        await wait_for(
+            lambda: back.watchdog_status(4) and gw.image["rs485/m4/do1"].quality is Quality.WATCHDOG
+        )
         back.request_clear_watchdog(4)  # fire and forget, as an SDO handler would
-        await wait_for(lambda: sim.get_output("rs485/m4/do1") is True and not back.watchdog_status(4))
+        await wait_for(
+            lambda: sim.get_output("rs485/m4/do1") is True and not back.watchdog_status(4)
+        )
 
 
 async def test_clear_watchdog_on_a_silent_module_fails_cleanly(gateway, wait_for):

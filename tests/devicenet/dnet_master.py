@@ -47,7 +47,10 @@ class Master:
         await self.frames(settle)  # the slave goes online one check period after the second request
 
     async def allocate(self, choice: int) -> bytes:
-        self.send(self.g2(ids.G2_UNCONNECTED_REQUEST), bytes([self.mac, 0x4B, 0x03, 0x01, choice, self.mac]))
+        self.send(
+            self.g2(ids.G2_UNCONNECTED_REQUEST),
+            bytes([self.mac, 0x4B, 0x03, 0x01, choice, self.mac]),
+        )
         return await self.expect(self.g2(ids.G2_EXPLICIT_RESPONSE))
 
     async def request(self, body: bytes) -> bytes:
@@ -59,7 +62,9 @@ class Master:
             if not reply[0] & 0x80:
                 return reply[1:]
             frag = reply[1]
-            self.send(self.g2(ids.G2_EXPLICIT_REQUEST), bytes([self.mac | 0x80, 0xC0 | frag & 0x3F, 0x00]))
+            self.send(
+                self.g2(ids.G2_EXPLICIT_REQUEST), bytes([self.mac | 0x80, 0xC0 | frag & 0x3F, 0x00])
+            )
             payload += reply[2:]
             if frag & 0xC0 == 0x80:
                 return payload
@@ -68,7 +73,7 @@ class Master:
         if len(outputs) <= 8:
             self.send(self.g2(ids.G2_POLL), outputs)
         else:
-            chunks = [outputs[i:i + 7] for i in range(0, len(outputs), 7)]
+            chunks = [outputs[i : i + 7] for i in range(0, len(outputs), 7)]
             for n, chunk in enumerate(chunks):
                 kind = 0x00 if n == 0 else 0x80 if n == len(chunks) - 1 else 0x40
                 self.send(self.g2(ids.G2_POLL), bytes([kind | n]) + chunk)

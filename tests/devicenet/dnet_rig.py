@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+from fieldgate.can.frame import Frame
 from fieldgate.image import ChannelSpec, ErrorMode, Kind, ProcessImage, Source, channel_id
 from fieldgate.layout import default_order
-from fieldgate.can.frame import Frame
 from fieldgate.plugins.devicenet.assembly import Assemblies
 from fieldgate.plugins.devicenet.engine import DeviceNetSlave, Settings
 
@@ -17,8 +17,19 @@ def image_with(modules: list[tuple[int, dict[Kind, int]]], back: str = "io") -> 
     for address, counts in modules:
         for kind, count in counts.items():
             for i in range(count):
-                mode = ErrorMode.to(False if kind.is_digital else 0x55) if kind.is_output else ErrorMode()
-                image.add(ChannelSpec(channel_id(back, address, kind, i), kind, Source(back, address, i), error_mode=mode))
+                mode = (
+                    ErrorMode.to(False if kind.is_digital else 0x55)
+                    if kind.is_output
+                    else ErrorMode()
+                )
+                image.add(
+                    ChannelSpec(
+                        channel_id(back, address, kind, i),
+                        kind,
+                        Source(back, address, i),
+                        error_mode=mode,
+                    )
+                )
     return image
 
 
@@ -40,7 +51,9 @@ def show(frames) -> list[str]:
 class Rig:
     """Drive a slave with a fake clock; boots and finishes the duplicate MAC check unless told not to."""
 
-    def __init__(self, image: ProcessImage | None = None, online: bool = True, now: float = 100.0, **settings):
+    def __init__(
+        self, image: ProcessImage | None = None, online: bool = True, now: float = 100.0, **settings
+    ):
         self.image = image or seed_image()
         self.assemblies = Assemblies(self.image, default_order(self.image))
         settings.setdefault("mac_id", SLAVE)

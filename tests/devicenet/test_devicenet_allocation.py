@@ -17,19 +17,25 @@ def test_seed_allocate_explicit_poll_strobe(rig):
     assert rig.explicit("0E 01 01 05") == "0A 8E 01 00"  # identity status: owned
 
 
-@pytest.mark.parametrize("request_, reply", [
-    ("0A 4B 03 01 00 0A", "0A 94 09 02"),  # choice 0
-    ("0A 4B 03 01 41 0A", "0A 94 09 02"),  # ack suppression without COS/cyclic
-    ("0A 4B 03 01 31 0A", "0A 94 09 02"),  # COS and cyclic together
-    ("0A 4B 03 01 09 0A", "0A 94 02 02"),  # multicast poll: not supported
-    ("0A 4B 03 01 02 0A", "0A 94 09 02"),  # poll without explicit
-    ("0A 4B 03 01 01", "0A 94 13 FF"),  # allocator MAC missing
-    ("0A 4B 03 01 01 0A 00", "0A 94 15 FF"),  # too much data
-    ("0A 4B 03 02 01 0A", "0A 94 16 FF"),  # instance 2 does not exist
-    ("0A 4B 04 01 01 0A", "0A 94 16 FF"),  # not the DeviceNet object
-    ("0A 0E 01 01 01", "0A 94 02 03"),  # Get on the unconnected port: invalid unconnected request
-    ("0A 4B 03", "0A 94 13 FF"),
-])
+@pytest.mark.parametrize(
+    "request_, reply",
+    [
+        ("0A 4B 03 01 00 0A", "0A 94 09 02"),  # choice 0
+        ("0A 4B 03 01 41 0A", "0A 94 09 02"),  # ack suppression without COS/cyclic
+        ("0A 4B 03 01 31 0A", "0A 94 09 02"),  # COS and cyclic together
+        ("0A 4B 03 01 09 0A", "0A 94 02 02"),  # multicast poll: not supported
+        ("0A 4B 03 01 02 0A", "0A 94 09 02"),  # poll without explicit
+        ("0A 4B 03 01 01", "0A 94 13 FF"),  # allocator MAC missing
+        ("0A 4B 03 01 01 0A 00", "0A 94 15 FF"),  # too much data
+        ("0A 4B 03 02 01 0A", "0A 94 16 FF"),  # instance 2 does not exist
+        ("0A 4B 04 01 01 0A", "0A 94 16 FF"),  # not the DeviceNet object
+        (
+            "0A 0E 01 01 01",
+            "0A 94 02 03",
+        ),  # Get on the unconnected port: invalid unconnected request
+        ("0A 4B 03", "0A 94 13 FF"),
+    ],
+)
 def test_allocation_errors(rig, request_, reply):
     assert rig.send("44E " + request_) == ["44B " + reply]
     assert rig.slave.allocation_choice == 0

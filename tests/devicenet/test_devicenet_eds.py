@@ -34,12 +34,28 @@ CIP_EDS = _import_eds_pie()
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 REQUIRED = {
     "File": ["DescText", "CreateDate", "CreateTime", "Revision"],
-    "Device": ["VendCode", "VendName", "ProdType", "ProdTypeStr", "ProdCode", "MajRev", "MinRev", "ProdName", "Catalog"],
+    "Device": [
+        "VendCode",
+        "VendName",
+        "ProdType",
+        "ProdTypeStr",
+        "ProdCode",
+        "MajRev",
+        "MinRev",
+        "ProdName",
+        "Catalog",
+    ],
     "IO_Info": ["Default", "PollInfo", "StrobeInfo", "COSInfo", "CyclicInfo"],
     "ParamClass": ["MaxInst", "Descriptor", "CfgAssembly"],
 }
-IDENTITY = {"vendor_id": 803, "device_type": 12, "product_code": 7241, "major_revision": 2, "minor_revision": 1,
-            "product_name": "ICPDAS-I7241D"}
+IDENTITY = {
+    "vendor_id": 803,
+    "device_type": 12,
+    "product_code": 7241,
+    "major_revision": 2,
+    "minor_revision": 1,
+    "product_name": "ICPDAS-I7241D",
+}
 
 
 @pytest.fixture(scope="module")
@@ -56,15 +72,27 @@ def parse(text: str, caplog) -> object:
     with caplog.at_level(logging.WARNING, logger="eds_pie"):
         caplog.clear()
         eds = CIP_EDS(text)
-    errors = [r.getMessage() for r in caplog.records if r.name.startswith("eds_pie") and r.levelno >= logging.ERROR]
+    errors = [
+        r.getMessage()
+        for r in caplog.records
+        if r.name.startswith("eds_pie") and r.levelno >= logging.ERROR
+    ]
     assert not errors, errors
     for section, keys in REQUIRED.items():
         for key in keys:
             assert eds.has_entry(section, key), f"[{section}] {key}"
-    for section in ("File", "Device", "Params"):  # sections eds_pie types: every field got its CIP type
+    for section in (
+        "File",
+        "Device",
+        "Params",
+    ):  # sections eds_pie types: every field got its CIP type
         for entry in eds.get_section(section).entries.values():
             for f in entry.fields:
-                assert f.value == "" or type(f.data).__name__ not in ("UNDEFINED", "NoneType"), (section, entry.keyword, f.value)
+                assert f.value == "" or type(f.data).__name__ not in ("UNDEFINED", "NoneType"), (
+                    section,
+                    entry.keyword,
+                    f.value,
+                )
     return eds
 
 
@@ -97,41 +125,77 @@ def number(data: bytes) -> int:
     return int.from_bytes(data, "little")
 
 
-@pytest.mark.parametrize("example, mac, sizes", [("i7241d-style.yaml", 1, (17, 9)), ("devicenet-modbus.yaml", 5, (17, 1))])
-async def test_eds_states_what_the_running_front_answers(tmp_path, caplog, registry, example, mac, sizes):
-    eds = parse(generate(tmp_path, EXAMPLES / example, "--front", "dnet", *identity_options()), caplog)
-    assert (value(eds, "IO_Info", "Input1"), value(eds, "IO_Info", "Output1")) == sizes  # the docs' layout
+@pytest.mark.parametrize(
+    "example, mac, sizes",
+    [("i7241d-style.yaml", 1, (17, 9)), ("devicenet-modbus.yaml", 5, (17, 1))],
+)
+async def test_eds_states_what_the_running_front_answers(
+    tmp_path, caplog, registry, example, mac, sizes
+):
+    eds = parse(
+        generate(tmp_path, EXAMPLES / example, "--front", "dnet", *identity_options()), caplog
+    )
+    assert (
+        value(eds, "IO_Info", "Input1"),
+        value(eds, "IO_Info", "Output1"),
+    ) == sizes  # the docs' layout
     channel = f"fg-eds-{uuid.uuid4().hex[:8]}"
-    overrides = {"fronts.dnet.interface": "virtual", "fronts.dnet.channel": channel, "fronts.dnet.dup_mac_timeout_ms": 50,
-                 "backs.rs485.poll_ms": 10, "gateway.state_dir": str(tmp_path / "state"),
-                 **{f"fronts.dnet.identity.{k}": v for k, v in IDENTITY.items()}}
+    overrides = {
+        "fronts.dnet.interface": "virtual",
+        "fronts.dnet.channel": channel,
+        "fronts.dnet.dup_mac_timeout_ms": 50,
+        "backs.rs485.poll_ms": 10,
+        "gateway.state_dir": str(tmp_path / "state"),
+        **{f"fronts.dnet.identity.{k}": v for k, v in IDENTITY.items()},
+    }
     gw = Gateway.load(EXAMPLES / example, overrides, registry, simulate=True)
     master = Master(channel, slave=mac)
     await gw.start()
     try:
         await master.wait_online()
-        assert await master.allocate(0x17) == bytes.fromhex("0A CB 00")  # explicit, poll, bit-strobe, COS
+        assert await master.allocate(0x17) == bytes.fromhex(
+            "0A CB 00"
+        )  # explicit, poll, bit-strobe, COS
         assert number(await get(master, 1, 1, 1)) == value(eds, "Device", "VendCode") == 803
         assert number(await get(master, 1, 1, 2)) == value(eds, "Device", "ProdType") == 12
         assert value(eds, "Device", "ProdTypeStr") == "Communications Adapter"
         assert number(await get(master, 1, 1, 3)) == value(eds, "Device", "ProdCode") == 7241
-        assert tuple(await get(master, 1, 1, 4)) == (value(eds, "Device", "MajRev"), value(eds, "Device", "MinRev")) == (2, 1)
+        assert (
+            tuple(await get(master, 1, 1, 4))
+            == (value(eds, "Device", "MajRev"), value(eds, "Device", "MinRev"))
+            == (2, 1)
+        )
         name = await get(master, 1, 1, 7)
-        assert name[1:1 + name[0]].decode() == value(eds, "Device", "ProdName") == "ICPDAS-I7241D"
+        assert name[1 : 1 + name[0]].decode() == value(eds, "Device", "ProdName") == "ICPDAS-I7241D"
         assert value(eds, "Device", "VendName") == "ICP DAS"
         # I/O sizes of the allocated connections (Connection attributes 7 produced, 8 consumed)
         poll_in, poll_out = number(await get(master, 5, 2, 7)), number(await get(master, 5, 2, 8))
         strobe_in, cos_in = number(await get(master, 5, 3, 7)), number(await get(master, 5, 4, 7))
         assert (poll_in, poll_out) == sizes
-        assert value(eds, "IO_Info", "Output1", 5) == ("20 04 24 64 30 03" if poll_out == 1 else "")  # DO 0x64 alone
-        assert value(eds, "IO_Info", "PollInfo", 1) == 1 and value(eds, "IO_Info", "PollInfo", 2) == 1
-        assert value(eds, "IO_Info", "Input1") == poll_in == cos_in and value(eds, "IO_Info", "Output1") == poll_out
-        assert value(eds, "IO_Info", "Input1", 2) == 0x000D  # poll, COS, cyclic: the strobe answers fewer bytes
+        assert value(eds, "IO_Info", "Output1", 5) == (
+            "20 04 24 64 30 03" if poll_out == 1 else ""
+        )  # DO 0x64 alone
+        assert (
+            value(eds, "IO_Info", "PollInfo", 1) == 1 and value(eds, "IO_Info", "PollInfo", 2) == 1
+        )
+        assert (
+            value(eds, "IO_Info", "Input1") == poll_in == cos_in
+            and value(eds, "IO_Info", "Output1") == poll_out
+        )
+        assert (
+            value(eds, "IO_Info", "Input1", 2) == 0x000D
+        )  # poll, COS, cyclic: the strobe answers fewer bytes
         strobe = value(eds, "IO_Info", "StrobeInfo", 1)
         assert strobe == 2 and value(eds, "IO_Info", f"Input{strobe}") == strobe_in == 8
         assert value(eds, "IO_Info", f"Input{strobe}", 2) == 0x0002
-        assert value(eds, "IO_Info", "COSInfo", 1) == 1 and value(eds, "IO_Info", "COSInfo", 2) == 0  # COS consumes nothing
-        for key in ("Input1", "Input2", "Output1"):  # a path names the one assembly that holds the data
+        assert (
+            value(eds, "IO_Info", "COSInfo", 1) == 1 and value(eds, "IO_Info", "COSInfo", 2) == 0
+        )  # COS consumes nothing
+        for key in (
+            "Input1",
+            "Input2",
+            "Output1",
+        ):  # a path names the one assembly that holds the data
             if value(eds, "IO_Info", key, 4):
                 path = bytes.fromhex(value(eds, "IO_Info", key, 5))
                 assert path[:2] == b"\x20\x04" and path[4:] == b"\x30\x03"
@@ -144,14 +208,26 @@ async def test_eds_states_what_the_running_front_answers(tmp_path, caplog, regis
         await gw.stop()
 
 
-async def test_every_parameter_link_path_answers_its_default_and_takes_it(tmp_path, caplog, registry):
+async def test_every_parameter_link_path_answers_its_default_and_takes_it(
+    tmp_path, caplog, registry
+):
     """The i7241d example: heartbeat, BOI, Host OK and the three DCON modules' watchdog enable and time."""
     eds = parse(generate(tmp_path, EXAMPLES / "i7241d-style.yaml"), caplog)
-    params = {key: entry for key, entry in eds.get_section("Params").entries.items() if key.startswith("Param")}
+    params = {
+        key: entry
+        for key, entry in eds.get_section("Params").entries.items()
+        if key.startswith("Param")
+    }
     assert value(eds, "ParamClass", "MaxInst") == 0 and len(params) == 2 + 1 + 3 * 2
     channel = f"fg-edsp-{uuid.uuid4().hex[:8]}"
-    overrides = {"fronts.dnet.interface": "virtual", "fronts.dnet.channel": channel, "fronts.dnet.dup_mac_timeout_ms": 50,
-                 "backs.rs485.poll_ms": 10, "backs.rs485.timeout_ms": 150, "gateway.state_dir": str(tmp_path / "state")}
+    overrides = {
+        "fronts.dnet.interface": "virtual",
+        "fronts.dnet.channel": channel,
+        "fronts.dnet.dup_mac_timeout_ms": 50,
+        "backs.rs485.poll_ms": 10,
+        "backs.rs485.timeout_ms": 150,
+        "gateway.state_dir": str(tmp_path / "state"),
+    }
     gw = Gateway.load(EXAMPLES / "i7241d-style.yaml", overrides, registry, simulate=True)
     master = Master(channel, slave=1)
     await gw.start()
@@ -160,7 +236,9 @@ async def test_every_parameter_link_path_answers_its_default_and_takes_it(tmp_pa
         await master.allocate(0x01)
         for key in params:
             path = bytes.fromhex(value(eds, "Params", key, 2))
-            assert value(eds, "Params", key, 1) == len(path) == 6 and path[0::2] == bytes([0x20, 0x24, 0x30])
+            assert value(eds, "Params", key, 1) == len(path) == 6 and path[0::2] == bytes(
+                [0x20, 0x24, 0x30]
+            )
             class_id, instance, attr = path[1::2]
             size, minimum, maximum, default = (value(eds, "Params", key, i) for i in (5, 9, 10, 11))
             current = await get(master, class_id, instance, attr)
@@ -177,27 +255,57 @@ async def test_every_parameter_link_path_answers_its_default_and_takes_it(tmp_pa
 
 def write_topology(tmp_path: Path, fronts: list[dict], modules: list[dict] | None = None) -> Path:
     path = tmp_path / "topology.yaml"
-    data = {"gateway": {"name": "eds-test", "state_dir": str(tmp_path / "state")}, "fronts": fronts,
-            "backs": [{"name": "io", "type": "loopback", "modules": modules or [{"address": 1, "digital": 8, "analog": 2}]}]}
+    data = {
+        "gateway": {"name": "eds-test", "state_dir": str(tmp_path / "state")},
+        "fronts": fronts,
+        "backs": [
+            {
+                "name": "io",
+                "type": "loopback",
+                "modules": modules or [{"address": 1, "digital": 8, "analog": 2}],
+            }
+        ],
+    }
     with path.open("w") as f:
         YAML().dump(data, f)
     return path
 
 
 def dnet_front(**extra) -> dict:
-    return {"name": "dnet", "type": "devicenet", "interface": "virtual", "channel": "unused", "mac_id": 3, **extra}
+    return {
+        "name": "dnet",
+        "type": "devicenet",
+        "interface": "virtual",
+        "channel": "unused",
+        "mac_id": 3,
+        **extra,
+    }
 
 
-def test_one_assembly_per_side_names_its_path_and_small_inputs_serve_every_connection(tmp_path, caplog):
+def test_one_assembly_per_side_names_its_path_and_small_inputs_serve_every_connection(
+    tmp_path, caplog
+):
     topology = write_topology(tmp_path, [dnet_front(expose=["io/m1/di*", "io/m1/do*"])])
     eds = parse(generate(tmp_path, topology), caplog)
     # DO 0x64 (1 byte) is the only output assembly, DI 0x65 (1 byte) the only input assembly
     assert value(eds, "IO_Info", "Input1") == 1 and value(eds, "IO_Info", "Input1", 2) == 0x000F
-    assert (value(eds, "IO_Info", "Input1", 4), value(eds, "IO_Info", "Input1", 5)) == (6, "20 04 24 65 30 03")
-    assert (value(eds, "IO_Info", "Output1", 4), value(eds, "IO_Info", "Output1", 5)) == (6, "20 04 24 64 30 03")
+    assert (value(eds, "IO_Info", "Input1", 4), value(eds, "IO_Info", "Input1", 5)) == (
+        6,
+        "20 04 24 65 30 03",
+    )
+    assert (value(eds, "IO_Info", "Output1", 4), value(eds, "IO_Info", "Output1", 5)) == (
+        6,
+        "20 04 24 64 30 03",
+    )
     assert not eds.has_entry("IO_Info", "Input2") and value(eds, "IO_Info", "StrobeInfo", 1) == 1
-    assert value(eds, "Device", "VendName") == "fieldgate" and value(eds, "Device", "ProdTypeStr") == "Generic Device"
-    assert not any(k.startswith("Param") and value(eds, "Params", k, 6) == "Host OK" for k in eds.get_section("Params").entries)
+    assert (
+        value(eds, "Device", "VendName") == "fieldgate"
+        and value(eds, "Device", "ProdTypeStr") == "Generic Device"
+    )
+    assert not any(
+        k.startswith("Param") and value(eds, "Params", k, 6) == "Host OK"
+        for k in eds.get_section("Params").entries
+    )
 
 
 def test_several_assemblies_leave_the_path_empty_and_list_them(tmp_path, caplog):
@@ -205,33 +313,67 @@ def test_several_assemblies_leave_the_path_empty_and_list_them(tmp_path, caplog)
     # loopback module: DO 0x64 (1), AO 0x65 (4), DI 0x66 (1), AI 0x67 (4)
     assert value(eds, "IO_Info", "Input1") == 5 and value(eds, "IO_Info", "Output1") == 5
     assert (value(eds, "IO_Info", "Input1", 4), value(eds, "IO_Info", "Input1", 5)) == (0, "")
-    assert value(eds, "IO_Info", "Input1", 6) == "DI assembly 0x66 (1 byte) + AI assembly 0x67 (4 bytes)"
-    assert value(eds, "IO_Info", "Output1", 6) == "DO assembly 0x64 (1 byte) + AO assembly 0x65 (4 bytes)"
+    assert (
+        value(eds, "IO_Info", "Input1", 6)
+        == "DI assembly 0x66 (1 byte) + AI assembly 0x67 (4 bytes)"
+    )
+    assert (
+        value(eds, "IO_Info", "Output1", 6)
+        == "DO assembly 0x64 (1 byte) + AO assembly 0x65 (4 bytes)"
+    )
 
 
 def test_a_topology_without_outputs_has_no_output_entry(tmp_path, caplog):
-    eds = parse(generate(tmp_path, write_topology(tmp_path, [dnet_front(expose=["io/m1/di*"])])), caplog)
+    eds = parse(
+        generate(tmp_path, write_topology(tmp_path, [dnet_front(expose=["io/m1/di*"])])), caplog
+    )
     assert not eds.has_entry("IO_Info", "Output1") and value(eds, "IO_Info", "PollInfo", 2) == 0
     assert value(eds, "IO_Info", "Input1") == 1
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--front", "nosuch"], "no front named 'nosuch' (fronts: plc (canopen), dnet (devicenet))"),
-    (["--front", "plc"], "front 'plc' is a canopen front, not devicenet (its EDS: fieldgate eds)"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (
+            ["--front", "nosuch"],
+            "no front named 'nosuch' (fronts: plc (canopen), dnet (devicenet))",
+        ),
+        (
+            ["--front", "plc"],
+            "front 'plc' is a canopen front, not devicenet (its EDS: fieldgate eds)",
+        ),
+    ],
+)
 def test_bad_front_is_one_line_and_exit_code_1(tmp_path, capsys, args, message):
-    canopen = {"name": "plc", "type": "canopen", "interface": "virtual", "channel": "unused", "node_id": 5}
+    canopen = {
+        "name": "plc",
+        "type": "canopen",
+        "interface": "virtual",
+        "channel": "unused",
+        "node_id": 5,
+    }
     topology = write_topology(tmp_path, [canopen, dnet_front()])
     out = tmp_path / "x.eds"
     assert cli_main(["devicenet", "eds", str(topology), *args, "-o", str(out)]) == 1
     err = capsys.readouterr().err
     assert err == f"{topology}: {message}\n" and not out.exists()
     # the canopen command is still there beside it
-    assert cli_main(["eds", str(topology), "--front", "plc", "-o", str(out)]) == 0 and "[DeviceInfo]" in out.read_text()
+    assert (
+        cli_main(["eds", str(topology), "--front", "plc", "-o", str(out)]) == 0
+        and "[DeviceInfo]" in out.read_text()
+    )
 
 
-def test_no_devicenet_front_and_invalid_topology_exit_1_as_fieldgate_eds_and_validate(tmp_path, capsys):
-    canopen = {"name": "plc", "type": "canopen", "interface": "virtual", "channel": "unused", "node_id": 5}
+def test_no_devicenet_front_and_invalid_topology_exit_1_as_fieldgate_eds_and_validate(
+    tmp_path, capsys
+):
+    canopen = {
+        "name": "plc",
+        "type": "canopen",
+        "interface": "virtual",
+        "channel": "unused",
+        "node_id": 5,
+    }
     topology = write_topology(tmp_path, [canopen])
     assert cli_main(["devicenet", "eds", str(topology)]) == 1
     assert capsys.readouterr().err == f"{topology}: no devicenet front in the topology\n"
@@ -244,9 +386,13 @@ def test_no_devicenet_front_and_invalid_topology_exit_1_as_fieldgate_eds_and_val
 
 def test_standard_output_without_o(tmp_path, capsys):
     topology = write_topology(tmp_path, [dnet_front()])
-    assert cli_main(["devicenet", "eds", str(topology), "--vendor-name", "Acme \"Fieldbus\" Ltd"]) == 0
+    assert (
+        cli_main(["devicenet", "eds", str(topology), "--vendor-name", 'Acme "Fieldbus" Ltd']) == 0
+    )
     text = capsys.readouterr().out
-    assert CIP_EDS(text).get_value("Device", "VendName") == 'Acme \\"Fieldbus\\" Ltd'  # eds_pie keeps the escape
+    assert (
+        CIP_EDS(text).get_value("Device", "VendName") == 'Acme \\"Fieldbus\\" Ltd'
+    )  # eds_pie keeps the escape
     assert text.startswith("$ ") and "\n[File]\n" in text
 
 
@@ -258,14 +404,19 @@ def test_unwritable_output_exits_1_with_one_line(tmp_path, capsys):
     assert err.startswith(f"{out}: cannot write the EDS: ") and err.count("\n") == 1
 
 
-@pytest.mark.parametrize("output, reason", [("no/such/dir/x.eds", "No such file or directory"), ("outdir", "Is a directory")])
+@pytest.mark.parametrize(
+    "output, reason",
+    [("no/such/dir/x.eds", "No such file or directory"), ("outdir", "Is a directory")],
+)
 def test_a_missing_folder_or_a_directory_is_one_line_and_exit_1(tmp_path, capsys, output, reason):
     topology = write_topology(tmp_path, [dnet_front()])
     (tmp_path / "outdir").mkdir()
     out = tmp_path / output
     assert cli_main(["devicenet", "eds", str(topology), "-o", str(out)]) == 1
     assert capsys.readouterr().err == f"{out}: cannot write the EDS: {reason}\n"
-    assert not (tmp_path / "no").exists() and not any((tmp_path / "outdir").iterdir())  # no folder made, no temporary left
+    assert not (tmp_path / "no").exists() and not any(
+        (tmp_path / "outdir").iterdir()
+    )  # no folder made, no temporary left
 
 
 def test_the_eds_file_gets_the_umask_mode(tmp_path):

@@ -41,23 +41,29 @@ def test_unacknowledged_fragment_is_repeated_then_abandoned(rig):
     assert rig.slave.counters["tx_fragments_abandoned"] == 1
 
 
-@pytest.mark.parametrize("body, reply", [
-    ("4B 01 01 01", "0A 94 08 FF"),  # Allocate on Identity: service not supported
-    ("01 01 00", "0A 94 08 FF"),  # Get_Attributes_All on the Identity class: not offered (instance 1 is)
-    ("0E 01 01", "0A 94 13 FF"),  # attribute missing
-    ("0E 01", "0A 94 13 FF"),
-    ("0E 01 01 01 00", "0A 94 15 FF"),  # Get with data
-    ("0E 01 02 01", "0A 94 16 FF"),  # Identity instance 2
-    ("0E 66 01 01", "0A 94 16 FF"),  # no such class
-    ("10 01 01 01 00 00", "0A 94 0E FF"),  # vendor id is not settable
-    ("10 03 01 01 40", "0A 94 09 FF"),  # MAC 64
-    ("10 03 01 02 03", "0A 94 09 FF"),  # baud code 3
-    ("10 03 01 05 00 00", "0A 94 0E FF"),  # allocation info is Get only
-    ("10 05 02 09 0A", "0A 94 13 FF"),  # EPR needs 2 bytes
-    ("0E 05 03 01", "0A 94 16 FF"),  # strobe connection not allocated
-    ("0E 05 01 0A", "0A 94 14 FF"),
-    ("10 05 01 0C 07", "0A 94 09 FF"),  # watchdog action 7
-])
+@pytest.mark.parametrize(
+    "body, reply",
+    [
+        ("4B 01 01 01", "0A 94 08 FF"),  # Allocate on Identity: service not supported
+        (
+            "01 01 00",
+            "0A 94 08 FF",
+        ),  # Get_Attributes_All on the Identity class: not offered (instance 1 is)
+        ("0E 01 01", "0A 94 13 FF"),  # attribute missing
+        ("0E 01", "0A 94 13 FF"),
+        ("0E 01 01 01 00", "0A 94 15 FF"),  # Get with data
+        ("0E 01 02 01", "0A 94 16 FF"),  # Identity instance 2
+        ("0E 66 01 01", "0A 94 16 FF"),  # no such class
+        ("10 01 01 01 00 00", "0A 94 0E FF"),  # vendor id is not settable
+        ("10 03 01 01 40", "0A 94 09 FF"),  # MAC 64
+        ("10 03 01 02 03", "0A 94 09 FF"),  # baud code 3
+        ("10 03 01 05 00 00", "0A 94 0E FF"),  # allocation info is Get only
+        ("10 05 02 09 0A", "0A 94 13 FF"),  # EPR needs 2 bytes
+        ("0E 05 03 01", "0A 94 16 FF"),  # strobe connection not allocated
+        ("0E 05 01 0A", "0A 94 14 FF"),
+        ("10 05 01 0C 07", "0A 94 09 FF"),  # watchdog action 7
+    ],
+)
 def test_error_responses(rig, body, reply):
     assert rig.explicit(body) == reply
 
@@ -93,8 +99,10 @@ def test_explicit_watchdog_deletes_the_connection():
 
 
 def test_fragmented_set_request_is_acknowledged_then_served():
-    from fieldgate.image import Kind
     from dnet_rig import image_with
+
+    from fieldgate.image import Kind
+
     rig = Rig(image_with([(1, {Kind.AO: 4})]))  # assembly 0x64: 8 bytes of AO
     rig.allocate(0x01)
     # Set Assembly 0x64 attr 3 = 01 00 02 00 03 00 04 00 in three fragments (TV-55..60 framing)
@@ -125,7 +133,10 @@ def test_wrong_assembly_sizes_and_input_assembly_set(rig):
 
 def test_seed_mac_change(rig):
     assert rig.send("44C 0A 10 03 01 01 03 0E") == [  # TV-23..27, to MAC 3
-        "44B 0A 90", "44B 0A CE 03 00 01 00 04 00", "41F 00 23 03 01 00 00 00"]
+        "44B 0A 90",
+        "44B 0A CE 03 00 01 00 04 00",
+        "41F 00 23 03 01 00 00 00",
+    ]
     assert rig.slave.mac_id == 3 and rig.slave.state == "dup-mac-check"
     assert rig.advance(1.0) == ["41F 00 23 03 01 00 00 00"]
     rig.advance(1.0)
@@ -140,7 +151,9 @@ def test_seed_baud_change_waits_for_reset(rig):
     assert rig.explicit("0E 03 01 02") == "0A 8E 01"
     assert switched == [] and rig.slave.bitrate == 125_000
     assert rig.send("44C 0A 05 01 01 00") == [  # TV-32..34: answered at the old rate
-        "44B 0A 85", "44B 0A CE 01 00 01 00 04 00"]
+        "44B 0A 85",
+        "44B 0A CE 01 00 01 00 04 00",
+    ]
     assert switched == [250_000] and rig.slave.bitrate == 250_000
     # TV-35, the duplicate MAC ID check, once the bus runs at the new rate (the adapter switches at once)
     assert rig.advance(0.01) == ["44F 00 23 03 01 00 00 00"]
@@ -158,11 +171,14 @@ def test_seed_heartbeat(rig):
 
 def test_garbage_never_raises(rig):
     import random
+
     rnd = random.Random(7)
     for _ in range(3000):
         can_id = rnd.choice([0x44C, 0x44D, 0x44E, 0x44F, 0x44A, 0x450, rnd.randrange(0x800)])
         data = bytes(rnd.randrange(256) for _ in range(rnd.randrange(9)))
-        rig.slave.receive(__import__("fieldgate.can.frame", fromlist=["Frame"]).Frame(can_id, data), rig.now)
+        rig.slave.receive(
+            __import__("fieldgate.can.frame", fromlist=["Frame"]).Frame(can_id, data), rig.now
+        )
     assert rig.slave.counters["rx_internal_errors"] == 0
 
 
@@ -176,15 +192,24 @@ def test_identity_status_shows_ownership_and_module_faults():
 
 def test_application_object_serves_each_module():
     from dnet_rig import image_with
+
     from fieldgate.image import Kind
-    image = image_with([(1, {Kind.DI: 8, Kind.DO: 8}), (2, {Kind.AI: 2}), (4, {Kind.DO: 2, Kind.AO: 1})])
+
+    image = image_with(
+        [(1, {Kind.DI: 8, Kind.DO: 8}), (2, {Kind.AI: 2}), (4, {Kind.DO: 2, Kind.AO: 1})]
+    )
     rig = Rig(image)
     rig.slave.module_errors = lambda back, address: 7 if (back, address) == ("io", 2) else 0
     rig.allocate(0x01)
     assert rig.explicit("0E 64 00 02") == "0A 8E 03 00"  # three modules
     assert rig.explicit("0E 64 03 02") == "0A 8E 04"  # instance 3 = module 4
     assert rig.explicit("0E 64 02 07") == "0A 8E 07 00 00 00"
-    assert [rig.explicit(f"0E 64 02 {a:02X}") for a in (0x0C, 0x0D, 0x0E, 0x0F)] == ["0A 8E 00", "0A 8E 00", "0A 8E 00", "0A 8E 04"]
+    assert [rig.explicit(f"0E 64 02 {a:02X}") for a in (0x0C, 0x0D, 0x0E, 0x0F)] == [
+        "0A 8E 00",
+        "0A 8E 00",
+        "0A 8E 00",
+        "0A 8E 04",
+    ]
     assert [rig.explicit(f"0E 64 03 {a:02X}") for a in (0x10, 0x11)] == ["0A 8E 02", "0A 8E 01"]
     image.update_input("io/m2/ai1", -2)
     assert rig.explicit("0E 64 02 17") == "0A 8E 00 00 FE FF"
@@ -201,7 +226,11 @@ def test_application_object_serves_each_module():
 def test_a_fragmented_answer_is_not_resent_after_its_connection_is_released():
     rig = Rig()
     assert rig.send("44E 0A 4B 03 01 01 0A") == ["44B 0A CB 00"]  # allocate explicit
-    assert rig.send("44C 0A 0E 01 01 07") == ["44B 8A 00 8E 0D 49 43 50 44"]  # product name: first fragment
-    assert rig.send("44E 0A 4C 03 01 01") == ["44B 0A CC"]  # released before the fragment was acknowledged
+    assert rig.send("44C 0A 0E 01 01 07") == [
+        "44B 8A 00 8E 0D 49 43 50 44"
+    ]  # product name: first fragment
+    assert rig.send("44E 0A 4C 03 01 01") == [
+        "44B 0A CC"
+    ]  # released before the fragment was acknowledged
     assert rig.advance(1.0) == [] and rig.advance(2.0) == []  # nothing on a connection that is gone
     assert rig.slave.counters["tx_fragments_dropped"] == 1

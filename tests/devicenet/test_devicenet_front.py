@@ -25,10 +25,30 @@ def registry():
 def topology(tmp_path, channel: str, **front) -> dict:
     return {
         "gateway": {"name": "dnet-test", "state_dir": str(tmp_path)},
-        "fronts": [{"name": "dnet", "type": "devicenet", "interface": "virtual", "channel": channel, "mac_id": SLAVE,
-                    "baudrate": 500000, "dup_mac_timeout_ms": 50,
-                    "identity": {"vendor_id": 803, "serial": 42, "product_name": "fieldgate test slave"}, **front}],
-        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}]}],
+        "fronts": [
+            {
+                "name": "dnet",
+                "type": "devicenet",
+                "interface": "virtual",
+                "channel": channel,
+                "mac_id": SLAVE,
+                "baudrate": 500000,
+                "dup_mac_timeout_ms": 50,
+                "identity": {
+                    "vendor_id": 803,
+                    "serial": 42,
+                    "product_name": "fieldgate test slave",
+                },
+                **front,
+            }
+        ],
+        "backs": [
+            {
+                "name": "io",
+                "type": "loopback",
+                "modules": [{"address": 3, "digital": 8, "analog": 2, "error_mode": {"value": 0}}],
+            }
+        ],
     }
 
 
@@ -51,7 +71,9 @@ async def test_allocate_identity_poll_loopback_and_timeout(rig):
     name = await master.request(bytes.fromhex("0E 01 01 07"))  # 22 bytes: fragmented
     assert name == b"\x8e\x14fieldgate test slave"
     assert await master.request(bytes.fromhex("0E 01 01 06")) == bytes.fromhex("8E 2A 00 00 00")
-    assert await master.request(bytes.fromhex("10 05 02 09 64 00")) == bytes.fromhex("90 64 00")  # poll EPR 100 ms
+    assert await master.request(bytes.fromhex("10 05 02 09 64 00")) == bytes.fromhex(
+        "90 64 00"
+    )  # poll EPR 100 ms
     # outputs: DO byte + AO0 + AO1; inputs: DI byte + AI0 + AI1 (the loopback wires DO n to DI n)
     assert await master.poll(bytes.fromhex("A5 34 12 CD AB")) == bytes.fromhex("A5 34 12 CD AB")
     assert gateway.read("io/m3/do0") is True and gateway.read("io/m3/ao1") == -0x5433
@@ -60,7 +82,10 @@ async def test_allocate_identity_poll_loopback_and_timeout(rig):
     await master.frames(0.6)  # no polls for more than 4 x 100 ms
     assert not gateway.masters.is_ok("dnet")
     assert gateway.read("io/m3/do0") is False and gateway.read("io/m3/ao1") == 0  # error values
-    assert gateway.component("dnet").status()["connections"]["poll"] == {"state": "timed_out", "epr_ms": 100}
+    assert gateway.component("dnet").status()["connections"]["poll"] == {
+        "state": "timed_out",
+        "epr_ms": 100,
+    }
     assert await master.allocate(0x02) == bytes.fromhex("0A CB 00")  # re-allocation
     assert gateway.masters.is_ok("dnet")
     await master.request(bytes.fromhex("10 05 02 09 64 00"))
@@ -70,7 +95,9 @@ async def test_allocate_identity_poll_loopback_and_timeout(rig):
 async def test_change_of_state_follows_the_process_image(rig):
     gateway, master = rig
     assert await master.allocate(0x51) == bytes.fromhex("0A CB 00")  # explicit + COS, no acks
-    assert await master.request(bytes.fromhex("10 05 04 09 10 27")) == bytes.fromhex("90 10 27")  # EPR 10 s
+    assert await master.request(bytes.fromhex("10 05 04 09 10 27")) == bytes.fromhex(
+        "90 10 27"
+    )  # EPR 10 s
     assert await master.expect(0x340 | SLAVE) == bytes(5)
     gateway.write("io/m3/do2", True)  # the loopback sets DI 2: the slave produces at once
     assert await master.expect(0x340 | SLAVE, 1.0) == bytes.fromhex("04 00 00 00 00")
@@ -86,13 +113,17 @@ async def test_unknown_interface_is_a_one_line_start_error(tmp_path, registry):
 
 
 async def test_missing_channel_is_a_start_error(tmp_path, registry):
-    gateway = Gateway.load(topology(tmp_path, "fieldgate-missing0", interface="socketcan"), registry=registry)
+    gateway = Gateway.load(
+        topology(tmp_path, "fieldgate-missing0", interface="socketcan"), registry=registry
+    )
     with pytest.raises(GatewayStartError) as err:
         await gateway.start()
     assert "socketcan" in str(err.value) and "\n" not in str(err.value)
 
 
-async def test_mac_id_set_over_the_network_survives_a_restart_until_the_yaml_changes(tmp_path, registry):
+async def test_mac_id_set_over_the_network_survives_a_restart_until_the_yaml_changes(
+    tmp_path, registry
+):
     channel = f"dnet-{uuid.uuid4().hex[:8]}"
     master = Master(channel, SLAVE)
     gateway = Gateway.load(topology(tmp_path, channel), registry=registry)
@@ -101,7 +132,9 @@ async def test_mac_id_set_over_the_network_survives_a_restart_until_the_yaml_cha
         await master.wait_online()
         assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
         assert await master.request(bytes.fromhex("10 03 01 01 06")) == bytes.fromhex("90")
-        assert await master.expect(0x42B) == bytes.fromhex("0A CE 03 00 01 00 04 00")  # shutdown from MAC 5
+        assert await master.expect(0x42B) == bytes.fromhex(
+            "0A CE 03 00 01 00 04 00"
+        )  # shutdown from MAC 5
         assert await master.expect(0x437) == bytes.fromhex("00 23 03 2A 00 00 00")  # checking MAC 6
     finally:
         await gateway.stop()
@@ -123,11 +156,14 @@ async def test_mac_id_set_over_the_network_survives_a_restart_until_the_yaml_cha
 
 def test_store_ignores_corrupt_and_out_of_range_files(tmp_path):
     from fieldgate.plugins.devicenet.store import NetworkStore
+
     store = NetworkStore(tmp_path / "s.json", (5, 0))
     assert store.load() is None
     store.save(9, 2)
     assert store.load() == (9, 2)
-    assert NetworkStore(tmp_path / "s.json", (5, 1)).load() is None  # written for another configuration
+    assert (
+        NetworkStore(tmp_path / "s.json", (5, 1)).load() is None
+    )  # written for another configuration
     (tmp_path / "s.json").write_text("{not json")
     assert store.load() is None
     (tmp_path / "s.json").write_text('{"configured": [5, 0], "mac_id": 64, "baud_code": 0}')
@@ -136,6 +172,7 @@ def test_store_ignores_corrupt_and_out_of_range_files(tmp_path):
 
 async def test_offline_module_shows_in_the_identity_status(rig):
     from fieldgate.health import ErrorKind, ModuleHealth
+
     gateway, master = rig
     assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
     try:
@@ -172,8 +209,12 @@ async def test_a_baud_change_at_reset_answers_at_the_old_rate_and_checks_the_mac
 
     adapter._reopen, adapter._send = reopen, recording_send
     assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
-    assert await master.request(bytes.fromhex("10 03 01 02 00")) == bytes.fromhex("90")  # baud 125k, pending
-    assert await master.request(bytes.fromhex("05 01 01 00")) == bytes.fromhex("85")  # Identity Reset
+    assert await master.request(bytes.fromhex("10 03 01 02 00")) == bytes.fromhex(
+        "90"
+    )  # baud 125k, pending
+    assert await master.request(bytes.fromhex("05 01 01 00")) == bytes.fromhex(
+        "85"
+    )  # Identity Reset
     await master.frames(0.1)
     dup_mac = 0x400 | SLAVE << 3 | 7
     explicit_response = 0x400 | SLAVE << 3 | 3

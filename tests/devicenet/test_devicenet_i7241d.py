@@ -22,8 +22,14 @@ async def test_i7241d_example_polls_simulated_dcon_modules(tmp_path):
     if registry.lookup("back", "dcon") is None or registry.lookup("front", "devicenet") is None:
         pytest.skip("the dcon back or devicenet front plugin is not installed")
     channel = f"fg-7241d-{uuid.uuid4().hex[:8]}"
-    overrides = {"fronts.dnet.interface": "virtual", "fronts.dnet.channel": channel, "fronts.dnet.dup_mac_timeout_ms": 50,
-                 "backs.rs485.poll_ms": 10, "backs.rs485.timeout_ms": 150, "gateway.state_dir": str(tmp_path)}
+    overrides = {
+        "fronts.dnet.interface": "virtual",
+        "fronts.dnet.channel": channel,
+        "fronts.dnet.dup_mac_timeout_ms": 50,
+        "backs.rs485.poll_ms": 10,
+        "backs.rs485.timeout_ms": 150,
+        "gateway.state_dir": str(tmp_path),
+    }
     gw = Gateway.load(EXAMPLE, overrides, registry, simulate=True)
     master = Master(channel, slave=1)
     await gw.start()
@@ -34,9 +40,15 @@ async def test_i7241d_example_polls_simulated_dcon_modules(tmp_path):
         sim.set_input("rs485/m2/ai3", 0x1234)
         await master.wait_online()
         assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
-        assert await master.request(bytes.fromhex("0E 04 00 02")) == bytes.fromhex("8E 67 00")  # 0x64 DO, 0x65 AO, 0x66 DI, 0x67 AI
-        assert await master.request(bytes.fromhex("0E 05 02 07")) == bytes.fromhex("8E 11 00")  # produced 17
-        assert await master.request(bytes.fromhex("0E 05 02 08")) == bytes.fromhex("8E 09 00")  # consumed 9
+        assert await master.request(bytes.fromhex("0E 04 00 02")) == bytes.fromhex(
+            "8E 67 00"
+        )  # 0x64 DO, 0x65 AO, 0x66 DI, 0x67 AI
+        assert await master.request(bytes.fromhex("0E 05 02 07")) == bytes.fromhex(
+            "8E 11 00"
+        )  # produced 17
+        assert await master.request(bytes.fromhex("0E 05 02 08")) == bytes.fromhex(
+            "8E 09 00"
+        )  # consumed 9
         assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex("90 F4 01")
         outputs = bytes([0x5A]) + (0x07FF).to_bytes(2, "little") + bytes(6)
         for _ in range(100):
@@ -44,7 +56,9 @@ async def test_i7241d_example_polls_simulated_dcon_modules(tmp_path):
             if inputs[0] == 0x5A and inputs[7:9] == bytes.fromhex("34 12"):
                 break
             await master.frames(0.03)
-        assert inputs[0] == 0x5A and inputs[7:9] == bytes.fromhex("34 12")  # DI byte (wired DO) and AI3
+        assert inputs[0] == 0x5A and inputs[7:9] == bytes.fromhex(
+            "34 12"
+        )  # DI byte (wired DO) and AI3
         assert sim.module(1).do_bits == 0x5A and sim.get_output("rs485/m3/ao0") == 0x07FF
         assert gw.read("rs485/m1/do1") is True
         await master.frames(2.2)  # no polls for more than 4 x 500 ms
@@ -67,8 +81,13 @@ async def test_devicenet_modbus_example_on_simulated_modbus_modules(tmp_path):
     if registry.lookup("back", "modbus") is None:
         pytest.skip("the modbus back plugin is not installed")
     channel = f"fg-dnmb-{uuid.uuid4().hex[:8]}"
-    overrides = {"fronts.dnet.interface": "virtual", "fronts.dnet.channel": channel, "fronts.dnet.dup_mac_timeout_ms": 50,
-                 "backs.rs485.poll_ms": 10, "gateway.state_dir": str(tmp_path)}
+    overrides = {
+        "fronts.dnet.interface": "virtual",
+        "fronts.dnet.channel": channel,
+        "fronts.dnet.dup_mac_timeout_ms": 50,
+        "backs.rs485.poll_ms": 10,
+        "gateway.state_dir": str(tmp_path),
+    }
     gw = Gateway.load(MODBUS_EXAMPLE, overrides, registry, simulate=True)
     master = Master(channel, slave=5)
     await gw.start()
@@ -81,14 +100,24 @@ async def test_devicenet_modbus_example_on_simulated_modbus_modules(tmp_path):
             sim.set_input("rs485/m2/ai7", -2)
             await master.wait_online()
             assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
-            assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex("90 F4 01")
+            assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex(
+                "90 F4 01"
+            )
             for _ in range(100):
                 inputs = await master.poll_fragmented_reply(bytes([0x81]), 17)
-                if inputs[0] == 0x40 and inputs[15:17] == bytes.fromhex("FE FF") and sim.get_output("rs485/m1/do7"):
+                if (
+                    inputs[0] == 0x40
+                    and inputs[15:17] == bytes.fromhex("FE FF")
+                    and sim.get_output("rs485/m1/do7")
+                ):
                     break
                 await master.frames(0.03)
             assert inputs[0] == 0x40 and inputs[15:17] == bytes.fromhex("FE FF")
-            assert sim.get_output("rs485/m1/do0") and sim.get_output("rs485/m1/do7") and not sim.get_output("rs485/m1/do1")
+            assert (
+                sim.get_output("rs485/m1/do0")
+                and sim.get_output("rs485/m1/do7")
+                and not sim.get_output("rs485/m1/do1")
+            )
     finally:
         master.close()
         await gw.stop()

@@ -4,8 +4,15 @@ from dnet_rig import Rig
 
 
 def test_identity_get_attributes_all_in_specification_order():
-    rig = Rig(vendor_id=803, device_type=0x000C, product_code=0x0102, major_revision=2, minor_revision=1,
-              serial=0x0A0B0C0D, product_name="ICPDAS-I7241D")
+    rig = Rig(
+        vendor_id=803,
+        device_type=0x000C,
+        product_code=0x0102,
+        major_revision=2,
+        minor_revision=1,
+        serial=0x0A0B0C0D,
+        product_name="ICPDAS-I7241D",
+    )
     assert rig.allocate(0x01) == "44B 0A CB 00"
     # 81 | vendor 23 03 | type 0C 00 | product 02 01 | revision 02 01 | status 01 00 (owned) |
     # serial 0D 0C 0B 0A | 0D "ICPDAS-I7241D": 29 bytes, sent in acknowledged fragments of 6

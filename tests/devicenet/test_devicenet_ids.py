@@ -14,7 +14,14 @@ def test_predefined_set_for_slave_9_master_10():
     assert ids.group1_id(ids.G1_STROBE_RESPONSE, 9) == 0x389
     assert ids.group1_id(ids.G1_POLL_RESPONSE, 9) == 0x3C9
     assert ids.group2_id(0x0A, ids.G2_STROBE) == 0x450
-    assert [ids.group2_id(9, m) for m in (2, 3, 4, 5, 6, 7)] == [0x44A, 0x44B, 0x44C, 0x44D, 0x44E, 0x44F]
+    assert [ids.group2_id(9, m) for m in (2, 3, 4, 5, 6, 7)] == [
+        0x44A,
+        0x44B,
+        0x44C,
+        0x44D,
+        0x44E,
+        0x44F,
+    ]
     assert ids.group4_id(0x2D) == 0x7ED
 
 

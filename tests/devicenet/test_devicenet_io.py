@@ -14,7 +14,9 @@ def poll_rig(choice=0x07):
     rig = Rig()
     assert rig.allocate(choice) == "44B 0A CB 00"
     assert rig.explicit("10 05 02 09 0A 0E") == "0A 90 10 0E"
-    assert rig.explicit("10 05 01 09 00 00") == "0A 90 00 00"  # explicit EPR 0: no explicit watchdog
+    assert (
+        rig.explicit("10 05 01 09 00 00") == "0A 90 00 00"
+    )  # explicit EPR 0: no explicit watchdog
     return rig
 
 
@@ -53,8 +55,13 @@ def test_seed_io_fragmentation_of_a_10_byte_poll():
         image.update_input(f"io/m1/ai{i}", -1 - i)
     image.update_input("io/m1/di17", True)
     assert rig.send("44D 00 01 02 03 04 05 06 07") == []  # TV-52 first fragment
-    assert rig.send("44D 81 08 09 0A") == ["3C9 00 00 00 02 FF FF FE FF", "3C9 81 FD FF FC FF"]  # TV-53
-    assert [image.value(f"io/m1/do{i}") for i in range(16)] == [bool(0x0201 >> i & 1) for i in range(16)]
+    assert rig.send("44D 81 08 09 0A") == [
+        "3C9 00 00 00 02 FF FF FE FF",
+        "3C9 81 FD FF FC FF",
+    ]  # TV-53
+    assert [image.value(f"io/m1/do{i}") for i in range(16)] == [
+        bool(0x0201 >> i & 1) for i in range(16)
+    ]
     assert [image.value(f"io/m1/ao{i}") for i in range(4)] == [0x0403, 0x0605, 0x0807, 0x0A09]
     assert rig.send("44D 81 08 09 0A") == []  # final without a first: dropped
     assert rig.slave.counters["rx_io_fragments_dropped"] == 1
@@ -65,7 +72,9 @@ def test_seed_bit_strobe_from_the_master_mac():
     assert rig.explicit("10 05 03 09 0A 0E") == "0A 90 10 0E"  # TV-07 / TV-08
     set_inputs(rig, 0xDFFF)
     assert rig.send("450 FF FF FF FF FF FF FF FF") == ["389 FF DF"]  # TV-09 (master's MAC) / TV-10
-    assert rig.send("448 FF FF FF FF FF FF FF FF") == []  # the seed's printed ID: another master's strobe
+    assert (
+        rig.send("448 FF FF FF FF FF FF FF FF") == []
+    )  # the seed's printed ID: another master's strobe
     assert rig.send("450 FF FF") == []
     assert rig.slave.counters["rx_strobe_wrong_size"] == 1
 

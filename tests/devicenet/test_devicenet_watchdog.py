@@ -47,13 +47,17 @@ class FakeDconBack:
         self.requests.append(("clear", address))
 
 
-def make_rig(backs: dict | None = None, configured: dict | None = None, **settings) -> tuple[Rig, FakeDconBack]:
+def make_rig(
+    backs: dict | None = None, configured: dict | None = None, **settings
+) -> tuple[Rig, FakeDconBack]:
     """DCON modules io/1..3 (instances 1-3, DO only), a Modbus-like module mb/5 (instance 4)."""
     image = image_with([(1, {Kind.DO: 8}), (2, {Kind.DO: 8}), (3, {Kind.DO: 8})], back="io")
     image.add(ChannelSpec(channel_id("mb", 5, Kind.DO, 0), Kind.DO, Source("mb", 5, 0)))
     back = FakeDconBack({1: (False, 0), 2: (True, 1500), 3: (False, 5000)})
     rig = Rig(image, **settings)
-    rig.slave.host_watchdogs = HostWatchdogs({"io": back, "mb": object()} if backs is None else backs, {"io"}, configured)
+    rig.slave.host_watchdogs = HostWatchdogs(
+        {"io": back, "mb": object()} if backs is None else backs, {"io"}, configured
+    )
     assert rig.allocate(0x01) == "44B 0A CB 00"
     return rig, back
 
@@ -66,7 +70,9 @@ def test_seed_watchdog_vectors():
     assert back.requests == [("set", 3, True, None)]
     assert rig.explicit("0E 64 03 08") == "0A 8E 01"
     back.expired.add(3)
-    assert rig.explicit("0E 64 03 0A") == "0A 8E 01"  # TV-48 / TV-49 as intended (the seed prints 64 00 04 / 1E)
+    assert (
+        rig.explicit("0E 64 03 0A") == "0A 8E 01"
+    )  # TV-48 / TV-49 as intended (the seed prints 64 00 04 / 1E)
     assert rig.explicit("10 64 03 0B") == "0A 90"  # TV-50 / TV-51 as intended: clear, no data
     assert back.requests[-1] == ("clear", 3)
     assert rig.explicit("0E 64 03 0A") == "0A 8E 00"
@@ -74,7 +80,9 @@ def test_seed_watchdog_vectors():
 
 def test_seed_host_ok_class_attribute():
     rig, back = make_rig()
-    assert rig.explicit("0E 64 00 04") == "0A 8E 01"  # the back sends ~** by itself unless told not to
+    assert (
+        rig.explicit("0E 64 00 04") == "0A 8E 01"
+    )  # the back sends ~** by itself unless told not to
     assert rig.explicit("10 64 00 04 00") == "0A 90"
     assert back.host_ok_enabled is False and rig.explicit("0E 64 00 04") == "0A 8E 00"
     assert rig.explicit("10 64 00 04 01") == "0A 90"  # TV-46 / TV-47
@@ -98,22 +106,25 @@ def test_period_and_enable_are_independent():
     assert rig.explicit("0E 64 01 09") == "0A 8E 00"  # never set: 0, the module keeps its own
 
 
-@pytest.mark.parametrize("body, reply", [
-    ("10 64 01 08 02", "0A 94 09 FF"),  # enable is 0/1
-    ("10 64 01 08 FF", "0A 94 09 FF"),
-    ("10 64 01 09 00", "0A 94 09 FF"),  # period 1..255
-    ("10 64 01 08", "0A 94 13 FF"),  # no data
-    ("10 64 01 09", "0A 94 13 FF"),
-    ("10 64 01 0A 00", "0A 94 0E FF"),  # the status is Get only: clear it with 0x0B
-    ("10 64 01 0A 01", "0A 94 0E FF"),
-    ("0E 64 01 0B", "0A 94 2C FF"),  # clear is Set only (NULL)
-    ("0E 64 01 08 00", "0A 94 15 FF"),  # Get with data
-    ("0E 64 04 08", "0A 94 14 FF"),  # the Modbus module has no DCON watchdog
-    ("0E 64 04 0A", "0A 94 14 FF"),
-    ("10 64 04 08 01", "0A 94 14 FF"),
-    ("10 64 04 0B", "0A 94 14 FF"),
-    ("10 64 05 08 01", "0A 94 16 FF"),  # no fifth module
-])
+@pytest.mark.parametrize(
+    "body, reply",
+    [
+        ("10 64 01 08 02", "0A 94 09 FF"),  # enable is 0/1
+        ("10 64 01 08 FF", "0A 94 09 FF"),
+        ("10 64 01 09 00", "0A 94 09 FF"),  # period 1..255
+        ("10 64 01 08", "0A 94 13 FF"),  # no data
+        ("10 64 01 09", "0A 94 13 FF"),
+        ("10 64 01 0A 00", "0A 94 0E FF"),  # the status is Get only: clear it with 0x0B
+        ("10 64 01 0A 01", "0A 94 0E FF"),
+        ("0E 64 01 0B", "0A 94 2C FF"),  # clear is Set only (NULL)
+        ("0E 64 01 08 00", "0A 94 15 FF"),  # Get with data
+        ("0E 64 04 08", "0A 94 14 FF"),  # the Modbus module has no DCON watchdog
+        ("0E 64 04 0A", "0A 94 14 FF"),
+        ("10 64 04 08 01", "0A 94 14 FF"),
+        ("10 64 04 0B", "0A 94 14 FF"),
+        ("10 64 05 08 01", "0A 94 16 FF"),  # no fifth module
+    ],
+)
 def test_bad_requests_get_cip_errors_and_change_nothing(body, reply):
     rig, back = make_rig()
     assert rig.explicit(body) == reply
@@ -147,7 +158,9 @@ def test_back_not_running_answers_configured_values_and_refuses_changes():
 def test_module_unknown_to_the_back_is_a_device_state_conflict():
     rig, back = make_rig()
     del back.settings[3]
-    assert rig.explicit("0E 64 03 08") == "0A 8E 00"  # unknown to the back: nothing configured either
+    assert (
+        rig.explicit("0E 64 03 08") == "0A 8E 00"
+    )  # unknown to the back: nothing configured either
     assert rig.explicit("0E 64 03 0A") == "0A 8E 00"
     assert rig.explicit("10 64 03 08 01") == "0A 94 10 FF"
     assert rig.explicit("10 64 03 0B") == "0A 94 10 FF"
@@ -156,7 +169,9 @@ def test_module_unknown_to_the_back_is_a_device_state_conflict():
 def test_without_dcon_backs_the_attributes_are_not_served():
     rig = Rig(image_with([(1, {Kind.DO: 8})]))  # the engine's default: no host watchdogs
     rig.allocate(0x01)
-    assert [rig.explicit(f"0E 64 01 {a:02X}") for a in (0x08, 0x09, 0x0A, 0x0B)] == ["0A 94 14 FF"] * 4
+    assert [rig.explicit(f"0E 64 01 {a:02X}") for a in (0x08, 0x09, 0x0A, 0x0B)] == [
+        "0A 94 14 FF"
+    ] * 4
     assert rig.explicit("0E 64 00 04") == "0A 94 14 FF"
     assert rig.explicit("10 64 00 04 01") == "0A 94 14 FF"
 
@@ -177,9 +192,27 @@ async def test_watchdog_through_devicenet_drives_simulated_dcon_modules(tmp_path
     channel = f"fg-dnwd-{uuid.uuid4().hex[:8]}"
     topology = {
         "gateway": {"name": "i7241d-wd", "state_dir": str(tmp_path)},
-        "fronts": [{"name": "dnet", "type": "devicenet", "interface": "virtual", "channel": channel, "mac_id": 9, "dup_mac_timeout_ms": 50}],
-        "backs": [{"name": "rs485", "type": "dcon", "port": "simulated", "timeout_ms": 100, "poll_ms": 10, "offline_probe_ms": 100, "modules": [
-            {"address": 1, "model": "I-7060"}, {"address": 2, "model": "I-7052"}]}],
+        "fronts": [
+            {
+                "name": "dnet",
+                "type": "devicenet",
+                "interface": "virtual",
+                "channel": channel,
+                "mac_id": 9,
+                "dup_mac_timeout_ms": 50,
+            }
+        ],
+        "backs": [
+            {
+                "name": "rs485",
+                "type": "dcon",
+                "port": "simulated",
+                "timeout_ms": 100,
+                "poll_ms": 10,
+                "offline_probe_ms": 100,
+                "modules": [{"address": 1, "model": "I-7060"}, {"address": 2, "model": "I-7052"}],
+            }
+        ],
     }
     gw = Gateway.load(topology, registry=registry, simulate=True)
     master = Master(channel, slave=9)
@@ -195,8 +228,12 @@ async def test_watchdog_through_devicenet_drives_simulated_dcon_modules(tmp_path
         # enable with a 0.3 s period: ~AA3EVV reaches the module, ~** starts
         assert await master.request(bytes.fromhex("10 64 01 09 03")) == bytes.fromhex("90")
         assert await master.request(bytes.fromhex("10 64 01 08 01")) == bytes.fromhex("90")
-        await wait_for(lambda: sim.module(1).watchdog_enabled and sim.module(1).watchdog_tenths == 3, master)
-        await wait_for(lambda: back.host_ok_sent >= 3 and sim.module(2).last_host_ok > quiet_since, master)
+        await wait_for(
+            lambda: sim.module(1).watchdog_enabled and sim.module(1).watchdog_tenths == 3, master
+        )
+        await wait_for(
+            lambda: back.host_ok_sent >= 3 and sim.module(2).last_host_ok > quiet_since, master
+        )
         assert not sim.module(2).watchdog_enabled
         assert await master.request(bytes.fromhex("0E 64 01 09")) == bytes.fromhex("8E 03")
         # the module times out (as if ~** were lost): a DO write through 0x14 is answered '!'
@@ -208,7 +245,9 @@ async def test_watchdog_through_devicenet_drives_simulated_dcon_modules(tmp_path
         assert sim.module(1).do_bits == 0
         # recovery: Set 0x0B sends ~AA1, then the outputs are written again
         assert await master.request(bytes.fromhex("10 64 01 0B")) == bytes.fromhex("90")
-        await wait_for(lambda: not sim.module(1).timed_out and sim.module(1).do_bits == 0x06, master)
+        await wait_for(
+            lambda: not sim.module(1).timed_out and sim.module(1).do_bits == 0x06, master
+        )
         await wait_for(lambda: gw.image["rs485/m1/do1"].quality is Quality.GOOD, master)
         assert await master.request(bytes.fromhex("0E 64 01 0A")) == bytes.fromhex("8E 00")
         # Host OK off (class attribute 4, TV-46 with 0): no more ~**, the module times out by itself
@@ -218,11 +257,20 @@ async def test_watchdog_through_devicenet_drives_simulated_dcon_modules(tmp_path
         await wait_for(lambda: sim.module(1).timed_out, master)
         await wait_for(lambda: back.watchdog_status(1), master)
         assert await master.request(bytes.fromhex("0E 64 01 0A")) == bytes.fromhex("8E 01")
-        assert back.host_ok_sent == stopped_at and sim.module(1).do_bits == 0  # the module's safe value
+        assert (
+            back.host_ok_sent == stopped_at and sim.module(1).do_bits == 0
+        )  # the module's safe value
         assert gw.status()["backs"]["rs485"]["host_ok"]["enabled"] is False
         assert await master.request(bytes.fromhex("10 64 00 04 01")) == bytes.fromhex("90")
         assert await master.request(bytes.fromhex("10 64 01 0B")) == bytes.fromhex("90")
-        await wait_for(lambda: not sim.module(1).timed_out and sim.module(1).do_bits == 0x06 and back.host_ok_sent > stopped_at, master)
+        await wait_for(
+            lambda: (
+                not sim.module(1).timed_out
+                and sim.module(1).do_bits == 0x06
+                and back.host_ok_sent > stopped_at
+            ),
+            master,
+        )
         assert await master.request(bytes.fromhex("0E 64 01 0A")) == bytes.fromhex("8E 00")
     finally:
         master.close()

@@ -33,22 +33,48 @@ class Line:
     """Back-end modules + scheduler on one end of a pty pair, the simulator on the other."""
 
     def __init__(self, modules: list[dict], *, timeout_ms: int = 150, **back):
-        self.config = ModbusBackConfig(name="rs485", port="unused", baudrate=115200, timeout_ms=timeout_ms, modules=modules, **back)
+        self.config = ModbusBackConfig(
+            name="rs485",
+            port="unused",
+            baudrate=115200,
+            timeout_ms=timeout_ms,
+            modules=modules,
+            **back,
+        )
         self.clock = Clock()
         self.image = ProcessImage(self.clock)
         for spec in self.config.channel_specs():
             self.image.add(spec)
         self.pair = PtyPair()
         self.sim = ModbusSimulator(self.config, self.pair.b)
-        self.link = ModbusLink(self.pair.a, baudrate=115200, timeout=timeout_ms / 1000, inter_frame=0)
+        self.link = ModbusLink(
+            self.pair.a, baudrate=115200, timeout=timeout_ms / 1000, inter_frame=0
+        )
         points = self.config.points()
         self.modules = [
-            ModbusModule(m, [c.spec for c in self.image.channels(module=m.address)], self.link, points[m.address], retry_period=PROBE, clock=self.clock)
+            ModbusModule(
+                m,
+                [c.spec for c in self.image.channels(module=m.address)],
+                self.link,
+                points[m.address],
+                retry_period=PROBE,
+                clock=self.clock,
+            )
             for m in self.config.modules
         ]
-        self.health = {m.address: ModuleHealth("rs485", m.address, m.model or "", self.config.fail_threshold) for m in self.config.modules}
+        self.health = {
+            m.address: ModuleHealth("rs485", m.address, m.model or "", self.config.fail_threshold)
+            for m in self.config.modules
+        }
         self.scheduler = LineScheduler(
-            "rs485", self.modules, self.image, self.health, poll_period=PERIOD, offline_probe_period=PROBE, retries=self.config.retries, clock=self.clock
+            "rs485",
+            self.modules,
+            self.image,
+            self.health,
+            poll_period=PERIOD,
+            offline_probe_period=PROBE,
+            retries=self.config.retries,
+            clock=self.clock,
         )
 
     def module(self, address: int) -> ModbusModule:

@@ -19,7 +19,10 @@ async def test_the_i7232d_line_polls_inputs_into_the_image(make_line):
     line.sim.set_input("rs485/m1/di2", True)
     line.sim.set_input("rs485/m5/ai0", 0x3FF5)
     await line.run_due()
-    assert line.image.value("rs485/m1/di2") is True and line.image["rs485/m1/di2"].quality is Quality.GOOD
+    assert (
+        line.image.value("rs485/m1/di2") is True
+        and line.image["rs485/m1/di2"].quality is Quality.GOOD
+    )
     assert line.image.value("rs485/m5/ai0") == 0x3FF5
     # one request per module: DI block, DO read-back, AO read-back, AI
     assert sorted(line.requests()) == [(1, 2, 32, 8), (3, 1, 0, 8), (4, 3, 0, 1), (5, 4, 0, 1)]
@@ -29,7 +32,23 @@ async def test_the_i7232d_line_polls_inputs_into_the_image(make_line):
 
 
 async def test_adjacent_points_are_coalesced_into_one_request(make_line):
-    line = await make_line([{"address": 5, "model": "M-7017R"}, {"address": 9, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "count": 130, "type": "uint16"}]}])
+    line = await make_line(
+        [
+            {"address": 5, "model": "M-7017R"},
+            {
+                "address": 9,
+                "channels": [
+                    {
+                        "kind": "ai",
+                        "table": "input_registers",
+                        "address": 0,
+                        "count": 130,
+                        "type": "uint16",
+                    }
+                ],
+            },
+        ]
+    )
     line.sim.set_input("rs485/m9/ai129", 4242)
     await line.run_due()
     assert sorted(line.requests()) == [(5, 4, 0, 8), (9, 4, 0, 125), (9, 4, 125, 5)]
@@ -54,12 +73,17 @@ async def test_a_refused_block_falls_back_to_single_points(make_line, caplog):
     assert line.requests() == [(5, 4, 0, 3), (5, 4, 4, 4)]
     assert line.image.value("rs485/m5/ai6") == 66
     warnings = [r.getMessage() for r in caplog.records]
-    assert any("reading its points one by one" in w for w in warnings) and any("rs485/m5/ai3" in w for w in warnings)
+    assert any("reading its points one by one" in w for w in warnings) and any(
+        "rs485/m5/ai3" in w for w in warnings
+    )
     # the refused point is retried at the slow period; once it answers the block is whole again
     line.sim.clear_faults(5)
     line.clock.t += PROBE
     await line.run_due()
-    assert line.image["rs485/m5/ai3"].quality is Quality.GOOD and line.image.value("rs485/m5/ai3") == 103
+    assert (
+        line.image["rs485/m5/ai3"].quality is Quality.GOOD
+        and line.image.value("rs485/m5/ai3") == 103
+    )
     line.requests()
     await line.cycle()
     assert line.requests() == [(5, 4, 0, 8)]
@@ -86,16 +110,53 @@ async def test_outputs_are_written_on_change_with_sensible_function_codes(make_l
 
 
 async def test_data_types_and_word_orders_end_to_end(make_line):
-    line = await make_line([{"address": 8, "channels": [
-        {"kind": "ai", "table": "holding_registers", "address": 0, "type": "float32", "word_order": "little"},
-        {"kind": "ai", "table": "holding_registers", "address": 2, "type": "int32"},
-        {"kind": "ai", "table": "input_registers", "address": 0, "type": "uint32", "word_order": "little"},
-        {"kind": "ai", "table": "input_registers", "address": 2, "type": "uint16"},
-        {"kind": "di", "table": "input_registers", "address": 3, "count": 4, "first_bit": 14},
-        {"kind": "ao", "table": "holding_registers", "address": 10, "type": "float32"},
-        {"kind": "ao", "table": "holding_registers", "address": 12, "type": "int32", "word_order": "little"},
-        {"kind": "do", "table": "holding_registers", "address": 20, "count": 2, "first_bit": 7},
-    ]}])
+    line = await make_line(
+        [
+            {
+                "address": 8,
+                "channels": [
+                    {
+                        "kind": "ai",
+                        "table": "holding_registers",
+                        "address": 0,
+                        "type": "float32",
+                        "word_order": "little",
+                    },
+                    {"kind": "ai", "table": "holding_registers", "address": 2, "type": "int32"},
+                    {
+                        "kind": "ai",
+                        "table": "input_registers",
+                        "address": 0,
+                        "type": "uint32",
+                        "word_order": "little",
+                    },
+                    {"kind": "ai", "table": "input_registers", "address": 2, "type": "uint16"},
+                    {
+                        "kind": "di",
+                        "table": "input_registers",
+                        "address": 3,
+                        "count": 4,
+                        "first_bit": 14,
+                    },
+                    {"kind": "ao", "table": "holding_registers", "address": 10, "type": "float32"},
+                    {
+                        "kind": "ao",
+                        "table": "holding_registers",
+                        "address": 12,
+                        "type": "int32",
+                        "word_order": "little",
+                    },
+                    {
+                        "kind": "do",
+                        "table": "holding_registers",
+                        "address": 20,
+                        "count": 2,
+                        "first_bit": 7,
+                    },
+                ],
+            }
+        ]
+    )
     sim = line.sim
     sim.set_input("rs485/m8/ai0", -12.5)
     sim.set_input("rs485/m8/ai1", -70000)
@@ -105,9 +166,16 @@ async def test_data_types_and_word_orders_end_to_end(make_line):
     sim.set_input("rs485/m8/di2", True)  # bit 0 of register 4
     await line.run_due()
     image = line.image
-    assert [image.value(f"rs485/m8/ai{i}") for i in range(4)] == [-12.5, -70000, 3_000_000_000, 65535]
+    assert [image.value(f"rs485/m8/ai{i}") for i in range(4)] == [
+        -12.5,
+        -70000,
+        3_000_000_000,
+        65535,
+    ]
     assert [image.value(f"rs485/m8/di{i}") for i in range(4)] == [False, True, True, False]
-    assert sim.modules[8].tables[sim.channels["rs485/m8/ai0"][1].table][1] == 0xC148  # high word of -12.5 second
+    assert (
+        sim.modules[8].tables[sim.channels["rs485/m8/ai0"][1].table][1] == 0xC148
+    )  # high word of -12.5 second
     image.write_output("rs485/m8/ao0", 2.5)
     image.write_output("rs485/m8/ao1", -2)
     line.requests()
@@ -137,7 +205,10 @@ async def test_failure_then_offline_then_slow_reprobe_then_recovery(make_line, c
             expected = Quality.STALE if n <= 3 else Quality.COMM_FAULT
             assert line.image["rs485/m5/ai0"].quality is expected
     assert not health.online and health.errors[ErrorKind.TIMEOUT] == 4
-    assert sum("module 5" in r.getMessage() and "timeout" in r.getMessage() for r in caplog.records) == 1  # once per burst
+    assert (
+        sum("module 5" in r.getMessage() and "timeout" in r.getMessage() for r in caplog.records)
+        == 1
+    )  # once per burst
     # while offline, the dead module costs nothing until its slow re-probe is due
     line.requests()
     for _ in range(int(PROBE / PERIOD) - 2):
@@ -152,7 +223,10 @@ async def test_failure_then_offline_then_slow_reprobe_then_recovery(make_line, c
     line.clock.t += PROBE
     await line.run_due()
     assert health.online and health.consecutive_failures == 0
-    assert line.image["rs485/m5/ai0"].quality is Quality.GOOD and line.image.value("rs485/m5/ai0") == 1234
+    assert (
+        line.image["rs485/m5/ai0"].quality is Quality.GOOD
+        and line.image.value("rs485/m5/ai0") == 1234
+    )
 
 
 async def test_a_dead_output_only_module_is_noticed_through_read_back(make_line):
@@ -169,18 +243,30 @@ async def test_a_dead_output_only_module_is_noticed_through_read_back(make_line)
     line.sim.clear_faults()
     line.clock.t += PROBE
     await line.run_due()
-    assert line.health[4].online and line.sim.get_output("rs485/m4/ao0") == 600  # written on recovery
+    assert (
+        line.health[4].online and line.sim.get_output("rs485/m4/ao0") == 600
+    )  # written on recovery
 
 
 async def test_every_fault_kind_is_counted_in_the_module_health(make_line):
     line = await make_line([{"address": 1, "model": "M-7052D"}], fail_threshold=10)
-    kinds = {"no_answer": ErrorKind.TIMEOUT, "crc": ErrorKind.CRC, "garbage": ErrorKind.GARBAGE, "truncate": ErrorKind.GARBAGE,
-             "wrong_address": ErrorKind.WRONG_ADDRESS}
+    kinds = {
+        "no_answer": ErrorKind.TIMEOUT,
+        "crc": ErrorKind.CRC,
+        "garbage": ErrorKind.GARBAGE,
+        "truncate": ErrorKind.GARBAGE,
+        "wrong_address": ErrorKind.WRONG_ADDRESS,
+    }
     for fault in kinds:
         line.sim.inject(1, Fault(fault, count=1))
         await line.cycle()
     health = line.health[1]
-    assert dict(health.errors) == {ErrorKind.TIMEOUT: 1, ErrorKind.CRC: 1, ErrorKind.GARBAGE: 2, ErrorKind.WRONG_ADDRESS: 1}
+    assert dict(health.errors) == {
+        ErrorKind.TIMEOUT: 1,
+        ErrorKind.CRC: 1,
+        ErrorKind.GARBAGE: 2,
+        ErrorKind.WRONG_ADDRESS: 1,
+    }
     assert health.error_counter == 5 and health.online
     line.sim.set_input("rs485/m1/di0", True)
     await line.cycle()
@@ -194,7 +280,10 @@ async def test_retries_hide_a_single_bad_reply(make_line):
     line.sim.set_input("rs485/m1/di4", True)
     line.sim.inject(1, Fault("crc", count=1))
     await line.run_due()
-    assert line.image.value("rs485/m1/di4") is True and line.image["rs485/m1/di4"].quality is Quality.GOOD
+    assert (
+        line.image.value("rs485/m1/di4") is True
+        and line.image["rs485/m1/di4"].quality is Quality.GOOD
+    )
     assert line.health[1].errors[ErrorKind.CRC] == 1
 
 
@@ -226,10 +315,23 @@ async def test_a_refused_write_is_counted_and_the_line_goes_on(make_line):
 
 
 async def test_group_poll_periods(make_line):
-    line = await make_line([{"address": 2, "channels": [
-        {"kind": "ai", "table": "input_registers", "address": 0, "count": 2},
-        {"kind": "ai", "table": "input_registers", "address": 2, "count": 2, "poll_ms": 1000},
-    ]}])
+    line = await make_line(
+        [
+            {
+                "address": 2,
+                "channels": [
+                    {"kind": "ai", "table": "input_registers", "address": 0, "count": 2},
+                    {
+                        "kind": "ai",
+                        "table": "input_registers",
+                        "address": 2,
+                        "count": 2,
+                        "poll_ms": 1000,
+                    },
+                ],
+            }
+        ]
+    )
     await line.run_due()
     assert sorted(line.requests()) == [(2, 4, 0, 2), (2, 4, 2, 2)]
     for _ in range(3):
@@ -241,7 +343,16 @@ async def test_group_poll_periods(make_line):
 
 
 async def test_a_poll_with_no_group_due_records_no_request(make_line):
-    line = await make_line([{"address": 2, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}]}])
+    line = await make_line(
+        [
+            {
+                "address": 2,
+                "channels": [
+                    {"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}
+                ],
+            }
+        ]
+    )
     await line.run_due()
     assert line.requests() == [(2, 4, 0, 1)]
     requests = line.health[2].requests
@@ -252,7 +363,16 @@ async def test_a_poll_with_no_group_due_records_no_request(make_line):
 
 async def test_a_probe_always_makes_a_transaction(make_line):
     # an offline module must prove it answers, even when none of its groups is due
-    line = await make_line([{"address": 2, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}]}])
+    line = await make_line(
+        [
+            {
+                "address": 2,
+                "channels": [
+                    {"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}
+                ],
+            }
+        ]
+    )
     await line.run_due()
     module = line.module(2)
     line.requests()
@@ -267,7 +387,16 @@ async def test_a_probe_always_makes_a_transaction(make_line):
 
 
 async def test_a_slow_group_of_a_dead_module_fails_at_once_on_every_poll(make_line):
-    line = await make_line([{"address": 2, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}]}])
+    line = await make_line(
+        [
+            {
+                "address": 2,
+                "channels": [
+                    {"kind": "ai", "table": "input_registers", "address": 0, "poll_ms": 60000}
+                ],
+            }
+        ]
+    )
     await line.run_due()
     line.sim.inject(2, Fault("no_answer"))
     line.clock.t += 60

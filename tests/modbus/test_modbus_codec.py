@@ -16,7 +16,9 @@ def test_crc_of_the_classic_read_holding_registers_frame():
 @pytest.mark.parametrize("data", [b"", b"\x01", bytes(range(50)), b"\xff" * 7])
 def test_crc_agrees_with_pymodbus(data):
     # pymodbus returns the CRC byte-swapped (high byte = first byte sent)
-    assert codec.crc16(data) == int.from_bytes(FramerRTU.compute_CRC(data).to_bytes(2, "big"), "little")
+    assert codec.crc16(data) == int.from_bytes(
+        FramerRTU.compute_CRC(data).to_bytes(2, "big"), "little"
+    )
 
 
 @pytest.mark.parametrize(
@@ -29,7 +31,12 @@ def test_crc_agrees_with_pymodbus(data):
         (Request(17, 5, 0xAC, 1, (True,)), "11 05 00 AC FF 00"),
         (Request(17, 6, 0x01, 1, (0x0003,)), "11 06 00 01 00 03"),
         # the spec's FC15 example: coils 20..29 = CD 01
-        (Request(17, 15, 0x13, 10, (True, False, True, True, False, False, True, True, True, False)), "11 0F 00 13 00 0A 02 CD 01"),
+        (
+            Request(
+                17, 15, 0x13, 10, (True, False, True, True, False, False, True, True, True, False)
+            ),
+            "11 0F 00 13 00 0A 02 CD 01",
+        ),
         (Request(17, 16, 0x01, 2, (0x000A, 0x0102)), "11 10 00 01 00 02 04 00 0A 01 02"),
     ],
 )
@@ -65,7 +72,9 @@ def test_malformed_requests_are_rejected(adu):
 
 def test_responses():
     assert codec.read_bits_response(1, 2, [False, False, True])[:-2] == bytes.fromhex("01 02 01 04")
-    assert codec.read_registers_response(5, 4, [0x1234, 0xFFFF])[:-2] == bytes.fromhex("05 04 04 12 34 FF FF")
+    assert codec.read_registers_response(5, 4, [0x1234, 0xFFFF])[:-2] == bytes.fromhex(
+        "05 04 04 12 34 FF FF"
+    )
     assert codec.exception_response(3, 1, 2)[:-2] == bytes.fromhex("03 81 02")
     write = Request(3, 15, 0, 8, (True,) * 8)
     assert codec.write_response(write)[:-2] == bytes.fromhex("03 0F 00 00 00 08")
@@ -91,10 +100,15 @@ class TestDiagnose:
         assert diagnose(1, 4, self.reply[:-1] + bytes([self.reply[-1] ^ 1])) is ErrorKind.CRC
 
     def test_reply_of_another_unit(self):
-        assert diagnose(1, 4, codec.read_registers_response(2, 4, [10, 20])) is ErrorKind.WRONG_ADDRESS
+        assert (
+            diagnose(1, 4, codec.read_registers_response(2, 4, [10, 20])) is ErrorKind.WRONG_ADDRESS
+        )
 
     def test_reply_of_another_unit_behind_noise(self):
-        assert diagnose(1, 4, b"\x00\xff" + codec.read_registers_response(9, 4, [1])) is ErrorKind.WRONG_ADDRESS
+        assert (
+            diagnose(1, 4, b"\x00\xff" + codec.read_registers_response(9, 4, [1]))
+            is ErrorKind.WRONG_ADDRESS
+        )
 
     def test_truncated_reply(self):
         assert diagnose(1, 4, self.reply[:5]) is ErrorKind.GARBAGE

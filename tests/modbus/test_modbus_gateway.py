@@ -11,8 +11,8 @@ import pytest
 from modbus_line import I7232D_MODULES
 
 from fieldgate import Gateway, Quality
-from fieldgate.plugins.modbus.client import ModbusLink
 from fieldgate.plugins.modbus.cli import build_config, execute
+from fieldgate.plugins.modbus.client import ModbusLink
 from fieldgate.plugins.modbus.config import ModbusBackConfig
 from fieldgate.plugins.modbus.simulator import ModbusSimulator
 
@@ -31,7 +31,17 @@ def demo_topology():
     return {
         "gateway": {"name": "demo"},
         "fronts": [{"name": "plc", "type": "memory"}],
-        "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "baudrate": 115200, "poll_ms": 10, "timeout_ms": 50, "modules": modules}],
+        "backs": [
+            {
+                "name": "rs485",
+                "type": "modbus",
+                "port": "/dev/null",
+                "baudrate": 115200,
+                "poll_ms": 10,
+                "timeout_ms": 50,
+                "modules": modules,
+            }
+        ],
     }
 
 
@@ -50,7 +60,12 @@ async def test_the_demo_loop_runs_through_gateway_and_simulator(registry):
         await wait_for(lambda: sim.get_output("rs485/m3/do0") is True)
         status = gateway.status()["backs"]["rs485"]
         assert status["modbus"]["requests"]["fc2"] > 0 and status["cycles"] > 0
-        assert {m["address"]: m["online"] for m in status["modules"]} == {1: True, 3: True, 4: True, 5: True}
+        assert {m["address"]: m["online"] for m in status["modules"]} == {
+            1: True,
+            3: True,
+            4: True,
+            5: True,
+        }
     finally:
         await gateway.stop()
     assert sim.get_output("rs485/m3/do0") is False  # shutdown value written before the line closed
@@ -97,9 +112,25 @@ def test_cli_commands():
 
 async def test_fieldgate_simulate_modbus_serves_a_pty(tmp_path):
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "fieldgate", "simulate", "modbus", "--pty", "--module", "1:M-7052D", "--module", "3:M-7055D",
-        "--baudrate", "115200", "--set", "rs485/m1/di0=1", "--duration", "20",
-        stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        sys.executable,
+        "-m",
+        "fieldgate",
+        "simulate",
+        "modbus",
+        "--pty",
+        "--module",
+        "1:M-7052D",
+        "--module",
+        "3:M-7055D",
+        "--baudrate",
+        "115200",
+        "--set",
+        "rs485/m1/di0=1",
+        "--duration",
+        "20",
+        stdin=asyncio.subprocess.PIPE,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     try:
@@ -111,10 +142,14 @@ async def test_fieldgate_simulate_modbus_serves_a_pty(tmp_path):
         try:
             assert (await link.read_bits(1, 2, 32, 8))[0] is True
             await link.write(3, 5, 4, [True])
-            assert (await asyncio.wait_for(proc.stdout.readline(), 5)).decode().strip() == "output rs485/m3/do4 = True"
+            assert (
+                await asyncio.wait_for(proc.stdout.readline(), 5)
+            ).decode().strip() == "output rs485/m3/do4 = True"
             proc.stdin.write(b"set rs485/m1/di7 1\n")
             await proc.stdin.drain()
-            assert (await asyncio.wait_for(proc.stdout.readline(), 5)).decode().strip() == "rs485/m1/di7 = True"
+            assert (
+                await asyncio.wait_for(proc.stdout.readline(), 5)
+            ).decode().strip() == "rs485/m1/di7 = True"
             assert (await link.read_bits(1, 2, 32, 8))[7] is True
         finally:
             link.close()
@@ -131,7 +166,11 @@ async def test_fieldgate_simulate_modbus_serves_a_pty(tmp_path):
 def test_fieldgate_simulate_modbus_stops_with_exit_0_on_ctrl_c_and_sigterm(stopped_by_signal, sig):
     """Ctrl-C is how a simulator is stopped: exit 0, no traceback, even while stdin is a
     terminal with a read pending (it used to hang there, or exit 130)."""
-    code, stderr = stopped_by_signal(["simulate", "modbus", "--pty", "--module", "1:M-7055D"], "simulating modules 1 (M-7055D)", sig)
+    code, stderr = stopped_by_signal(
+        ["simulate", "modbus", "--pty", "--module", "1:M-7055D"],
+        "simulating modules 1 (M-7055D)",
+        sig,
+    )
     assert code == 0 and "Traceback" not in stderr
 
 
@@ -141,7 +180,11 @@ def test_simulate_modbus_takes_baud_as_an_alias_of_baudrate(capsys):
 
     parser = build_parser(load_registry())
     command = ["simulate", "modbus", "--pty", "--module", "1:M-7055D"]
-    assert parser.parse_args([*command, "--baud", "19200"]).baudrate == parser.parse_args([*command, "--baudrate", "19200"]).baudrate == 19200
+    assert (
+        parser.parse_args([*command, "--baud", "19200"]).baudrate
+        == parser.parse_args([*command, "--baudrate", "19200"]).baudrate
+        == 19200
+    )
     assert parser.parse_args(command).baudrate is None  # the topology's, or 9600
     with pytest.raises(SystemExit):
         parser.parse_args([*command, "--help"])
@@ -150,8 +193,13 @@ def test_simulate_modbus_takes_baud_as_an_alias_of_baudrate(capsys):
 
 
 def test_cli_fault_limited_to_an_address():
-    sim = ModbusSimulator(ModbusBackConfig(name="rs485", port="unused", modules=I7232D_MODULES), "unused")
-    assert execute(sim, "fault 5 exception code=2 address=0") == "module 5: exception on requests touching address 0 until cleared"
+    sim = ModbusSimulator(
+        ModbusBackConfig(name="rs485", port="unused", modules=I7232D_MODULES), "unused"
+    )
+    assert (
+        execute(sim, "fault 5 exception code=2 address=0")
+        == "module 5: exception on requests touching address 0 until cleared"
+    )
     (fault,) = sim.modules[5].faults
     assert (fault.code, fault.address, fault.count) == (2, 0, None)
 
@@ -162,7 +210,15 @@ def test_cli_takes_the_modules_from_a_topology(tmp_path):
         "gateway: {name: plant}\nfronts: [{name: plc, type: memory}]\nbacks:\n"
         "  - {name: line2, type: modbus, port: /dev/ttyUSB0, baudrate: 19200, modules: [{address: 7, model: M-7060D}]}\n"
     )
-    args = argparse.Namespace(port="/dev/pts/99", pty=False, topology=str(path), back=None, module=[], name="rs485", baudrate=None)
+    args = argparse.Namespace(
+        port="/dev/pts/99",
+        pty=False,
+        topology=str(path),
+        back=None,
+        module=[],
+        name="rs485",
+        baudrate=None,
+    )
     config = build_config(args)
     assert (config.name, config.port, config.baudrate) == ("line2", "/dev/pts/99", 19200)
     assert "line2/m7/do3" in {s.id for s in config.channel_specs()}
@@ -170,4 +226,14 @@ def test_cli_takes_the_modules_from_a_topology(tmp_path):
     with pytest.raises(ValueError, match="has no modbus back named nope"):
         build_config(args)
     with pytest.raises(ValueError, match="expects ADDRESS:MODEL"):
-        build_config(argparse.Namespace(port="x", pty=False, topology=None, back=None, module=["M-7060D"], name="rs485", baudrate=None))
+        build_config(
+            argparse.Namespace(
+                port="x",
+                pty=False,
+                topology=None,
+                back=None,
+                module=["M-7060D"],
+                name="rs485",
+                baudrate=None,
+            )
+        )

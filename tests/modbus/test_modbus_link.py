@@ -29,7 +29,9 @@ async def wire():
     pair = PtyPair()
     sim = ModbusSimulator(config, pair.b)
     await sim.start()
-    link = ModbusLink(pair.a, baudrate=115200, timeout=0.15, inter_frame=0)  # generous: a loaded CI machine
+    link = ModbusLink(
+        pair.a, baudrate=115200, timeout=0.15, inter_frame=0
+    )  # generous: a loaded CI machine
     await link.open()
     yield link, sim, pair
     link.close()
@@ -45,12 +47,26 @@ async def test_fc1_fc2_fc3_fc4_reads(wire):
     sim.set_input("rs485/m5/ai7", 32767)
     sim.modules[3].tables[sim.channels["rs485/m3/do1"][1].table][1] = True
     sim.modules[4].tables[sim.channels["rs485/m4/ao3"][1].table][3] = 0x1234
-    assert await link.read_bits(1, 2, 32, 8) == [False, False, True, False, False, False, False, True]
+    assert await link.read_bits(1, 2, 32, 8) == [
+        False,
+        False,
+        True,
+        False,
+        False,
+        False,
+        False,
+        True,
+    ]
     assert await link.read_bits(3, 1, 0, 8) == [False, True] + [False] * 6
     assert await link.read_registers(4, 3, 0, 4) == [0, 0, 0, 0x1234]
     regs = await link.read_registers(5, 4, 0, 8)
     assert regs[0] == (-1234) & 0xFFFF and regs[7] == 32767
-    assert [r[:2] for r in [(q.unit, q.function) for q in sim.requests]] == [(1, 2), (3, 1), (4, 3), (5, 4)]
+    assert [r[:2] for r in [(q.unit, q.function) for q in sim.requests]] == [
+        (1, 2),
+        (3, 1),
+        (4, 3),
+        (5, 4),
+    ]
 
 
 async def test_fc5_fc15_fc6_fc16_writes(wire):
@@ -175,5 +191,8 @@ async def test_the_inter_frame_silence_is_kept_between_requests(wire):
 
 async def test_a_missing_port_gives_a_one_line_cause():
     link = ModbusLink("/dev/does-not-exist-fieldgate", timeout=0.05)
-    with pytest.raises(PluginStartError, match="cannot open serial port /dev/does-not-exist-fieldgate: no such device"):
+    with pytest.raises(
+        PluginStartError,
+        match="cannot open serial port /dev/does-not-exist-fieldgate: no such device",
+    ):
         await link.open()

@@ -7,7 +7,13 @@ import pytest
 from fieldgate.plugins.modbus import codec
 from fieldgate.plugins.modbus.codec import Request
 from fieldgate.plugins.modbus.config import ModbusBackConfig
-from fieldgate.plugins.modbus.simulator import Fault, ModbusSimulator, RtuResponder, SimModule, demo_wiring
+from fieldgate.plugins.modbus.simulator import (
+    Fault,
+    ModbusSimulator,
+    RtuResponder,
+    SimModule,
+    demo_wiring,
+)
 
 I7232D = [
     {"address": 1, "model": "M-7052D"},
@@ -69,13 +75,18 @@ def test_protocol_errors_are_answered_with_exceptions():
         "too many": Request(1, 2, 32, 2001),
         "write to input": Request(1, 5, 32, 1, (True,)),
     }
-    codes = {name: r.feed(req.encode(), now=i)[0].frame[2] for i, (name, req) in enumerate(answers.items())}
+    codes = {
+        name: r.feed(req.encode(), now=i)[0].frame[2]
+        for i, (name, req) in enumerate(answers.items())
+    }
     assert codes == {"illegal address": 2, "count 0": 3, "too many": 3, "write to input": 2}
     bad_coil = codec.frame(3, bytes.fromhex("05 00 00 12 34"))
     assert r.feed(bad_coil, now=10)[0].frame == codec.exception_response(3, 5, 3)
 
 
-@pytest.mark.parametrize("kind", ["no_answer", "crc", "garbage", "truncate", "wrong_address", "delay", "exception"])
+@pytest.mark.parametrize(
+    "kind", ["no_answer", "crc", "garbage", "truncate", "wrong_address", "delay", "exception"]
+)
 def test_faults_shape_the_reply(kind):
     r = responder()
     good = r.feed(Request(1, 2, 32, 8).encode(), now=0.0)[0].frame
@@ -98,9 +109,16 @@ def test_faults_shape_the_reply(kind):
 
 
 def test_the_demo_wiring_pairs_do_to_di_and_ao_to_ai():
-    assert demo_wiring(config()) == [(f"rs485/m3/do{i}", f"rs485/m1/di{i}") for i in range(8)] + [("rs485/m4/ao0", "rs485/m5/ai0")]
+    assert demo_wiring(config()) == [(f"rs485/m3/do{i}", f"rs485/m1/di{i}") for i in range(8)] + [
+        ("rs485/m4/ao0", "rs485/m5/ai0")
+    ]
     # a DI+DO module is not a wiring target, only a source
-    assert demo_wiring(config([{"address": 2, "model": "M-7055D"}, {"address": 6, "model": "M-7060D"}])) == []
+    assert (
+        demo_wiring(
+            config([{"address": 2, "model": "M-7055D"}, {"address": 6, "model": "M-7060D"}])
+        )
+        == []
+    )
 
 
 def test_writes_propagate_through_the_wiring_when_animated():
@@ -108,8 +126,20 @@ def test_writes_propagate_through_the_wiring_when_animated():
     seen = []
     sim.output_listeners.append(lambda cid, value: seen.append((cid, value)))
     r = sim.responder
-    r.feed(Request(3, 15, 0, 8, (False, False, True, False, True, True, False, False)).encode(), now=0.0)  # DO byte 0x34
-    assert [sim.get(f"rs485/m1/di{i}") for i in range(8)] == [False, False, True, False, True, True, False, False]
+    r.feed(
+        Request(3, 15, 0, 8, (False, False, True, False, True, True, False, False)).encode(),
+        now=0.0,
+    )  # DO byte 0x34
+    assert [sim.get(f"rs485/m1/di{i}") for i in range(8)] == [
+        False,
+        False,
+        True,
+        False,
+        True,
+        True,
+        False,
+        False,
+    ]
     r.feed(Request(4, 6, 0, 1, (0x3FFF,)).encode(), now=1.0)  # 5 V on 0..10 V
     assert sim.get("rs485/m5/ai0") == 0x3FFF  # 5 V on +-10 V: the same raw value
     assert ("rs485/m3/do2", True) in seen and ("rs485/m4/ao0", 0x3FFF) in seen
@@ -151,18 +181,58 @@ async def test_animated_inputs_move_until_the_gateway_drives_them():
 
 
 def test_a_write_that_is_not_a_value_of_the_point_gets_illegal_data_value_and_changes_nothing():
-    r = RtuResponder({8: SimModule(8, config([{"address": 8, "channels": [
-        {"kind": "ao", "table": "holding_registers", "address": 10, "type": "float32"}]}]).points()[8])}, gap=0.01)
+    r = RtuResponder(
+        {
+            8: SimModule(
+                8,
+                config(
+                    [
+                        {
+                            "address": 8,
+                            "channels": [
+                                {
+                                    "kind": "ao",
+                                    "table": "holding_registers",
+                                    "address": 10,
+                                    "type": "float32",
+                                }
+                            ],
+                        }
+                    ]
+                ).points()[8],
+            )
+        },
+        gap=0.01,
+    )
+
     def ask(pdu: str, now: float) -> list[bytes]:
         return [reply.frame for reply in r.feed(codec.frame(8, bytes.fromhex(pdu)), now=now)]
 
-    assert ask("06 00 0A 7F C0", 0.0) == [codec.frame(8, bytes.fromhex("86 03"))]  # the high word of a NaN
-    assert ask("03 00 0A 00 02", 1.0) == [codec.frame(8, bytes.fromhex("03 04 00 00 00 00"))]  # nothing was written
+    assert ask("06 00 0A 7F C0", 0.0) == [
+        codec.frame(8, bytes.fromhex("86 03"))
+    ]  # the high word of a NaN
+    assert ask("03 00 0A 00 02", 1.0) == [
+        codec.frame(8, bytes.fromhex("03 04 00 00 00 00"))
+    ]  # nothing was written
 
 
 def test_wiring_clamps_to_the_target_type_range():
-    sim = ModbusSimulator(config([{"address": 4, "model": "M-7024", "counts": {"ao": 1}},
-                                  {"address": 10, "channels": [{"kind": "ai", "table": "input_registers", "address": 0, "type": "uint16"}]}]),
-                          "unused", animate=True)
-    assert sim.responder.feed(Request(4, 6, 0, 1, (0xFFFB,)).encode(), now=0.0)  # -5 on an int16 AO: answered
+    sim = ModbusSimulator(
+        config(
+            [
+                {"address": 4, "model": "M-7024", "counts": {"ao": 1}},
+                {
+                    "address": 10,
+                    "channels": [
+                        {"kind": "ai", "table": "input_registers", "address": 0, "type": "uint16"}
+                    ],
+                },
+            ]
+        ),
+        "unused",
+        animate=True,
+    )
+    assert sim.responder.feed(
+        Request(4, 6, 0, 1, (0xFFFB,)).encode(), now=0.0
+    )  # -5 on an int16 AO: answered
     assert sim.get("rs485/m10/ai0") == 0  # a uint16 input cannot go below 0

@@ -34,7 +34,15 @@ def test_float_round_trip_is_float32_precise():
     assert values.decode(DataType.FLOAT32, words, "little") == pytest.approx(3.14159, rel=1e-7)
 
 
-@pytest.mark.parametrize("dtype, value", [(DataType.INT16, 40000), (DataType.UINT16, -1), (DataType.INT32, 2**31), (DataType.UINT32, -5)])
+@pytest.mark.parametrize(
+    "dtype, value",
+    [
+        (DataType.INT16, 40000),
+        (DataType.UINT16, -1),
+        (DataType.INT32, 2**31),
+        (DataType.UINT32, -5),
+    ],
+)
 def test_out_of_range_values_are_refused(dtype, value):
     with pytest.raises(ValueError, match="outside"):
         values.encode(dtype, value)

@@ -77,18 +77,45 @@ def topology(state_dir: Path, serial: int = 7241) -> dict:
     zero = {"value": 0}
     return {
         "gateway": {"name": "dnet-uml", "state_dir": str(state_dir)},
-        "fronts": [{"name": "dnet", "type": "devicenet", "interface": "socketcan", "channel": CHANNEL, "mac_id": SLAVE,
-                    "baudrate": 125000, "dup_mac_timeout_ms": 50,  # 125 kbit/s as the i7241d example beside it
-                    "identity": {"vendor_id": 803, "serial": serial, "product_name": PRODUCT_NAME}}],
+        "fronts": [
+            {
+                "name": "dnet",
+                "type": "devicenet",
+                "interface": "socketcan",
+                "channel": CHANNEL,
+                "mac_id": SLAVE,
+                "baudrate": 125000,
+                "dup_mac_timeout_ms": 50,  # 125 kbit/s as the i7241d example beside it
+                "identity": {"vendor_id": 803, "serial": serial, "product_name": PRODUCT_NAME},
+            }
+        ],
         # poll_ms 50: at 10 ms this process alone takes half the guest's one CPU, and the conformance
         # tool, a process beside it, then sees answers late
-        "backs": [{"name": "rs485", "type": "modbus", "port": "/dev/null", "baudrate": 115200, "poll_ms": 50, "timeout_ms": 100,
-                   "modules": [
-                       {"address": 1, "model": "M-7055D", "counts": {"di": 0}, "error_mode": zero},  # 8 DO
-                       {"address": 2, "model": "M-7024", "error_mode": zero},  # 4 AO
-                       {"address": 3, "model": "M-7052D"},  # 8 DI, wired from module 1
-                       {"address": 4, "model": "M-7017R", "counts": {"ai": 4}},  # 4 AI, wired from module 2
-                   ]}],
+        "backs": [
+            {
+                "name": "rs485",
+                "type": "modbus",
+                "port": "/dev/null",
+                "baudrate": 115200,
+                "poll_ms": 50,
+                "timeout_ms": 100,
+                "modules": [
+                    {
+                        "address": 1,
+                        "model": "M-7055D",
+                        "counts": {"di": 0},
+                        "error_mode": zero,
+                    },  # 8 DO
+                    {"address": 2, "model": "M-7024", "error_mode": zero},  # 4 AO
+                    {"address": 3, "model": "M-7052D"},  # 8 DI, wired from module 1
+                    {
+                        "address": 4,
+                        "model": "M-7017R",
+                        "counts": {"ai": 4},
+                    },  # 4 AI, wired from module 2
+                ],
+            }
+        ],
     }
 
 
@@ -104,9 +131,22 @@ class GatewayProcess:
         with self.status_file.open("w") as out, self.log_file.open("w") as err:
             self.proc = subprocess.Popen(
                 # -X faulthandler: SIGABRT dumps every thread's stack into the log (see interrupt())
-                [sys.executable, "-X", "faulthandler", "-m", "fieldgate", "run", str(self.source), "--simulate", "--status-every", "0.1",
-                 *self.options],
-                stdout=out, stderr=err, cwd=REPO,
+                [
+                    sys.executable,
+                    "-X",
+                    "faulthandler",
+                    "-m",
+                    "fieldgate",
+                    "run",
+                    str(self.source),
+                    "--simulate",
+                    "--status-every",
+                    "0.1",
+                    *self.options,
+                ],
+                stdout=out,
+                stderr=err,
+                cwd=REPO,
             )
 
     def log(self) -> str:
@@ -140,7 +180,11 @@ def wait_online(gateways: list[GatewayProcess], timeout: float) -> bool:
     left = {0x400 | gw.mac_id << 3 | 7: 2 for gw in gateways}
     with can.Bus(interface="socketcan", channel=CHANNEL) as bus:
         deadline = time.monotonic() + timeout
-        while any(left.values()) and time.monotonic() < deadline and all(gw.proc.poll() is None for gw in gateways):
+        while (
+            any(left.values())
+            and time.monotonic() < deadline
+            and all(gw.proc.poll() is None for gw in gateways)
+        ):
             msg = bus.recv(0.2)
             if msg is not None and left.get(msg.arbitration_id) and msg.data[:1] == b"\x00":
                 left[msg.arbitration_id] -= 1
@@ -157,13 +201,24 @@ class Network:
 @pytest.fixture(scope="module")
 def network(tmp_path_factory):
     """Two gateway processes, two DeviceNet slaves on one bus, started together (each start costs ~3 s here)."""
-    bench_dir, example_dir = tmp_path_factory.mktemp("dnet-bench"), tmp_path_factory.mktemp("dnet-i7241d")
+    bench_dir, example_dir = (
+        tmp_path_factory.mktemp("dnet-bench"),
+        tmp_path_factory.mktemp("dnet-i7241d"),
+    )
     source = bench_dir / "topology.yaml"
     source.write_text(json.dumps(topology(bench_dir / "state"), indent=1))  # JSON is YAML
     bench = GatewayProcess(bench_dir, source, SLAVE)
-    i7241d = GatewayProcess(example_dir, I7241D_EXAMPLE, I7241D_MAC, "--set", f"fronts.dnet.channel={CHANNEL}",
-                            "--set", "fronts.dnet.dup_mac_timeout_ms=50",
-                            "--set", f"gateway.state_dir={example_dir / 'state'}")
+    i7241d = GatewayProcess(
+        example_dir,
+        I7241D_EXAMPLE,
+        I7241D_MAC,
+        "--set",
+        f"fronts.dnet.channel={CHANNEL}",
+        "--set",
+        "fronts.dnet.dup_mac_timeout_ms=50",
+        "--set",
+        f"gateway.state_dir={example_dir / 'state'}",
+    )
     try:
         bench.start()
         i7241d.start()
@@ -188,11 +243,16 @@ def words(values: list[int]) -> bytes:
     return b"".join(v.to_bytes(2, "little", signed=True) for v in values)
 
 
-async def wait_for_image(gateway: GatewayProcess, expected: dict[str, str], timeout: float = 5.0) -> dict[str, str]:
+async def wait_for_image(
+    gateway: GatewayProcess, expected: dict[str, str], timeout: float = 5.0
+) -> dict[str, str]:
     end = time.monotonic() + timeout
     while True:
         image = gateway.image()
-        if all(image.get(key) == value for key, value in expected.items()) or time.monotonic() > end:
+        if (
+            all(image.get(key) == value for key, value in expected.items())
+            or time.monotonic() > end
+        ):
             return image
         await asyncio.sleep(0.05)
 
@@ -201,18 +261,28 @@ async def test_master_polls_simulated_modules_and_master_loss_zeroes_outputs(gat
     master = VcanMaster(SLAVE)
     try:
         assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")  # explicit + poll
-        assert await master.request(bytes.fromhex("0E 05 02 07")) == bytes.fromhex("8E 09 00")  # produced 9 bytes
-        assert await master.request(bytes.fromhex("0E 05 02 08")) == bytes.fromhex("8E 09 00")  # consumed 9 bytes
-        assert await master.request(bytes.fromhex("10 05 02 09 64 00")) == bytes.fromhex("90 64 00")  # EPR 100 ms
+        assert await master.request(bytes.fromhex("0E 05 02 07")) == bytes.fromhex(
+            "8E 09 00"
+        )  # produced 9 bytes
+        assert await master.request(bytes.fromhex("0E 05 02 08")) == bytes.fromhex(
+            "8E 09 00"
+        )  # consumed 9 bytes
+        assert await master.request(bytes.fromhex("10 05 02 09 64 00")) == bytes.fromhex(
+            "90 64 00"
+        )  # EPR 100 ms
         analog_inputs: set[bytes] = set()
-        for _ in range(40):  # idle polls (no outputs): the inputs only; nothing has driven the wired inputs yet
+        for _ in range(
+            40
+        ):  # idle polls (no outputs): the inputs only; nothing has driven the wired inputs yet
             reply = await master.poll_fragmented_reply(b"", 9)
             if any(reply[1:]):  # once the back has read the AI module
                 analog_inputs.add(reply[1:])
             if len(analog_inputs) > 1:
                 break
             await master.frames(0.08)
-        assert len(analog_inputs) > 1, analog_inputs  # the simulator's AI ramps (a step every 0.25 s), read over RS-485
+        assert len(analog_inputs) > 1, (
+            analog_inputs
+        )  # the simulator's AI ramps (a step every 0.25 s), read over RS-485
         analog = [1000, -1234, 0x7FFF, -0x8000]
         outputs = bytes([0x35]) + words(analog)
         for _ in range(100):  # the loop runs through the RS-485 polls: a few DeviceNet polls
@@ -222,18 +292,36 @@ async def test_master_polls_simulated_modules_and_master_loss_zeroes_outputs(gat
             await master.frames(0.02)
         assert inputs == outputs  # DI = DO and AI = AO, produced by the simulated input modules
         shown = "[" + ",".join(map(str, analog)) + "]"
-        expected = {"rs485/m1 do": bits(0x35), "rs485/m2 ao": shown, "rs485/m3 di": bits(0x35), "rs485/m4 ai": shown}
+        expected = {
+            "rs485/m1 do": bits(0x35),
+            "rs485/m2 ao": shown,
+            "rs485/m3 di": bits(0x35),
+            "rs485/m4 ai": shown,
+        }
         image = await wait_for_image(gateway, expected)
         assert {key: image.get(key) for key in expected} == expected
-        await master.frames(0.6)  # no polls for more than 4 x 100 ms: master lost, outputs to their error value 0
-        zeros = {"rs485/m1 do": bits(0), "rs485/m2 ao": "[0,0,0,0]", "rs485/m3 di": bits(0), "rs485/m4 ai": "[0,0,0,0]"}
+        await master.frames(
+            0.6
+        )  # no polls for more than 4 x 100 ms: master lost, outputs to their error value 0
+        zeros = {
+            "rs485/m1 do": bits(0),
+            "rs485/m2 ao": "[0,0,0,0]",
+            "rs485/m3 di": bits(0),
+            "rs485/m4 ai": "[0,0,0,0]",
+        }
         image = await wait_for_image(gateway, zeros)
         assert {key: image.get(key) for key in zeros} == zeros, gateway.log()[-3000:]
-        assert await master.allocate(0x02) == bytes.fromhex("0A CB 00")  # the timed-out poll is allocated again
+        assert await master.allocate(0x02) == bytes.fromhex(
+            "0A CB 00"
+        )  # the timed-out poll is allocated again
         assert await master.request(bytes.fromhex("10 05 02 09 64 00")) == bytes.fromhex("90 64 00")
-        assert await master.poll_fragmented_reply(b"", 9) == bytes(9)  # idle poll: the inputs, outputs untouched
+        assert await master.poll_fragmented_reply(b"", 9) == bytes(
+            9
+        )  # idle poll: the inputs, outputs untouched
         assert await master.allocate(0x02) == bytes.fromhex("0A 94 0B 02")  # already allocated
-        master.send(master.g2(6), bytes([master.mac, 0x4C, 0x03, 0x01, 0x03]))  # release poll + explicit
+        master.send(
+            master.g2(6), bytes([master.mac, 0x4C, 0x03, 0x01, 0x03])
+        )  # release poll + explicit
         assert await master.expect(master.g2(3)) == bytes.fromhex("0A CC")
     finally:
         master.close()
@@ -243,10 +331,34 @@ async def test_master_polls_simulated_modules_and_master_loss_zeroes_outputs(gat
 def test_devicenet_conformance_profile_passes_over_vcan0(gateway, tmp_path):
     junit = tmp_path / "dnet.xml"
     run = subprocess.run(
-        [sys.executable, "-m", "fieldgate.conformance", "--protocol", "devicenet", "--interface", "socketcan", "--channel", CHANNEL,
-         "--mac-id", str(SLAVE), "--loopback", "--junit", str(junit), "--timeout", "0.5", "--silence", "0.15", "--heartbeat-ms", "100",
-         "--bootup-timeout", "3"],
-        capture_output=True, text=True, timeout=120, cwd=REPO,
+        [
+            sys.executable,
+            "-m",
+            "fieldgate.conformance",
+            "--protocol",
+            "devicenet",
+            "--interface",
+            "socketcan",
+            "--channel",
+            CHANNEL,
+            "--mac-id",
+            str(SLAVE),
+            "--loopback",
+            "--junit",
+            str(junit),
+            "--timeout",
+            "0.5",
+            "--silence",
+            "0.15",
+            "--heartbeat-ms",
+            "100",
+            "--bootup-timeout",
+            "3",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=REPO,
     )
     assert run.returncode == 0, run.stdout[-8000:] + run.stderr[-2000:] + gateway.log()[-3000:]
     suite = ET.parse(junit).getroot().find("testsuite")
@@ -254,7 +366,9 @@ def test_devicenet_conformance_profile_passes_over_vcan0(gateway, tmp_path):
     assert list(cases) == [c.id for c in select(protocol="devicenet")]
     assert "devicenet.loopback_poll" in cases and len(cases) >= 15
     not_passed = {name: [child.tag for child in tc] for name, tc in cases.items() if len(tc)}
-    assert not_passed == {}, run.stdout[-8000:]  # no failure, no skip: the sizes match and the loop is wired
+    assert not_passed == {}, run.stdout[
+        -8000:
+    ]  # no failure, no skip: the sizes match and the loop is wired
     assert suite.get("failures") == "0" and suite.get("skipped") == "0"
     properties = {p.get("name"): p.get("value") for p in suite.iter("property")}
     assert properties["mac-id"] == str(SLAVE) and properties["product name"] == PRODUCT_NAME
@@ -267,9 +381,15 @@ async def test_baud_rate_set_over_the_network_reopens_the_socket_at_reset(gatewa
     master = VcanMaster(SLAVE)
     try:
         assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
-        assert await master.request(bytes.fromhex("10 03 01 02 01")) == bytes.fromhex("90")  # 250 kbit/s at the next reset
-        assert await master.request(bytes.fromhex("05 01 01")) == bytes.fromhex("85")  # Identity Reset
-        assert await master.expect(master.g2(3)) == bytes.fromhex("0A CE 01 00 01 00 04 00")  # Device Shutdown
+        assert await master.request(bytes.fromhex("10 03 01 02 01")) == bytes.fromhex(
+            "90"
+        )  # 250 kbit/s at the next reset
+        assert await master.request(bytes.fromhex("05 01 01")) == bytes.fromhex(
+            "85"
+        )  # Identity Reset
+        assert await master.expect(master.g2(3)) == bytes.fromhex(
+            "0A CE 01 00 01 00 04 00"
+        )  # Device Shutdown
         checks = [await master.expect(master.g2(7)) for _ in range(2)]
         assert checks == [bytes.fromhex("00 23 03 49 1C 00 00")] * 2  # vendor 803, serial 7241
         await master.frames(0.2)  # online one check period after the second request
@@ -277,7 +397,9 @@ async def test_baud_rate_set_over_the_network_reopens_the_socket_at_reset(gatewa
         assert await master.request(bytes.fromhex("0E 03 01 02")) == bytes.fromhex("8E 01")
         assert await master.request(bytes.fromhex("10 05 02 09 E8 03")) == bytes.fromhex("90 E8 03")
         assert len(await master.poll_fragmented_reply(b"", 9)) == 9
-        master.send(master.g2(6), bytes([master.mac, 0x4C, 0x03, 0x01, 0x03]))  # release poll + explicit
+        master.send(
+            master.g2(6), bytes([master.mac, 0x4C, 0x03, 0x01, 0x03])
+        )  # release poll + explicit
         assert await master.expect(master.g2(3)) == bytes.fromhex("0A CC")
     finally:
         master.close()
@@ -294,9 +416,15 @@ async def test_i7241d_example_serves_its_dcon_modules_beside_the_other_slave(net
     master = VcanMaster(I7241D_MAC)
     try:
         assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
-        assert await master.request(bytes.fromhex("0E 01 01 07")) == b"\x8e\x09fieldgate"  # the default product name
-        assert await master.request(bytes.fromhex("0E 05 02 07")) == bytes.fromhex("8E 11 00")  # produced 17: DI 1 + AI 16
-        assert await master.request(bytes.fromhex("0E 05 02 08")) == bytes.fromhex("8E 09 00")  # consumed 9: DO 1 + AO 8
+        assert (
+            await master.request(bytes.fromhex("0E 01 01 07")) == b"\x8e\x09fieldgate"
+        )  # the default product name
+        assert await master.request(bytes.fromhex("0E 05 02 07")) == bytes.fromhex(
+            "8E 11 00"
+        )  # produced 17: DI 1 + AI 16
+        assert await master.request(bytes.fromhex("0E 05 02 08")) == bytes.fromhex(
+            "8E 09 00"
+        )  # consumed 9: DO 1 + AO 8
         assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex("90 F4 01")
         for _ in range(100):  # the simulator animates: one DI bit walks, the AIs follow a sine
             inputs = await master.poll_fragmented_reply(bytes([0x5A]) + bytes(8), 17)
@@ -324,34 +452,73 @@ def collect(bus: can.BusABC, seconds: float, until=lambda frame: False) -> list[
     return seen
 
 
-def test_a_second_node_at_the_same_mac_faults_and_is_moved_by_the_offline_connection_set(network, tmp_path):
+def test_a_second_node_at_the_same_mac_faults_and_is_moved_by_the_offline_connection_set(
+    network, tmp_path
+):
     """A third gateway process configured for MAC 5 (serial 9999) joins the bus: the online MAC 5
     answers its duplicate MAC ID request, so it enters communication fault and goes silent; the
     Offline Connection Set identifies it and gives it MAC 7, where it checks again and comes online."""
     topo = topology(tmp_path / "state", serial=9999)
-    topo["fronts"][0]["dup_mac_timeout_ms"] = 300  # time enough for the online node's answer on a busy guest
-    topo["backs"][0]["poll_ms"] = 1000  # its I/O is not used: keep the guest's one CPU for the others
+    topo["fronts"][0]["dup_mac_timeout_ms"] = (
+        300  # time enough for the online node's answer on a busy guest
+    )
+    topo["backs"][0]["poll_ms"] = (
+        1000  # its I/O is not used: keep the guest's one CPU for the others
+    )
     source = tmp_path / "topology.yaml"
     source.write_text(json.dumps(topo))
     newcomer = GatewayProcess(tmp_path, source, SLAVE)
     dup_mac_5, dup_mac_7 = 0x400 | SLAVE << 3 | 7, 0x400 | 7 << 3 | 7
-    ours, theirs = bytes.fromhex("23 03 0F 27 00 00"), bytes.fromhex("23 03 49 1C 00 00")  # vendor 803, serial 9999 / 7241
+    ours, theirs = (
+        bytes.fromhex("23 03 0F 27 00 00"),
+        bytes.fromhex("23 03 49 1C 00 00"),
+    )  # vendor 803, serial 9999 / 7241
     answered = (dup_mac_5, b"\x80" + theirs)
     with can.Bus(interface="socketcan", channel=CHANNEL) as bus:
         newcomer.start()
         try:
             seen = collect(bus, 30, until=lambda frame: frame == answered)
-            assert seen[-1] == answered and (dup_mac_5, b"\x00" + ours) in seen, seen  # its request, the online node's answer
-            assert [f for f in collect(bus, 0.5) if f[1][1:] == ours] == []  # faulted: no second request, nothing
-            assert "duplicate MAC ID 5" in newcomer.log() and newcomer.proc.poll() is None, newcomer.log()
-            bus.send(can.Message(arbitration_id=0x7ED, data=bytes.fromhex("3F 4B 02"), is_extended_id=False))
-            assert collect(bus, 3, until=lambda f: f[0] == 0x7EC)[-1:] == [(0x7EC, b"\x00" + ours)]  # only the faulted node
-            bus.send(can.Message(arbitration_id=0x7ED, data=b"\x07\x4D" + ours, is_extended_id=False))  # to MAC 7
-            assert [f for f in collect(bus, 1.2) if f[0] == dup_mac_7] == [(dup_mac_7, b"\x00" + ours)] * 2  # online after 0.6 s
-            bus.send(can.Message(arbitration_id=0x43E, data=bytes.fromhex("0A 4B 03 01 01 0A"), is_extended_id=False))
-            assert collect(bus, 3, until=lambda f: f[0] == 0x43B)[-1:] == [(0x43B, bytes.fromhex("0A CB 00"))]
-            bus.send(can.Message(arbitration_id=0x43C, data=bytes.fromhex("0A 0E 03 01 01"), is_extended_id=False))
-            assert collect(bus, 3, until=lambda f: f[0] == 0x43B)[-1:] == [(0x43B, bytes.fromhex("0A 8E 07"))]  # MAC ID 7
+            assert seen[-1] == answered and (dup_mac_5, b"\x00" + ours) in seen, (
+                seen
+            )  # its request, the online node's answer
+            assert [
+                f for f in collect(bus, 0.5) if f[1][1:] == ours
+            ] == []  # faulted: no second request, nothing
+            assert "duplicate MAC ID 5" in newcomer.log() and newcomer.proc.poll() is None, (
+                newcomer.log()
+            )
+            bus.send(
+                can.Message(
+                    arbitration_id=0x7ED, data=bytes.fromhex("3F 4B 02"), is_extended_id=False
+                )
+            )
+            assert collect(bus, 3, until=lambda f: f[0] == 0x7EC)[-1:] == [
+                (0x7EC, b"\x00" + ours)
+            ]  # only the faulted node
+            bus.send(
+                can.Message(arbitration_id=0x7ED, data=b"\x07\x4d" + ours, is_extended_id=False)
+            )  # to MAC 7
+            assert [f for f in collect(bus, 1.2) if f[0] == dup_mac_7] == [
+                (dup_mac_7, b"\x00" + ours)
+            ] * 2  # online after 0.6 s
+            bus.send(
+                can.Message(
+                    arbitration_id=0x43E,
+                    data=bytes.fromhex("0A 4B 03 01 01 0A"),
+                    is_extended_id=False,
+                )
+            )
+            assert collect(bus, 3, until=lambda f: f[0] == 0x43B)[-1:] == [
+                (0x43B, bytes.fromhex("0A CB 00"))
+            ]
+            bus.send(
+                can.Message(
+                    arbitration_id=0x43C, data=bytes.fromhex("0A 0E 03 01 01"), is_extended_id=False
+                )
+            )
+            assert collect(bus, 3, until=lambda f: f[0] == 0x43B)[-1:] == [
+                (0x43B, bytes.fromhex("0A 8E 07"))
+            ]  # MAC ID 7
             assert newcomer.interrupt() == 0, newcomer.log()
         finally:
             newcomer.stop()
@@ -384,26 +551,46 @@ def restart_interface() -> None:
     time.sleep(0.2)
 
 
-@pytest.mark.parametrize("loop", ["asyncio", "auto"])  # auto: uvloop, which once left the front deaf (busrx)
+@pytest.mark.parametrize(
+    "loop", ["asyncio", "auto"]
+)  # auto: uvloop, which once left the front deaf (busrx)
 def test_the_front_hears_the_bus_again_after_the_interface_restarts(tmp_path, loop):
     """``ip link set can0 down`` / ``up``, as when an interface's bit rate is changed (SocketCAN sets it
     only while the interface is down) or an adapter recovers: the running front hears the bus again.
     Checked with a duplicate MAC ID request from another node, which an online node answers whatever
     its connections. Its own gateway (the I-7241D example, MAC 1), after the others have stopped, on
     each ``--loop``."""
-    gateway = GatewayProcess(tmp_path, I7241D_EXAMPLE, I7241D_MAC, "--set", f"fronts.dnet.channel={CHANNEL}",
-                             "--set", "fronts.dnet.dup_mac_timeout_ms=50", "--set", f"gateway.state_dir={tmp_path / 'state'}",
-                             "--loop", loop)
+    gateway = GatewayProcess(
+        tmp_path,
+        I7241D_EXAMPLE,
+        I7241D_MAC,
+        "--set",
+        f"fronts.dnet.channel={CHANNEL}",
+        "--set",
+        "fronts.dnet.dup_mac_timeout_ms=50",
+        "--set",
+        f"gateway.state_dir={tmp_path / 'state'}",
+        "--loop",
+        loop,
+    )
     dup_mac = 0x400 | I7241D_MAC << 3 | 7
     gateway.start()
     try:
         assert wait_online([gateway], 30), gateway.log()
         restart_interface()
         with can.Bus(interface="socketcan", channel=CHANNEL) as bus:
-            bus.send(can.Message(arbitration_id=dup_mac, data=bytes.fromhex("00 23 03 D2 04 00 00"), is_extended_id=False))
+            bus.send(
+                can.Message(
+                    arbitration_id=dup_mac,
+                    data=bytes.fromhex("00 23 03 D2 04 00 00"),
+                    is_extended_id=False,
+                )
+            )
             seen = collect(bus, 2, until=lambda f: f[0] == dup_mac)
         assert gateway.proc.poll() is None, gateway.log()
-        assert seen[-1:] == [(dup_mac, bytes.fromhex("80 00 00 01 00 00 00"))], gateway.log()[-2000:]  # vendor 0, serial 1
+        assert seen[-1:] == [(dup_mac, bytes.fromhex("80 00 00 01 00 00 00"))], gateway.log()[
+            -2000:
+        ]  # vendor 0, serial 1
         assert "CAN receive failed" in gateway.log()  # it did see the interface go down
         assert gateway.interrupt() == 0, gateway.log()[-3000:]
     finally:

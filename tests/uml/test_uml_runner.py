@@ -21,17 +21,25 @@ pytestmark = pytest.mark.skipif(
 )
 
 
-def run(*command: str, timeout_s: int | None = None, tmpdir: Path | None = None) -> subprocess.CompletedProcess:
+def run(
+    *command: str, timeout_s: int | None = None, tmpdir: Path | None = None
+) -> subprocess.CompletedProcess:
     env = dict(os.environ)
     if tmpdir is not None:
         env["TMPDIR"] = str(tmpdir)  # the script's work directory (and the guest's memory) go here
     if timeout_s is not None:
         env["FIELDGATE_UML_TIMEOUT"] = str(timeout_s)
-    return subprocess.run([str(RUN), *command], capture_output=True, text=True, env=env, timeout=120)
+    return subprocess.run(
+        [str(RUN), *command], capture_output=True, text=True, env=env, timeout=120
+    )
 
 
 def test_command_output_exit_code_and_environment_come_back():
-    done = run("sh", "-c", 'echo "on $(cat /sys/class/net/vcan0/type) as $FIELDGATE_TEST_CAN in $PWD"; exit 7')
+    done = run(
+        "sh",
+        "-c",
+        'echo "on $(cat /sys/class/net/vcan0/type) as $FIELDGATE_TEST_CAN in $PWD"; exit 7',
+    )
     assert done.returncode == 7, done.stderr
     # ARPHRD_CAN = 280: vcan0 is a real CAN device in the guest
     assert f"on 280 as socketcan:vcan0 in {REPO}" in done.stdout

@@ -79,9 +79,10 @@ def test_frames_cross_between_two_processes_on_vcan0():
 
 
 def test_socketcan_does_not_echo_own_frames_unless_asked():
-    with can.Bus(interface="socketcan", channel=CHANNEL) as quiet, can.Bus(
-        interface="socketcan", channel=CHANNEL, receive_own_messages=True
-    ) as loud:
+    with (
+        can.Bus(interface="socketcan", channel=CHANNEL) as quiet,
+        can.Bus(interface="socketcan", channel=CHANNEL, receive_own_messages=True) as loud,
+    ):
         quiet.send(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False))
         assert _recv_id(loud, 0x123).data == b"\x01"
         assert quiet.recv(0.2) is None
@@ -91,13 +92,20 @@ def test_socketcan_does_not_echo_own_frames_unless_asked():
 
 
 def test_kernel_filters_apply_on_vcan0():
-    with can.Bus(interface="socketcan", channel=CHANNEL) as tx, can.Bus(
-        interface="socketcan",
-        channel=CHANNEL,
-        can_filters=[{"can_id": 0x7E4, "can_mask": 0x7FF, "extended": False}],
-    ) as rx:
+    with (
+        can.Bus(interface="socketcan", channel=CHANNEL) as tx,
+        can.Bus(
+            interface="socketcan",
+            channel=CHANNEL,
+            can_filters=[{"can_id": 0x7E4, "can_mask": 0x7FF, "extended": False}],
+        ) as rx,
+    ):
         tx.send(can.Message(arbitration_id=0x7E5, data=bytes(8), is_extended_id=False))
-        tx.send(can.Message(arbitration_id=0x7E4, data=bytes([0x5E, 5]) + bytes(6), is_extended_id=False))
+        tx.send(
+            can.Message(
+                arbitration_id=0x7E4, data=bytes([0x5E, 5]) + bytes(6), is_extended_id=False
+            )
+        )
         msg = rx.recv(2.0)
         assert msg is not None and msg.arbitration_id == 0x7E4
         assert rx.recv(0.2) is None
@@ -117,7 +125,10 @@ async def test_socketcan_is_read_by_the_event_loop_without_a_thread():
         if len(got) == 50:
             done.set()
 
-    with can.Bus(interface="socketcan", channel=CHANNEL) as rx, can.Bus(interface="socketcan", channel=CHANNEL) as tx:
+    with (
+        can.Bus(interface="socketcan", channel=CHANNEL) as rx,
+        can.Bus(interface="socketcan", channel=CHANNEL) as tx,
+    ):
         threads_before = threading.active_count()
         receiver = start_receiver(rx, asyncio.get_running_loop(), on_message)
         assert receiver.mode == "add-reader"
@@ -136,11 +147,23 @@ CANOPEN_TESTS = REPO / "tests" / "canopen"
 def test_canopen_integration_suite_passes_over_vcan0_with_gateway_as_a_process():
     """The same integration tests as in-process, over vcan0, the gateway run from the CLI."""
     # Every test module that starts its device through the shared DUT fixture.
-    selected = sorted(str(p) for p in CANOPEN_TESTS.glob("test_*.py") if "canopen_dut" in p.read_text())
+    selected = sorted(
+        str(p) for p in CANOPEN_TESTS.glob("test_*.py") if "canopen_dut" in p.read_text()
+    )
     assert len(selected) >= 2, f"the CANopen integration tests in {CANOPEN_TESTS} are missing"
     env = dict(os.environ, FIELDGATE_TEST_CAN=f"socketcan:{CHANNEL}")
     proc = subprocess.run(
-        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-m", "not uml", *selected],
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-m",
+            "not uml",
+            *selected,
+        ],
         cwd=REPO,
         env=env,
         capture_output=True,

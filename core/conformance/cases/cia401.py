@@ -50,7 +50,11 @@ def wait_value(ctx: Context, index: int, sub: int, want: int, what: str) -> None
         if seen == want:
             return
         time.sleep(0.02)
-    raise Fail(what, expected=f"0x{index:04X}:{sub} = {want:#x}", seen=f"{seen:#x}" if isinstance(seen, int) else str(seen))
+    raise Fail(
+        what,
+        expected=f"0x{index:04X}:{sub} = {want:#x}",
+        seen=f"{seen:#x}" if isinstance(seen, int) else str(seen),
+    )
 
 
 @case("cia401", "device_type", "0x1000 = 0x0191 with bits 16-19 telling which of DI/DO/AI/AO exist")
@@ -58,10 +62,18 @@ def device_type(ctx: Context) -> None:
     value = require_401(ctx)
     for index, (name, bit) in IO.items():
         if bool(value >> bit & 1) != ctx.device.has(index):
-            raise Fail(f"0x1000 bit {bit} ({name}) disagrees with the EDS", expected=f"bit {bit} = {int(ctx.device.has(index))}", seen=f"0x{value:08X}")
+            raise Fail(
+                f"0x1000 bit {bit} ({name}) disagrees with the EDS",
+                expected=f"bit {bit} = {int(ctx.device.has(index))}",
+                seen=f"0x{value:08X}",
+            )
 
 
-@case("cia401", "objects", "0x6000/0x6200/0x6401/0x6411 counts and types; error-mode arrays match their outputs")
+@case(
+    "cia401",
+    "objects",
+    "0x6000/0x6200/0x6401/0x6411 counts and types; error-mode arrays match their outputs",
+)
 def objects(ctx: Context) -> None:
     require_401(ctx)
     dev = ctx.device
@@ -74,16 +86,28 @@ def objects(ctx: Context) -> None:
             raw = dev.upload(index, sub)
             size = 1 if index in (0x6000, 0x6200) else 2
             if len(raw) != size:
-                raise Fail(f"0x{index:04X}:{sub} ({name}) size", expected=f"{size} bytes", seen=f"{len(raw)} bytes")
+                raise Fail(
+                    f"0x{index:04X}:{sub} ({name}) size",
+                    expected=f"{size} bytes",
+                    seen=f"{len(raw)} bytes",
+                )
     for mode, value, out in ((0x6206, 0x6207, 0x6200), (0x6443, 0x6444, 0x6411)):
         for index in (mode, value):
             if dev.has(index) and out in counts and dev.read(index, 0) != counts[out]:
-                raise Fail(f"0x{index:04X}:0 must equal the output count 0x{out:04X}:0", expected=str(counts[out]), seen=str(dev.read(index, 0)))
+                raise Fail(
+                    f"0x{index:04X}:0 must equal the output count 0x{out:04X}:0",
+                    expected=str(counts[out]),
+                    seen=str(dev.read(index, 0)),
+                )
     if not counts:
         raise Skip("EDS lists none of 0x6000/0x6200/0x6401/0x6411")
 
 
-@case("cia401", "default_mapping", "CiA 401 default PDOs: TPDO1 = 0x6000, RPDO1 = 0x6200, TPDO2 = 0x6401, RPDO2 = 0x6411")
+@case(
+    "cia401",
+    "default_mapping",
+    "CiA 401 default PDOs: TPDO1 = 0x6000, RPDO1 = 0x6200, TPDO2 = 0x6401, RPDO2 = 0x6411",
+)
 def default_mapping(ctx: Context) -> None:
     require_401(ctx)
     dev = ctx.device
@@ -94,7 +118,11 @@ def default_mapping(ctx: Context) -> None:
         count = dev.read(mapping, 0)
         first = dev.read(mapping, 1) if count else 0
         if first >> 8 != index << 8 | 1:
-            raise Fail(f"0x{mapping:04X}:1", expected=f"0x{index:04X}:01 mapped first", seen=f"0x{first:08X} (sub 0 = {count})")
+            raise Fail(
+                f"0x{mapping:04X}:1",
+                expected=f"0x{index:04X}:01 mapped first",
+                seen=f"0x{first:08X} (sub 0 = {count})",
+            )
         checked += 1
     if not checked:
         raise Skip("EDS lists no CiA 401 I/O object with its default PDO")
@@ -113,7 +141,11 @@ def do_to_di_sdo(ctx: Context) -> None:
         wait_value(ctx, 0x6000, 1, value, "DI after writing DO over SDO")
 
 
-@case("cia401", "rpdo_to_tpdo", "RPDO1 (DO) comes back as TPDO1 (DI) through the loop, type 255 on change")
+@case(
+    "cia401",
+    "rpdo_to_tpdo",
+    "RPDO1 (DO) comes back as TPDO1 (DI) through the loop, type 255 on change",
+)
 def rpdo_to_tpdo(ctx: Context) -> None:
     require_401(ctx)
     require_loopback(ctx)
@@ -126,9 +158,16 @@ def rpdo_to_tpdo(ctx: Context) -> None:
     deadline = time.monotonic() + ctx.timing.bootup
     while time.monotonic() < deadline:
         frame = dev.link.expect(tpdo.cob & 0x7FF, deadline - time.monotonic())
-        if frame is not None and frame.data[: min(len(pattern), tpdo.length)] == pattern[: tpdo.length]:
+        if (
+            frame is not None
+            and frame.data[: min(len(pattern), tpdo.length)] == pattern[: tpdo.length]
+        ):
             return
-    raise Fail("TPDO1 never carried the looped-back DO pattern", expected=f"{tpdo.cob & 0x7FF:03X} [{tpdo.length}] {pattern.hex(' ')}", seen="see frames")
+    raise Fail(
+        "TPDO1 never carried the looped-back DO pattern",
+        expected=f"{tpdo.cob & 0x7FF:03X} [{tpdo.length}] {pattern.hex(' ')}",
+        seen="see frames",
+    )
 
 
 @case("cia401", "ao_to_ai", "an AO written by RPDO2 shows on the looped-back AI (0x6401)")
@@ -150,7 +189,17 @@ def ao_to_ai(ctx: Context) -> None:
     wait_value(ctx, 0x6401, 1, 0x1234, "AI after RPDO2 wrote AO 0x1234")
 
 
-def _error_mode(ctx: Context, mode_idx: int, value_idx: int, out_idx: int, in_idx: int, mode, err_value, before, after) -> None:
+def _error_mode(
+    ctx: Context,
+    mode_idx: int,
+    value_idx: int,
+    out_idx: int,
+    in_idx: int,
+    mode,
+    err_value,
+    before,
+    after,
+) -> None:
     require_401(ctx)
     require_loopback(ctx)
     dev = ctx.device
@@ -174,16 +223,26 @@ def _error_mode(ctx: Context, mode_idx: int, value_idx: int, out_idx: int, in_id
     wait_value(ctx, in_idx, 1, after, what)
 
 
-@case("cia401", "error_mode_do", "0x6206/0x6207: on a communication error masked DO bits take their error value")
+@case(
+    "cia401",
+    "error_mode_do",
+    "0x6206/0x6207: on a communication error masked DO bits take their error value",
+)
 def error_mode_do(ctx: Context) -> None:
     _error_mode(ctx, 0x6206, 0x6207, 0x6200, 0x6000, 0x31, 0xF8, 0xFF, 0xFE)
 
 
-@case("cia401", "error_mode_hold", "0x6206 = 0: on a communication error the DO bits keep their value")
+@case(
+    "cia401", "error_mode_hold", "0x6206 = 0: on a communication error the DO bits keep their value"
+)
 def error_mode_hold(ctx: Context) -> None:
     _error_mode(ctx, 0x6206, 0x6207, 0x6200, 0x6000, 0x00, 0xFF, 0xA5, 0xA5)
 
 
-@case("cia401", "error_mode_ao", "0x6443/0x6444: on a communication error the AO takes its error value")
+@case(
+    "cia401",
+    "error_mode_ao",
+    "0x6443/0x6444: on a communication error the AO takes its error value",
+)
 def error_mode_ao(ctx: Context) -> None:
     _error_mode(ctx, 0x6443, 0x6444, 0x6411, 0x6401, 1, 0x0100, 0x0777, 0x0100)

@@ -13,7 +13,16 @@ from ..framework import Context, Fail, Skip
 
 EMCY_LENGTH_ERROR = 0x8210
 EMCY_LIFE_GUARD = 0x8130
-RESTRICTED = [(0x000, 0x000), (0x001, 0x07F), (0x101, 0x180), (0x581, 0x5FF), (0x601, 0x67F), (0x6E0, 0x6FF), (0x701, 0x77F), (0x780, 0x7FF)]
+RESTRICTED = [
+    (0x000, 0x000),
+    (0x001, 0x07F),
+    (0x101, 0x180),
+    (0x581, 0x5FF),
+    (0x601, 0x67F),
+    (0x6E0, 0x6FF),
+    (0x701, 0x77F),
+    (0x780, 0x7FF),
+]
 
 
 def restricted(cob: int) -> bool:
@@ -30,7 +39,11 @@ def signed(var: ODVariable) -> bool:
 
 
 def int_default(var: ODVariable | None) -> int | None:
-    return var.default if var is not None and isinstance(var.default, int) and not isinstance(var.default, bool) else None
+    return (
+        var.default
+        if var is not None and isinstance(var.default, int) and not isinstance(var.default, bool)
+        else None
+    )
 
 
 def rw_ints(dev: Device, lo: int, hi: int, avoid: tuple[int, ...] = ()) -> list[ODVariable]:
@@ -41,7 +54,12 @@ def rw_ints(dev: Device, lo: int, hi: int, avoid: tuple[int, ...] = ()) -> list[
             continue
         if var.access_type not in ("rw", "rww", "rwr") or is_count(var):
             continue
-        if int_default(var) is not None and var.fixed_size and len(var) <= 32 and var.data_type not in (0x0001, 0x0008):
+        if (
+            int_default(var) is not None
+            and var.fixed_size
+            and len(var) <= 32
+            and var.data_type not in (0x0001, 0x0008)
+        ):
             out.append(var)
     return out
 
@@ -68,6 +86,7 @@ def expect_emcy(ctx: Context, code: int | None, timeout: float | None = None):
     """The next EMCY with ``code`` (None: any, -1: any but an error reset 0x0000)."""
     dev = ctx.device
     cob = emcy_cob(dev)
+
     def wanted(f) -> bool:
         if f.cob != cob or f.rtr:
             return False
@@ -240,7 +259,11 @@ class LengthError:
 
 def require_abort(exc: SdoAbort, codes: tuple[int, ...], what: str) -> None:
     if exc.code not in codes:
-        raise Fail(f"{what}: wrong abort code", expected=" or ".join(abort_text(c) for c in codes), seen=abort_text(exc.code))
+        raise Fail(
+            f"{what}: wrong abort code",
+            expected=" or ".join(abort_text(c) for c in codes),
+            seen=abort_text(exc.code),
+        )
 
 
 # -- errors that end -----------------------------------------------------------------------
@@ -280,18 +303,35 @@ def expect_error_reset(ctx: Context, mark: int, after, what: str, before: int | 
     for _, direction, frame in link.log[mark:]:
         if not started:
             started = after(direction, frame)
-        elif direction == "←" and frame.cob == cob and not frame.rtr and emcy_code(frame) == EMCY_ERROR_RESET:
+        elif (
+            direction == "←"
+            and frame.cob == cob
+            and not frame.rtr
+            and emcy_code(frame) == EMCY_ERROR_RESET
+        ):
             found = frame
             break
     if found is None and started:
         found = expect_emcy(ctx, EMCY_ERROR_RESET)
     if found is None:
-        raise Fail(f"the error did not end when {what}", expected="EMCY 00 00 <error register left> ... (error reset)", seen="no error-reset EMCY")
+        raise Fail(
+            f"the error did not end when {what}",
+            expected="EMCY 00 00 <error register left> ... (error reset)",
+            seen="no error-reset EMCY",
+        )
     register = error_register(ctx)
     if register is None:
         return found
     if len(found.data) < 3 or found.data[2] != register:
-        raise Fail(f"error-reset EMCY after {what}: byte 2 must be the error register left", expected=f"00 00 {register:02X} ... (0x1001 = 0x{register:02X})", seen=str(found))
+        raise Fail(
+            f"error-reset EMCY after {what}: byte 2 must be the error register left",
+            expected=f"00 00 {register:02X} ... (0x1001 = 0x{register:02X})",
+            seen=str(found),
+        )
     if register & REGISTER_COMMUNICATION or (before is not None and register != before):
-        raise Fail(f"0x1001 after {what}", expected=f"0x{before if before is not None else 0:02X} (the communication bit 4 cleared)", seen=f"0x{register:02X}")
+        raise Fail(
+            f"0x1001 after {what}",
+            expected=f"0x{before if before is not None else 0:02X} (the communication bit 4 cleared)",
+            seen=f"0x{register:02X}",
+        )
     return found

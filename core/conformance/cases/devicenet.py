@@ -6,17 +6,38 @@ from __future__ import annotations
 
 import time
 
-from ..dnet import (ALLOCATE, CHOICE_EXPLICIT, CHOICE_POLL, G2_DUP_MAC, GET, RESET, SET, CipErrorSeen, DnetDevice,
-                    status_text)
+from ..dnet import (
+    ALLOCATE,
+    CHOICE_EXPLICIT,
+    CHOICE_POLL,
+    G2_DUP_MAC,
+    GET,
+    RESET,
+    SET,
+    CipErrorSeen,
+    DnetDevice,
+    status_text,
+)
 from ..framework import Context, Fail, Skip, case
 
 P = "devicenet"
 IDENTITY, DEVICENET, CONNECTION = 0x01, 0x03, 0x05
 POLL_INSTANCE = 2
 STATE_ESTABLISHED, STATE_TIMED_OUT = 3, 4
-TESTER_VENDOR, TESTER_SERIAL = 0xFFFE, 0x7E57C0DE  # the tester's "own" identity in a duplicate MAC ID request
+TESTER_VENDOR, TESTER_SERIAL = (
+    0xFFFE,
+    0x7E57C0DE,
+)  # the tester's "own" identity in a duplicate MAC ID request
 IDENTITY_SIZES = {1: 2, 2: 2, 3: 2, 4: 2, 5: 2, 6: 4}
-IDENTITY_NAMES = {1: "vendor ID", 2: "device type", 3: "product code", 4: "revision", 5: "status", 6: "serial number", 7: "product name"}
+IDENTITY_NAMES = {
+    1: "vendor ID",
+    2: "device type",
+    3: "product code",
+    4: "revision",
+    5: "status",
+    6: "serial number",
+    7: "product name",
+}
 
 
 def dev(ctx: Context) -> DnetDevice:
@@ -31,7 +52,10 @@ def explicit(ctx: Context) -> DnetDevice:
 
 def short_string(data: bytes, what: str) -> str:
     if not data or data[0] != len(data) - 1:
-        raise Fail(f"{what} is not a SHORT_STRING (length byte + characters)", seen=data.hex(" ").upper() or "empty")
+        raise Fail(
+            f"{what} is not a SHORT_STRING (length byte + characters)",
+            seen=data.hex(" ").upper() or "empty",
+        )
     return data[1:].decode("latin-1")
 
 
@@ -47,104 +71,195 @@ def allocate_poll(d: DnetDevice) -> None:
         d.allocate(CHOICE_EXPLICIT | CHOICE_POLL)
     except CipErrorSeen as err:
         if err.general in (0x02, 0x09):
-            raise Skip(f"the device refuses a poll connection ({status_text(err.general)}): poll not supported") from None
-        raise Fail("Allocate explicit + poll refused", expected="[hdr] CB 00", seen=str(err.frame)) from None
+            raise Skip(
+                f"the device refuses a poll connection ({status_text(err.general)}): poll not supported"
+            ) from None
+        raise Fail(
+            "Allocate explicit + poll refused", expected="[hdr] CB 00", seen=str(err.frame)
+        ) from None
 
 
 def set_epr(d: DnetDevice, instance: int, ms: int) -> int:
     granted = d.set(CONNECTION, instance, 9, ms.to_bytes(2, "little"))
     value = int.from_bytes(granted, "little") if len(granted) == 2 else None
     if value is None or value < ms:
-        raise Fail("Set expected packet rate: the response must carry the granted rate (≥ the requested one)", expected=f"2 bytes ≥ {ms}", seen=granted.hex(" ").upper() or "empty")
+        raise Fail(
+            "Set expected packet rate: the response must carry the granted rate (≥ the requested one)",
+            expected=f"2 bytes ≥ {ms}",
+            seen=granted.hex(" ").upper() or "empty",
+        )
     return value
 
 
-@case(P, "dup_mac_answer", "a duplicate MAC ID request for the device's MAC is answered with a response (vendor, serial)")
+@case(
+    P,
+    "dup_mac_answer",
+    "a duplicate MAC ID request for the device's MAC is answered with a response (vendor, serial)",
+)
 def dup_mac_answer(ctx: Context) -> None:
     d = dev(ctx)
-    request = bytes([0x00]) + TESTER_VENDOR.to_bytes(2, "little") + TESTER_SERIAL.to_bytes(4, "little")
+    request = (
+        bytes([0x00]) + TESTER_VENDOR.to_bytes(2, "little") + TESTER_SERIAL.to_bytes(4, "little")
+    )
     d.link.flush()
     d.link.send(d.g2(G2_DUP_MAC), request)
     frame = d.link.expect(d.g2(G2_DUP_MAC), ctx.timing.response)
     if frame is None:
-        raise Fail("no duplicate MAC ID response", expected=f"{d.g2(G2_DUP_MAC):03X} [7] 80 <vendor> <serial>", seen="nothing")
+        raise Fail(
+            "no duplicate MAC ID response",
+            expected=f"{d.g2(G2_DUP_MAC):03X} [7] 80 <vendor> <serial>",
+            seen="nothing",
+        )
     if len(frame.data) != 7 or not frame.data[0] & 0x80:
-        raise Fail("malformed duplicate MAC ID response", expected="DLC 7, byte 0 bit 7 set (response)", seen=str(frame))
+        raise Fail(
+            "malformed duplicate MAC ID response",
+            expected="DLC 7, byte 0 bit 7 set (response)",
+            seen=str(frame),
+        )
     identity = explicit(ctx)
     vendor, serial = identity.get(IDENTITY, 1, 1), identity.get(IDENTITY, 1, 6)
     if frame.data[1:3] != vendor or frame.data[3:7] != serial:
-        raise Fail("duplicate MAC ID response does not carry the Identity vendor ID and serial number", expected=(vendor + serial).hex(" ").upper(), seen=str(frame))
+        raise Fail(
+            "duplicate MAC ID response does not carry the Identity vendor ID and serial number",
+            expected=(vendor + serial).hex(" ").upper(),
+            seen=str(frame),
+        )
 
 
-@case(P, "dup_mac_at_reset", "Identity Reset: the device restarts with two duplicate MAC ID requests, then is online again")
+@case(
+    P,
+    "dup_mac_at_reset",
+    "Identity Reset: the device restarts with two duplicate MAC ID requests, then is online again",
+)
 def dup_mac_at_reset(ctx: Context) -> None:
     d = explicit(ctx)
     reply = d.request(bytes([RESET, IDENTITY, 1]))
     if reply is None:
         raise Fail("no response to Identity Reset", expected="[hdr] 85", seen="nothing")
     if reply.service == 0x94 and reply.data[:1] == b"\x08":
-        raise Skip("the device does not support the Identity Reset service (0x08): the power-up check cannot be provoked over the bus")
+        raise Skip(
+            "the device does not support the Identity Reset service (0x08): the power-up check cannot be provoked over the bus"
+        )
     if reply.service != RESET | 0x80:
-        raise Fail("wrong response to Identity Reset", expected="[hdr] 85", seen=str(reply.frames[-1]))
+        raise Fail(
+            "wrong response to Identity Reset", expected="[hdr] 85", seen=str(reply.frames[-1])
+        )
     requests = []
-    deadline = time.monotonic() + ctx.timing.bootup + 2.5  # DeviceNet: one second after each request
+    deadline = (
+        time.monotonic() + ctx.timing.bootup + 2.5
+    )  # DeviceNet: one second after each request
     while len(requests) < 2 and time.monotonic() < deadline:
         frame = d.link.expect(d.g2(G2_DUP_MAC), deadline - time.monotonic())
         if frame is not None:
             if len(frame.data) != 7 or frame.data[0] & 0x80:
-                raise Fail("malformed duplicate MAC ID request", expected="DLC 7, byte 0 = 00 (request)", seen=str(frame))
+                raise Fail(
+                    "malformed duplicate MAC ID request",
+                    expected="DLC 7, byte 0 = 00 (request)",
+                    seen=str(frame),
+                )
             requests.append(frame)
     if len(requests) < 2:
-        raise Fail("the restart did not send two duplicate MAC ID requests", expected=f"2 × {d.g2(G2_DUP_MAC):03X} [7] 00 ...", seen=f"{len(requests)}")
+        raise Fail(
+            "the restart did not send two duplicate MAC ID requests",
+            expected=f"2 × {d.g2(G2_DUP_MAC):03X} [7] 00 ...",
+            seen=f"{len(requests)}",
+        )
     if not d.wait_online(ctx.timing.bootup + 1.5):
-        raise Fail("the device is not online again after its duplicate MAC ID check", expected="a response to Allocate", seen="nothing")
+        raise Fail(
+            "the device is not online again after its duplicate MAC ID check",
+            expected="a response to Allocate",
+            seen="nothing",
+        )
 
 
-@case(P, "allocate_explicit", "Allocate explicit through the Group 2 Only unconnected port: [master MAC] CB <body format>")
+@case(
+    P,
+    "allocate_explicit",
+    "Allocate explicit through the Group 2 Only unconnected port: [master MAC] CB <body format>",
+)
 def allocate_explicit(ctx: Context) -> None:
     d = dev(ctx)
     frame = d.allocate(CHOICE_EXPLICIT)
     data = frame.data
     if len(data) != 3 or data[0] != d.master_mac or data[2] > 0x03:
-        raise Fail("wrong Allocate response", expected=f"{d.g2(3):03X} [3] {d.master_mac:02X} CB <0..3>", seen=str(frame))
+        raise Fail(
+            "wrong Allocate response",
+            expected=f"{d.g2(3):03X} [3] {d.master_mac:02X} CB <0..3>",
+            seen=str(frame),
+        )
     choice = d.get(DEVICENET, 1, 5)
     if len(choice) != 2 or not choice[0] & CHOICE_EXPLICIT or choice[1] != d.master_mac:
-        raise Fail("DeviceNet object attribute 5 does not show the allocation", expected=f"choice with bit 0, master {d.master_mac:02X}", seen=choice.hex(" ").upper())
+        raise Fail(
+            "DeviceNet object attribute 5 does not show the allocation",
+            expected=f"choice with bit 0, master {d.master_mac:02X}",
+            seen=choice.hex(" ").upper(),
+        )
 
 
-@case(P, "allocate_conflict", "a second Allocate of the same connection, or by another master, is refused (0x0B / 0x0C)")
+@case(
+    P,
+    "allocate_conflict",
+    "a second Allocate of the same connection, or by another master, is refused (0x0B / 0x0C)",
+)
 def allocate_conflict(ctx: Context) -> None:
     d = explicit(ctx)
-    for choice, master, codes, what in ((CHOICE_EXPLICIT, None, (0x0B,), "explicit allocated twice"),
-                                        (CHOICE_EXPLICIT, (d.master_mac + 1) & 0x3F, (0x0C,), "Allocate by another master")):
+    for choice, master, codes, what in (
+        (CHOICE_EXPLICIT, None, (0x0B,), "explicit allocated twice"),
+        (CHOICE_EXPLICIT, (d.master_mac + 1) & 0x3F, (0x0C,), "Allocate by another master"),
+    ):
         try:
             frame = d.allocate(choice, master=master)
         except CipErrorSeen as err:
             if err.general not in codes:
-                raise Fail(f"{what}: wrong general status", expected=" or ".join(status_text(c) for c in codes), seen=str(err.frame)) from None
+                raise Fail(
+                    f"{what}: wrong general status",
+                    expected=" or ".join(status_text(c) for c in codes),
+                    seen=str(err.frame),
+                ) from None
             continue
         raise Fail(f"{what}: accepted", expected="an error response [hdr] CB→94", seen=str(frame))
 
 
-@case(P, "allocate_validation", "invalid Allocate choices are refused 09/02, other services on the unconnected port 02/03")
+@case(
+    P,
+    "allocate_validation",
+    "invalid Allocate choices are refused 09/02, other services on the unconnected port 02/03",
+)
 def allocate_validation(ctx: Context) -> None:
     d = dev(ctx)
-    for choice, what in ((0x00, "Allocate with choice 0"), (0x41, "ack suppression without COS or cyclic"),
-                         (CHOICE_POLL, "poll without the explicit connection")):
+    for choice, what in (
+        (0x00, "Allocate with choice 0"),
+        (0x41, "ack suppression without COS or cyclic"),
+        (CHOICE_POLL, "poll without the explicit connection"),
+    ):
         d.expect_unconnected_error(ALLOCATE, bytes([choice, d.master_mac]), (0x09, 0x02), what)
-    d.expect_unconnected_error(GET, bytes([1]), (0x02, 0x03), "Get_Attribute_Single on the Group 2 Only unconnected port")
+    d.expect_unconnected_error(
+        GET, bytes([1]), (0x02, 0x03), "Get_Attribute_Single on the Group 2 Only unconnected port"
+    )
 
 
-@case(P, "identity", "Identity (class 1 instance 1): vendor, device type, product code, revision, status, serial, product name")
+@case(
+    P,
+    "identity",
+    "Identity (class 1 instance 1): vendor, device type, product code, revision, status, serial, product name",
+)
 def identity(ctx: Context) -> None:
     d = explicit(ctx)
     for attribute, size in IDENTITY_SIZES.items():
         data = d.get(IDENTITY, 1, attribute)
         if len(data) != size:
-            raise Fail(f"Identity attribute {attribute} ({IDENTITY_NAMES[attribute]}) has the wrong size", expected=f"{size} bytes", seen=data.hex(" ").upper() or "empty")
+            raise Fail(
+                f"Identity attribute {attribute} ({IDENTITY_NAMES[attribute]}) has the wrong size",
+                expected=f"{size} bytes",
+                seen=data.hex(" ").upper() or "empty",
+            )
     major, minor = d.get(IDENTITY, 1, 4)
     if not 1 <= major <= 127:
-        raise Fail("Identity revision: major revision out of range", expected="1..127", seen=f"{major}.{minor}")
+        raise Fail(
+            "Identity revision: major revision out of range",
+            expected="1..127",
+            seen=f"{major}.{minor}",
+        )
     name = short_string(d.get(IDENTITY, 1, 7), "Identity attribute 7 (product name)")
     if not 1 <= len(name) <= 32:
         raise Fail("product name length", expected="1..32 characters", seen=repr(name))
@@ -158,7 +273,11 @@ def identity_singles(d: DnetDevice) -> bytes:
     return b"".join(d.get(IDENTITY, 1, attribute) for attribute in IDENTITY_NAMES)
 
 
-@case(P, "identity_get_all", "Get_Attributes_All (0x01) of Identity instance 1 answers attributes 1-7 in the specification's order, equal to their Get_Attribute_Single answers (CIP Vol. 1 §5-2 Identity object)")
+@case(
+    P,
+    "identity_get_all",
+    "Get_Attributes_All (0x01) of Identity instance 1 answers attributes 1-7 in the specification's order, equal to their Get_Attribute_Single answers (CIP Vol. 1 §5-2 Identity object)",
+)
 def identity_get_all(ctx: Context) -> None:
     """The response is vendor ID, device type, product code, revision (major, minor), status,
     serial number, product name (SHORT_STRING), nothing between them. Later CIP editions append
@@ -168,31 +287,57 @@ def identity_get_all(ctx: Context) -> None:
     d = explicit(ctx)
     before = identity_singles(d)
     try:
-        reply = d.call(GET_ATTRIBUTES_ALL, IDENTITY, 1, b"", "Get_Attributes_All of Identity instance 1")
+        reply = d.call(
+            GET_ATTRIBUTES_ALL, IDENTITY, 1, b"", "Get_Attributes_All of Identity instance 1"
+        )
     except CipErrorSeen as err:
         if err.general == 0x08:
-            raise Skip("the device does not offer Get_Attributes_All on the Identity object (answers 0x08)") from None
-        raise Fail("Get_Attributes_All of Identity instance 1 refused", expected="[hdr] 81 <attributes 1-7>", seen=str(err.frame)) from None
+            raise Skip(
+                "the device does not offer Get_Attributes_All on the Identity object (answers 0x08)"
+            ) from None
+        raise Fail(
+            "Get_Attributes_All of Identity instance 1 refused",
+            expected="[hdr] 81 <attributes 1-7>",
+            seen=str(err.frame),
+        ) from None
     after = identity_singles(d)
     answer = reply.data[: len(before)]
     if answer not in (before, after[: len(before)]) or len(reply.data) < len(before):
         names = ", ".join(IDENTITY_NAMES.values())
-        raise Fail(f"Get_Attributes_All does not answer {names} in this order", expected=before.hex(" ").upper(), seen=reply.data.hex(" ").upper() or "empty")
+        raise Fail(
+            f"Get_Attributes_All does not answer {names} in this order",
+            expected=before.hex(" ").upper(),
+            seen=reply.data.hex(" ").upper() or "empty",
+        )
 
 
-@case(P, "devicenet_object", "DeviceNet object (class 3 instance 1): MAC ID = the device's, baud rate code 0..2")
+@case(
+    P,
+    "devicenet_object",
+    "DeviceNet object (class 3 instance 1): MAC ID = the device's, baud rate code 0..2",
+)
 def devicenet_object(ctx: Context) -> None:
     d = explicit(ctx)
     mac, baud = d.get(DEVICENET, 1, 1), d.get(DEVICENET, 1, 2)
     if mac != bytes([d.mac_id]):
-        raise Fail("DeviceNet object attribute 1 (MAC ID)", expected=f"{d.mac_id:02X}", seen=mac.hex(" ").upper())
+        raise Fail(
+            "DeviceNet object attribute 1 (MAC ID)",
+            expected=f"{d.mac_id:02X}",
+            seen=mac.hex(" ").upper(),
+        )
     if len(baud) != 1 or baud[0] > 2:
-        raise Fail("DeviceNet object attribute 2 (baud rate)", expected="one byte 0 (125k), 1 (250k) or 2 (500k)", seen=baud.hex(" ").upper())
+        raise Fail(
+            "DeviceNet object attribute 2 (baud rate)",
+            expected="one byte 0 (125k), 1 (250k) or 2 (500k)",
+            seen=baud.hex(" ").upper(),
+        )
 
 
 @case(P, "error_unknown_service", "a service the object does not offer is refused with 0x08")
 def error_unknown_service(ctx: Context) -> None:
-    explicit(ctx).expect_error(bytes([0x06, IDENTITY, 1]), (0x08,), "Start (0x06) to the Identity object")
+    explicit(ctx).expect_error(
+        bytes([0x06, IDENTITY, 1]), (0x08,), "Start (0x06) to the Identity object"
+    )
 
 
 @case(P, "error_unknown_object", "an unknown class or instance is refused with 0x16 (or 0x05)")
@@ -204,28 +349,46 @@ def error_unknown_object(ctx: Context) -> None:
 
 @case(P, "error_unknown_attribute", "an unknown attribute is refused with 0x14")
 def error_unknown_attribute(ctx: Context) -> None:
-    explicit(ctx).expect_error(bytes([GET, IDENTITY, 1, 0x63]), (0x14,), "Get of Identity attribute 99")
+    explicit(ctx).expect_error(
+        bytes([GET, IDENTITY, 1, 0x63]), (0x14,), "Get of Identity attribute 99"
+    )
 
 
-@case(P, "error_read_only", "a Set of a read-only attribute (Identity vendor ID) is refused with 0x0E")
+@case(
+    P, "error_read_only", "a Set of a read-only attribute (Identity vendor ID) is refused with 0x0E"
+)
 def error_read_only(ctx: Context) -> None:
     d = explicit(ctx)
     vendor = d.get(IDENTITY, 1, 1)
     d.expect_error(bytes([SET, IDENTITY, 1, 1]) + vendor, (0x0E,), "Set of Identity vendor ID")
 
 
-@case(P, "fragmented_response", "a long attribute (product name) comes as acknowledged fragments: first, middle, last, counts in order")
+@case(
+    P,
+    "fragmented_response",
+    "a long attribute (product name) comes as acknowledged fragments: first, middle, last, counts in order",
+)
 def fragmented_response(ctx: Context) -> None:
     d = explicit(ctx)
     reply = d.call(GET, IDENTITY, 1, bytes([7]), "Get of the product name")
     if len(reply.frames) == 1:
-        raise Skip(f"the product name ({len(reply.data) - 1} characters) fits one frame: no long attribute to read")
+        raise Skip(
+            f"the product name ({len(reply.data) - 1} characters) fits one frame: no long attribute to read"
+        )
     name = short_string(reply.data, "the reassembled product name")
     if len(reply.frames) != (len(name) + 2 + 5) // 6:
-        raise Fail("fragment count", expected=f"{(len(name) + 2 + 5) // 6} fragments of 6 bytes", seen=f"{len(reply.frames)}")
+        raise Fail(
+            "fragment count",
+            expected=f"{(len(name) + 2 + 5) // 6} fragments of 6 bytes",
+            seen=f"{len(reply.frames)}",
+        )
 
 
-@case(P, "poll_io", "allocate poll, set its expected packet rate; a poll of the consumed size answers the produced size")
+@case(
+    P,
+    "poll_io",
+    "allocate poll, set its expected packet rate; a poll of the consumed size answers the produced size",
+)
 def poll_io(ctx: Context) -> None:
     d = dev(ctx)
     allocate_poll(d)
@@ -235,16 +398,32 @@ def poll_io(ctx: Context) -> None:
         raise Fail("expected packet rate does not read back as granted", expected=str(granted))
     state = d.get(CONNECTION, POLL_INSTANCE, 1)
     if state != bytes([STATE_ESTABLISHED]):
-        raise Fail("poll connection not Established after its EPR was set", expected="state 3", seen=state.hex())
+        raise Fail(
+            "poll connection not Established after its EPR was set",
+            expected="state 3",
+            seen=state.hex(),
+        )
     first = d.poll(bytes(consumed))  # all-zero outputs: the safe value
     if first is None:
-        raise Fail("no poll response", expected=f"{d.poll_response_id:03X} with {produced} bytes", seen="nothing")
+        raise Fail(
+            "no poll response",
+            expected=f"{d.poll_response_id:03X} with {produced} bytes",
+            seen="nothing",
+        )
     data = d.poll_fragments(first, produced)
     if len(data) != produced:
-        raise Fail("poll response has the wrong size", expected=f"{produced} bytes (connection attribute 7)", seen=f"{len(data)} bytes")
+        raise Fail(
+            "poll response has the wrong size",
+            expected=f"{produced} bytes (connection attribute 7)",
+            seen=f"{len(data)} bytes",
+        )
 
 
-@case(P, "loopback_poll", "--loopback: outputs sent by poll come back in the poll response (same layout both ways)")
+@case(
+    P,
+    "loopback_poll",
+    "--loopback: outputs sent by poll come back in the poll response (same layout both ways)",
+)
 def loopback_poll(ctx: Context) -> None:
     if not ctx.options.loopback:
         raise Skip("needs --loopback (a bench whose outputs are wired to its inputs)")
@@ -252,7 +431,9 @@ def loopback_poll(ctx: Context) -> None:
     allocate_poll(d)
     produced, consumed = io_sizes(d, POLL_INSTANCE)
     if produced != consumed or not consumed:
-        raise Skip(f"produced ({produced} bytes) and consumed ({consumed} bytes) sizes differ: the layout cannot be compared")
+        raise Skip(
+            f"produced ({produced} bytes) and consumed ({consumed} bytes) sizes differ: the layout cannot be compared"
+        )
     set_epr(d, POLL_INSTANCE, 1000)
     pattern = bytes((0xA5, 0x5A, 0x3C)[i % 3] for i in range(consumed))
     try:
@@ -263,12 +444,20 @@ def loopback_poll(ctx: Context) -> None:
             seen = d.poll_fragments(first, produced) if first is not None else b""
             time.sleep(0.02)
         if seen != pattern:
-            raise Fail("the outputs did not come back through the loopback", expected=pattern.hex(" ").upper(), seen=seen.hex(" ").upper() or "no poll response")
+            raise Fail(
+                "the outputs did not come back through the loopback",
+                expected=pattern.hex(" ").upper(),
+                seen=seen.hex(" ").upper() or "no poll response",
+            )
     finally:
         d.poll(bytes(consumed))  # outputs back to zero
 
 
-@case(P, "epr_keeps_alive", "polls faster than the expected packet rate keep the poll connection Established")
+@case(
+    P,
+    "epr_keeps_alive",
+    "polls faster than the expected packet rate keep the poll connection Established",
+)
 def epr_keeps_alive(ctx: Context) -> None:
     d = dev(ctx)
     allocate_poll(d)
@@ -281,10 +470,18 @@ def epr_keeps_alive(ctx: Context) -> None:
         time.sleep(epr / 2000)
     state = d.get(CONNECTION, POLL_INSTANCE, 1)
     if state != bytes([STATE_ESTABLISHED]):
-        raise Fail("the poll connection left Established although polled in time", expected="state 3", seen=state.hex())
+        raise Fail(
+            "the poll connection left Established although polled in time",
+            expected="state 3",
+            seen=state.hex(),
+        )
 
 
-@case(P, "inactivity_timeout", "no poll for 4 × the expected packet rate: the poll connection times out and polls are not answered")
+@case(
+    P,
+    "inactivity_timeout",
+    "no poll for 4 × the expected packet rate: the poll connection times out and polls are not answered",
+)
 def inactivity_timeout(ctx: Context) -> None:
     d = dev(ctx)
     allocate_poll(d)
@@ -300,13 +497,25 @@ def inactivity_timeout(ctx: Context) -> None:
             raise
         state = b"deleted"
     if state not in (bytes([STATE_TIMED_OUT]), b"deleted"):
-        raise Fail(f"poll connection still alive after 4 × {epr} ms without a poll", expected="state 4 (timed out) or deleted", seen=state.hex())
+        raise Fail(
+            f"poll connection still alive after 4 × {epr} ms without a poll",
+            expected="state 4 (timed out) or deleted",
+            seen=state.hex(),
+        )
     answer = d.poll(bytes(consumed), ctx.timing.silence)
     if answer is not None:
-        raise Fail("a timed-out poll connection still answers polls", expected="no poll response", seen=answer.hex(" ").upper())
+        raise Fail(
+            "a timed-out poll connection still answers polls",
+            expected="no poll response",
+            seen=answer.hex(" ").upper(),
+        )
 
 
-@case(P, "release", "Release poll then explicit: CC responses; the released connections no longer answer; a second Release is refused")
+@case(
+    P,
+    "release",
+    "Release poll then explicit: CC responses; the released connections no longer answer; a second Release is refused",
+)
 def release(ctx: Context) -> None:
     d = dev(ctx)
     allocate_poll(d)
@@ -315,24 +524,50 @@ def release(ctx: Context) -> None:
     for choice in (CHOICE_POLL, CHOICE_EXPLICIT):
         frame = d.release(choice)
         if len(frame.data) != 2 or frame.data[0] != d.master_mac:
-            raise Fail(f"wrong Release 0x{choice:02X} response", expected=f"[2] {d.master_mac:02X} CC", seen=str(frame))
+            raise Fail(
+                f"wrong Release 0x{choice:02X} response",
+                expected=f"[2] {d.master_mac:02X} CC",
+                seen=str(frame),
+            )
         if choice == CHOICE_POLL:
             answer = d.poll(bytes(consumed), ctx.timing.silence)
             if answer is not None:
-                raise Fail("a released poll connection still answers", expected="no poll response", seen=answer.hex(" ").upper())
+                raise Fail(
+                    "a released poll connection still answers",
+                    expected="no poll response",
+                    seen=answer.hex(" ").upper(),
+                )
     reply = d.request(bytes([GET, IDENTITY, 1, 1]), ctx.timing.silence)
     if reply is not None:
-        raise Fail("a released explicit connection still answers", expected="no response", seen=str(reply.frames[-1]))
+        raise Fail(
+            "a released explicit connection still answers",
+            expected="no response",
+            seen=str(reply.frames[-1]),
+        )
     try:
         frame = d.release(CHOICE_EXPLICIT)
     except CipErrorSeen as err:
         if err.general != 0x0B:
-            raise Fail("second Release: wrong general status", expected=status_text(0x0B), seen=str(err.frame)) from None
+            raise Fail(
+                "second Release: wrong general status",
+                expected=status_text(0x0B),
+                seen=str(err.frame),
+            ) from None
     else:
-        raise Fail("a Release of a connection not allocated is accepted", expected="error 0x0B", seen=str(frame))
-    other = (d.master_mac + 1) & 0x3F  # with nothing allocated the set has no owner: another master may allocate
+        raise Fail(
+            "a Release of a connection not allocated is accepted",
+            expected="error 0x0B",
+            seen=str(frame),
+        )
+    other = (
+        d.master_mac + 1
+    ) & 0x3F  # with nothing allocated the set has no owner: another master may allocate
     ctx.cleanup(lambda: d.unconnected(0x4C, bytes([CHOICE_EXPLICIT]), master=other))
     try:
         d.allocate(CHOICE_EXPLICIT, master=other)
     except CipErrorSeen as err:
-        raise Fail("after releasing everything the set still has an owner: Allocate by another master refused", expected=f"{other:02X} CB 00", seen=str(err.frame)) from None
+        raise Fail(
+            "after releasing everything the set still has an owner: Allocate by another master refused",
+            expected=f"{other:02X} CB 00",
+            seen=str(err.frame),
+        ) from None

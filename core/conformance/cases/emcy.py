@@ -22,7 +22,11 @@ def cobid(ctx: Context) -> None:
         raise Fail("EMCY COB-ID", expected=f"0x{0x80 + dev.node_id:08X}", seen=f"0x{value:08X}")
 
 
-@case("emcy", "error_register_idle", "0x1001 is 0 after reset communication on a device without errors")
+@case(
+    "emcy",
+    "error_register_idle",
+    "0x1001 is 0 after reset communication on a device without errors",
+)
 def error_register_idle(ctx: Context) -> None:
     dev = ctx.device
     dev.require(0x1001)
@@ -32,22 +36,42 @@ def error_register_idle(ctx: Context) -> None:
         raise Fail("error register after reset communication", expected="0", seen=f"0x{value:02X}")
 
 
-@case("emcy", "error_and_reset", "an error sends EMCY (DLC 8, code, register = 0x1001); its end sends EMCY 0000 and 0x1001 = 0")
+@case(
+    "emcy",
+    "error_and_reset",
+    "an error sends EMCY (DLC 8, code, register = 0x1001); its end sends EMCY 0000 and 0x1001 = 0",
+)
 def error_and_reset(ctx: Context) -> None:
     dev = ctx.device
     trigger = LengthError(ctx)
     frame = trigger.raise_error()
     if frame is None:
-        raise Fail(f"no EMCY for a short {trigger.rpdo.name}", expected=f"EMCY 0x8210 on 0x{dev.od_default(0x1014, 0, 0x80 + dev.node_id):03X}", seen="nothing")
+        raise Fail(
+            f"no EMCY for a short {trigger.rpdo.name}",
+            expected=f"EMCY 0x8210 on 0x{dev.od_default(0x1014, 0, 0x80 + dev.node_id):03X}",
+            seen="nothing",
+        )
     if len(frame.data) != 8 or not frame.data[2] & 0x01:
-        raise Fail("EMCY frame", expected="DLC 8, error register with bit 0 (generic) set", seen=str(frame))
+        raise Fail(
+            "EMCY frame", expected="DLC 8, error register with bit 0 (generic) set", seen=str(frame)
+        )
     if dev.has(0x1001) and dev.read(0x1001, 0) != frame.data[2]:
-        raise Fail("0x1001 does not match the EMCY's error register", expected=f"0x{frame.data[2]:02X}", seen=f"0x{dev.read(0x1001, 0):02X}")
+        raise Fail(
+            "0x1001 does not match the EMCY's error register",
+            expected=f"0x{frame.data[2]:02X}",
+            seen=f"0x{dev.read(0x1001, 0):02X}",
+        )
     cleared = trigger.clear()
     if cleared is None:
-        raise Fail(f"no error-reset EMCY after a correct {trigger.rpdo.name}", expected="EMCY 0x0000", seen="nothing")
+        raise Fail(
+            f"no error-reset EMCY after a correct {trigger.rpdo.name}",
+            expected="EMCY 0x0000",
+            seen="nothing",
+        )
     if dev.has(0x1001) and dev.read(0x1001, 0) != 0:
-        raise Fail("0x1001 after the error cleared", expected="0", seen=f"0x{dev.read(0x1001, 0):02X}")
+        raise Fail(
+            "0x1001 after the error cleared", expected="0", seen=f"0x{dev.read(0x1001, 0):02X}"
+        )
 
 
 @case("emcy", "same_error_once", "a recurring active error does not repeat its EMCY")
@@ -58,10 +82,14 @@ def same_error_once(ctx: Context) -> None:
     again = trigger.raise_error()
     trigger.clear()
     if again is not None:
-        raise Fail("EMCY repeated for an error that is still active", expected="one EMCY", seen=str(again))
+        raise Fail(
+            "EMCY repeated for an error that is still active", expected="one EMCY", seen=str(again)
+        )
 
 
-@case("emcy", "history", "0x1003: newest error at sub 1 (code in bits 0-15), sub 0 counts the entries")
+@case(
+    "emcy", "history", "0x1003: newest error at sub 1 (code in bits 0-15), sub 0 counts the entries"
+)
 def history(ctx: Context) -> None:
     dev = ctx.device
     dev.require(0x1003, 1, why="pre-defined error field")
@@ -77,7 +105,11 @@ def history(ctx: Context) -> None:
         raise Fail("0x1003:1 after EMCY 0x8210", expected="0x....8210", seen=f"0x{newest:08X}")
 
 
-@case("emcy", "history_clear", "writing 0 to 0x1003:0 clears the history; other values are refused with 0609 0030")
+@case(
+    "emcy",
+    "history_clear",
+    "writing 0 to 0x1003:0 clears the history; other values are refused with 0609 0030",
+)
 def history_clear(ctx: Context) -> None:
     dev = ctx.device
     var = dev.require(0x1003, 0, why="pre-defined error field")
@@ -89,7 +121,9 @@ def history_clear(ctx: Context) -> None:
     dev.expect_write_abort(0x1003, 0, b"\x01", (0x06090030,), "0x1003:0 = 1")
 
 
-@case("emcy", "cobid_valid_bit", "with 0x1014 bit 31 set no EMCY is sent; clearing it restores EMCY")
+@case(
+    "emcy", "cobid_valid_bit", "with 0x1014 bit 31 set no EMCY is sent; clearing it restores EMCY"
+)
 def cobid_valid_bit(ctx: Context) -> None:
     dev = ctx.device
     dev.require(0x1014, why="EMCY producer")
@@ -118,14 +152,20 @@ def cobid_change_while_valid(ctx: Context) -> None:
     if original & 0x80000000:
         raise Skip("0x1014 is invalid by default")
     ctx.cleanup(lambda: dev.write(0x1014, 0, original))
-    new = 0x80 + (ctx.options.lss_spare_node_id or dev.node_id % 127 + 1)  # another node's EMCY CAN-ID
+    new = 0x80 + (
+        ctx.options.lss_spare_node_id or dev.node_id % 127 + 1
+    )  # another node's EMCY CAN-ID
     code = None
     try:
         dev.write(0x1014, 0, new)
     except SdoAbort as exc:  # the abort is the point
         code = exc.code
     if code is None:
-        raise Fail("0x1014 accepted a new CAN-ID while valid", expected=f"{abort_text(0x06090030)} (or 0800 0000)", seen=f"0x{dev.read(0x1014, 0):08X} written")
+        raise Fail(
+            "0x1014 accepted a new CAN-ID while valid",
+            expected=f"{abort_text(0x06090030)} (or 0800 0000)",
+            seen=f"0x{dev.read(0x1014, 0):08X} written",
+        )
 
 
 @case("emcy", "inhibit", "0x1015 (×100 µs) spaces consecutive EMCYs")
@@ -141,9 +181,17 @@ def inhibit(ctx: Context) -> None:
     dev.link.send(trigger.rpdo.cob & 0x7FF, trigger.good)
     second = expect_emcy(ctx, 0x0000, inhibit_s + ctx.timing.slack(inhibit_s) + ctx.timing.response)
     if second is None:
-        raise Fail("the error-reset EMCY was lost instead of delayed", expected="EMCY 0x0000 after the inhibit time", seen="nothing")
+        raise Fail(
+            "the error-reset EMCY was lost instead of delayed",
+            expected="EMCY 0x0000 after the inhibit time",
+            seen="nothing",
+        )
     gap = second.timestamp - first.timestamp
     if gap < inhibit_s - ctx.timing.slack(inhibit_s):
-        raise Fail("EMCY inhibit time not respected", expected=f"≥ {inhibit_s * 1000:.0f} ms between EMCYs", seen=f"{gap * 1000:.1f} ms")
+        raise Fail(
+            "EMCY inhibit time not respected",
+            expected=f"≥ {inhibit_s * 1000:.0f} ms between EMCYs",
+            seen=f"{gap * 1000:.1f} ms",
+        )
     if emcy_code(second) != 0:
         raise Fail("second EMCY", expected="0x0000", seen=str(second))

@@ -8,7 +8,6 @@ from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_START, NMT_STOP
 from ..framework import Context, Fail, Skip, case
 from .common import EMCY_LIFE_GUARD, emcy_code, expect_emcy
 
-
 ERROR = -1  # expect_emcy: any EMCY except an error reset
 
 
@@ -35,7 +34,11 @@ def check_period(ctx: Context, stamps: list[float], period_s: float, what: str) 
         )
 
 
-@case("errctl", "heartbeat_period", "heartbeat producer: period as written to 0x1017, DLC 1, state byte")
+@case(
+    "errctl",
+    "heartbeat_period",
+    "heartbeat producer: period as written to 0x1017, DLC 1, state byte",
+)
 def heartbeat_period(ctx: Context) -> None:
     dev = ctx.device
     dev.require(0x1017, why="heartbeat producer")
@@ -44,10 +47,16 @@ def heartbeat_period(ctx: Context) -> None:
     dev.link.expect(0x700 + dev.node_id, period + ctx.timing.response)  # the first may be early
     frames = heartbeats(ctx, 5.5 * period)
     if len(frames) < 3:
-        raise Fail("too few heartbeats", expected=f"5 in {5.5 * period:.2f} s", seen=f"{len(frames)}")
+        raise Fail(
+            "too few heartbeats", expected=f"5 in {5.5 * period:.2f} s", seen=f"{len(frames)}"
+        )
     for f in frames:
         if len(f.data) != 1 or f.data[0] != 0x7F:
-            raise Fail("heartbeat in Pre-operational", expected=f"{0x700 + dev.node_id:03X} [1] 7F", seen=str(f))
+            raise Fail(
+                "heartbeat in Pre-operational",
+                expected=f"{0x700 + dev.node_id:03X} [1] 7F",
+                seen=str(f),
+            )
     check_period(ctx, [f.timestamp for f in frames], period, "heartbeat period")
 
 
@@ -56,7 +65,12 @@ def heartbeat_disable(ctx: Context) -> None:
     dev = ctx.device
     dev.require(0x1017, why="heartbeat producer")
     dev.patch(ctx, 0x1017, 0, ctx.timing.heartbeat_ms)
-    if dev.link.expect(0x700 + dev.node_id, 2 * ctx.timing.heartbeat_ms / 1000 + ctx.timing.response) is None:
+    if (
+        dev.link.expect(
+            0x700 + dev.node_id, 2 * ctx.timing.heartbeat_ms / 1000 + ctx.timing.response
+        )
+        is None
+    ):
         raise Fail("no heartbeat after 0x1017 was set", expected="heartbeats", seen="nothing")
     dev.write(0x1017, 0, 0)
     time.sleep(0.01)
@@ -66,7 +80,11 @@ def heartbeat_disable(ctx: Context) -> None:
         raise Fail("heartbeats after 0x1017 = 0", expected="none", seen=str(frames[0]))
 
 
-@case("errctl", "heartbeat_consumer", "heartbeat consumer (0x1016): a missing producer raises EMCY 0x8130")
+@case(
+    "errctl",
+    "heartbeat_consumer",
+    "heartbeat consumer (0x1016): a missing producer raises EMCY 0x8130",
+)
 def heartbeat_consumer(ctx: Context) -> None:
     dev = ctx.device
     dev.require(0x1016, 1, why="heartbeat consumer")
@@ -77,19 +95,35 @@ def heartbeat_consumer(ctx: Context) -> None:
     dev.write(0x1016, 1, other << 16 | consumer_ms)
     ctx.cleanup(lambda: dev.reset(NMT_RESET_COMM))
     ctx.cleanup(lambda: dev.write(0x1016, 1, 0))
-    ctx.cleanup(lambda: resume(ctx, lambda: dev.link.send(0x700 + other, b"\x05")))  # the producer comes back first
+    ctx.cleanup(
+        lambda: resume(ctx, lambda: dev.link.send(0x700 + other, b"\x05"))
+    )  # the producer comes back first
     deadline = time.monotonic() + 4 * period
     while time.monotonic() < deadline:
         dev.link.send(0x700 + other, b"\x05")
         early = expect_emcy(ctx, None, period)
         if early is not None:
-            raise Fail("EMCY while the monitored node still sends heartbeats", expected="none", seen=str(early))
+            raise Fail(
+                "EMCY while the monitored node still sends heartbeats",
+                expected="none",
+                seen=str(early),
+            )
     t0 = time.time()
-    frame = expect_emcy(ctx, ERROR, consumer_ms / 1000 + ctx.timing.slack(consumer_ms / 1000) + ctx.timing.response)
+    frame = expect_emcy(
+        ctx, ERROR, consumer_ms / 1000 + ctx.timing.slack(consumer_ms / 1000) + ctx.timing.response
+    )
     if frame is None or emcy_code(frame) != EMCY_LIFE_GUARD:
-        raise Fail("no heartbeat-consumer EMCY", expected=f"EMCY 0x8130 about {consumer_ms} ms after the last heartbeat", seen=str(frame) if frame else "nothing")
+        raise Fail(
+            "no heartbeat-consumer EMCY",
+            expected=f"EMCY 0x8130 about {consumer_ms} ms after the last heartbeat",
+            seen=str(frame) if frame else "nothing",
+        )
     if frame.timestamp - t0 < consumer_ms / 1000 - period - ctx.timing.slack(consumer_ms / 1000):
-        raise Fail("heartbeat-consumer EMCY too early", expected=f"≥ {consumer_ms} ms after the last heartbeat", seen=f"{(frame.timestamp - t0) * 1000:.0f} ms")
+        raise Fail(
+            "heartbeat-consumer EMCY too early",
+            expected=f"≥ {consumer_ms} ms after the last heartbeat",
+            seen=f"{(frame.timestamp - t0) * 1000:.0f} ms",
+        )
 
 
 def guard_replies(ctx: Context, count: int):
@@ -98,7 +132,11 @@ def guard_replies(ctx: Context, count: int):
     for _ in range(count):
         frame = dev.guard()
         if frame is None:
-            raise Fail("no node guarding reply", expected=f"{0x700 + dev.node_id:03X} [1] toggle|state", seen="nothing")
+            raise Fail(
+                "no node guarding reply",
+                expected=f"{0x700 + dev.node_id:03X} [1] toggle|state",
+                seen="nothing",
+            )
         if len(frame.data) != 1:
             raise Fail("node guarding reply with the wrong DLC", expected="DLC 1", seen=str(frame))
         replies.append(frame.data[0])
@@ -109,7 +147,11 @@ def require_guarding(ctx: Context) -> None:
     ctx.device.require(0x100C, why="node guarding")
 
 
-@case("errctl", "guarding_toggle", "node guarding: the toggle bit alternates, starting at 0 after reset communication")
+@case(
+    "errctl",
+    "guarding_toggle",
+    "node guarding: the toggle bit alternates, starting at 0 after reset communication",
+)
 def guarding_toggle(ctx: Context) -> None:
     require_guarding(ctx)
     dev = ctx.device
@@ -125,13 +167,19 @@ def guarding_toggle(ctx: Context) -> None:
 def guarding_state(ctx: Context) -> None:
     require_guarding(ctx)
     dev = ctx.device
-    for cs, state, name in ((None, 0x7F, "Pre-operational"), (NMT_START, 0x05, "Operational"), (NMT_STOP, 0x04, "Stopped")):
+    for cs, state, name in (
+        (None, 0x7F, "Pre-operational"),
+        (NMT_START, 0x05, "Operational"),
+        (NMT_STOP, 0x04, "Stopped"),
+    ):
         if cs is not None:
             dev.nmt(cs)
             time.sleep(0.02)
         reply = guard_replies(ctx, 1)[0]
         if reply & 0x7F != state:
-            raise Fail(f"guarding state in {name}", expected=f"{state:#04x}", seen=f"{reply & 0x7F:#04x}")
+            raise Fail(
+                f"guarding state in {name}", expected=f"{state:#04x}", seen=f"{reply & 0x7F:#04x}"
+            )
 
 
 def life_guard(ctx: Context, guard_ms: int, factor: int):
@@ -153,16 +201,28 @@ def life_guard(ctx: Context, guard_ms: int, factor: int):
     return frame, (frame.timestamp - t0 if frame else None), life
 
 
-@case("errctl", "life_guarding", "life guarding: no RTR for guard time × factor raises EMCY 0x8130 with error register bit 4")
+@case(
+    "errctl",
+    "life_guarding",
+    "life guarding: no RTR for guard time × factor raises EMCY 0x8130 with error register bit 4",
+)
 def life_guarding(ctx: Context) -> None:
     require_guarding(ctx)
     frame, delay, life = life_guard(ctx, ctx.timing.heartbeat_ms, 3)
     if frame is None:
-        raise Fail("no life guarding EMCY", expected=f"EMCY 0x8130 about {life * 1000:.0f} ms after the last RTR", seen="nothing")
+        raise Fail(
+            "no life guarding EMCY",
+            expected=f"EMCY 0x8130 about {life * 1000:.0f} ms after the last RTR",
+            seen="nothing",
+        )
     if emcy_code(frame) != EMCY_LIFE_GUARD or len(frame.data) != 8 or not frame.data[2] & 0x10:
         raise Fail("life guarding EMCY", expected="[8] 30 81 <reg with bit 4> ..", seen=str(frame))
     if not ctx.timing.within(delay, life) and delay < life:
-        raise Fail("life guarding EMCY too early", expected=f"{life * 1000:.0f} ms", seen=f"{delay * 1000:.0f} ms")
+        raise Fail(
+            "life guarding EMCY too early",
+            expected=f"{life * 1000:.0f} ms",
+            seen=f"{delay * 1000:.0f} ms",
+        )
 
 
 @case("errctl", "guarding_off_no_life_guard", "with guard time 0 no life guarding event is raised")
@@ -179,12 +239,20 @@ def guarding_off(ctx: Context) -> None:
         raise Fail("EMCY with guarding disabled (0x100C = 0)", expected="none", seen=str(frame))
 
 
-@case("errctl", "error_behaviour", "0x1029:1 decides the NMT state after a communication error: 0 pre-op, 1 no change, 2 stopped")
+@case(
+    "errctl",
+    "error_behaviour",
+    "0x1029:1 decides the NMT state after a communication error: 0 pre-op, 1 no change, 2 stopped",
+)
 def error_behaviour(ctx: Context) -> None:
     require_guarding(ctx)
     dev = ctx.device
     dev.require(0x1029, 1, why="error behaviour")
-    for value, state, name in ((0, 0x7F, "Pre-operational"), (2, 0x04, "Stopped"), (1, 0x05, "Operational (no change)")):
+    for value, state, name in (
+        (0, 0x7F, "Pre-operational"),
+        (2, 0x04, "Stopped"),
+        (1, 0x05, "Operational (no change)"),
+    ):
         dev.write(0x1029, 1, value)
         dev.nmt(NMT_START)
         time.sleep(0.02)
@@ -193,7 +261,11 @@ def error_behaviour(ctx: Context) -> None:
             raise Fail("no life guarding event", seen="nothing")
         reply = dev.guard()
         if reply is None or reply.data[0] & 0x7F != state:
-            raise Fail(f"state after a life guarding event with 0x1029:1 = {value}", expected=f"{state:#04x} {name}", seen=str(reply) if reply else "no guarding reply")
+            raise Fail(
+                f"state after a life guarding event with 0x1029:1 = {value}",
+                expected=f"{state:#04x} {name}",
+                seen=str(reply) if reply else "no guarding reply",
+            )
         dev.nmt(NMT_PREOP)  # SDO again, also from Stopped
         time.sleep(0.02)
         dev.write(0x100C, 0, 0)

@@ -18,14 +18,19 @@ def require_lss(ctx: Context) -> None:
     ctx.device.require(0x1018, 4, why="LSS address = 0x1018:1..4")
 
 
-def lss(ctx: Context, data: bytes | list[int], reply: int | None = None, timeout: float | None = None):
+def lss(
+    ctx: Context, data: bytes | list[int], reply: int | None = None, timeout: float | None = None
+):
     dev = ctx.device
     dev.link.flush()
     dev.link.send(TX, bytes(data).ljust(8, b"\0"))
     if reply is None:
         time.sleep(0.01)
         return None
-    return dev.link.expect(lambda f: f.cob == RX and f.data[:1] == bytes([reply]), ctx.timing.response if timeout is None else timeout)
+    return dev.link.expect(
+        lambda f: f.cob == RX and f.data[:1] == bytes([reply]),
+        ctx.timing.response if timeout is None else timeout,
+    )
 
 
 def must(ctx: Context, data, reply: int, what: str):
@@ -33,7 +38,9 @@ def must(ctx: Context, data, reply: int, what: str):
     if frame is None:
         raise Fail(f"no LSS answer to {what}", expected=f"7E4 [8] {reply:02X} ..", seen="nothing")
     if len(frame.data) != 8:
-        raise Fail(f"LSS answer to {what} with DLC {len(frame.data)}", expected="DLC 8", seen=str(frame))
+        raise Fail(
+            f"LSS answer to {what} with DLC {len(frame.data)}", expected="DLC 8", seen=str(frame)
+        )
     return frame
 
 
@@ -56,7 +63,9 @@ def switch(ctx: Context, mode: int) -> None:
         ctx.cleanup(lambda: lss(ctx, [0x04, WAITING]))
 
 
-@case("lss", "switch_global", "switch mode global: inquire node-ID answers only in configuration mode")
+@case(
+    "lss", "switch_global", "switch mode global: inquire node-ID answers only in configuration mode"
+)
 def switch_global(ctx: Context) -> None:
     require_lss(ctx)
     silent(ctx, [0x5E], "inquire node-ID in waiting mode")
@@ -73,20 +82,28 @@ def inquire_identity(ctx: Context) -> None:
     require_lss(ctx)
     ident = identity(ctx.device)
     switch(ctx, CONFIGURATION)
-    for cs, value, name in zip((0x5A, 0x5B, 0x5C, 0x5D), ident, ("vendor-ID", "product code", "revision", "serial number")):
+    for cs, value, name in zip(
+        (0x5A, 0x5B, 0x5C, 0x5D), ident, ("vendor-ID", "product code", "revision", "serial number")
+    ):
         frame = must(ctx, [cs], cs, f"inquire {name}")
         got = struct.unpack_from("<I", frame.data, 1)[0]
         if got != value:
             raise Fail(f"inquire {name}", expected=f"0x{value:08X} (0x1018)", seen=f"0x{got:08X}")
 
 
-@case("lss", "switch_selective", "switch mode selective: full match answers 0x44 and enters configuration; a wrong serial does not")
+@case(
+    "lss",
+    "switch_selective",
+    "switch mode selective: full match answers 0x44 and enters configuration; a wrong serial does not",
+)
 def switch_selective(ctx: Context) -> None:
     require_lss(ctx)
     ident = identity(ctx.device)
     for cs, value in zip((0x40, 0x41, 0x42), ident):
         lss(ctx, bytes([cs]) + struct.pack("<I", value))
-    silent(ctx, bytes([0x43]) + struct.pack("<I", ident[3] ^ 1), "switch selective with a wrong serial")
+    silent(
+        ctx, bytes([0x43]) + struct.pack("<I", ident[3] ^ 1), "switch selective with a wrong serial"
+    )
     silent(ctx, [0x5E], "inquire node-ID after a failed selective switch")
     for cs, value in zip((0x40, 0x41, 0x42), ident):
         lss(ctx, bytes([cs]) + struct.pack("<I", value))
@@ -95,13 +112,24 @@ def switch_selective(ctx: Context) -> None:
     must(ctx, [0x5E], 0x5E, "inquire node-ID after the selective switch")
 
 
-@case("lss", "identify_remote", "identify remote slave: a matching range answers 0x4F, a non-matching one does not")
+@case(
+    "lss",
+    "identify_remote",
+    "identify remote slave: a matching range answers 0x4F, a non-matching one does not",
+)
 def identify_remote(ctx: Context) -> None:
     require_lss(ctx)
     v, p, r, s = identity(ctx.device)
 
     def request(serial_lo: int, serial_hi: int) -> list[bytes]:
-        parts = [(0x46, v), (0x47, p), (0x48, 0), (0x49, 0xFFFFFFFF), (0x4A, serial_lo), (0x4B, serial_hi)]
+        parts = [
+            (0x46, v),
+            (0x47, p),
+            (0x48, 0),
+            (0x49, 0xFFFFFFFF),
+            (0x4A, serial_lo),
+            (0x4B, serial_hi),
+        ]
         return [bytes([cs]) + struct.pack("<I", val) for cs, val in parts]
 
     for frame in request(s, s)[:-1]:
@@ -111,23 +139,39 @@ def identify_remote(ctx: Context) -> None:
     for frame in request(lo, max(lo, 0xFFFFFFFF if lo else 1))[:-1]:
         lss(ctx, frame)
     if lo:
-        silent(ctx, request(lo, 0xFFFFFFFF)[-1], "identify remote slave with the serial outside the range")
+        silent(
+            ctx,
+            request(lo, 0xFFFFFFFF)[-1],
+            "identify remote slave with the serial outside the range",
+        )
 
 
-@case("lss", "identify_non_configured", "a configured slave does not answer identify non-configured (0x4C)")
+@case(
+    "lss",
+    "identify_non_configured",
+    "a configured slave does not answer identify non-configured (0x4C)",
+)
 def identify_non_configured(ctx: Context) -> None:
     require_lss(ctx)
     silent(ctx, [0x4C], "identify non-configured remote slave")
 
 
-@case("lss", "configure_bit_timing", "configure bit timing answers 0x13 with 0 (supported) or 1; a reserved table answers an error")
+@case(
+    "lss",
+    "configure_bit_timing",
+    "configure bit timing answers 0x13 with 0 (supported) or 1; a reserved table answers an error",
+)
 def configure_bit_timing(ctx: Context) -> None:
     require_lss(ctx)
     switch(ctx, CONFIGURATION)
-    frame = must(ctx, [0x13, 0x00, 0x04], 0x13, "configure bit timing 125 kbit/s (CiA table index 4)")
+    frame = must(
+        ctx, [0x13, 0x00, 0x04], 0x13, "configure bit timing 125 kbit/s (CiA table index 4)"
+    )
     if frame.data[1] not in (0, 1):
         raise Fail("configure bit timing error code", expected="0 or 1", seen=str(frame))
-    frame = must(ctx, [0x13, 0x00, 0x0F], 0x13, "configure bit timing with table index 15 (reserved)")
+    frame = must(
+        ctx, [0x13, 0x00, 0x0F], 0x13, "configure bit timing with table index 15 (reserved)"
+    )
     if frame.data[1] == 0:
         raise Fail("reserved bit timing index accepted", expected="13 01 ..", seen=str(frame))
 
@@ -155,7 +199,11 @@ def restore_node_id(ctx: Context, current: int) -> None:
     dev.wait_bootup()
 
 
-@case("lss", "configure_node_id", "configure node-ID: invalid IDs refused; a new ID is taken at reset communication")
+@case(
+    "lss",
+    "configure_node_id",
+    "configure node-ID: invalid IDs refused; a new ID is taken at reset communication",
+)
 def configure_node_id(ctx: Context) -> None:
     require_lss(ctx)
     dev = ctx.device
@@ -174,14 +222,24 @@ def configure_node_id(ctx: Context) -> None:
     dev.nmt(NMT_RESET_COMM)
     boot = dev.wait_bootup(new)
     if boot is None:
-        raise Fail("no boot-up on the new node-ID after reset communication", expected=f"{0x700 + new:03X} [1] 00", seen="nothing")
+        raise Fail(
+            "no boot-up on the new node-ID after reset communication",
+            expected=f"{0x700 + new:03X} [1] 00",
+            seen="nothing",
+        )
     dev.link.flush()
     dev.link.send(0x600 + new, b"\x40\x00\x10\x00\0\0\0\0")
     if dev.link.expect(0x580 + new, ctx.timing.response) is None:
-        raise Fail("no SDO answer on the new node-ID", expected=f"{0x580 + new:03X} ..", seen="nothing")
+        raise Fail(
+            "no SDO answer on the new node-ID", expected=f"{0x580 + new:03X} ..", seen="nothing"
+        )
 
 
-@case("lss", "fastscan", "fastscan finds the unconfigured device by its 0x1018 identity and it gets its node-ID back")
+@case(
+    "lss",
+    "fastscan",
+    "fastscan finds the unconfigured device by its 0x1018 identity and it gets its node-ID back",
+)
 def fastscan(ctx: Context) -> None:
     require_lss(ctx)
     dev = ctx.device
@@ -196,10 +254,17 @@ def fastscan(ctx: Context) -> None:
     time.sleep(0.05)
     must(ctx, [0x4C], 0x50, "identify non-configured remote slave while unconfigured")
     must(ctx, struct.pack("<BIBBB", 0x51, 0, 0x80, 0, 0), 0x4F, "fastscan reset (bit check 0x80)")
-    silent(ctx, struct.pack("<BIBBB", 0x51, ident[0] ^ 1, 0, 0, 1), "fastscan with a wrong vendor-ID")
+    silent(
+        ctx, struct.pack("<BIBBB", 0x51, ident[0] ^ 1, 0, 0, 1), "fastscan with a wrong vendor-ID"
+    )
     for sub in range(4):
         nxt = (sub + 1) & 3
-        must(ctx, struct.pack("<BIBBB", 0x51, ident[sub], 0, sub, nxt), 0x4F, f"fastscan confirming 0x1018:{sub + 1}")
+        must(
+            ctx,
+            struct.pack("<BIBBB", 0x51, ident[sub], 0, sub, nxt),
+            0x4F,
+            f"fastscan confirming 0x1018:{sub + 1}",
+        )
     frame = must(ctx, [0x5E], 0x5E, "inquire node-ID after fastscan (configuration mode)")
     if frame.data[1] != 0xFF:
         raise Fail("inquire node-ID of an unconfigured device", expected="5E FF", seen=str(frame))
@@ -207,4 +272,8 @@ def fastscan(ctx: Context) -> None:
     dev.link.flush()
     lss(ctx, [0x04, WAITING])
     if dev.wait_bootup() is None:
-        raise Fail("no boot-up after configuring the node-ID of an unconfigured device and switching to waiting", expected=f"{0x700 + dev.node_id:03X} [1] 00", seen="nothing")
+        raise Fail(
+            "no boot-up after configuring the node-ID of an unconfigured device and switching to waiting",
+            expected=f"{0x700 + dev.node_id:03X} [1] 00",
+            seen="nothing",
+        )

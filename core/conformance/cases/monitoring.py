@@ -14,8 +14,16 @@ import time
 
 from ..device import NMT_RESET_COMM
 from ..framework import Context, Fail, Skip, case
-from .common import (EMCY_LIFE_GUARD, REGISTER_GENERIC, emcy_code, expect_emcy, expect_error_reset, log_mark, operational,
-                     quiet_register)
+from .common import (
+    EMCY_LIFE_GUARD,
+    REGISTER_GENERIC,
+    emcy_code,
+    expect_emcy,
+    expect_error_reset,
+    log_mark,
+    operational,
+    quiet_register,
+)
 from .errctl import ERROR, life_guard, require_guarding, resume
 
 SYNC_PRODUCER_BIT = 0x40000000
@@ -32,8 +40,18 @@ def end_by_reset(ctx: Context, before: int | None) -> None:
     mark = log_mark(ctx)
     boot = ctx.device.reset(NMT_RESET_COMM)
     if boot is None:
-        raise Fail("no boot-up after reset communication", expected=f"{0x700 + ctx.device.node_id:03X} [1] 00", seen="nothing")
-    expect_error_reset(ctx, mark, lambda direction, frame: frame == boot, "reset communication (after the boot-up)", before)
+        raise Fail(
+            "no boot-up after reset communication",
+            expected=f"{0x700 + ctx.device.node_id:03X} [1] 00",
+            seen="nothing",
+        )
+    expect_error_reset(
+        ctx,
+        mark,
+        lambda direction, frame: frame == boot,
+        "reset communication (after the boot-up)",
+        before,
+    )
 
 
 # -- life guarding -----------------------------------------------------------------------
@@ -45,7 +63,11 @@ def raise_life_guarding(ctx: Context) -> int | None:
     before = quiet_register(ctx)
     frame, _, life = life_guard(ctx, ctx.timing.heartbeat_ms, 2)
     if frame is None or emcy_code(frame) != EMCY_LIFE_GUARD:
-        raise Fail("no life guarding event to end", expected=f"EMCY 0x8130 about {life * 1000:.0f} ms after the last RTR", seen=str(frame) if frame else "nothing")
+        raise Fail(
+            "no life guarding event to end",
+            expected=f"EMCY 0x8130 about {life * 1000:.0f} ms after the last RTR",
+            seen=str(frame) if frame else "nothing",
+        )
     return before
 
 
@@ -62,12 +84,18 @@ def raise_consumer_error(ctx: Context) -> int | None:
     dev.write(0x1016, 1, other << 16 | consumer_ms)
     ctx.cleanup(lambda: dev.reset(NMT_RESET_COMM))
     ctx.cleanup(lambda: dev.write(0x1016, 1, 0))
-    ctx.cleanup(lambda: resume(ctx, lambda: dev.link.send(0x700 + other, b"\x05")))  # the producer comes back first
+    ctx.cleanup(
+        lambda: resume(ctx, lambda: dev.link.send(0x700 + other, b"\x05"))
+    )  # the producer comes back first
     dev.link.send(0x700 + other, b"\x05")
     wait = consumer_ms / 1000 + ctx.timing.slack(consumer_ms / 1000) + ctx.timing.response
     frame = expect_emcy(ctx, ERROR, wait)
     if frame is None or emcy_code(frame) != EMCY_LIFE_GUARD:
-        raise Fail("no heartbeat-consumer event to end", expected=f"EMCY 0x8130 about {consumer_ms} ms after the heartbeat of node {other}", seen=str(frame) if frame else "nothing")
+        raise Fail(
+            "no heartbeat-consumer event to end",
+            expected=f"EMCY 0x8130 about {consumer_ms} ms after the heartbeat of node {other}",
+            seen=str(frame) if frame else "nothing",
+        )
     return before
 
 
@@ -102,19 +130,27 @@ def raise_sync_loss(ctx: Context) -> int | None:
     wait = 3 * period + ctx.timing.slack(period) + ctx.timing.response
     frame = expect_emcy(ctx, ERROR, wait)
     if frame is None:
-        raise Skip(f"no EMCY within {wait * 1000:.0f} ms after SYNC stopped (0x1006 = {ctx.timing.heartbeat_ms} ms): the device does not report SYNC loss")
+        raise Skip(
+            f"no EMCY within {wait * 1000:.0f} ms after SYNC stopped (0x1006 = {ctx.timing.heartbeat_ms} ms): the device does not report SYNC loss"
+        )
     if emcy_code(frame) >> 8 != 0x81 or len(frame.data) < 3 or not frame.data[2] & REGISTER_GENERIC:
-        raise Fail("SYNC loss EMCY", expected="[8] xx 81 <register with bit 0> ... (81xx communication; CANopenNode and fieldgate send 8100)", seen=str(frame))
+        raise Fail(
+            "SYNC loss EMCY",
+            expected="[8] xx 81 <register with bit 0> ... (81xx communication; CANopenNode and fieldgate send 8100)",
+            seen=str(frame),
+        )
     return before
 
 
 # -- the cases: each error, ended each way ----------------------------------------------------
 def by_write(index: int, sub: int, what: str):
     """End the error with an SDO write of 0 to ``index:sub``."""
+
     def end(ctx: Context, before: int | None) -> None:
         mark = log_mark(ctx)
         ctx.device.write(index, sub, 0)
         expect_error_reset(ctx, mark, sent, f"0x{index:04X}:{sub} ({what}) was written 0", before)
+
     return end
 
 
@@ -127,21 +163,51 @@ def by_sync(ctx: Context, before: int | None) -> None:
 
 
 CASES = (
-    ("errctl", "guard_off_ends_error", raise_life_guarding, by_write(0x100C, 0, "guard time"),
-     "life guarding error (0x8130) ended by 0x100C = 0: EMCY 0000 with the register left, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.1, §7.5.2.2)"),
-    ("errctl", "guard_reset_ends_error", raise_life_guarding, end_by_reset,
-     "life guarding error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2, §7.5.2.2)"),
-    ("errctl", "consumer_off_ends_error", raise_consumer_error, by_write(0x1016, 1, "consumer heartbeat time"),
-     "heartbeat-consumer error (0x8130) ended by its 0x1016 entry = 0: EMCY 0000, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.2, §7.5.2.19)"),
-    ("errctl", "consumer_reset_ends_error", raise_consumer_error, end_by_reset,
-     "heartbeat-consumer error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2)"),
-    ("sync-pdo", "sync_loss_ends_on_sync", raise_sync_loss, by_sync,
-     "SYNC loss (EMCY 81xx with 0x1006 set and SYNC stopped) ended by the next SYNC: EMCY 0000, 0x1001 as before (CiA 301 §7.2.5, §7.2.7.1, §7.5.2.6)"),
-    ("sync-pdo", "sync_loss_ends_period_0", raise_sync_loss, by_write(0x1006, 0, "communication cycle period"),
-     "SYNC loss (EMCY 81xx) ended by 0x1006 = 0 (no SYNC expected): EMCY 0000, 0x1001 as before (CiA 301 §7.2.7.1, §7.5.2.6)"),
+    (
+        "errctl",
+        "guard_off_ends_error",
+        raise_life_guarding,
+        by_write(0x100C, 0, "guard time"),
+        "life guarding error (0x8130) ended by 0x100C = 0: EMCY 0000 with the register left, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.1, §7.5.2.2)",
+    ),
+    (
+        "errctl",
+        "guard_reset_ends_error",
+        raise_life_guarding,
+        end_by_reset,
+        "life guarding error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2, §7.5.2.2)",
+    ),
+    (
+        "errctl",
+        "consumer_off_ends_error",
+        raise_consumer_error,
+        by_write(0x1016, 1, "consumer heartbeat time"),
+        "heartbeat-consumer error (0x8130) ended by its 0x1016 entry = 0: EMCY 0000, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.2.8.3.2.2, §7.5.2.19)",
+    ),
+    (
+        "errctl",
+        "consumer_reset_ends_error",
+        raise_consumer_error,
+        end_by_reset,
+        "heartbeat-consumer error (0x8130) ended by reset communication: EMCY 0000 after the boot-up, 0x1001 bit 4 clear (CiA 301 §7.2.7.1, §7.3.2)",
+    ),
+    (
+        "sync-pdo",
+        "sync_loss_ends_on_sync",
+        raise_sync_loss,
+        by_sync,
+        "SYNC loss (EMCY 81xx with 0x1006 set and SYNC stopped) ended by the next SYNC: EMCY 0000, 0x1001 as before (CiA 301 §7.2.5, §7.2.7.1, §7.5.2.6)",
+    ),
+    (
+        "sync-pdo",
+        "sync_loss_ends_period_0",
+        raise_sync_loss,
+        by_write(0x1006, 0, "communication cycle period"),
+        "SYNC loss (EMCY 81xx) ended by 0x1006 = 0 (no SYNC expected): EMCY 0000, 0x1001 as before (CiA 301 §7.2.7.1, §7.5.2.6)",
+    ),
 )
 
 for profile, name, raise_error, end, title in CASES:
-    case(profile, name, title)(lambda ctx, raise_error=raise_error, end=end: end(ctx, raise_error(ctx)))
-
-
+    case(profile, name, title)(
+        lambda ctx, raise_error=raise_error, end=end: end(ctx, raise_error(ctx))
+    )

@@ -4,7 +4,16 @@ from __future__ import annotations
 
 import time
 
-from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_RESET_NODE, NMT_START, NMT_STOP, SdoAbort, StateProbe, mux
+from ..device import (
+    NMT_PREOP,
+    NMT_RESET_COMM,
+    NMT_RESET_NODE,
+    NMT_START,
+    NMT_STOP,
+    SdoAbort,
+    StateProbe,
+    mux,
+)
 from ..framework import Context, Fail, Skip, case
 from .common import int_default, other_value, rw_ints
 
@@ -14,9 +23,17 @@ PREOP, OPERATIONAL, STOPPED = 0x7F, 0x05, 0x04
 def expect_bootup(ctx: Context, cs: int, what: str):
     frame = ctx.device.reset(cs)
     if frame is None:
-        raise Fail(f"no boot-up message after {what}", expected=f"{0x700 + ctx.device.node_id:03X} [1] 00", seen="nothing")
+        raise Fail(
+            f"no boot-up message after {what}",
+            expected=f"{0x700 + ctx.device.node_id:03X} [1] 00",
+            seen="nothing",
+        )
     if len(frame.data) != 1:
-        raise Fail(f"boot-up message after {what} with DLC {len(frame.data)}", expected=f"{0x700 + ctx.device.node_id:03X} [1] 00", seen=str(frame))
+        raise Fail(
+            f"boot-up message after {what} with DLC {len(frame.data)}",
+            expected=f"{0x700 + ctx.device.node_id:03X} [1] 00",
+            seen=str(frame),
+        )
     return frame
 
 
@@ -96,7 +113,11 @@ def sdo_gated(ctx: Context) -> None:
     time.sleep(0.02)
     answer = dev.sdo_request(bytes([0x40]) + mux(0x1000, 0), timeout=ctx.timing.silence)
     if answer is not None:
-        raise Fail("SDO answered in Stopped", expected="no answer (CiA 301: no SDO in Stopped)", seen=str(answer))
+        raise Fail(
+            "SDO answered in Stopped",
+            expected="no answer (CiA 301: no SDO in Stopped)",
+            seen=str(answer),
+        )
     dev.nmt(NMT_PREOP)
     time.sleep(0.02)
     dev.upload(0x1000, 0)
@@ -115,19 +136,38 @@ def _write_other(ctx: Context, candidates, what: str):
     raise Skip(f"EDS lists no writable {what} entry with a default that takes another value")
 
 
-@case("nmt", "reset_comm_vs_node", "reset communication restores 0x1000-0x1FFF only; reset node restores the application area too")
+@case(
+    "nmt",
+    "reset_comm_vs_node",
+    "reset communication restores 0x1000-0x1FFF only; reset node restores the application area too",
+)
 def reset_comm_vs_node(ctx: Context) -> None:
     dev = ctx.device
     avoid = (0x1005, 0x1010, 0x1011, 0x1014, 0x1016, 0x1017, 0x1200)
-    comm = _write_other(ctx, [v for v in rw_ints(dev, 0x1000, 0x1FFF, avoid) if int_default(v) is not None], "communication")
+    comm = _write_other(
+        ctx,
+        [v for v in rw_ints(dev, 0x1000, 0x1FFF, avoid) if int_default(v) is not None],
+        "communication",
+    )
     apps = [v for v in rw_ints(dev, 0x2000, 0x9FFF) if int_default(v) is not None]
     app = _write_other(ctx, sorted(apps, key=lambda v: v.pdo_mappable), "application")
     expect_bootup(ctx, NMT_RESET_COMM, "reset communication")
-    for var, want, what in ((comm, comm.default, "reset to its default"), (app, other_value(app), "kept")):
+    for var, want, what in (
+        (comm, comm.default, "reset to its default"),
+        (app, other_value(app), "kept"),
+    ):
         seen = dev.read(var.index, var.subindex)
         if seen != want:
-            raise Fail(f"after reset communication 0x{var.index:04X}:{var.subindex} should be {what}", expected=str(want), seen=str(seen))
+            raise Fail(
+                f"after reset communication 0x{var.index:04X}:{var.subindex} should be {what}",
+                expected=str(want),
+                seen=str(seen),
+            )
     expect_bootup(ctx, NMT_RESET_NODE, "reset node")
     seen = dev.read(app.index, app.subindex)
     if seen != app.default:
-        raise Fail(f"after reset node 0x{app.index:04X}:{app.subindex} should be back to its default", expected=str(app.default), seen=str(seen))
+        raise Fail(
+            f"after reset node 0x{app.index:04X}:{app.subindex} should be back to its default",
+            expected=str(app.default),
+            seen=str(seen),
+        )

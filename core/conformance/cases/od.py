@@ -8,7 +8,11 @@ from ..device import SdoAbort, abort_text, mux, type_name
 from ..framework import Context, Fail, Skip, case
 from .common import int_default, rw_ints, signed
 
-KNOWN_TYPES = {getattr(datatypes, n) for n in dir(datatypes) if n.isupper() and isinstance(getattr(datatypes, n), int)}
+KNOWN_TYPES = {
+    getattr(datatypes, n)
+    for n in dir(datatypes)
+    if n.isupper() and isinstance(getattr(datatypes, n), int)
+}
 NO_DATA = 0x08000024
 RO_WRITE_ABORTS = (0x06010002, 0x06010000, 0x08000000)
 # entries whose value is live state rather than a default the EDS can promise
@@ -17,8 +21,12 @@ VOLATILE = {0x1001, 0x1002, 0x1003, 0x1010, 0x1011, 0x1F80}
 
 def _report(problems: list[str], what: str) -> None:
     if problems:
-        shown = problems[:12] + ([f"... and {len(problems) - 12} more"] if len(problems) > 12 else [])
-        raise Fail(f"{len(problems)} {what}", seen="\n                " + "\n                ".join(shown))
+        shown = problems[:12] + (
+            [f"... and {len(problems) - 12} more"] if len(problems) > 12 else []
+        )
+        raise Fail(
+            f"{len(problems)} {what}", seen="\n                " + "\n                ".join(shown)
+        )
 
 
 @case("od", "eds_check", "EDS consistency: mandatory objects, sub 0 counts, PDO pairs, data types")
@@ -31,20 +39,31 @@ def eds_check(ctx: Context) -> None:
     if dev.has(0x1018) and not dev.has(0x1018, 1):
         problems.append("0x1018:1 (vendor-ID) missing")
     if not (dev.has(0x1017) or dev.has(0x100C)):
-        problems.append("no error control object: neither 0x1017 (heartbeat) nor 0x100C (guard time)")
+        problems.append(
+            "no error control object: neither 0x1017 (heartbeat) nor 0x100C (guard time)"
+        )
     for index in dev.od:
         obj = dev.od[index]
         if isinstance(obj, ODRecord):
             top = obj.subindices.get(0)
             if top is None:
                 problems.append(f"0x{index:04X}: record without sub 0")
-            elif top.access_type in ("ro", "const") and int_default(top) is not None and max(obj.subindices) != top.default and not 0x1600 <= index <= 0x1BFF:
-                problems.append(f"0x{index:04X}: sub 0 says {top.default} but the highest sub-index is {max(obj.subindices)}")
+            elif (
+                top.access_type in ("ro", "const")
+                and int_default(top) is not None
+                and max(obj.subindices) != top.default
+                and not 0x1600 <= index <= 0x1BFF
+            ):
+                problems.append(
+                    f"0x{index:04X}: sub 0 says {top.default} but the highest sub-index is {max(obj.subindices)}"
+                )
         elif isinstance(obj, ODArray) and 0 not in obj.subindices:
             problems.append(f"0x{index:04X}: array without sub 0")
     for var in dev.variables():
         if var.data_type not in KNOWN_TYPES:
-            problems.append(f"0x{var.index:04X}:{var.subindex}: unknown data type 0x{var.data_type:04X}")
+            problems.append(
+                f"0x{var.index:04X}:{var.subindex}: unknown data type 0x{var.data_type:04X}"
+            )
     for comm, mapping in ((0x1400, 0x1600), (0x1800, 0x1A00)):
         for n in range(512):
             if dev.has(comm + n) != dev.has(mapping + n):
@@ -65,21 +84,30 @@ def read_all(ctx: Context) -> None:
         try:
             raw = dev.upload(var.index, var.subindex)
         except SdoAbort as exc:
-            if exc.code != NO_DATA:  # "no data available" is a valid answer (e.g. an empty 0x1003 entry)
+            if (
+                exc.code != NO_DATA
+            ):  # "no data available" is a valid answer (e.g. an empty 0x1003 entry)
                 problems.append(f"{where}: {exc}")
             continue
         except Fail as exc:
             problems.append(f"{where}: {exc.message} ({exc.seen})")
             if len(problems) >= 3 and all("no SDO response" in p for p in problems[-3:]):
-                raise Fail("the device stopped answering SDO", seen="\n                " + "\n                ".join(problems[-3:])) from None
+                raise Fail(
+                    "the device stopped answering SDO",
+                    seen="\n                " + "\n                ".join(problems[-3:]),
+                ) from None
             continue
         if var.fixed_size and len(raw) * 8 != len(var):
-            problems.append(f"{where}: {len(raw)} bytes served, {type_name(var)} needs {len(var) // 8}")
+            problems.append(
+                f"{where}: {len(raw)} bytes served, {type_name(var)} needs {len(var) // 8}"
+            )
             continue
         if var.fixed_size and var.data_type not in (datatypes.REAL32, datatypes.REAL64):
             value = var.decode_raw(raw)
             if var.min is not None and value < var.min or var.max is not None and value > var.max:
-                problems.append(f"{where}: value {value} outside the EDS range {var.min}..{var.max}")
+                problems.append(
+                    f"{where}: value {value} outside the EDS range {var.min}..{var.max}"
+                )
     if count == 0:
         raise Skip("EDS lists no readable entry")
     _report(problems, "entries misread")
@@ -102,11 +130,15 @@ def defaults(ctx: Context) -> None:
         if isinstance(expected, str) and isinstance(value, str):
             value, expected = value.rstrip("\0"), expected.rstrip("\0")
         if value != expected:
-            problems.append(f"0x{var.index:04X}:{var.subindex}: device {value!r}, EDS default {expected!r}")
+            problems.append(
+                f"0x{var.index:04X}:{var.subindex}: device {value!r}, EDS default {expected!r}"
+            )
     _report(problems, "defaults differ from the EDS")
 
 
-@case("od", "write_read_only", "writes to read-only and constant entries are refused with 0601 0002")
+@case(
+    "od", "write_read_only", "writes to read-only and constant entries are refused with 0601 0002"
+)
 def write_read_only(ctx: Context) -> None:
     dev = ctx.device
     problems = []
@@ -138,15 +170,27 @@ def read_write_only(ctx: Context) -> None:
     if not targets:
         raise Skip("EDS lists no write-only entry")
     for var in targets:
-        dev.expect_abort(bytes([0x40]) + mux(var.index, var.subindex), (0x06010001,), f"read of write-only 0x{var.index:04X}:{var.subindex}")
+        dev.expect_abort(
+            bytes([0x40]) + mux(var.index, var.subindex),
+            (0x06010001,),
+            f"read of write-only 0x{var.index:04X}:{var.subindex}",
+        )
 
 
-@case("od", "missing_object", "an index the EDS does not list is refused with 0602 0000 (read and write)")
+@case(
+    "od",
+    "missing_object",
+    "an index the EDS does not list is refused with 0602 0000 (read and write)",
+)
 def missing_object(ctx: Context) -> None:
     dev = ctx.device
     index = next(i for i in (0x5FFF, 0x5FFE, 0x3FFF, 0x2FFF, 0x1FFE) if not dev.has(i))
-    dev.expect_abort(bytes([0x40]) + mux(index, 0), (0x06020000, 0x08000000), f"read of 0x{index:04X}")
-    dev.expect_abort(bytes([0x2F]) + mux(index, 0) + b"\x01", (0x06020000, 0x08000000), f"write of 0x{index:04X}")
+    dev.expect_abort(
+        bytes([0x40]) + mux(index, 0), (0x06020000, 0x08000000), f"read of 0x{index:04X}"
+    )
+    dev.expect_abort(
+        bytes([0x2F]) + mux(index, 0) + b"\x01", (0x06020000, 0x08000000), f"write of 0x{index:04X}"
+    )
 
 
 @case("od", "missing_subindex", "a sub-index the EDS does not list is refused with 0609 0011")
@@ -156,7 +200,9 @@ def missing_subindex(ctx: Context) -> None:
     dev.expect_abort(bytes([0x40]) + mux(0x1000, 1), (0x06090011, 0x08000000), "read of 0x1000:1")
     if dev.has(0x1018):
         top = max(dev.od[0x1018].subindices) + 1
-        dev.expect_abort(bytes([0x40]) + mux(0x1018, top), (0x06090011, 0x08000000), f"read of 0x1018:{top}")
+        dev.expect_abort(
+            bytes([0x40]) + mux(0x1018, top), (0x06090011, 0x08000000), f"read of 0x1018:{top}"
+        )
 
 
 @case("od", "length_mismatch", "writes of the wrong length are refused with 0607 0010/0012/0013")
@@ -168,17 +214,28 @@ def length_mismatch(ctx: Context) -> None:
     if short is None and long is None:
         raise Skip("EDS lists no writable 16- or 32-bit entry")
     for var, data, codes, what in (
-        (short, b"\x00\x00\x00\x00", (0x06070010, 0x06070012, 0x08000000), "4 bytes into a 16-bit entry"),
+        (
+            short,
+            b"\x00\x00\x00\x00",
+            (0x06070010, 0x06070012, 0x08000000),
+            "4 bytes into a 16-bit entry",
+        ),
         (long, b"\x00", (0x06070010, 0x06070013, 0x08000000), "1 byte into a 32-bit entry"),
     ):
         if var is None:
             continue
         old = dev.upload(var.index, var.subindex)
         ctx.cleanup(lambda v=var, o=old: dev.download(v.index, v.subindex, o))
-        dev.expect_write_abort(var.index, var.subindex, data, codes, f"{what} (0x{var.index:04X}:{var.subindex})")
+        dev.expect_write_abort(
+            var.index, var.subindex, data, codes, f"{what} (0x{var.index:04X}:{var.subindex})"
+        )
 
 
-@case("od", "value_range", "writes outside the EDS LowLimit/HighLimit are refused with 0609 0030/0031/0032")
+@case(
+    "od",
+    "value_range",
+    "writes outside the EDS LowLimit/HighLimit are refused with 0609 0030/0031/0032",
+)
 def value_range(ctx: Context) -> None:
     dev = ctx.device
     checked = 0
@@ -196,8 +253,16 @@ def value_range(ctx: Context) -> None:
         ctx.cleanup(lambda v=var, o=old: dev.download(v.index, v.subindex, o))
         for value, codes, what in probes:
             checked += 1
-            dev.expect_write_abort(var.index, var.subindex, var.encode_raw(value), codes, f"0x{var.index:04X}:{var.subindex} = {value} {what}")
+            dev.expect_write_abort(
+                var.index,
+                var.subindex,
+                var.encode_raw(value),
+                codes,
+                f"0x{var.index:04X}:{var.subindex} = {value} {what}",
+            )
         if checked >= 6:
             break
     if not checked:
-        raise Skip("EDS gives no LowLimit/HighLimit narrower than the data type on a writable entry")
+        raise Skip(
+            "EDS gives no LowLimit/HighLimit narrower than the data type on a writable entry"
+        )

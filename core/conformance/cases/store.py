@@ -22,7 +22,11 @@ def reset_node(ctx: Context) -> None:
         raise Fail("no boot-up after reset node", seen="nothing")
 
 
-@case("store", "capabilities", "0x1010 and 0x1011 sub 1.. read as capability words (only bits 0-1 used)")
+@case(
+    "store",
+    "capabilities",
+    "0x1010 and 0x1011 sub 1.. read as capability words (only bits 0-1 used)",
+)
 def capabilities(ctx: Context) -> None:
     dev = ctx.device
     found = False
@@ -35,7 +39,11 @@ def capabilities(ctx: Context) -> None:
                 continue
             value = dev.read(index, sub)
             if value & ~0x3:
-                raise Fail(f"0x{index:04X}:{sub} capability word", expected="only bits 0-1 set", seen=f"0x{value:08X}")
+                raise Fail(
+                    f"0x{index:04X}:{sub} capability word",
+                    expected="only bits 0-1 set",
+                    seen=f"0x{value:08X}",
+                )
     if not found:
         raise Skip("EDS lists neither 0x1010 nor 0x1011")
 
@@ -47,7 +55,13 @@ def wrong_signature(ctx: Context) -> None:
     for index in (0x1010, 0x1011):
         if dev.has(index, 1):
             done = True
-            dev.expect_write_abort(index, 1, (0x12345678).to_bytes(4, "little"), (0x08000020,), f"0x{index:04X}:1 with a wrong signature")
+            dev.expect_write_abort(
+                index,
+                1,
+                (0x12345678).to_bytes(4, "little"),
+                (0x08000020,),
+                f"0x{index:04X}:1 with a wrong signature",
+            )
     if not done:
         raise Skip("EDS lists neither 0x1010:1 nor 0x1011:1")
 
@@ -60,7 +74,11 @@ def _target(ctx: Context):
     return vars_[0]
 
 
-@case("store", "save_across_reset", "a value saved with 'save' survives reset node; 'load' brings the default back at the next reset")
+@case(
+    "store",
+    "save_across_reset",
+    "a value saved with 'save' survives reset node; 'load' brings the default back at the next reset",
+)
 def save_across_reset(ctx: Context) -> None:
     require_store(ctx)
     dev = ctx.device
@@ -78,12 +96,20 @@ def save_across_reset(ctx: Context) -> None:
     reset_node(ctx)
     seen = dev.read(var.index, var.subindex)
     if seen != value:
-        raise Fail(f"0x{var.index:04X}:{var.subindex} after save and reset node", expected=str(value), seen=str(seen))
+        raise Fail(
+            f"0x{var.index:04X}:{var.subindex} after save and reset node",
+            expected=str(value),
+            seen=str(seen),
+        )
     dev.write(0x1011, 1, LOAD)
     reset_node(ctx)
     seen = dev.read(var.index, var.subindex)
     if seen != var.default:
-        raise Fail(f"0x{var.index:04X}:{var.subindex} after load and reset node", expected=f"{var.default} (EDS default)", seen=str(seen))
+        raise Fail(
+            f"0x{var.index:04X}:{var.subindex} after load and reset node",
+            expected=f"{var.default} (EDS default)",
+            seen=str(seen),
+        )
 
 
 @case("store", "unsaved_lost", "a value written but not saved is lost at reset node")
@@ -95,4 +121,8 @@ def unsaved_lost(ctx: Context) -> None:
     reset_node(ctx)
     seen = dev.read(var.index, var.subindex)
     if seen != var.default:
-        raise Fail(f"0x{var.index:04X}:{var.subindex} after reset node without save", expected=str(var.default), seen=str(seen))
+        raise Fail(
+            f"0x{var.index:04X}:{var.subindex} after reset node without save",
+            expected=str(var.default),
+            seen=str(seen),
+        )

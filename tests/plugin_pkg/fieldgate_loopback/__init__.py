@@ -22,15 +22,21 @@ __version__ = "1.0.0"
 
 
 class LoopbackModule(ModuleConfig):
-    digital: int = Field(0, ge=0, le=64, description="number of DO channels, each looped back to a DI")
-    analog: int = Field(0, ge=0, le=32, description="number of AO channels, each looped back to an AI")
+    digital: int = Field(
+        0, ge=0, le=64, description="number of DO channels, each looped back to a DI"
+    )
+    analog: int = Field(
+        0, ge=0, le=32, description="number of AO channels, each looped back to an AI"
+    )
 
 
 class LoopbackConfig(BackConfig):
     type: str = "loopback"
     modules: list[LoopbackModule] = Field(min_length=1)
     fail_start: str | None = Field(None, description="test hook: start() fails with this cause")
-    fail_after_s: float | None = Field(None, gt=0, description="test hook: run() fails after this long")
+    fail_after_s: float | None = Field(
+        None, gt=0, description="test hook: run() fails after this long"
+    )
 
     def channel_specs(self) -> list[ChannelSpec]:
         specs = []
@@ -40,7 +46,14 @@ class LoopbackConfig(BackConfig):
                     for kind in kinds:
                         err, shut = m.output_modes(kind, i) if kind.is_output else (None, None)
                         extra = {"error_mode": err, "shutdown_mode": shut} if kind.is_output else {}
-                        specs.append(ChannelSpec(channel_id(self.name, m.address, kind, i), kind, Source(self.name, m.address, i), **extra))
+                        specs.append(
+                            ChannelSpec(
+                                channel_id(self.name, m.address, kind, i),
+                                kind,
+                                Source(self.name, m.address, i),
+                                **extra,
+                            )
+                        )
         return specs
 
 
@@ -65,7 +78,12 @@ class LoopbackBack(Back):
 
     def _echo_id(self, cid: str) -> None:
         out = self.context.image[cid]
-        twin = channel_id(self.name, out.source.module, Kind.DI if out.kind is Kind.DO else Kind.AI, out.source.index)
+        twin = channel_id(
+            self.name,
+            out.source.module,
+            Kind.DI if out.kind is Kind.DO else Kind.AI,
+            out.source.index,
+        )
         self.context.image.update_input(twin, out.value)
 
     async def run(self) -> None:
@@ -112,5 +130,9 @@ class MemoryFront(Front):
 
 @hookimpl
 def fieldgate_register(registry) -> None:
-    registry.add_back("loopback", LoopbackConfig, LoopbackBack, "outputs looped back to inputs (test plugin)")
-    registry.add_front("memory", MemoryFrontConfig, MemoryFront, "a front without a bus (test plugin)")
+    registry.add_back(
+        "loopback", LoopbackConfig, LoopbackBack, "outputs looped back to inputs (test plugin)"
+    )
+    registry.add_front(
+        "memory", MemoryFrontConfig, MemoryFront, "a front without a bus (test plugin)"
+    )
