@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
-from ..plugin import PluginStartError, hookimpl
+from fieldgate.plugin import PluginStartError, hookimpl
+
 from .framework import (
     DEVICENET_PROFILES,
     OPT_IN,
@@ -15,8 +17,11 @@ from .framework import (
     Timing,
     Verdict,
 )
+from .outcome import DeviceSilent
 from .report import details, line, summary, write_junit
-from .runner import DeviceSilent, SuiteConfig, run_suite
+
+if TYPE_CHECKING:
+    from .runner import SuiteConfig
 
 HELP = "run the CANopen conformance suite against a device (black box: bus + EDS)"
 VIRTUAL_HINT = (
@@ -138,6 +143,8 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace) -> SuiteConfig:
+    from .runner import SuiteConfig
+
     timing = Timing(
         response=args.timeout,
         silence=args.silence,
@@ -152,7 +159,9 @@ def config_from_args(args: argparse.Namespace) -> SuiteConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .framework import select
+    # the case modules load only when cases are listed or run, not at every `fieldgate` start
+    from .catalog import select
+    from .runner import run_suite
 
     foreign = [p for p in args.profile if p != "all" and p not in PROTOCOL_PROFILES[args.protocol]]
     if foreign:
@@ -234,7 +243,7 @@ def _run_and_report(args: argparse.Namespace, properties: dict[str, str], start)
 
 
 def run_devicenet(args: argparse.Namespace) -> int:
-    from .dnet import DnetSuiteConfig, run_devicenet_suite
+    from .runner import DnetSuiteConfig, run_devicenet_suite
 
     if (
         args.mac_id is None

@@ -1,4 +1,4 @@
-"""An open, device-agnostic CANopen conformance test tool.
+"""An open, device-agnostic CANopen and DeviceNet conformance test tool.
 
 The device is a black box: the suite talks to it on a python-can bus and reads its EDS.
 See docs/conformance.md. Programmatic use::
@@ -7,9 +7,10 @@ See docs/conformance.md. Programmatic use::
     results = run_suite(SuiteConfig(node_id=5, eds="dev.eds"), interface="socketcan", channel="can0")
 """
 
-from .dnet import DnetSuiteConfig, run_devicenet_suite
-from .framework import CASES, PROFILES, Case, CaseResult, Options, Timing, Verdict, select
-from .runner import DeviceSilent, SuiteConfig, failed, run_suite
+from .catalog import select
+from .framework import CASES, PROFILES, Case, CaseResult, Options, Timing, Verdict
+from .outcome import DeviceSilent
+from .runner import DnetSuiteConfig, SuiteConfig, failed, run_devicenet_suite, run_suite
 
 __all__ = [
     "CASES",

@@ -1,23 +1,39 @@
-"""Cases, profiles, outcomes and the runner.
+"""Cases, profiles, the case registry and the loop that runs cases.
 
 A case is a function ``fn(ctx)`` registered with :func:`case`. It passes by returning,
 fails by raising :class:`Fail` (say what was expected and what was seen), and skips by
 raising :class:`Skip` (say why: "EDS lists no 0x1016"). The runner gives every case a
 fresh frame log, runs its clean-ups, and puts the device back in Pre-operational.
+
+Case modules register themselves here with :func:`case`; this module imports none of them
+(:mod:`.catalog` lists them and selects from the registry).
 """
 
 from __future__ import annotations
 
-import fnmatch
 import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:
-    from .device import Device
+from .device import Device
+from .outcome import Fail, Skip, Timing
+
+__all__ = [
+    "CASES",
+    "Case",
+    "CaseResult",
+    "Context",
+    "Fail",
+    "Options",
+    "Skip",
+    "Timing",
+    "Verdict",
+    "case",
+    "run_case",
+    "run_cases",
+]
 
 PROFILES = ("od", "sdo", "nmt", "errctl", "emcy", "sync-pdo", "lss", "store", "cia401", "seed")
 # run only when asked for by name (or "all"): the seed vectors concern devices that claim
@@ -26,18 +42,6 @@ OPT_IN = ("seed",)
 # DeviceNet devices get their own profiles, selected with protocol="devicenet" (no EDS needed)
 DEVICENET_PROFILES = ("devicenet",)
 PROTOCOL_PROFILES = {"canopen": PROFILES, "devicenet": DEVICENET_PROFILES}
-
-
-class Fail(Exception):
-    def __init__(self, message: str, expected: str | None = None, seen: str | None = None):
-        super().__init__(message)
-        self.message = message
-        self.expected = expected
-        self.seen = seen
-
-
-class Skip(Exception):
-    pass
 
 
 class Verdict(str, Enum):
@@ -70,25 +74,6 @@ def case(profile: str, name: str, title: str):
         return fn
 
     return register
-
-
-@dataclass
-class Timing:
-    """Timing knobs; every one has a command-line option."""
-
-    response: float = 0.5  # how long to wait for an answer that must come
-    silence: float = 0.3  # how long to watch for a frame that must not come
-    tolerance_ms: float = 25.0  # absolute slack on measured periods and delays
-    tolerance_pct: float = 15.0  # relative slack on measured periods and delays
-    heartbeat_ms: int = 100  # producer time used by the heartbeat cases
-    bootup: float = 2.0  # how long a reset may take until the boot-up message
-    sdo_server_timeout: float = 2.0  # how long the server may take to abort a stalled transfer
-
-    def slack(self, nominal_s: float) -> float:
-        return self.tolerance_ms / 1000 + nominal_s * self.tolerance_pct / 100
-
-    def within(self, measured_s: float, nominal_s: float) -> bool:
-        return abs(measured_s - nominal_s) <= self.slack(nominal_s)
 
 
 @dataclass
@@ -131,37 +116,6 @@ class Context:
             except Exception as exc:  # clean-up must not hide the verdict
                 errors.append(f"clean-up failed: {exc}")
         return errors
-
-
-def select(
-    profiles: list[str] | None = None, patterns: list[str] | None = None, protocol: str = "canopen"
-) -> list[Case]:
-    """Cases of the given profiles whose id matches any -k pattern. No profiles: every profile
-    of the protocol but the opt-in ones (``seed``); ``"all"``: every profile of the protocol."""
-    from . import cases  # noqa: F401  (registers every case)
-
-    available = PROTOCOL_PROFILES[protocol]
-    if not profiles:
-        wanted = set(available) - set(OPT_IN)
-    elif "all" in profiles:
-        wanted = set(available)
-    else:
-        wanted = set(profiles) & set(available)
-    chosen = []
-    for c in CASES.values():
-        if c.profile not in wanted:
-            continue
-        if patterns and not any(_matches(c.id, p) for p in patterns):
-            continue
-        chosen.append(c)
-    order = PROFILES + DEVICENET_PROFILES
-    return sorted(chosen, key=lambda c: order.index(c.profile))
-
-
-def _matches(case_id: str, pattern: str) -> bool:
-    if any(ch in pattern for ch in "*?["):
-        return fnmatch.fnmatchcase(case_id, pattern)
-    return pattern in case_id
 
 
 def run_cases(

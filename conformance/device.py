@@ -7,16 +7,14 @@ from __future__ import annotations
 
 import struct
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import Protocol
 
 import canopen
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 
-from .framework import Fail, Skip, Timing
 from .link import Frame, Link
-
-if TYPE_CHECKING:
-    from .framework import Context
+from .outcome import Fail, Skip, Timing
 
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
 STATE_NAMES = {0x00: "boot-up", 0x04: "Stopped", 0x05: "Operational", 0x7F: "Pre-operational"}
@@ -63,6 +61,19 @@ class SdoAbort(Exception):
 
 def mux(index: int, sub: int) -> bytes:
     return struct.pack("<HB", index, sub)
+
+
+class CaseContext(Protocol):
+    """What the device needs of a running case (:class:`.framework.Context` is one): the
+    device itself, the timing knobs and a place to register clean-ups."""
+
+    @property
+    def device(self) -> Device: ...
+
+    @property
+    def timing(self) -> Timing: ...
+
+    def cleanup(self, fn: Callable[[], None]) -> None: ...
 
 
 class Device:
@@ -275,7 +286,7 @@ class Device:
             data = struct.pack("<I", value)
         self.download(index, sub, data)
 
-    def patch(self, ctx: Context, index: int, sub: int, value) -> object:
+    def patch(self, ctx: CaseContext, index: int, sub: int, value) -> object:
         """Write ``value`` and restore the previous value when the case ends."""
         old = self.read(index, sub)
         self.write(index, sub, value)
@@ -324,7 +335,7 @@ class Device:
 class StateProbe:
     """Reads the NMT state from heartbeats (0x1017) or, failing that, node guarding (0x100C)."""
 
-    def __init__(self, ctx: Context):
+    def __init__(self, ctx: CaseContext):
         self.ctx = ctx
         self.dev = ctx.device
         if self.dev.has(0x1017):

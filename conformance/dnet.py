@@ -9,13 +9,10 @@ request), 3 (explicit response), 5 (poll), 7 (duplicate MAC ID check), Group 1 m
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-import can
-
-from .framework import CaseResult, Context, Fail, Options, Timing, run_cases, select
 from .link import Frame, Link
+from .outcome import Fail, Timing
 
 # Group 2 message ids, Group 1 poll response
 G2_EXPLICIT_RESPONSE, G2_EXPLICIT_REQUEST, G2_POLL, G2_UNCONNECTED, G2_DUP_MAC = 3, 4, 5, 6, 7
@@ -317,71 +314,3 @@ class DnetDevice:
 def check_error(data: bytes, frame: Frame | None) -> None:
     if len(data) >= 3 and data[1] == ERROR | 0x80:
         raise CipErrorSeen(data[2], data[3] if len(data) > 3 else -1, frame)
-
-
-@dataclass
-class DnetSuiteConfig:
-    mac_id: int
-    master_mac: int = 0  # the tester's own MAC ID (must be free on the bus)
-    profiles: list[str] = field(default_factory=list)
-    patterns: list[str] = field(default_factory=list)
-    timing: Timing = field(default_factory=Timing)
-    options: Options = field(default_factory=Options)
-
-
-def identity(device: DnetDevice) -> dict[str, str]:
-    """Identity object attributes for the report header; what cannot be read is left out."""
-    out = {}
-    try:
-        device.allocate(CHOICE_EXPLICIT)
-    except Exception:
-        return out
-    for key, attribute in (
-        ("vendor", 1),
-        ("device type", 2),
-        ("product code", 3),
-        ("serial number", 6),
-        ("product name", 7),
-    ):
-        try:
-            data = device.get(1, 1, attribute)
-        except Exception:  # the header must not stop the run; the identity case reports it
-            continue
-        out[key] = (
-            data[1 : 1 + data[0]].decode("latin-1")
-            if attribute == 7 and data
-            else f"0x{int.from_bytes(data, 'little'):X}"
-        )
-    device.settle()
-    return out
-
-
-def run_devicenet_suite(
-    config: DnetSuiteConfig,
-    bus: can.BusABC | None = None,
-    *,
-    interface: str = "virtual",
-    channel: str = "vcan0",
-    bitrate: int | None = None,
-    progress: Callable[[CaseResult], None] | None = None,
-    on_start: Callable[[dict[str, str]], None] | None = None,
-) -> list[CaseResult]:
-    """Run the selected DeviceNet cases against the slave at ``config.mac_id`` (see run_suite)."""
-    from .runner import DeviceSilent
-
-    link = Link(bus) if bus is not None else Link.open(interface, channel, bitrate)
-    try:
-        device = DnetDevice(link, config.mac_id, config.master_mac, config.timing)
-        ctx = Context(device, config.timing, config.options)
-        device.settle()
-        if not device.wait_online(config.timing.bootup):
-            raise DeviceSilent(
-                f"MAC ID {config.mac_id} does not answer an Allocate on 0x{device.g2(G2_UNCONNECTED):03X}: wrong MAC ID or bus, or the device is not online"
-            )
-        if on_start:
-            on_start(identity(device))
-        return run_cases(
-            select(config.profiles, config.patterns, protocol="devicenet"), ctx, progress
-        )
-    finally:
-        link.close()

@@ -1,3 +1,0 @@
-"""Importing this package registers every case, profile by profile."""
-
-from . import cia401, devicenet, emcy, errctl, lss, monitoring, nmt, od, pdo, sdo, seed, store  # noqa: F401
