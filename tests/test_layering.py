@@ -167,3 +167,68 @@ def test_importing_every_core_module_loads_no_plugin_and_not_the_conformance_too
     after_core, after_plugin = run.stdout.split("\n")[:2]
     assert after_core == ""
     assert "fieldgate.plugins.canopen.sdo" in after_plugin.split()
+
+
+def find_cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (or a module importing itself)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    components: list[list[str]] = []
+
+    def visit(node: str) -> None:  # Tarjan; the graph has ~150 nodes, recursion is fine
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for target in graph[node]:
+            if target not in index:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in on_stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                components.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return components
+
+
+def describe(component: list[str], graph: dict[str, dict[str, int]]) -> str:
+    edges = [
+        f"{MODULES[a].path.relative_to(ROOT)}:{line} -> {b}"
+        for a in component
+        for b, line in graph[a].items()
+        if b in component
+    ]
+    return "cycle: " + "; ".join(edges)
+
+
+def test_the_cycle_finder_finds_a_cycle() -> None:
+    graph = {"a": {"b": 1}, "b": {"c": 2}, "c": {"a": 3}, "d": {"a": 4}}
+    assert find_cycles(graph) == [["a", "b", "c"]]
+    assert find_cycles({"a": {"b": 1}, "b": {}}) == []
+
+
+def test_no_import_cycle_at_module_level() -> None:
+    # module level includes `if TYPE_CHECKING:` imports: a cycle in annotations only is still
+    # two modules that cannot be understood (or moved) one without the other
+    graph = {name: imports(m, MODULES, deferred=False) for name, m in MODULES.items()}
+    assert sum(len(edges) for edges in graph.values()) > 300
+    assert [describe(c, graph) for c in find_cycles(graph)] == []
+
+
+def test_no_import_cycle_closed_by_an_import_inside_a_function() -> None:
+    # a deferred import hides a cycle from Python's import machinery, not from the design
+    graph = {name: imports(m, MODULES, deferred=True) for name, m in MODULES.items()}
+    assert [describe(c, graph) for c in find_cycles(graph)] == []

@@ -32,12 +32,14 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from collections.abc import Callable
+from typing import Any, TypeVar, cast
 
 from .frame import UNCONFIGURED_NODE_ID, Frame, NmtState
 from .od import Dictionary
-from .service import QUIET, Service
+from .service import QUIET, EmcyProducer, Service
 
 log = logging.getLogger("fieldgate.canopen")
+S = TypeVar("S", bound=Service)
 
 NMT_START = 0x01
 NMT_STOP = 0x02
@@ -72,7 +74,9 @@ class Node:
         self.frames_received = (
             0  # counters["rx"] in status(); a plain integer on the per-frame path
         )
-        self.emcy = None  # the EMCY producer, set when one is added (see .emcy)
+        self.emcy: EmcyProducer | None = (
+            None  # the EMCY producer, set when one is added (see .emcy)
+        )
         self.now = 0.0  # time of the last boot()/receive()/tick(), for calls from outside
         self._deadline_hint: float | None = None
         self._routes: dict[tuple[int, bool], Service] = {}
@@ -84,17 +88,17 @@ class Node:
         self._bit_timing_listeners: list[Callable[[int, float], None]] = []
 
     # -- assembling ------------------------------------------------------------------
-    def add_service(self, service: Service) -> Service:
+    def add_service(self, service: S) -> S:
         self._routes.clear()
         self.services.append(service)
         if type(service).deadline is not Service.deadline:  # services without timers are skipped
             self._timed.append(service)
         service.attach(self)
         if getattr(service, "is_emcy_producer", False):
-            self.emcy = service
+            self.emcy = cast(EmcyProducer, service)
         return service
 
-    def service(self, name: str) -> Service:
+    def service(self, name: str) -> Any:  # by name: the caller knows the class it asks for
         for s in self.services:
             if s.name == name:
                 return s

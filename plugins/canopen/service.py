@@ -55,12 +55,11 @@ Rules:
 from __future__ import annotations
 
 from collections import Counter
-from typing import TYPE_CHECKING, ClassVar
+from collections.abc import Callable, Iterable
+from typing import Any, ClassVar, Protocol, TypeVar
 
 from .frame import Frame, NmtState
-
-if TYPE_CHECKING:
-    from .node import Node
+from .od import Dictionary
 
 ALL_STATES = frozenset(NmtState)
 
@@ -81,16 +80,94 @@ QUIET = _Quiet()
 COMMUNICATING = frozenset({NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL})
 
 
+class EmcyProducer(Protocol):
+    """What services use of the node's EMCY producer (:class:`.emcy.Emcy`)."""
+
+    def raise_error(
+        self,
+        code: int,
+        register_bits: int = ...,
+        manufacturer: bytes = b"",
+        now: float | None = None,
+    ) -> bool: ...
+
+    def clear_error(
+        self, code: int, manufacturer: bytes | None = None, now: float | None = None
+    ) -> bool: ...
+
+    def clear_errors(
+        self, errors: Iterable[tuple[int, bytes]], now: float | None = None
+    ) -> int: ...
+
+    def signal(
+        self, code: int, register: int, manufacturer: bytes = b"", now: float | None = None
+    ) -> None: ...
+
+
+S = TypeVar("S", bound="Service")
+
+
+class NodeHost(Protocol):
+    """What a service may use of the node it is attached to (:class:`.node.Node` is one).
+
+    A service depends on this interface, not on the node module, so ``node.py`` imports
+    ``service.py`` and nothing imports back.
+    """
+
+    name: str
+    node_id: int
+    pending_node_id: int
+    od: Dictionary
+    state: NmtState
+    now: float
+    emcy: EmcyProducer | None
+    services: list[Service]
+
+    @property
+    def configured(self) -> bool: ...
+
+    def add_service(self, service: S) -> S: ...
+
+    def service(self, name: str) -> Any: ...  # by name: the caller knows the class it asks for
+
+    def send(self, frame: Frame) -> None: ...
+
+    def wake(self) -> None: ...
+
+    def on_nmt(self, callback: Callable[[NmtState, NmtState], None]) -> None: ...
+
+    def on_master(self, callback: Callable[[bool, str], None]) -> None: ...
+
+    def set_state(self, new: NmtState, now: float) -> None: ...
+
+    def reset_communication(self, now: float) -> None: ...
+
+    def sync(self, counter: int | None, now: float) -> None: ...
+
+    def master_state(self, ok: bool, reason: str) -> None: ...
+
+    def set_node_id(self, node_id: int) -> None: ...
+
+    def request_bit_timing(self, bitrate: int, delay_s: float) -> None: ...
+
+
 class Service:
     name: ClassVar[str] = "service"
     active_states: ClassVar[frozenset[NmtState]] = COMMUNICATING
 
     def __init__(self) -> None:
-        self.node: Node | None = None
+        self._node: NodeHost | None = None
         self.counters: Counter[str] = Counter()
 
-    def attach(self, node: Node) -> None:
-        self.node = node
+    @property
+    def node(self) -> NodeHost:
+        """The node this service is attached to (by ``node.add_service``)."""
+        if self._node is None:
+            raise RuntimeError(f"the {self.name} service is not attached to a node")
+        return self._node
+
+    def attach(self, node: NodeHost) -> None:
+        self._node = node
 
     def on_frame(self, frame: Frame, now: float) -> bool:
         return False
@@ -116,5 +193,5 @@ class Service:
     def poll(self, now: float) -> None:
         pass
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return dict(self.counters)

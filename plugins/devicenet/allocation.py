@@ -8,14 +8,11 @@ allocated 0x0B/02. A connection that timed out may be allocated again (it re-ope
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from . import cip
 from .cip import CipError
-from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, State
-
-if TYPE_CHECKING:
-    from .engine import DeviceNetSlave
+from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, Connection, State
 
 BIT_EXPLICIT, BIT_POLL, BIT_STROBE, BIT_MULTICAST, BIT_COS, BIT_CYCLIC, BIT_ACK_SUPPRESS = (
     0x01,
@@ -37,8 +34,22 @@ CONNECTION_BITS = (
 )
 
 
+class AllocationHost(Protocol):
+    """What allocation reads and calls of the slave (:class:`.engine.DeviceNetSlave` is one)."""
+
+    master_mac: int
+    allocation_choice: int
+    connections: dict[int, Connection]
+
+    def open_connection(self, instance: int, now: float) -> None: ...
+
+    def close_connection(self, instance: int, reason: str) -> None: ...
+
+    def master_back(self, reason: str) -> None: ...
+
+
 class Allocation:
-    def __init__(self, slave: DeviceNetSlave):
+    def __init__(self, slave: AllocationHost):
         self.slave = slave
 
     def handle(self, service: int, body: bytes, now: float) -> bytes:

@@ -31,7 +31,6 @@ Set data: none 0x13, more than the type 0x15 (tolerated with the front's default
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
 
 from fieldgate.host_watchdog import HostWatchdogs, NoHostWatchdog, WatchdogUnavailable
 from fieldgate.image import Channel, Kind
@@ -40,10 +39,7 @@ from fieldgate.layout import of_kind, pack_bits
 from . import cip
 from .assembly import Assembly
 from .cip import CipError
-from .objects import Attribute, CipObject, u8, u32
-
-if TYPE_CHECKING:
-    from .engine import DeviceNetSlave
+from .objects import Attribute, CipObject, SlaveHost, u8, u32
 
 KINDS = (Kind.DO, Kind.AO, Kind.DI, Kind.AI)
 LENGTH_ATTR, COUNT_ATTR, DATA_ATTR = 0x0C, 0x10, 0x14
@@ -73,9 +69,7 @@ def module_views(channels: Sequence[Channel]) -> list[ModuleView]:
 class ApplicationObject(CipObject):
     class_id, revision = 0x64, 2
 
-    def __init__(
-        self, slave: DeviceNetSlave, modules: list[ModuleView], error_counter: ErrorCounter
-    ):
+    def __init__(self, slave: SlaveHost, modules: list[ModuleView], error_counter: ErrorCounter):
         super().__init__(slave)
         self.modules = modules
         self.error_counter = error_counter

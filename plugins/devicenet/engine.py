@@ -18,7 +18,6 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
 
 from fieldgate.can.frame import Frame
 from fieldgate.host_watchdog import HostWatchdogs
@@ -31,33 +30,15 @@ from .cip import CipError
 from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, Connection, State, TimeoutAction
 from .fragment import ACK, ACK_OK, ACK_TOO_MUCH, EXPLICIT_CHUNK, Reassembler, io_frames, split
 from .objects import AssemblyObject, ConnectionObject, DeviceNetObject, IdentityObject, u16
+from .settings import BAUD_RATES, Settings
 
 log = logging.getLogger("fieldgate.devicenet")
 
-BAUD_RATES = (125_000, 250_000, 500_000)
-DUP_MAC_INTERVAL_S = 1.0
 BIT_RATE_SWITCH_S = 0.01  # after a baud change at Reset: the adapter reopens the bus (at once) before the first duplicate MAC request
 FRAGMENT_ACK_TIMEOUT_S = 1.0
 FRAGMENT_RETRIES = 2
 SHUTDOWN_CODE = 0x0004
 EXPLICIT_MIN_SIZE = 0x20
-
-
-@dataclass
-class Settings:
-    mac_id: int = 1
-    baud_code: int = 0
-    vendor_id: int = 803
-    device_type: int = 0
-    product_code: int = 1
-    major_revision: int = 2
-    minor_revision: int = 1
-    serial: int = 1
-    product_name: str = "fieldgate"
-    tolerate_trailing_bytes: bool = (
-        True  # the seed's Set requests carry a stray byte (extract §9.2)
-    )
-    dup_mac_interval_s: float = DUP_MAC_INTERVAL_S
 
 
 class OutgoingFragments:

@@ -11,14 +11,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
+
+from fieldgate.host_watchdog import HostWatchdogs
 
 from . import cip
+from .allocation import Allocation
+from .assembly import Assemblies, Assembly
 from .cip import CipError
-from .connection import TimeoutAction
-
-if TYPE_CHECKING:
-    from .engine import DeviceNetSlave
+from .connection import Connection, TimeoutAction
+from .settings import Settings
 
 Getter = Callable[[], bytes]
 Setter = Callable[[bytes], bytes]
@@ -28,6 +30,43 @@ Setter = Callable[[bytes], bytes]
 class Attribute:
     get: Getter | None  # None: Set only (Get answers 0x2C)
     set: Setter | None = None
+
+
+class SlaveHost(Protocol):
+    """What the CIP objects read and call of the slave (:class:`.engine.DeviceNetSlave` is one).
+
+    The objects depend on this interface, not on the engine module: the engine imports
+    the objects, nothing imports the engine back.
+    """
+
+    settings: Settings
+    assemblies: Assemblies
+    allocation: Allocation
+    connections: dict[int, Connection]
+    host_watchdogs: HostWatchdogs
+    mac_id: int
+    baud_code: int
+    pending_baud_code: int | None
+    master_mac: int
+    allocation_choice: int
+    bus_off_interrupt: int
+    bus_off_count: int
+    heartbeat_s: int
+
+    @property
+    def identity_status(self) -> int: ...
+
+    def set_heartbeat(self, seconds: int) -> None: ...
+
+    def schedule_restart(self, class_id: int) -> None: ...
+
+    def change_mac(self, mac: int) -> None: ...
+
+    def settings_changed(self) -> None: ...
+
+    def write_assembly(self, assembly: Assembly, data: bytes) -> None: ...
+
+    def set_epr(self, connection: Connection, ms: int) -> int: ...
 
 
 def u8(v: int) -> bytes:
@@ -54,7 +93,7 @@ def const(data: bytes) -> Getter:
 class Sized:
     """Set data of a fixed-size attribute: too short 0x13, too long 0x15 (unless tolerated)."""
 
-    def __init__(self, slave: DeviceNetSlave):
+    def __init__(self, slave: SlaveHost):
         self.slave = slave
 
     def take(self, data: bytes, size: int) -> int:
@@ -69,7 +108,7 @@ class CipObject:
     class_id = 0
     revision = 1
 
-    def __init__(self, slave: DeviceNetSlave):
+    def __init__(self, slave: SlaveHost):
         self.slave = slave
         self.sized = Sized(slave)
 

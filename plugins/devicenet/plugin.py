@@ -26,7 +26,8 @@ from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
 from .assembly import Assemblies
-from .engine import BAUD_RATES, DeviceNetSlave, Settings
+from .engine import DeviceNetSlave
+from .settings import BAUD_RATES, Settings
 from .store import NetworkStore
 
 
