@@ -28,6 +28,7 @@ import re
 import statistics
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout too
@@ -81,9 +82,9 @@ async def measure(port: str, n: int) -> tuple[dict[str, float], dict[str, float]
                 if text[0] in "#@" and len(text) > 3 and not text.endswith("DI")
                 else (lambda reply: reply)
             )
-            ours[name] = await per_transaction(lambda: _checked(link, text, check), n)
+            ours[name] = await per_transaction(partial(_checked, link, text, check), n)
             raw = codec.frame(text, False)
-            bare[name] = await per_transaction(lambda: _bare(serial, raw), n)
+            bare[name] = await per_transaction(partial(_bare, serial, raw), n)
     finally:
         await serial.close()
     return ours, bare

@@ -236,7 +236,7 @@ class Device:
                     f"{what}: abort does not echo the multiplexer",
                     expected=bytes(request[1:4]).hex(" "),
                     seen=str(exc.frame),
-                )
+                ) from None
             return exc.code
         raise Fail(
             f"{what}: accepted", expected=" or ".join(abort_text(c) for c in codes), seen=str(frame)

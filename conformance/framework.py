@@ -15,7 +15,7 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 
 from .device import Device
 from .outcome import Fail, Skip, Timing
@@ -44,7 +44,7 @@ DEVICENET_PROFILES = ("devicenet",)
 PROTOCOL_PROFILES = {"canopen": PROFILES, "devicenet": DEVICENET_PROFILES}
 
 
-class Verdict(str, Enum):
+class Verdict(StrEnum):
     PASS = "PASS"
     FAIL = "FAIL"
     SKIP = "SKIP"

@@ -293,7 +293,7 @@ def load_registry(extra_plugins: list[object] | None = None) -> Registry:
             name, getattr(plugin, "__version__", "0"), "(in process)"
         )
         pm.register(plugin, name=name)
-    for name, plugin in pm.list_name_plugin():
+    for name, _plugin in pm.list_name_plugin():
         registry._current = name
         try:
             pm.subset_hook_caller(

@@ -72,7 +72,7 @@ class PolledModule(ABC):
         """Check the module answers (used while it is offline). Default: read its inputs."""
         await self.read_inputs()
 
-    async def on_online(self) -> None:
+    async def on_online(self) -> None:  # noqa: B027  (an optional hook: by default nothing to do)
         """Called after the first successful contact and after each recovery (configure watchdogs...)."""
 
     def output_quality(self) -> Quality:
@@ -239,7 +239,7 @@ class LineScheduler:
         self, st: _ModuleState, action: Callable[[], Awaitable[Any]]
     ) -> tuple[bool, Any]:
         """Run one transaction with retries; record health. Returns (ok, result)."""
-        for attempt in range(self.retries + 1):
+        for _attempt in range(self.retries + 1):
             started = self.clock()
             self.stats.requests += 1
             try:

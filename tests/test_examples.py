@@ -41,7 +41,7 @@ def test_example_validates_or_needs_only_a_missing_plugin(path):
     with pytest.raises(TopologyError) as info:
         load_topology(path, REGISTRY)
     assert len(info.value.issues) == len(missing)
-    for issue, type_name in zip(info.value.issues, missing):
+    for issue, type_name in zip(info.value.issues, missing, strict=True):
         assert f"no installed plugin provides front type '{type_name}'" in issue.message
         assert issue.line is not None
 

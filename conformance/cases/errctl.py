@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from itertools import pairwise
 
 from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_START, NMT_STOP
 from ..framework import Context, Fail, Skip, case
@@ -24,7 +25,7 @@ def heartbeats(ctx: Context, duration: float):
 
 
 def check_period(ctx: Context, stamps: list[float], period_s: float, what: str) -> None:
-    gaps = [b - a for a, b in zip(stamps, stamps[1:])]
+    gaps = [b - a for a, b in pairwise(stamps)]
     bad = [g for g in gaps if not ctx.timing.within(g, period_s)]
     if bad:
         raise Fail(

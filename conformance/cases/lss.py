@@ -83,7 +83,10 @@ def inquire_identity(ctx: Context) -> None:
     ident = identity(ctx.device)
     switch(ctx, CONFIGURATION)
     for cs, value, name in zip(
-        (0x5A, 0x5B, 0x5C, 0x5D), ident, ("vendor-ID", "product code", "revision", "serial number")
+        (0x5A, 0x5B, 0x5C, 0x5D),
+        ident,
+        ("vendor-ID", "product code", "revision", "serial number"),
+        strict=True,
     ):
         frame = must(ctx, [cs], cs, f"inquire {name}")
         got = struct.unpack_from("<I", frame.data, 1)[0]
@@ -99,13 +102,13 @@ def inquire_identity(ctx: Context) -> None:
 def switch_selective(ctx: Context) -> None:
     require_lss(ctx)
     ident = identity(ctx.device)
-    for cs, value in zip((0x40, 0x41, 0x42), ident):
+    for cs, value in zip((0x40, 0x41, 0x42), ident[:3], strict=True):  # no serial number (0x43)
         lss(ctx, bytes([cs]) + struct.pack("<I", value))
     silent(
         ctx, bytes([0x43]) + struct.pack("<I", ident[3] ^ 1), "switch selective with a wrong serial"
     )
     silent(ctx, [0x5E], "inquire node-ID after a failed selective switch")
-    for cs, value in zip((0x40, 0x41, 0x42), ident):
+    for cs, value in zip((0x40, 0x41, 0x42), ident[:3], strict=True):  # no serial number (0x43)
         lss(ctx, bytes([cs]) + struct.pack("<I", value))
     ctx.cleanup(lambda: lss(ctx, [0x04, WAITING]))
     must(ctx, bytes([0x43]) + struct.pack("<I", ident[3]), 0x44, "switch selective")

@@ -4,6 +4,7 @@ event timer, RTR, RPDO length errors, NMT gating."""
 from __future__ import annotations
 
 import time
+from itertools import pairwise
 
 from ..device import NMT_PREOP, NMT_STOP, SdoAbort, abort_text
 from ..framework import Context, Fail, Skip, case
@@ -441,7 +442,7 @@ def event_timer(ctx: Context) -> None:
             expected=f"4 frames in {4.5 * period:.2f} s",
             seen=f"{len(frames)}",
         )
-    gaps = [b.timestamp - a.timestamp for a, b in zip(frames, frames[1:])]
+    gaps = [b.timestamp - a.timestamp for a, b in pairwise(frames)]
     if any(not ctx.timing.within(g, period) for g in gaps):
         raise Fail(
             "event timer period",
@@ -482,7 +483,7 @@ def inhibit_time(ctx: Context) -> None:
             expected=f"≥ 2 frames in {3.5 * inhibit_s:.2f} s",
             seen=f"{len(frames)}",
         )
-    gaps = [b.timestamp - a.timestamp for a, b in zip(frames, frames[1:])]
+    gaps = [b.timestamp - a.timestamp for a, b in pairwise(frames)]
     if min(gaps) < inhibit_s - ctx.timing.slack(inhibit_s):
         raise Fail(
             "inhibit time not respected",

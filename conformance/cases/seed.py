@@ -71,7 +71,9 @@ def _match(data: bytes, pattern: list[str]) -> bool:
     tokens = pattern[:-1] if open_end else pattern
     if len(data) < len(tokens) or (not open_end and len(data) != len(tokens)):
         return False
-    return all(t == "??" or int(t, 16) == b for t, b in zip(tokens, data))
+    return all(
+        t == "??" or int(t, 16) == b for t, b in zip(tokens, data[: len(tokens)], strict=True)
+    )
 
 
 def require_objects(ctx: Context, *indices: int) -> None:
@@ -502,7 +504,7 @@ def tv21(ctx: Context) -> None:
     ident = identity(ctx.device)
     lss(ctx, [0x04, CONFIGURATION])
     ctx.cleanup(lambda: lss(ctx, [0x04, WAITING]))
-    for cs, value in zip((0x5A, 0x5B, 0x5C, 0x5D), ident):
+    for cs, value in zip((0x5A, 0x5B, 0x5C, 0x5D), ident, strict=True):
         frame = must(ctx, [cs], cs, f"inquire 0x{cs:02X}")
         if bytes(frame.data[1:5]) != struct.pack("<I", value):
             raise Fail(

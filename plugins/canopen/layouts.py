@@ -77,7 +77,9 @@ class IoLayout:
         return device_type(
             {
                 kind
-                for kind, present in zip(IO_KINDS, (self.di_bytes, self.do_bytes, self.ai, self.ao))
+                for kind, present in zip(
+                    IO_KINDS, (self.di_bytes, self.do_bytes, self.ai, self.ao), strict=True
+                )
                 if present
             }
         )

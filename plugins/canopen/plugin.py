@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any, Literal
 
@@ -288,11 +289,11 @@ class CanopenFront(Front):
             return
         manufacturer, emcy = bytes([0x0B, health.address]), self.node.emcy
         if event is HealthEvent.OFFLINE:
-            action = lambda: emcy.raise_error(
-                MODULE_FAILURE_CODE, MODULE_FAILURE_REGISTER, manufacturer
-            )  # noqa: E731
+            action = partial(
+                emcy.raise_error, MODULE_FAILURE_CODE, MODULE_FAILURE_REGISTER, manufacturer
+            )
         elif event is HealthEvent.ONLINE:
-            action = lambda: emcy.clear_error(MODULE_FAILURE_CODE, manufacturer)  # noqa: E731
+            action = partial(emcy.clear_error, MODULE_FAILURE_CODE, manufacturer)
         else:
             return
         if self.adapter is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+from collections.abc import Callable
 
 from fieldgate.plugin import PluginStartError
 from fieldgate.serial_link import AsyncSerial, PtyPair
@@ -80,20 +81,25 @@ INTERRUPTED = (
 )
 
 
+class _ScanProgress:
+    """scan_line's progress callback for one baud rate: draws the bar, remembers how far it got."""
+
+    def __init__(self, bar: Callable[[int, int, int], None]) -> None:
+        self.bar = bar
+        self.done = 0
+
+    def __call__(self, count: int, total: int, modules: int) -> None:
+        self.done = count
+        self.bar(count, total, modules)
+
+
 async def _scan(
     args: argparse.Namespace, addresses: list[int], bauds: list[int], found: list
 ) -> str | None:
     """Scan at each baud rate, appending to ``found``. None when done; where it stopped when
     Ctrl-C interrupted it (asyncio.run cancels this task on SIGINT)."""
     for n, baud in enumerate(bauds):
-        done = 0
-        bar = progress_bar()
-
-        def progress(count: int, total: int, modules: int) -> None:
-            nonlocal done
-            done = count
-            bar(count, total, modules)
-
+        progress = _ScanProgress(progress_bar())
         try:
             print(
                 f"scanning {args.port} at {baud} bit/s, checksum {'on' if args.checksum else 'off'}",
@@ -109,6 +115,7 @@ async def _scan(
             finally:
                 await serial.close()
         except asyncio.CancelledError:
+            done = progress.done
             if 0 < done < len(addresses):
                 print(file=sys.stderr)  # end the progress bar's line
             where = (

@@ -170,7 +170,8 @@ class DconModule(PolledModule):
         data = codec.data(await self.link.transact(codec.command("#", self.address)), self.address)
         values = split_values(data, self.data_format, len(ids))
         return {
-            cid: text_to_raw(text, self.data_format, self.range) for cid, text in zip(ids, values)
+            cid: text_to_raw(text, self.data_format, self.range)
+            for cid, text in zip(ids, values, strict=True)
         }
 
     async def probe(self) -> None:

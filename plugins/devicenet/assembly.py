@@ -67,7 +67,7 @@ class Assembly:
         """Write an output assembly's bytes to its channels (``len(data) == size``)."""
         changed: list[str] = []
         if self.kind.is_digital:
-            for group, value in zip(self.slots, data):
+            for group, value in zip(self.slots, data, strict=True):
                 changed += write_byte(image, group, value, origin)
         else:
             for i, channel in enumerate(self.slots):

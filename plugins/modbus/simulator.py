@@ -160,7 +160,7 @@ class SimModule:
         if fc in (3, 4):
             return read_registers_response(self.address, fc, [cells[a] for a in span])
         before = {a: cells[a] for a in span}
-        for a, v in zip(span, req.values):
+        for a, v in zip(span, req.values, strict=True):  # the codec checks count == len(values)
             cells[a] = bool(v) if table.is_bits else v
         if not self._values_valid(
             table, span
@@ -467,6 +467,7 @@ def demo_wiring(config: ModbusBackConfig) -> list[tuple[str, str]]:
 
     pairs = []
     for out_kind, in_kind in ((Kind.DO, Kind.DI), (Kind.AO, Kind.AI)):
-        for outs, ins in zip(having(out_kind), having(in_kind, without=out_kind)):
-            pairs.extend((o.channel, i.channel) for o, i in zip(outs, ins))
+        # modules and channels pair up as far as both sides go; the rest have no partner
+        for outs, ins in zip(having(out_kind), having(in_kind, without=out_kind), strict=False):
+            pairs.extend((o.channel, i.channel) for o, i in zip(outs, ins, strict=False))
     return pairs

@@ -70,7 +70,7 @@ def test_fieldgate_plugins_lists_name_version_and_what_each_provides():
     out = subprocess.run(
         [sys.executable, "-m", "fieldgate", "plugins"], capture_output=True, text=True, check=True
     ).stdout
-    line = next(l for l in out.splitlines() if l.startswith("loopback"))
+    line = next(text for text in out.splitlines() if text.startswith("loopback"))
     assert (
         "1.0.0" in line and "back:loopback, front:memory" in line and "(fieldgate-loopback)" in line
     )

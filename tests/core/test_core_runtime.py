@@ -117,7 +117,7 @@ def test_cli_start_failure_is_one_clear_line_and_exit_2(tmp_path):
         timeout=30,
     )
     assert result.returncode == 2
-    errors = [l for l in result.stderr.splitlines() if "ERROR" in l]
+    errors = [line for line in result.stderr.splitlines() if "ERROR" in line]
     assert len(errors) == 1 and errors[0].endswith(
         "cannot start: back io (loopback): cannot open /dev/ttyS9: no such device"
     )

@@ -93,12 +93,12 @@ async def test_every_family_reads_inputs_and_writes_outputs(gateway, models, wai
         back = gw.component("rs485")
         for phase in (0, 1):
             expect_in, expect_out = {}, {}
-            for address, model in enumerate(models, 1):
+            for address in range(1, len(models) + 1):
                 ins, outs = _stimulate(sim, gw, address, back.modules[address].profile, phase)
                 expect_in.update(ins)
                 expect_out.update(outs)
             await wait_for(
-                lambda: (
+                lambda expect_in=expect_in, expect_out=expect_out: (
                     all(gw.read(c) == v for c, v in expect_in.items())
                     and all(sim.get_output(c) == v for c, v in expect_out.items())
                 ),
