@@ -149,12 +149,16 @@ class PtyPair:
     """
 
     def __init__(self, baudrate: int | None = None):
-        self._ends = []
-        for _ in range(2):
-            master, slave = os.openpty()
-            tty.setraw(master)
-            tty.setraw(slave)
-            self._ends.append((master, slave))
+        self._ends: list[tuple[int, int]] = []
+        try:
+            for _ in range(2):
+                master, slave = os.openpty()
+                self._ends.append((master, slave))
+                tty.setraw(master)
+                tty.setraw(slave)
+        except OSError:  # no pseudo-terminals: raise without leaking the first pair
+            self._close_ends()
+            raise
         self.a = os.ttyname(self._ends[0][1])
         self.b = os.ttyname(self._ends[1][1])
         self.baudrate = baudrate
@@ -194,6 +198,9 @@ class PtyPair:
         self._stop.set()
         for t in self._threads:
             t.join(timeout=1)
+        self._close_ends()
+
+    def _close_ends(self) -> None:
         for master, slave in self._ends:
             for fd in (master, slave):
                 try:

@@ -35,7 +35,13 @@ class SimulationBench:
                 raise PluginStartError(
                     f"back {back.name} ({back.type}): not a serial back, cannot simulate it"
                 )
-            pair = PtyPair()
+            try:
+                pair = PtyPair()
+            except OSError as exc:  # no pseudo-terminals here (container without /dev/pts, limit)
+                raise PluginStartError(
+                    f"back {back.name} ({back.type}): cannot open a pseudo-terminal for its"
+                    f" simulated modules: {exc.strerror or exc}"
+                ) from None
             self._pairs.append(pair)
             back.port = pair.a
             if getattr(back, "parity", "N") != "N":
