@@ -11,12 +11,18 @@ import asyncio
 import logging
 import sys
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from . import __version__
 from .plugin import Registry, load_registry
 from .runtime import Gateway, GatewayStartError
 from .stopping import stopped_by_signals, wait_until
 from .topology import TopologyError, load_topology
+
+if TYPE_CHECKING:  # ruamel.yaml is imported when --set is used, not at every start
+    from ruamel.yaml import YAML
+
+    from .image import ProcessImage
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
 
@@ -40,7 +46,7 @@ def add_overrides_argument(
     )
 
 
-def parse_overrides(items: list[str]) -> dict:
+def parse_overrides(items: list[str]) -> dict[str, Any]:
     """``--set fronts.can.interface=virtual`` pairs; values are parsed as YAML scalars."""
     from ruamel.yaml import YAML
 
@@ -54,7 +60,7 @@ def parse_overrides(items: list[str]) -> dict:
     return out
 
 
-def _scalar(yaml, text: str):
+def _scalar(yaml: YAML, text: str) -> Any:
     """A YAML value; text that only looks like a mapping (``a: b``) stays a string."""
     try:
         value = yaml.load(text) if text else ""
@@ -174,12 +180,12 @@ async def _print_status(gateway: Gateway, period: float) -> None:
         print(format_image(gateway.image), flush=True)
 
 
-def format_image(image) -> str:
+def format_image(image: ProcessImage) -> str:
     """One line: per module and kind, digital channels as bits (channel 0 first), analog as values.
 
     A group whose channels are not all good shows the worst quality, e.g. ``rs485/m5 ai=[0]!comm-fault``.
     """
-    groups: dict[tuple, list] = {}
+    groups: dict[tuple[Any, ...], list[Any]] = {}
     for ch in image:
         groups.setdefault((ch.source.back, ch.source.module, ch.kind), []).append(ch)
     parts = []
@@ -273,7 +279,7 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     )
     p.set_defaults(handler=cmd_plugins)
 
-    groups: dict[str, argparse._SubParsersAction] = {}
+    groups: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]] = {}
     for command in sorted(registry.commands, key=lambda c: c.path):
         parent = sub
         for depth, word in enumerate(command.path[:-1]):
@@ -292,12 +298,12 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
 
 
 def _with_parents(
-    subparsers: argparse._SubParsersAction, common: argparse.ArgumentParser
-) -> argparse._SubParsersAction:
+    subparsers: argparse._SubParsersAction[argparse.ArgumentParser], common: argparse.ArgumentParser
+) -> argparse._SubParsersAction[argparse.ArgumentParser]:
     """Every parser added to ``subparsers`` also takes ``common``'s options."""
     add_parser = subparsers.add_parser
 
-    def add_with_parents(name: str, **kwargs) -> argparse.ArgumentParser:
+    def add_with_parents(name: str, **kwargs: Any) -> argparse.ArgumentParser:
         return add_parser(name, parents=[common, *kwargs.pop("parents", [])], **kwargs)
 
     subparsers.add_parser = add_with_parents  # type: ignore[method-assign]

@@ -17,6 +17,7 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Any
 
 log = logging.getLogger("fieldgate.health")
 
@@ -54,7 +55,7 @@ class ModuleHealth:
     last_error: str = ""
     last_error_kind: ErrorKind | None = None
     requests: int = 0
-    errors: Counter = field(default_factory=Counter)
+    errors: Counter[str] = field(default_factory=Counter)
     last_rtt: float | None = None
     last_success: float | None = None
     _listeners: list[Callable[[ModuleHealth, HealthEvent], None]] = field(
@@ -113,7 +114,7 @@ class ModuleHealth:
             except Exception:
                 log.exception("health listener failed for %s/%d", self.back, self.address)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {
             "back": self.back,
             "address": self.address,
@@ -167,10 +168,10 @@ class LineStats:
     cycles: int = 0
     last_cycle_time: float | None = None
     requests: int = 0
-    errors: Counter = field(default_factory=Counter)
+    errors: Counter[str] = field(default_factory=Counter)
     writes: int = 0
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {
             "line": self.name,
             "cycles": self.cycles,

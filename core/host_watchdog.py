@@ -30,7 +30,7 @@ line request's outcome shows in the module's status and health.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Protocol, runtime_checkable
 
 Key = tuple[str, int]  # (back name, module address)
@@ -192,7 +192,7 @@ class HostWatchdogs:
             except Exception as exc:
                 raise WatchdogUnavailable(str(exc)) from None
 
-    def _call(self, back: str, address: int, action) -> None:
+    def _call(self, back: str, address: int, action: Callable[[Any], None]) -> None:
         running = self._back(back)
         if running is None:
             raise NoHostWatchdog(

@@ -30,6 +30,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Any
 
 log = logging.getLogger("fieldgate.image")
 
@@ -430,7 +431,7 @@ class ProcessImage:
             return [c for c in self._channels.values() if c.kind.is_output]
         return [c for c in (self[cid] for cid in channel_ids) if c.kind.is_output]
 
-    def snapshot(self) -> list[dict]:
+    def snapshot(self) -> list[dict[str, Any]]:
         """Plain data for status displays and tests."""
         return [
             {
@@ -444,6 +445,6 @@ class ProcessImage:
         ]
 
 
-def _natural_key(text: str) -> list:
+def _natural_key(text: str) -> list[int | str]:
     """Sort ``m10`` after ``m9``: digits compare as numbers."""
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", text)]

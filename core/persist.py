@@ -34,7 +34,7 @@ _TEMP_FLAGS = (
 )
 
 
-def write_atomic(path: str | os.PathLike, data: bytes, *, make_parents: bool = True) -> None:
+def write_atomic(path: str | os.PathLike[str], data: bytes, *, make_parents: bool = True) -> None:
     """Replace ``path`` by ``data`` atomically (see the module's docstring for mode and folders).
 
     Errors are OSError as from ``open``: FileNotFoundError (no such folder, with
@@ -85,7 +85,7 @@ def _create_temp(target: Path) -> tuple[int, Path]:
     raise FileExistsError(errno.EEXIST, "no free temporary name", str(target.parent))
 
 
-def write_json_atomic(path: str | os.PathLike, obj: object) -> None:
+def write_json_atomic(path: str | os.PathLike[str], obj: object) -> None:
     write_atomic(path, json.dumps(obj, indent=1, sort_keys=True).encode())
 
 
@@ -93,13 +93,14 @@ class CorruptStore(Exception):
     """The stored file exists but cannot be used."""
 
 
-def read_json(path: str | os.PathLike) -> object | None:
+def read_json(path: str | os.PathLike[str]) -> object | None:
     """The stored object, None when there is no file, CorruptStore when it is unreadable."""
     try:
         raw = Path(path).read_bytes()
     except FileNotFoundError:
         return None
     try:
-        return json.loads(raw)
+        stored: object = json.loads(raw)
+        return stored
     except (ValueError, UnicodeDecodeError) as exc:
         raise CorruptStore(f"{path}: {exc}") from exc

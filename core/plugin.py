@@ -82,7 +82,7 @@ class GatewayContext:
     def state_dir(self) -> Path:
         return self.topology.state_dir
 
-    def front_channels(self, front: FrontConfig) -> list:
+    def front_channels(self, front: FrontConfig) -> list[Any]:
         """The channels a front serves, in order (its ``expose`` list, or all in the seeds' order)."""
         from .layout import default_order
 
@@ -119,7 +119,7 @@ class Component(ABC):
     @abstractmethod
     async def stop(self) -> None: ...
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {}
 
     def channel_ids(self) -> list[str]:
@@ -150,7 +150,7 @@ BackFactory = Callable[[BackConfig, GatewayContext], Back]
 class ComponentType:
     role: str  # "front" or "back"
     type_name: str
-    model: type
+    model: type[FrontConfig] | type[BackConfig]
     factory: Callable[[Any, GatewayContext], Component]
     plugin: str
     description: str = ""
@@ -237,7 +237,12 @@ class Registry:
         self.simulators[back_type] = factory
 
     def _add(
-        self, role: str, type_name: str, model: type, factory: Callable, description: str
+        self,
+        role: str,
+        type_name: str,
+        model: type[FrontConfig] | type[BackConfig],
+        factory: Callable[..., Any],
+        description: str,
     ) -> None:
         key = (role, type_name)
         if key in self.types:

@@ -27,7 +27,7 @@ from typing import Any
 
 from .cancellation import raise_if_cancelled
 from .health import ErrorKind, LineStats, ModuleHealth
-from .image import Change, ChannelSpec, ProcessImage, Quality
+from .image import Change, ChannelSpec, ProcessImage, Quality, Subscription
 from .plugin import Back, GatewayContext
 from .topology.model import ModuleConfig, SerialBackConfig
 
@@ -35,7 +35,7 @@ log = logging.getLogger("fieldgate.polling")
 
 Reading = Any  # a value, or (value, Quality) for module-reported quality
 
-NOTHING_DUE: dict = {}
+NOTHING_DUE: dict[str, Any] = {}
 """Returned by ``read_inputs`` when it made no transaction (none of its groups was due):
 the scheduler then records neither a success nor a request. Compared by identity."""
 
@@ -134,7 +134,7 @@ class LineScheduler:
         ]
         self._by_output = {cid: st for st in self._states for cid in st.module.outputs}
         self._wake = asyncio.Event()
-        self._subscription = None
+        self._subscription: Subscription | None = None
         self._cycle_start: float | None = None
         self._cycle_seen: set[int] = set()
         self._next_rewrite = 0.0
@@ -358,7 +358,7 @@ class LineScheduler:
             self.stats.last_cycle_time = now - self._cycle_start
             self._cycle_start, self._cycle_seen = now, set()
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             **self.stats.as_dict(),
             "pending_writes": self.pending_writes,
@@ -442,5 +442,5 @@ class SerialBack(Back):
             finally:
                 self.link = None
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return self.scheduler.status() if self.scheduler else {"line": self.name, "running": False}

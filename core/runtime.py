@@ -79,14 +79,14 @@ class Gateway:
         self.masters = self.context.masters
         self.backs: list[Component] = []
         self.fronts: list[Component] = []
-        self._tasks: dict[str, asyncio.Task] = {}
+        self._tasks: dict[str, asyncio.Task[None]] = {}
         self._restarts: dict[str, int] = {}
         self.running = False
 
     @classmethod
     def load(
         cls,
-        source: str | Path | dict,
+        source: str | Path | dict[str, Any],
         overrides: dict[str, Any] | None = None,
         registry: Registry | None = None,
         **options: Any,
@@ -108,9 +108,9 @@ class Gateway:
             for cfg in self.topology.backs:
                 self.backs.append(self._create("back", cfg))
                 self.context.backs[cfg.name] = self.backs[-1]
-            for cfg in self.topology.fronts:
-                self.masters.register(cfg.name)
-                self.fronts.append(self._create("front", cfg))
+            for front in self.topology.fronts:
+                self.masters.register(front.name)
+                self.fronts.append(self._create("front", front))
             for comp in self.backs + self.fronts:
                 await self._start_one(comp)
         except GatewayStartError:
@@ -261,7 +261,7 @@ class Gateway:
         await self.start()
         return self
 
-    async def __aexit__(self, *exc) -> None:
+    async def __aexit__(self, *exc: object) -> None:
         await self.stop()
 
     # -- embedding API --------------------------------------------------------
@@ -277,7 +277,7 @@ class Gateway:
                 return comp
         raise KeyError(f"no front or back named {name!r}")
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             "gateway": self.topology.gateway.name,
             "running": self.running,

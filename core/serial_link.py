@@ -19,6 +19,7 @@ import threading
 import time
 import tty
 from collections.abc import Callable
+from typing import Any
 
 import serial
 
@@ -211,7 +212,7 @@ class PtyPair:
     def __enter__(self) -> PtyPair:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 
@@ -234,7 +235,7 @@ class PortServer:
     ):
         self.port_name = port
         self.on_data = on_data
-        self.settings = dict(
+        self.settings: dict[str, Any] = dict(
             baudrate=baudrate, bytesize=bytesize, parity=_PARITY[parity], stopbits=stopbits
         )
         self.sent = 0  # replies written
@@ -299,7 +300,7 @@ class PortServer:
             self._port = None
 
 
-async def cancel_task(task: asyncio.Task | None) -> None:
+async def cancel_task(task: asyncio.Task[Any] | None) -> None:
     """Cancel a background task and wait until it has ended."""
     if task is not None:
         task.cancel()

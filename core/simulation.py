@@ -8,10 +8,11 @@ plugin simulator serves the other end, so the back runs its real serial code.
 from __future__ import annotations
 
 import logging
+from typing import cast
 
 from .plugin import PluginStartError, Registry, Simulator
 from .serial_link import PtyPair
-from .topology import Topology
+from .topology import SerialBackConfig, Topology
 
 log = logging.getLogger("fieldgate.simulation")
 
@@ -44,14 +45,15 @@ class SimulationBench:
                 ) from None
             self._pairs.append(pair)
             back.port = pair.a
-            if getattr(back, "parity", "N") != "N":
+            serial = cast(SerialBackConfig, back)  # (a serial back: it has a port)
+            if getattr(serial, "parity", "N") != "N":
                 # a pseudo-terminal carries bytes, not bits, and Linux refuses even parity on one
                 log.info(
                     "back %s: simulated line runs without parity (configured %s)",
                     back.name,
-                    back.parity,
+                    serial.parity,
                 )
-                back.parity = "N"
+                serial.parity = "N"
             simulator = factory(back, pair.b, self.animate)
             await simulator.start()
             self.simulators[back.name] = simulator

@@ -35,7 +35,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import can
 
@@ -58,6 +58,12 @@ class CanEngine(Protocol):
     def flush(self) -> list[Frame]: ...
     def next_deadline(self) -> float | None: ...
     def on_bit_timing(self, callback: Callable[..., Any]) -> None: ...
+
+
+class QuickAnswering(Protocol):
+    """An engine that can answer a read on the receive thread (optional; see :meth:`CanAdapter._quick`)."""
+
+    def quick_answer(self, can_id: int, data: bytes | bytearray, now: float) -> Frame | None: ...
 
 
 CAN_ERR_BUSOFF = 0x40
@@ -150,7 +156,7 @@ class CanAdapter:
         )  # the loop holds it while it calls the engine (re-entered when a
         # process-image event raised inside an engine call pumps again); see the module notes
         self.quick_answers = 0
-        self.failed: asyncio.Future = (
+        self.failed: asyncio.Future[None] = (
             loop.create_future()
         )  # set when receiving is dead: run() raises
 
@@ -185,7 +191,7 @@ class CanAdapter:
         return self.loop.time()
 
     # -- receive -----------------------------------------------------------------------
-    def _start_receiver(self):
+    def _start_receiver(self) -> Receiver:
         quick = self._quick if hasattr(self.node, "quick_answer") else None
         return start_receiver(self.bus, self.loop, self._receive, quick)
 
@@ -222,7 +228,9 @@ class CanAdapter:
             # due by the loop's clock is due here too); uvloop's time() is the loop thread's
             now = time.monotonic()
             try:
-                answer = self.node.quick_answer(msg.arbitration_id, msg.data, now)
+                answer = cast(QuickAnswering, self.node).quick_answer(
+                    msg.arbitration_id, msg.data, now
+                )
             except Exception:  # the loop's path handles (and logs) whatever went wrong here
                 return False
             if answer is None:
@@ -376,7 +384,8 @@ class CanAdapter:
         self.loop.call_later(delay_s, self._switch_bitrate, bitrate)
 
     def _switch_bitrate(self, bitrate: int) -> None:
-        if self.closed:
+        reopen = self._reopen
+        if self.closed or reopen is None:  # (None: _bit_timing schedules no switch)
             return
         log.info("switching the CAN bit rate to %d bit/s", bitrate)
         with self.engine_lock:  # no read is answered on the receive thread until the new bus is up
@@ -385,7 +394,7 @@ class CanAdapter:
             self._receiver.stop()
         try:
             self.bus.shutdown()
-            self.bus = self._reopen(bitrate)
+            self.bus = reopen(bitrate)
         except PluginStartError as exc:
             log.error("cannot reopen the CAN bus at %d bit/s: %s", bitrate, exc)
             self.counters["bit_timing_failures"] += 1
@@ -394,7 +403,7 @@ class CanAdapter:
         self._switching = False
         self.counters["bit_timing_switches"] += 1
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             "rx": self.rx_frames,
             "tx": self.tx_frames,

@@ -6,6 +6,7 @@ import difflib
 import re
 import types
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -92,14 +93,16 @@ def yaml_problem(exc: Any, text: str) -> str:
     return f"YAML syntax: {problem}"
 
 
-def dotted(loc: tuple) -> str:
+def dotted(loc: tuple[Any, ...]) -> str:
     out = ""
     for part in loc:
         out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
     return out
 
 
-def position(root: Any, loc: tuple, *, key: bool = False) -> tuple[int | None, int | None]:
+def position(
+    root: Any, loc: tuple[Any, ...], *, key: bool = False
+) -> tuple[int | None, int | None]:
     """1-based (line, column) of the node at ``loc`` in a ruamel document.
 
     Parts of ``loc`` that are not keys of the data (pydantic's union tags) are skipped.
@@ -148,7 +151,7 @@ def _is_scalar(value: Any) -> bool:
     return not isinstance(value, (dict, list))
 
 
-def data_loc(root: Any, loc: tuple) -> tuple:
+def data_loc(root: Any, loc: tuple[Any, ...]) -> tuple[Any, ...]:
     """``loc`` with pydantic's union tags removed: only parts that address the data."""
     out, node = [], root
     for part in loc:
@@ -186,7 +189,7 @@ def _unwrap(annotation: Any) -> list[Any]:
     return []
 
 
-def allowed_keys(model: type[BaseModel], loc: tuple) -> list[str]:
+def allowed_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
     """Field names accepted at the mapping that holds the last element of ``loc``."""
     candidates: list[type[BaseModel]] = [model]
     for part in loc[:-1]:
@@ -211,7 +214,7 @@ def suggest(word: str, choices: list[str]) -> str:
     return f"; did you mean '{close[0]}'?" if close else ""
 
 
-def error_loc(err: dict) -> tuple:
+def error_loc(err: Mapping[str, Any]) -> tuple[Any, ...]:
     """Where a pydantic error is: its ``loc``, and below it the ``loc`` tuple of the error's
     context if any. A model validator that checks one field among several raises
     ``PydanticCustomError(kind, message, {"loc": ("counts", "di")})`` to be reported there."""
@@ -219,7 +222,9 @@ def error_loc(err: dict) -> tuple:
     return tuple(err["loc"]) + (tuple(extra) if isinstance(extra, (tuple, list)) else ())
 
 
-def describe_pydantic_error(err: dict, model: type[BaseModel], raw_loc: tuple) -> str:
+def describe_pydantic_error(
+    err: Mapping[str, Any], model: type[BaseModel], raw_loc: tuple[Any, ...]
+) -> str:
     kind = err["type"]
     if kind == "extra_forbidden":
         field_name = str(raw_loc[-1])
@@ -232,7 +237,7 @@ def describe_pydantic_error(err: dict, model: type[BaseModel], raw_loc: tuple) -
         )
     if kind == "missing":
         return "required field is missing"
-    message = err["msg"]
+    message: str = err["msg"]
     if (
         kind == "value_error"
     ):  # a validator's own message: pydantic's "Value error, " prefix says nothing

@@ -13,9 +13,9 @@ import copy
 import fnmatch
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
-from pydantic import Field, ValidationError
+from pydantic import BaseModel, Field, ValidationError
 from ruamel.yaml import YAML
 from ruamel.yaml.error import MarkedYAMLError, YAMLError
 from ruamel.yaml.reader import ReaderError
@@ -80,7 +80,27 @@ class Topology:
         return "\n".join(lines)
 
 
-def _by_name(items: list, name: str, what: str):
+class _ComponentType(Protocol):
+    @property
+    def model(self) -> type[FrontConfig] | type[BackConfig]: ...
+
+
+class ComponentTypes(Protocol):
+    """What validation needs of the plugin registry (:class:`fieldgate.plugin.Registry` is one)."""
+
+    def lookup(self, role: str, type_name: str) -> _ComponentType | None: ...
+
+    def type_names(self, role: str) -> list[str]: ...
+
+
+class _Named(Protocol):
+    name: str
+
+
+T = TypeVar("T", bound=_Named)
+
+
+def _by_name(items: list[T], name: str, what: str) -> T:
     for item in items:
         if item.name == name:
             return item
@@ -117,8 +137,10 @@ def read_yaml(path: str | Path) -> Any:
         return yaml.load(text)
     except MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
-        line, col = (mark.line + 1, mark.column + 1) if mark else (None, None)
-        raise TopologyError([ConfigIssue(file, line, col, "", yaml_problem(exc, text))]) from None
+        where: tuple[int | None, int | None] = (
+            (mark.line + 1, mark.column + 1) if mark else (None, None)
+        )
+        raise TopologyError([ConfigIssue(file, *where, "", yaml_problem(exc, text))]) from None
     except (
         ReaderError
     ) as exc:  # a control character such as NUL; its position is an offset in the text
@@ -142,7 +164,7 @@ def read_yaml(path: str | Path) -> Any:
 
 
 def apply_overrides(
-    data: Any, overrides: dict[str, Any], origins: dict[tuple, str] | None = None
+    data: Any, overrides: dict[str, Any], origins: dict[tuple[Any, ...], str] | None = None
 ) -> Any:
     """Set fields by dotted path before validation: ``fronts.can.interface`` or ``backs.0.port``.
 
@@ -154,8 +176,8 @@ def apply_overrides(
         where = f"--set {dotted_path}={_show_value(value)}"
         parts = dotted_path.split(".")
         node = data
-        loc: tuple = ()
-        created: tuple | None = None
+        loc: tuple[Any, ...] = ()
+        created: tuple[Any, ...] | None = None
         for i, part in enumerate(parts):
             last = i == len(parts) - 1
             if isinstance(node, list):
@@ -195,7 +217,7 @@ def _show_value(value: Any) -> str:
     return str(value)
 
 
-def _list_index(items: list, part: str, where_list: str, where: str) -> int:
+def _list_index(items: list[Any], part: str, where_list: str, where: str) -> int:
     n = len(items)
     entries = f"{where_list} has {'no entries' if not n else '1 entry (index 0)' if n == 1 else f'{n} entries (index 0..{n - 1})'}"
     if part.removeprefix("-").isdigit():
@@ -204,9 +226,9 @@ def _list_index(items: list, part: str, where_list: str, where: str) -> int:
             raise KeyError(f"{where}: {entries}")
         return index
     names = [
-        item.get("name")
+        name
         for item in items
-        if isinstance(item, dict) and isinstance(item.get("name"), str)
+        if isinstance(item, dict) and isinstance(name := item.get("name"), str)
     ]
     for i, item in enumerate(items):
         if isinstance(item, dict) and item.get("name") == part:
@@ -216,7 +238,9 @@ def _list_index(items: list, part: str, where_list: str, where: str) -> int:
 
 
 def load_topology(
-    source: str | Path | dict, registry, overrides: dict[str, Any] | None = None
+    source: str | Path | dict[str, Any],
+    registry: ComponentTypes,
+    overrides: dict[str, Any] | None = None,
 ) -> Topology:
     """Load and validate a topology from a YAML file or a dict. Raises TopologyError.
 
@@ -226,7 +250,7 @@ def load_topology(
         data, file, base_dir = copy.deepcopy(source), "<dict>", Path.cwd()
     else:
         data, file, base_dir = read_yaml(source), str(source), Path(source).resolve().parent
-    origins: dict[tuple, str] = {}
+    origins: dict[tuple[Any, ...], str] = {}
     if overrides and isinstance(data, dict):
         wrong = []
         for path, value in overrides.items():
@@ -244,7 +268,7 @@ def load_topology(
         raise TopologyError([_from_override(issue, origins) for issue in exc.issues]) from None
 
 
-def _from_override(issue: ConfigIssue, origins: dict[tuple, str]) -> ConfigIssue:
+def _from_override(issue: ConfigIssue, origins: dict[tuple[Any, ...], str]) -> ConfigIssue:
     for loc, where in origins.items():
         path = dotted(loc)
         if issue.path == path or issue.path.startswith((path + ".", path + "[")):
@@ -254,7 +278,9 @@ def _from_override(issue: ConfigIssue, origins: dict[tuple, str]) -> ConfigIssue
     return issue
 
 
-def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = None) -> Topology:
+def validate(
+    data: Any, registry: ComponentTypes, file: str = "<dict>", base_dir: Path | None = None
+) -> Topology:
     """Validate parsed YAML (ruamel nodes keep positions) or a plain dict; report every error.
 
     Field errors of every section are collected first; names and module addresses are checked
@@ -275,7 +301,8 @@ def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = 
     checked_backs: dict[
         int, BackConfig | None
     ] = {}  # None: its own fields are wrong, not the back as a whole
-    for role, out in (("front", fronts), ("back", backs)):
+    sections: tuple[tuple[str, list[Any]], ...] = (("front", fronts), ("back", backs))
+    for role, out in sections:
         section = f"{role}s"
         entries = data.get(section)
         if not isinstance(entries, list):
@@ -321,7 +348,7 @@ def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = 
                     checked_backs[i] = None
             else:
                 out.append(config)
-                if role == "back":
+                if role == "back" and isinstance(config, BackConfig):
                     checked_backs[i] = config
     issues.extend(_unique_checks(data, checked_backs, file))
     if issues or root is None:
@@ -335,7 +362,7 @@ def validate(data: Any, registry, file: str = "<dict>", base_dir: Path | None = 
 
 
 def _issues_from(
-    exc: ValidationError, model, data: Any, base: tuple, file: str
+    exc: ValidationError, model: type[BaseModel], data: Any, base: tuple[Any, ...], file: str
 ) -> list[ConfigIssue]:
     out = []
     for err in exc.errors(include_url=False):
@@ -348,7 +375,7 @@ def _issues_from(
     return out
 
 
-def _at(data: Any, loc: tuple) -> Any:
+def _at(data: Any, loc: tuple[Any, ...]) -> Any:
     for part in loc:
         data = data[part]
     return data
@@ -356,7 +383,7 @@ def _at(data: Any, loc: tuple) -> Any:
 
 def _dedupe(issues: list[ConfigIssue]) -> list[ConfigIssue]:
     """Merge the several errors pydantic reports for one field of a union into one line."""
-    merged: dict[tuple, ConfigIssue] = {}
+    merged: dict[tuple[Any, ...], ConfigIssue] = {}
     for issue in issues:
         key = (issue.file, issue.line, issue.column, issue.path)
         if key in merged:
@@ -375,7 +402,7 @@ def _dedupe(issues: list[ConfigIssue]) -> list[ConfigIssue]:
 
 
 def _unique_checks(
-    data: dict, checked_backs: dict[int, BackConfig | None], file: str
+    data: dict[str, Any], checked_backs: dict[int, BackConfig | None], file: str
 ) -> list[ConfigIssue]:
     """Names unique across fronts and backs, module addresses unique on each back.
 
@@ -386,11 +413,11 @@ def _unique_checks(
     """
     issues: list[ConfigIssue] = []
 
-    def issue(loc: tuple, message: str) -> None:
+    def issue(loc: tuple[Any, ...], message: str) -> None:
         line, col = position(data, loc)
         issues.append(ConfigIssue(file, line, col, dotted(loc), message))
 
-    seen: dict[str, tuple] = {}
+    seen: dict[str, tuple[Any, ...]] = {}
     for section in ("fronts", "backs"):
         entries = data.get(section)
         for i, entry in enumerate(entries if isinstance(entries, list) else []):
@@ -407,7 +434,7 @@ def _unique_checks(
 
     for b_index, back in checked_backs.items():
         if back is not None:
-            addresses = [module.address for module in back.modules]
+            addresses: list[int | None] = [module.address for module in back.modules]
         else:
             modules = data["backs"][b_index].get("modules")
             addresses = [_address(m) for m in modules] if isinstance(modules, list) else []
@@ -434,7 +461,7 @@ def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]
     """What needs every section valid: the backs' channels, and the fronts' ``expose`` patterns."""
     issues: list[ConfigIssue] = []
 
-    def issue(loc: tuple, message: str) -> None:
+    def issue(loc: tuple[Any, ...], message: str) -> None:
         line, col = position(data, loc)
         issues.append(ConfigIssue(file, line, col, dotted(loc), message))
 

@@ -8,7 +8,7 @@ same common fields.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, overload
 
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, StringConstraints, Tag
 
@@ -47,6 +47,12 @@ ErrorModeSpec = Annotated[
 ]
 
 
+@overload
+def to_error_mode(spec: ErrorModeSpec) -> ErrorMode: ...
+@overload
+def to_error_mode(spec: None) -> None: ...
+@overload
+def to_error_mode(spec: ErrorModeSpec | None) -> ErrorMode | None: ...
 def to_error_mode(spec: ErrorModeSpec | None) -> ErrorMode | None:
     if spec is None:
         return None
