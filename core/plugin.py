@@ -16,7 +16,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import pluggy
 
@@ -144,6 +144,9 @@ class Back(Component):
 
 FrontFactory = Callable[[FrontConfig, GatewayContext], Front]
 BackFactory = Callable[[BackConfig, GatewayContext], Back]
+# a factory gets the config its model validated: a subclass of FrontConfig / BackConfig
+FrontModel = TypeVar("FrontModel", bound=FrontConfig)
+BackModel = TypeVar("BackModel", bound=BackConfig)
 
 
 @dataclass(frozen=True)
@@ -212,12 +215,20 @@ class Registry:
         self._current = "?"
 
     def add_front(
-        self, type_name: str, model: type[FrontConfig], factory: FrontFactory, description: str = ""
+        self,
+        type_name: str,
+        model: type[FrontModel],
+        factory: Callable[[FrontModel, GatewayContext], Front],
+        description: str = "",
     ) -> None:
         self._add("front", type_name, model, factory, description)
 
     def add_back(
-        self, type_name: str, model: type[BackConfig], factory: BackFactory, description: str = ""
+        self,
+        type_name: str,
+        model: type[BackModel],
+        factory: Callable[[BackModel, GatewayContext], Back],
+        description: str = "",
     ) -> None:
         self._add("back", type_name, model, factory, description)
 

@@ -39,7 +39,7 @@ from fieldgate.layout import of_kind, pack_bits
 from . import cip
 from .assembly import Assembly
 from .cip import CipError
-from .objects import Attribute, CipObject, SlaveHost, u8, u32
+from .objects import Attribute, CipObject, Setter, SlaveHost, const, u8, u32
 
 KINDS = (Kind.DO, Kind.AO, Kind.DI, Kind.AI)
 LENGTH_ATTR, COUNT_ATTR, DATA_ATTR = 0x0C, 0x10, 0x14
@@ -96,8 +96,8 @@ class ApplicationObject(CipObject):
             part = module.parts.get(kind)
             size = part.size if part else 0
             count = len(part.channels) if part else 0
-            table[LENGTH_ATTR + offset] = Attribute(lambda size=size: u8(size))
-            table[COUNT_ATTR + offset] = Attribute(lambda count=count: u8(count))
+            table[LENGTH_ATTR + offset] = Attribute(const(u8(size)))
+            table[COUNT_ATTR + offset] = Attribute(const(u8(count)))
             if part is not None:
                 table[DATA_ATTR + offset] = Attribute(
                     part.data, self._writer(part) if kind.is_output else None
@@ -107,7 +107,7 @@ class ApplicationObject(CipObject):
             table.update(self._watchdog_attributes(watchdogs, module.back, module.address))
         return table
 
-    def _change(self, size: int, action: Callable[[int], None]):
+    def _change(self, size: int, action: Callable[[int], None]) -> Setter:
         """A watchdog Set: ``size`` data bytes (0 = NULL) -> ``action(value)``, errors as CIP codes."""
 
         def write(data: bytes) -> bytes:
@@ -139,7 +139,7 @@ class ApplicationObject(CipObject):
             WATCHDOG_CLEAR: Attribute(None, change(0, lambda _: wd.recover(back, address))),
         }
 
-    def _writer(self, part: Assembly):
+    def _writer(self, part: Assembly) -> Setter:
         def write(data: bytes) -> bytes:
             if len(data) != part.size:
                 raise CipError(cip.NOT_ENOUGH_DATA if len(data) < part.size else cip.TOO_MUCH_DATA)

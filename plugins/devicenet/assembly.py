@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from fieldgate.image import Channel, DataType, Kind, ProcessImage
 from fieldgate.layout import byte_value, of_kind, pack_bits, write_byte
@@ -42,7 +43,7 @@ def value_of_word(channel: Channel, word: int) -> int | float:
 class Assembly:
     instance: int
     kind: Kind
-    slots: list  # digital: lists of 8 channel slots; analog: channels
+    slots: list[Any]  # digital: lists of 8 channel slots; analog: channels
 
     @property
     def is_output(self) -> bool:

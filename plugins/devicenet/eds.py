@@ -30,12 +30,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from fieldgate.plugin import GatewayContext, Registry, load_registry
 from fieldgate.topology import TopologyError, load_topology
 
-from .application import HOST_OK, WATCHDOG_ENABLE, WATCHDOG_TIME
+from .application import HOST_OK, WATCHDOG_ENABLE, WATCHDOG_TIME, ApplicationObject
 from .assembly import Assembly
 from .connection import COS_CYCLIC, POLL, STROBE
 from .engine import DeviceNetSlave
@@ -113,7 +113,7 @@ class Description:
 # -- what the slave serves ------------------------------------------------------------------
 def attribute(slave: DeviceNetSlave, class_id: int, instance: int, attr: int) -> bytes:
     """What a Get_Attribute_Single of this attribute answers."""
-    return slave.objects[class_id].attribute(instance, attr).get()
+    return slave.objects[class_id].attribute(instance, attr).read()
 
 
 def number(data: bytes) -> int:
@@ -222,7 +222,7 @@ def parameters(slave: DeviceNetSlave) -> tuple[list[Param], list[tuple[str, list
         ),
     ]
     groups = [("DeviceNet", [1, 2])]
-    application = slave.objects[APPLICATION]
+    application = cast(ApplicationObject, slave.objects[APPLICATION])  # class 0x64 is always one
     dcon = [
         (instance, module)
         for instance, module in enumerate(application.modules, start=1)
@@ -449,10 +449,10 @@ def eds_text(d: Description, now: datetime | None = None, vendor_name: str | Non
 
 # -- topology -> EDS ------------------------------------------------------------------------
 def front_slave(
-    topology_source: str | Path | dict,
+    topology_source: str | Path | dict[str, Any],
     front_name: str | None = None,
     registry: Registry | None = None,
-    overrides: dict | None = None,
+    overrides: dict[str, Any] | None = None,
 ) -> tuple[Any, DeviceNetSlave]:
     """The devicenet front and a slave built as the gateway builds it (no bus, no clock)."""
     registry = registry or load_registry()
@@ -474,18 +474,21 @@ def front_slave(
             raise EdsError("no devicenet front in the topology")
         cfg = fronts[0]
     context = GatewayContext.build(topology)
-    front = registry.lookup("front", cfg.type).factory(cfg, context)
+    ctype = registry.lookup("front", cfg.type)
+    if ctype is None:
+        raise EdsError("the devicenet plugin is not installed")
+    front: Any = ctype.factory(cfg, context)
     return front, front.build()
 
 
 def write_eds(
-    topology_source: str | Path | dict,
+    topology_source: str | Path | dict[str, Any],
     front_name: str | None = None,
     dest: str | Path | None = None,
     registry: Registry | None = None,
     now: datetime | None = None,
     vendor_name: str | None = None,
-    overrides: dict | None = None,
+    overrides: dict[str, Any] | None = None,
 ) -> str:
     """The EDS text, also written to ``dest`` when given (OSError when it cannot be: the
     folder must exist, a directory is refused)."""

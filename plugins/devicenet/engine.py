@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from collections.abc import Callable
+from typing import Any
 
 from fieldgate.can.frame import Frame
 from fieldgate.host_watchdog import HostWatchdogs
@@ -195,8 +196,8 @@ class DeviceNetSlave:
         times += [c.watchdog_at for c in self.connections.values()]
         if self.outgoing is not None:
             times.append(self.outgoing.deadline)
-        times = [t for t in times if t is not None]
-        return min(times) if times else None
+        due = [t for t in times if t is not None]
+        return min(due) if due else None
 
     def _done(self) -> list[Frame]:
         out, self._out = self._out, []
@@ -651,7 +652,7 @@ class DeviceNetSlave:
             self._produce_at = earliest
         self.deadline_after_call = self.next_deadline()
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             "state": self.state,
             "mac_id": self.mac_id,

@@ -31,6 +31,12 @@ class Attribute:
     get: Getter | None  # None: Set only (Get answers 0x2C)
     set: Setter | None = None
 
+    def read(self) -> bytes:
+        """What a Get answers; a Set-only attribute is CIP error 0x2C."""
+        if self.get is None:
+            raise CipError(cip.ATTRIBUTE_NOT_GETTABLE)
+        return self.get()
+
 
 class SlaveHost(Protocol):
     """What the CIP objects read and call of the slave (:class:`.engine.DeviceNetSlave` is one).
@@ -162,7 +168,7 @@ class IdentityObject(CipObject):
         if body:
             raise CipError(cip.TOO_MUCH_DATA)
         table = self.instance_attributes(1)
-        return b"".join(table[attribute].get() for attribute in IDENTITY_ALL)
+        return b"".join(table[attribute].read() for attribute in IDENTITY_ALL)
 
     def _set_heartbeat(self, data: bytes) -> bytes:
         self.slave.set_heartbeat(self.sized.take(data, 1))
@@ -290,18 +296,18 @@ class ConnectionObject(CipObject):
             17: Attribute(lambda: u16(c.inhibit_ms), lambda data: self._set_inhibit(c, data)),
         }
 
-    def _set_epr(self, c, data: bytes) -> bytes:
+    def _set_epr(self, c: Connection, data: bytes) -> bytes:
         granted = self.slave.set_epr(c, self.sized.take(data, 2))
         return u16(granted)
 
-    def _set_action(self, c, data: bytes) -> bytes:
+    def _set_action(self, c: Connection, data: bytes) -> bytes:
         value = self.sized.take(data, 1)
         if value not in (TimeoutAction.TIMED_OUT, TimeoutAction.AUTO_DELETE):
             raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
         c.action = TimeoutAction(value)
         return b""
 
-    def _set_inhibit(self, c, data: bytes) -> bytes:
+    def _set_inhibit(self, c: Connection, data: bytes) -> bytes:
         if c.instance != 4:
             raise CipError(cip.ATTRIBUTE_NOT_SETTABLE)
         c.inhibit_ms = self.sized.take(data, 2)

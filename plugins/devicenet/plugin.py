@@ -20,8 +20,8 @@ from pydantic import Field
 from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.host_watchdog import HostWatchdogs
-from fieldgate.image import Change
-from fieldgate.plugin import Front, GatewayContext, hookimpl
+from fieldgate.image import Change, Subscription
+from fieldgate.plugin import Front, GatewayContext, Registry, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
@@ -92,7 +92,7 @@ class DeviceNetFront(Front):
         self.outputs: list[str] = []
         self._modules: set[tuple[str, int]] = set()
         self._offline: set[tuple[str, int]] = set()
-        self._subscription = None
+        self._subscription: Subscription | None = None
         self._health_subscribed = False
 
     def build(self) -> DeviceNetSlave:
@@ -159,6 +159,8 @@ class DeviceNetFront(Front):
 
     async def run(self) -> None:
         """Everything is callback-driven; raises only when receiving from the bus has died."""
+        if self.adapter is None:
+            raise RuntimeError(f"front {self.name}: run() before start()")
         await self.adapter.failed
 
     async def stop(self) -> None:
@@ -170,12 +172,12 @@ class DeviceNetFront(Front):
             self.adapter = None
 
     def _input_changed(self, change: Change) -> None:
-        if self.adapter is not None and change.value_changed:
-            adapter = self.adapter
-            adapter.pump(lambda: self.slave.inputs_changed(adapter.now))
+        if self.adapter is not None and self.slave is not None and change.value_changed:
+            adapter, slave = self.adapter, self.slave
+            adapter.pump(lambda: slave.inputs_changed(adapter.now))
 
     def _bus_state(self, bus_off: bool, now: float) -> None:
-        if bus_off:
+        if bus_off and self.slave is not None:
             self.slave.bus_off_count = min(255, self.slave.bus_off_count + 1)
 
     def _master_state(self, ok: bool, reason: str) -> None:
@@ -199,7 +201,7 @@ class DeviceNetFront(Front):
             self._offline.discard(health.key)
         self.slave.module_fault = bool(self._offline)
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         if self.slave is None:
             return {}
         return {
@@ -211,7 +213,7 @@ class DeviceNetFront(Front):
 
 
 @hookimpl
-def fieldgate_register(registry) -> None:
+def fieldgate_register(registry: Registry) -> None:
     registry.add_front(
         "devicenet",
         DeviceNetFrontConfig,
