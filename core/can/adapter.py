@@ -50,7 +50,8 @@ log = logging.getLogger("fieldgate.can.adapter")
 class CanEngine(Protocol):
     """What the adapter needs of a sans-I/O engine: frames and times in, frames out."""
 
-    deadline_after_call: float | None
+    @property
+    def deadline_after_call(self) -> float | None: ...
 
     def boot(self, now: float) -> list[Frame]: ...
     def receive(self, frame: Frame, now: float) -> list[Frame]: ...

@@ -37,10 +37,10 @@ class EdsError(Exception):
 
 
 def front_node(
-    topology_source: str | Path | dict,
+    topology_source: str | Path | dict[str, Any],
     front_name: str | None = None,
     registry: Registry | None = None,
-    overrides: dict | None = None,
+    overrides: dict[str, Any] | None = None,
 ) -> tuple[Any, Any]:
     """The front object and its booted-free node, as the gateway would build them."""
     registry = registry or load_registry()
@@ -66,7 +66,9 @@ def front_node(
     cfg = fronts[0]
     context = GatewayContext.build(topology)
     ctype = registry.lookup("front", cfg.type)
-    front = ctype.factory(cfg, context)
+    if ctype is None:
+        raise EdsError("the canopen plugin is not installed")
+    front: Any = ctype.factory(cfg, context)
     return front, front.build()
 
 
@@ -119,7 +121,7 @@ def eds_text(front: Any, node: Any, file_name: str | None = None) -> str:
     return _replace_file_info(text, file_info)
 
 
-def _replace_file_info(text: str, file_info: dict) -> str:
+def _replace_file_info(text: str, file_info: dict[str, object]) -> str:
     """canopen writes its own [FileInfo] (with a month where minutes belong); put ours."""
     lines = text.splitlines()
     out: list[str] = []
@@ -139,11 +141,11 @@ def _replace_file_info(text: str, file_info: dict) -> str:
 
 
 def write_eds(
-    topology_source: str | Path | dict,
+    topology_source: str | Path | dict[str, Any],
     front_name: str | None = None,
     dest: str | Path | None = None,
     registry: Registry | None = None,
-    overrides: dict | None = None,
+    overrides: dict[str, Any] | None = None,
 ) -> str:
     """The EDS text, also written to ``dest`` when given (OSError when it cannot be: the
     folder must exist, a directory is refused); ``overrides`` as ``--set``."""

@@ -25,14 +25,16 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterable
+from functools import partial
+from typing import Any
 
 from canopen.objectdictionary import datatypes as dt
 
 from . import abort
 from .abort import SdoAbort
 from .cobid import check_cob_id
-from .frame import Frame
-from .service import ALL_STATES, COMMUNICATING, Service
+from .frame import Frame, NmtState
+from .service import ALL_STATES, COMMUNICATING, NodeHost, Service
 
 GENERIC = 0x01
 COMMUNICATION = 0x10
@@ -61,7 +63,7 @@ class EmcyProducer(Service):
         self._queue: deque[Frame] = deque()
         self._last_sent: float | None = None
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         super().attach(node)
         od = node.od
         od.add_variable(0x1001, "Error register", dt.UNSIGNED8, "ro", 0)
@@ -84,7 +86,7 @@ class EmcyProducer(Service):
         )
         od.add_validator(0x1003, self._check_history_write)
         for sub in range(1, self.depth + 1):
-            od.bind(0x1003, sub, getter=lambda sub=sub: self._history_entry(sub), thread_safe=True)
+            od.bind(0x1003, sub, getter=partial(self._history_entry, sub), thread_safe=True)
         od.add_variable(0x1014, "COB-ID EMCY", dt.UNSIGNED32, "rw", 0x80, relative=True)
         od.add_validator(0x1014, self._check_cob_id)
         od.add_variable(0x1015, "Inhibit time EMCY", dt.UNSIGNED16, "rw", 0)
@@ -161,7 +163,7 @@ class EmcyProducer(Service):
         self.history.appendleft(history_value(code, manufacturer))
         register = self.register if register is None else register & 0xFF
         data = code.to_bytes(2, "little") + bytes([register]) + manufacturer.ljust(5, b"\x00")
-        cob = self.node.od.get(0x1014)
+        cob = self.node.od.integer(0x1014)
         if cob & COB_ID_INVALID:
             self.counters["disabled"] += 1
             return
@@ -175,7 +177,7 @@ class EmcyProducer(Service):
         self._flush(now)
 
     def _inhibit(self) -> float:
-        return self.node.od.get(0x1015) * 100e-6
+        return self.node.od.integer(0x1015) * 100e-6
 
     def _flush(self, now: float) -> None:
         while self._queue and (self._last_sent is None or now >= self._last_sent + self._inhibit()):
@@ -191,7 +193,7 @@ class EmcyProducer(Service):
     def poll(self, now: float) -> None:
         self._flush(now)
 
-    def on_nmt_state(self, old, new, now) -> None:
+    def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
         if new not in COMMUNICATING:
             self._queue.clear()
 
@@ -201,16 +203,16 @@ class EmcyProducer(Service):
             raise SdoAbort(abort.NO_DATA, "no error recorded at this sub-index")
         return self.history[sub - 1]
 
-    def _check_history_write(self, sub: int, value) -> None:
+    def _check_history_write(self, sub: int, value: int) -> None:
         if sub != 0 or value != 0:
             raise SdoAbort(abort.VALUE_RANGE, "only 0 may be written to 0x1003:0")
 
-    def _write_history_count(self, value) -> None:
+    def _write_history_count(self, value: int) -> None:
         self.history.clear()
 
     def _check_cob_id(self, sub: int, value: int) -> None:
         check_cob_id(value, "EMCY", in_use=not value & COB_ID_INVALID)
-        old = self.node.od.get(0x1014)
+        old = self.node.od.integer(0x1014)
         if (
             not (old & COB_ID_INVALID)
             and not (value & COB_ID_INVALID)
@@ -218,7 +220,7 @@ class EmcyProducer(Service):
         ):
             raise SdoAbort(abort.VALUE_RANGE, "set bit 31 before changing the EMCY COB-ID")
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             **self.counters,
             "error_register": self.register,

@@ -49,13 +49,14 @@ service did not make) or a write to 0x100C/0x100D/0x1016/0x1017.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import Any
 
 from canopen.objectdictionary import datatypes as dt
 
 from . import abort
 from .abort import SdoAbort
 from .frame import Frame, NmtState
-from .service import ALL_STATES, Service
+from .service import ALL_STATES, NodeHost, Service
 
 LIFE_GUARD_CODE = 0x8130
 BUS_OFF_RECOVERED_CODE = 0x8140
@@ -109,7 +110,7 @@ class ErrorControl(Service):
         )
         self.master_lost = False  # as last told to node.master_state
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         super().attach(node)
         od = node.od
         guard, factor, heartbeat = self.defaults
@@ -227,7 +228,7 @@ class ErrorControl(Service):
         return False
 
     def _guard_request(self, now: float) -> None:
-        if self.node.od.get(0x1017):
+        if self.node.od.integer(0x1017):
             self.counters["guard_rtr_ignored_heartbeat_on"] += 1
             return
         self.counters["guard_requests"] += 1
@@ -238,11 +239,11 @@ class ErrorControl(Service):
             self._end(now, "life guarding resumed", guard=True, bus_off_recovered=True)
 
     def _life_time_s(self) -> float:
-        return self.node.od.get(0x100C) * self.node.od.get(0x100D) / 1000.0
+        return self.node.od.integer(0x100C) * self.node.od.integer(0x100D) / 1000.0
 
     def guarding_enabled(self) -> bool:
         """Life guarding configured: guard time and life time factor set, heartbeat producer off."""
-        return self._life_time_s() > 0 and not self.node.od.get(0x1017)
+        return self._life_time_s() > 0 and not self.node.od.integer(0x1017)
 
     def monitoring(self) -> bool:
         """Whether anything here can hear the master: life guarding or a heartbeat consumer entry."""
@@ -286,7 +287,7 @@ class ErrorControl(Service):
         if self.heartbeat_due is not None and now >= self.heartbeat_due:
             self.node.send(Frame(self.cob_id, bytes([int(self.node.state)])))
             self.counters["heartbeats_sent"] += 1
-            period = self.node.od.get(0x1017) / 1000.0
+            period = self.node.od.integer(0x1017) / 1000.0
             self.heartbeat_due = (
                 (self.heartbeat_due + period) if self.heartbeat_due + period > now else now + period
             )
@@ -305,7 +306,7 @@ class ErrorControl(Service):
                 )
 
     def _restart_heartbeat(self, now: float) -> None:
-        period = self.node.od.get(0x1017)
+        period = self.node.od.integer(0x1017)
         if period and self.node.state is not NmtState.INITIALISING and self.node.configured:
             self.heartbeat_due = now + period / 1000.0
         else:
@@ -343,7 +344,7 @@ class ErrorControl(Service):
     def _consumer_times(self) -> dict[int, int]:
         times = {}
         for sub in range(1, self.consumers + 1):
-            entry = self.node.od.get(0x1016, sub)
+            entry = self.node.od.integer(0x1016, sub)
             producer, period = (entry >> 16) & 0xFF, entry & 0xFFFF
             if 1 <= producer <= 127 and period:
                 times[producer] = period
@@ -354,7 +355,7 @@ class ErrorControl(Service):
         if not period or sub == 0:
             return
         for other in range(1, self.consumers + 1):
-            entry = self.node.od.get(0x1016, other)
+            entry = self.node.od.integer(0x1016, other)
             if other != sub and (entry >> 16) & 0xFF == producer and entry & 0xFFFF:
                 raise SdoAbort(
                     abort.INCOMPATIBLE_PARAMETER,
@@ -386,7 +387,7 @@ class ErrorControl(Service):
         self._apply_error_behaviour(now)
 
     def _apply_error_behaviour(self, now: float) -> None:
-        behaviour = self.node.od.get(0x1029, 1)
+        behaviour = self.node.od.integer(0x1029, 1)
         self._own_state_change = True
         try:
             if behaviour == ERROR_PRE_OPERATIONAL and self.node.state is NmtState.OPERATIONAL:
@@ -401,7 +402,7 @@ class ErrorControl(Service):
         now: float,
         reason: str,
         guard: bool = False,
-        producers=(),
+        producers: Iterable[int] = (),
         bus_off_recovered: bool = False,
         others: Iterable[Error] = (),
     ) -> None:
@@ -428,7 +429,7 @@ class ErrorControl(Service):
             self.master_lost = lost
             self.node.master_state(not lost, reason)
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         guarding = (
             "lost"
             if self.guard_lost

@@ -38,15 +38,16 @@ from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
 
-from .entries import BOOLEAN, Directory, ObjectDef
+from .entries import BOOLEAN, Directory, Entry, ObjectDef
 from .frame import Frame, NmtState
 from .iostore import IoStore
 from .layouts import STYLE_PDO_COUNT, IoLayout, Style, build_layout, default_pdos
 from .manufacturer import ManufacturerObjects
 from .master_state import MasterState
+from .od import Dictionary
 from .pdo import PdoEngine
 from .profile401 import Profile401
-from .service import Service
+from .service import NodeHost, Service
 
 LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES = 0x8210, 0x10, b"\x09"
 
@@ -70,7 +71,7 @@ class IoSettings:
         return self.pdo_count or STYLE_PDO_COUNT[self.style]
 
     @property
-    def policy(self) -> str:
+    def policy(self) -> Literal["async", "all", "none"]:
         return self.start_policy or ("all" if self.style == "na9161" else "async")
 
     @property
@@ -144,7 +145,7 @@ class IoDevice(Service):
         return sorted(pdo + list(self.directory), key=lambda o: o.index)
 
     # -- Service ----------------------------------------------------------------------------
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         super().attach(node)
         self.engine = PdoEngine(
             self.directory,
@@ -207,7 +208,7 @@ class IoDevice(Service):
         if self.engine is not None:
             self._send(self.engine.on_timer(now))
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         master = {"master_lost": self.master_state.lost} if self.master_state is not None else {}
         return {**dict(self.counters), **(self.engine.status() if self.engine else {}), **master}
 
@@ -238,7 +239,7 @@ class IoDevice(Service):
             emcy.clear_error(LENGTH_ERROR_CODE)
 
 
-def bind_object(od, obj: ObjectDef) -> None:
+def bind_object(od: Dictionary, obj: ObjectDef) -> None:
     """Add one :class:`ObjectDef` to the node's dictionary with its getters and setters."""
     if obj.kind == "var":
         e = obj.entries[0]
@@ -275,14 +276,14 @@ def bind_object(od, obj: ObjectDef) -> None:
         if sub0 is not None and sub0.writable:
             var = od.variable(obj.index, 0)
             var.access_type = sub0.access
-            var.default = _model_default(sub0)
+            var.default = int(_model_default(sub0))  # sub 0: UNSIGNED8, the highest sub-index
     for e in obj.entries:
         if e.sub == 0 and obj.kind != "var" and not e.writable:
             continue  # the dictionary's own "highest sub-index" entry
         od.bind(obj.index, e.sub, getter=e.get, setter=e.write if e.writable else None)
 
 
-def _model_default(e) -> int | str:
+def _model_default(e: Entry) -> int | str:
     """The EDS default: relative COB-IDs keep their base (the dictionary adds the node-ID)."""
     if e.default_expr is not None:
         return int(e.default_expr.split("+", 1)[1], 0)

@@ -17,8 +17,14 @@ removed).
 from __future__ import annotations
 
 import logging
+from typing import Any, Protocol
 
 from .abort import SdoAbort
+from .entries import Directory
+from .layouts import IoLayout
+from .pdo import PdoEngine
+from .service import NodeHost
+from .store import StoreService
 
 log = logging.getLogger("fieldgate.canopen.iostore")
 
@@ -38,10 +44,34 @@ STORED_APPLICATION = (
 )
 
 
+class _IoSettings(Protocol):
+    @property
+    def style(self) -> str: ...
+    @property
+    def count(self) -> int: ...
+    @property
+    def compressed(self) -> bool: ...
+    @property
+    def mapping_closed(self) -> bool: ...
+
+
+class StoredIo(Protocol):
+    """What the store hook reads of the CiA 401 device (:class:`.iodevice.IoDevice` is one)."""
+
+    @property
+    def settings(self) -> _IoSettings: ...
+    @property
+    def layout(self) -> IoLayout: ...
+    @property
+    def engine(self) -> PdoEngine | None: ...
+    @property
+    def directory(self) -> Directory: ...
+
+
 class IoStore:
-    def __init__(self, io) -> None:
+    def __init__(self, io: StoredIo) -> None:
         self.io = io
-        self.store = None  # the node's store service, if it has one
+        self.store: StoreService | None = None  # the node's store service, if it has one
         settings, lay = io.settings, io.layout
         self.fingerprint_part = "|".join(
             [
@@ -57,15 +87,16 @@ class IoStore:
             + [c.id for c in lay.ai + lay.ao]
         )
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         try:
             self.store = node.service("store")
         except KeyError:
             return
-        self.store.add_fingerprint(self.fingerprint_part)
-        self.store.add_area_hook(self._area_command)
+        if self.store is not None:
+            self.store.add_fingerprint(self.fingerprint_part)
+            self.store.add_area_hook(self._area_command)
 
-    def _section(self) -> dict:
+    def _section(self) -> dict[str, Any]:
         doc = self.store.section(SECTION) if self.store is not None else None
         return doc if isinstance(doc, dict) else {}
 
@@ -74,7 +105,7 @@ class IoStore:
         doc = self._section()
         if communication:
             doc.pop("pdo", None)
-            if saving:
+            if saving and self.io.engine is not None:
                 doc["pdo"] = self.io.engine.parameters()
         if application:
             doc.pop("application", None)
@@ -86,12 +117,13 @@ class IoStore:
                     for e in obj.entries
                     if e.writable
                 }
-        self.store.set_section(SECTION, doc)
+        if self.store is not None:  # (the hook is only added when there is a store)
+            self.store.set_section(SECTION, doc)
 
     # -- at reset -------------------------------------------------------------------------
     def load_communication(self) -> None:
         records = self._section().get("pdo")
-        if isinstance(records, list):
+        if isinstance(records, list) and self.io.engine is not None:
             self.io.engine.load_parameters(records)
 
     def load_application(self) -> None:

@@ -27,11 +27,12 @@ import struct
 from dataclasses import dataclass, field
 from enum import IntEnum
 from pathlib import Path
+from typing import Any
 
 from fieldgate.persist import CorruptStore, read_json, write_json_atomic
 
 from .frame import Frame as CanFrame
-from .service import ALL_STATES, Service
+from .service import ALL_STATES, NodeHost, Service
 
 log = logging.getLogger("fieldgate.canopen.lss")
 
@@ -165,6 +166,8 @@ class LssStore:
         if obj is None:
             return None
         try:
+            if not isinstance(obj, dict):
+                raise TypeError(f"content: a JSON {type(obj).__name__}, not an object")
             if obj["format"] != self.FORMAT:
                 raise ValueError(f"format {obj['format']!r}")
             node_id, bitrate = obj["node_id"], obj["bitrate"]
@@ -191,7 +194,8 @@ def _frame(cs: int, payload: bytes = b"") -> RawFrame:
 
 
 def _u32(data: bytes) -> int:
-    return struct.unpack_from("<I", data, 1)[0]
+    value: int = struct.unpack_from("<I", data, 1)[0]
+    return value
 
 
 @dataclass
@@ -287,7 +291,7 @@ class LssSlave:
             self._silent_until = None
         return []
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             "state": self.state.name.lower(),
             "active_node_id": self.active_node_id,
@@ -475,17 +479,21 @@ class LssService(Service):
         self, *, bitrate: int | None = None, table: str = "cia", store: LssStore | None = None
     ):
         super().__init__()
-        self._options = {"bitrate": bitrate, "table": table, "store": store}
+        self._bitrate, self._table, self._store = bitrate, table, store
         self.slave: LssSlave | None = None
 
     @property
     def bitrate(self) -> int | None:
-        return self.slave.bitrate if self.slave is not None else self._options["bitrate"]
+        return self.slave.bitrate if self.slave is not None else self._bitrate
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         super().attach(node)
         self.slave = LssSlave.starting(
-            self._address(), node_id=node.pending_node_id, **self._options
+            self._address(),
+            node_id=node.pending_node_id,
+            bitrate=self._bitrate,
+            table=self._table,
+            store=self._store,
         )
         self._sync_pending_node_id()
 
@@ -494,21 +502,27 @@ class LssService(Service):
         parts = [int(od.get(0x1018, sub)) if (0x1018, sub) in od else 0 for sub in (1, 2, 3, 4)]
         return LssAddress(*parts)
 
+    @property
+    def _slave(self) -> LssSlave:
+        if self.slave is None:
+            raise RuntimeError("the LSS service is not attached to a node")
+        return self.slave
+
     def _sync_pending_node_id(self) -> None:
-        if self.slave.pending_node_id != self.node.pending_node_id:
-            self.node.set_node_id(self.slave.pending_node_id)
+        if self._slave.pending_node_id != self.node.pending_node_id:
+            self.node.set_node_id(self._slave.pending_node_id)
 
     def on_frame(self, frame: CanFrame, now: float) -> bool:
         if frame.can_id != REQUEST_ID:
             return False
-        for can_id, data in self.slave.on_frame(frame.can_id, frame.data, now, rtr=frame.rtr):
+        for can_id, data in self._slave.on_frame(frame.can_id, frame.data, now, rtr=frame.rtr):
             self.node.send(CanFrame(can_id, data))
         self._sync_pending_node_id()
         self._run_actions(now)
         return True
 
     def _run_actions(self, now: float) -> None:
-        for action in self.slave.take_actions():
+        for action in self._slave.take_actions():
             if isinstance(action, ResetCommunication):
                 self.node.reset_communication(now)
             else:
@@ -516,20 +530,21 @@ class LssService(Service):
 
     def on_reset_communication(self, now: float) -> None:
         # The node took its pending node-ID; identity objects may have been reloaded.
-        self.slave.active_node_id = self.node.node_id
-        self.slave.pending_node_id = self.node.pending_node_id
-        self.slave.address = self._address()
+        slave = self._slave
+        slave.active_node_id = self.node.node_id
+        slave.pending_node_id = self.node.pending_node_id
+        slave.address = self._address()
 
     def deadline(self) -> float | None:
         return self.slave.next_deadline() if self.slave is not None else None
 
     def poll(self, now: float) -> None:
-        self.slave.on_timer(now)
+        self._slave.on_timer(now)
         self._run_actions(now)
 
     def transmit_allowed(self, now: float) -> bool:
         """False during an activate-bit-timing switch: the node must not transmit (CiA 305)."""
         return self.slave is None or self.slave.transmit_allowed(now)
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return self.slave.status() if self.slave is not None else {}

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from fieldgate.health import HealthEvent, HealthRegistry, ModuleHealth
@@ -56,6 +57,15 @@ MODULE_EMCY_CODE, MODULE_EMCY_REGISTER, MODULE_EMCY_BYTE = 0xFF00, 0x80, 0x0B
 
 Raise = Callable[[int, int, bytes], Any]  # (code, register bits, manufacturer bytes)
 Clear = Callable[[int, bytes], Any]  # (code, manufacturer bytes)
+
+
+def _channel_count(kind: str, module: ModuleRef) -> int:
+    count: int = getattr(module, kind)
+    return min(255, count)
+
+
+def _constant(value: int) -> Callable[[], int]:
+    return lambda: value
 
 
 def module_emcy_bytes(address: int) -> bytes:
@@ -179,8 +189,8 @@ class ManufacturerObjects:
                         f"{name} {k + 1}",
                         dtype,
                         access,
-                        lambda m=m: get(m),
-                        (lambda v, m=m: put(m, v)) if put else None,
+                        partial(get, m),
+                        partial(put, m) if put else None,
                         default=get(m),
                     )
                     for k, m in enumerate(mods)
@@ -238,7 +248,7 @@ class ManufacturerObjects:
                 f"Module {kind.upper()} channels",
                 UNSIGNED8,
                 "ro",
-                lambda m, kind=kind: min(255, getattr(m, kind)),
+                partial(_channel_count, kind),
             )
             for index, kind in MODULE_COUNTS.items()
         ]
@@ -261,7 +271,7 @@ class ManufacturerObjects:
                                 "Digital bit size",
                                 UNSIGNED16,
                                 "ro",
-                                lambda b=bits: b,
+                                _constant(bits),
                                 default=bits,
                             ),
                         ],

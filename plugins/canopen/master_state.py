@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from .frame import NmtState
+from .service import NodeHost
 
 RESTART_REASON = "master not heard since the front restarted"
 
@@ -47,9 +48,9 @@ class MasterState:
         self.losses = 0
         self.reason = ""
         self._booted = False
-        self.node = None
+        self.node: NodeHost | None = None
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         self.node = node
         node.on_master(self._monitoring)
         node.on_nmt(self._nmt)
@@ -77,6 +78,8 @@ class MasterState:
         """The node's first boot-up: a master lost before this node existed stays lost until heard."""
         if self.masters.is_ok(self.front):
             return
+        if self.node is None:
+            return
         try:
             errctl = self.node.service("error_control")
         except KeyError:
@@ -100,7 +103,7 @@ class MasterState:
         else:
             self.masters.ok(self.front, reason)
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             "lost": self.lost,
             "reason": self.reason,

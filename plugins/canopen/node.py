@@ -36,7 +36,7 @@ from typing import Any, TypeVar, cast
 
 from .frame import UNCONFIGURED_NODE_ID, Frame, NmtState
 from .od import Dictionary
-from .service import QUIET, EmcyProducer, Service
+from .service import QUIET, EmcyProducer, Service, Taken
 
 log = logging.getLogger("fieldgate.canopen")
 S = TypeVar("S", bound=Service)
@@ -216,7 +216,7 @@ class Node:
         self.counters["ignored"] += 1
         return None
 
-    def _offer(self, service: Service, frame: Frame, now: float) -> object:
+    def _offer(self, service: Service, frame: Frame, now: float) -> Taken:
         """``service.on_frame``'s answer: false (not taken), True or QUIET."""
         try:
             return service.on_frame(frame, now)
@@ -328,14 +328,14 @@ class Node:
         self.send(Frame(0x700 + self.node_id, b"\x00"))
         self.set_state(NmtState.PRE_OPERATIONAL, now)
 
-    def _each(self, method: str, *args) -> None:
+    def _each(self, method: str, *args: Any) -> None:
         for service in self.services:
             try:
                 getattr(service, method)(*args)
             except Exception:
                 self._internal_error(service, method)
 
-    def _notify(self, listeners: list[Callable], what: str, *args) -> None:
+    def _notify(self, listeners: list[Callable[..., None]], what: str, *args: Any) -> None:
         for listener in list(listeners):
             try:
                 listener(*args)
@@ -366,7 +366,7 @@ class Node:
         """LSS activate bit timing: the adapter re-opens the bus at ``bitrate`` after ``delay_s``."""
         self._notify(self._bit_timing_listeners, "bit-timing", bitrate, delay_s)
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             "node_id": self.node_id if self.configured else None,
             "nmt_state": self.state.label,

@@ -38,9 +38,12 @@ from .abort import SdoAbort
 
 Value = int | float | str | bytes
 Getter = Callable[[], Value]
-Setter = Callable[[Value], None]
-Validator = Callable[[int, Value], None]  # (subindex, new value); raise SdoAbort to refuse
-WriteListener = Callable[[int, int, Value], None]  # (index, subindex, value) after the write
+# Setters, validators and write listeners get a value of their entry's data type (encode()
+# checked it): an int for an integer entry. That type is known per entry, at run time, so the
+# value parameter is Any and each callback annotates the type of the entries it is bound to.
+Setter = Callable[[Any], None]
+Validator = Callable[[int, Any], None]  # (subindex, new value); raise SdoAbort to refuse
+WriteListener = Callable[[int, int, Any], None]  # (index, subindex, value) after the write
 
 COMMUNICATION_AREA = range(0x1000, 0x2000)
 STRING_TYPES = (dt.VISIBLE_STRING, dt.OCTET_STRING, dt.UNICODE_STRING, dt.DOMAIN)
@@ -73,7 +76,8 @@ _TYPE_RANGES = {
 
 def size_of(var: cod.ODVariable) -> int | None:
     """Encoded size in bytes of a fixed-size variable, None for strings and domains."""
-    st = cod.ODVariable.STRUCT_TYPES.get(var.data_type)
+    dtype = var.data_type
+    st = cod.ODVariable.STRUCT_TYPES.get(dtype) if dtype is not None else None
     return st.size if st is not None else None
 
 
@@ -136,7 +140,7 @@ class Dictionary:
         return var
 
     def add_record(
-        self, index: int, name: str, members: list[tuple], *, array: bool = False
+        self, index: int, name: str, members: list[tuple[Any, ...]], *, array: bool = False
     ) -> cod.ODRecord | cod.ODArray:
         """A record (or array) with sub 0 = highest sub-index and ``members``.
 
@@ -183,8 +187,10 @@ class Dictionary:
         self.generation += 1
         return obj
 
-    def add_array(self, index: int, name: str, members: list[tuple]) -> cod.ODArray:
-        return self.add_record(index, name, members, array=True)
+    def add_array(self, index: int, name: str, members: list[tuple[Any, ...]]) -> cod.ODArray:
+        array = self.add_record(index, name, members, array=True)
+        assert isinstance(array, cod.ODArray)
+        return array
 
     def remove(self, index: int) -> None:
         if index in self.model.indices:
@@ -213,7 +219,9 @@ class Dictionary:
             if subindex != 0:
                 raise SdoAbort(abort.NO_SUBINDEX, f"0x{index:04X}:{subindex}")
             return obj
-        var = obj.subindices.get(subindex)  # never ODArray.__getitem__: it invents subs
+        var: cod.ODVariable | None = obj.subindices.get(
+            subindex
+        )  # never ODArray.__getitem__: it invents subs
         if var is None:
             raise SdoAbort(abort.NO_SUBINDEX, f"0x{index:04X}:{subindex}")
         return var
@@ -278,6 +286,15 @@ class Dictionary:
         if key not in self._values:
             self.variable(index, subindex)  # raises the right abort
         return self._values[key]
+
+    def integer(self, index: int, subindex: int = 0) -> int:
+        """:meth:`get` for an entry of an integer type (COB-IDs, times, counters), typed so."""
+        value = self.get(index, subindex)
+        if not isinstance(value, int):
+            raise TypeError(
+                f"0x{index:04X}:{subindex} holds a {type(value).__name__}, not an integer"
+            )
+        return value
 
     def set(self, index: int, subindex: int, value: Value, *, notify: bool = True) -> None:
         """Local (application-side) write: type-checked, no access/range/validator checks."""
@@ -424,7 +441,8 @@ _INTEGER_STRUCTS = {t: cod.ODVariable.STRUCT_TYPES[t] for t in dt.INTEGER_TYPES}
 
 
 def encode(var: cod.ODVariable, value: Value) -> bytes:
-    packer = _INTEGER_STRUCTS.get(var.data_type)
+    dtype = var.data_type
+    packer = _INTEGER_STRUCTS.get(dtype) if dtype is not None else None
     if packer is not None:  # the common case, without canopen's generic encode_raw
         if not isinstance(value, int):
             raise TypeError(f"{var.qualname}: {value!r} is not an integer")
@@ -447,9 +465,10 @@ def decode(var: cod.ODVariable, data: bytes) -> Value:
     if var.data_type in (dt.OCTET_STRING, dt.DOMAIN):
         return bytes(data)
     try:
-        return var.decode_raw(data)
+        value = var.decode_raw(data)
     except Exception as exc:
         raise SdoAbort(abort.LENGTH_MISMATCH, str(exc)) from exc
+    return bytes(value) if isinstance(value, bytearray) else value
 
 
 def _check_size(var: cod.ODVariable, size: int) -> None:
@@ -483,11 +502,11 @@ def _make_var(
     data_type: int,
     access: str,
     default: Any,
-    minimum,
-    maximum,
+    minimum: int | None,
+    maximum: int | None,
     relative: bool,
     mappable: bool,
-    max_size,
+    max_size: int | None,
 ) -> cod.ODVariable:
     var = cod.ODVariable(name, index, sub)
     var.data_type = data_type
@@ -497,8 +516,9 @@ def _make_var(
     var.max = maximum
     var.relative = relative
     if relative:
-        var.default_raw = f"$NODEID+0x{int(default):X}"  # as canopen's EDS import/export writes it
+        # as canopen's EDS import/export writes it; an attribute its ODVariable does not declare
+        var.default_raw = f"$NODEID+0x{int(default):X}"  # type: ignore[attr-defined]
     var.pdo_mappable = mappable
     if max_size is not None:
-        var.max_size = max_size
+        var.max_size = max_size  # type: ignore[attr-defined]  # (read by our EDS writer)
     return var

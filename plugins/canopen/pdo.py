@@ -35,7 +35,8 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal
+from functools import partial
+from typing import Any, Literal
 
 from .abort import DEVICE_STATE, NOT_MAPPABLE, PDO_TOO_LONG, VALUE_RANGE
 from .cobid import check_cob_id
@@ -71,6 +72,10 @@ def _sync_type(t: int) -> bool:
 
 def _async_type(t: int) -> bool:
     return t >= 254
+
+
+def _map_entry(pdo: Pdo, position: int) -> int:
+    return pdo.map_entries[position]  # read when asked: a remap replaces the list
 
 
 @dataclass
@@ -640,8 +645,8 @@ class PdoEngine:
                     f"Mapped object {position + 1}",
                     UNSIGNED32,
                     "rw",
-                    lambda p=position: pdo.map_entries[p],
-                    lambda v, p=position: self._set_map_entry(pdo, p, v),
+                    partial(_map_entry, pdo, position),
+                    partial(self._set_map_entry, pdo, position),
                     default=default,
                 )
             )
@@ -650,7 +655,7 @@ class PdoEngine:
         )
 
     # -- persistence (0x1010 store) ------------------------------------------------------
-    def parameters(self) -> list[list]:
+    def parameters(self) -> list[list[Any]]:
         """The parameters of every PDO that differs from its default, as plain data."""
         records = []
         for pdo in self.tpdos + self.rpdos:
@@ -681,7 +686,7 @@ class PdoEngine:
                 records.append(record)
         return records
 
-    def load_parameters(self, records: list) -> int:
+    def load_parameters(self, records: list[Any]) -> int:
         """Apply stored records (after a reset); a record that no longer fits is skipped. Returns how many applied."""
         applied = 0
         by_key = {(p.transmit, p.number): p for p in self.tpdos + self.rpdos}
@@ -720,7 +725,7 @@ class PdoEngine:
         self._reindex()
         return applied
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             "operational": self.operational,
             "tpdo_valid": sum(p.valid for p in self.tpdos),

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from functools import partial
 from pathlib import Path
 from typing import Any, Literal
@@ -23,7 +23,8 @@ from pydantic import Field, field_validator
 from fieldgate import __version__
 from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.health import HealthEvent, ModuleHealth
-from fieldgate.plugin import Front, GatewayContext, hookimpl
+from fieldgate.image import Channel
+from fieldgate.plugin import Front, GatewayContext, Registry, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
@@ -174,14 +175,14 @@ class CanopenFront(Front):
         self.master: MasterState | None = None
         self._modules: set[tuple[str, int]] = set()
         self._health_subscribed = False
-        self._failed: asyncio.Future | None = None
+        self._failed: asyncio.Future[None] | None = None
 
     # -- assembling ---------------------------------------------------------------------
     def _state_path(self, configured: str | None, default: str) -> Path:
         path = Path(configured or default)
         return path if path.is_absolute() else self.context.state_dir / path
 
-    def fingerprint(self, channels) -> str:
+    def fingerprint(self, channels: Iterable[Channel]) -> str:
         text = "\n".join(f"{c.id}:{c.kind.value}" for c in channels)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -245,15 +246,15 @@ class CanopenFront(Front):
     async def start(self) -> None:
         cfg = self.config
         loop = asyncio.get_running_loop()
-        self.node = self.build()
-        bitrate = self.node.service("lss").bitrate or cfg.bitrate
+        self.node = node = self.build()
+        bitrate = node.service("lss").bitrate or cfg.bitrate
         bus = open_bus(cfg.interface, cfg.channel, bitrate, cfg.bus_options)
         lss = self.node.service("lss")
         self.adapter = CanAdapter(
             self.node,
             bus,
             loop,
-            on_bus_state=lambda off, now: self.node.service("error_control").bus_state(off, now),
+            on_bus_state=node.service("error_control").bus_state,
             transmit_allowed=lss.transmit_allowed,
             reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
         )
@@ -271,6 +272,8 @@ class CanopenFront(Front):
 
     async def run(self) -> None:
         """Everything is callback-driven; raises only when receiving from the bus has died."""
+        if self.adapter is None:
+            raise RuntimeError(f"front {self.name}: run() before start()")
         await self.adapter.failed
 
     async def stop(self) -> None:
@@ -301,7 +304,7 @@ class CanopenFront(Front):
         else:
             action()
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         if self.node is None:
             return {}
         return {
@@ -314,7 +317,7 @@ class CanopenFront(Front):
 
 
 @hookimpl
-def fieldgate_register(registry) -> None:
+def fieldgate_register(registry: Registry) -> None:
     registry.add_front(
         "canopen", CanopenFrontConfig, CanopenFront, "CANopen CiA 301 slave on any python-can bus"
     )

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from functools import partial
 
 from fieldgate.image import Change, Channel, DataType, ErrorMode, ProcessImage, Subscription
 from fieldgate.layout import byte_value
@@ -83,6 +84,18 @@ def from_int16(channel: Channel, value: int) -> bool | int | float:
     if dtype is DataType.BOOL:
         raise Abort(VALUE_RANGE, f"{channel.id} is boolean")
     return value
+
+
+def _uses_error_value(channel: Channel) -> bool:
+    return channel.error_mode.use_value
+
+
+def _uses_error_value_int(channel: Channel) -> int:
+    return int(channel.error_mode.use_value)
+
+
+def _error_value_bit(channel: Channel) -> bool:
+    return bool(channel.error_mode.value)
 
 
 def _bits(slots: list[Channel | None], pick: Callable[[Channel], bool]) -> int:
@@ -250,7 +263,7 @@ class Profile401:
                             f"Read input 8-bit {n + 1}",
                             UNSIGNED8,
                             "ro",
-                            lambda n=n: self.read_di(n),
+                            partial(self.read_di, n),
                             default=0,
                             mappable=True,
                         )
@@ -266,7 +279,7 @@ class Profile401:
                             f"Polarity input 8-bit {n + 1}",
                             UNSIGNED8,
                             "rw",
-                            lambda n=n: self.polarity[n],
+                            partial(self.polarity.__getitem__, n),
                             setter(self.polarity, n),
                             default=0,
                         )
@@ -285,8 +298,8 @@ class Profile401:
                             f"Write output 8-bit {n + 1}",
                             UNSIGNED8,
                             "rw",
-                            lambda n=n: self.read_do(n),
-                            lambda v, n=n: self.write_do(n, v),
+                            partial(self.read_do, n),
+                            partial(self.write_do, n),
                             default=self.read_do(n),
                             mappable=True,
                         )
@@ -302,8 +315,8 @@ class Profile401:
                             f"Error mode output 8-bit {n + 1}",
                             UNSIGNED8,
                             "rw",
-                            lambda n=n: _bits(lay.do_bytes[n], lambda c: c.error_mode.use_value),
-                            lambda v, n=n: self._write_do_error(n, v, mode=True),
+                            partial(_bits, lay.do_bytes[n], _uses_error_value),
+                            partial(self._write_do_error, n, mode=True),
                             default=_bits(lay.do_bytes[n], lambda c: c.error_mode.use_value),
                         )
                         for n in do
@@ -318,8 +331,8 @@ class Profile401:
                             f"Error value output 8-bit {n + 1}",
                             UNSIGNED8,
                             "rw",
-                            lambda n=n: _bits(lay.do_bytes[n], lambda c: bool(c.error_mode.value)),
-                            lambda v, n=n: self._write_do_error(n, v, mode=False),
+                            partial(_bits, lay.do_bytes[n], _error_value_bit),
+                            partial(self._write_do_error, n, mode=False),
                             default=_bits(lay.do_bytes[n], lambda c: bool(c.error_mode.value)),
                         )
                         for n in do
@@ -334,7 +347,7 @@ class Profile401:
                             f"Filter mask output 8-bit {n + 1}",
                             UNSIGNED8,
                             "rw",
-                            lambda n=n: self.filter[n],
+                            partial(self.filter.__getitem__, n),
                             setter(self.filter, n),
                             default=self.filter[n],
                         )
@@ -353,7 +366,7 @@ class Profile401:
                             f"Read analog input {n + 1}",
                             INTEGER16,
                             "ro",
-                            lambda n=n: to_int16(lay.ai[n]),
+                            partial(to_int16, lay.ai[n]),
                             default=0,
                             mappable=True,
                         )
@@ -369,7 +382,7 @@ class Profile401:
                             f"Trigger selection {n + 1}",
                             UNSIGNED8,
                             "rw",
-                            lambda n=n: self.trigger[n],
+                            partial(self.trigger.__getitem__, n),
                             setter(self.trigger, n),
                             default=self.trigger[n],
                             high=0x07,
@@ -386,7 +399,7 @@ class Profile401:
                             f"Interrupt source bank {b + 1}",
                             UNSIGNED32,
                             "ro",
-                            lambda b=b: self._read_source(b),
+                            partial(self._read_source, b),
                             default=0,
                         )
                         for b in range(len(self.interrupt_source))
@@ -417,7 +430,7 @@ class Profile401:
                             f"Upper limit {n + 1}",
                             INTEGER32,
                             "rw",
-                            lambda n=n: self.upper[n],
+                            partial(self.upper.__getitem__, n),
                             setter(self.upper, n),
                             default=0,
                         )
@@ -433,7 +446,7 @@ class Profile401:
                             f"Lower limit {n + 1}",
                             INTEGER32,
                             "rw",
-                            lambda n=n: self.lower[n],
+                            partial(self.lower.__getitem__, n),
                             setter(self.lower, n),
                             default=0,
                         )
@@ -449,7 +462,7 @@ class Profile401:
                             f"Delta {n + 1}",
                             UNSIGNED32,
                             "rw",
-                            lambda n=n: self.delta[n],
+                            partial(self.delta.__getitem__, n),
                             setter(self.delta, n),
                             default=0,
                         )
@@ -468,8 +481,8 @@ class Profile401:
                             f"Write analog output {n + 1}",
                             INTEGER16,
                             "rw",
-                            lambda n=n: to_int16(lay.ao[n]),
-                            lambda v, n=n: self.write_ao(n, v),
+                            partial(to_int16, lay.ao[n]),
+                            partial(self.write_ao, n),
                             default=to_int16(lay.ao[n]),
                             mappable=True,
                         )
@@ -485,8 +498,8 @@ class Profile401:
                             f"Error mode {n + 1}",
                             UNSIGNED8,
                             "rw",
-                            lambda n=n: int(lay.ao[n].error_mode.use_value),
-                            lambda v, n=n: self._write_ao_mode(n, v),
+                            partial(_uses_error_value_int, lay.ao[n]),
+                            partial(self._write_ao_mode, n),
                             default=int(lay.ao[n].error_mode.use_value),
                         )
                         for n in ao
@@ -501,8 +514,8 @@ class Profile401:
                             f"Error value {n + 1}",
                             INTEGER32,
                             "rw",
-                            lambda n=n: self._ao_error_value(n),
-                            lambda v, n=n: self._write_ao_error_value(n, v),
+                            partial(self._ao_error_value, n),
+                            partial(self._write_ao_error_value, n),
                             default=self._ao_error_value(n),
                         )
                         for n in ao

@@ -32,15 +32,16 @@ import logging
 import struct
 from collections import Counter
 from enum import Enum, auto
+from typing import Any
 
 from canopen.objectdictionary import datatypes as dt
 from canopen.objectdictionary.datatypes import UNSIGNED_TYPES
 
 from . import abort
 from .abort import SdoAbort
-from .frame import Frame
-from .od import size_of
-from .service import QUIET, Service
+from .frame import Frame, NmtState
+from .od import Dictionary, size_of
+from .service import QUIET, NodeHost, Service, Taken
 
 EXPEDITED_UPLOAD = struct.Struct("<BHB4s")  # command, index, sub-index, data zero-padded to 4 bytes
 
@@ -86,12 +87,12 @@ class SdoServer(Service):
         self.expedited_uploads = 0
         self._idle()
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         super().attach(node)
         self._add_parameter_object(node.od)
         self._load_cob_ids()
 
-    def _add_parameter_object(self, od) -> None:
+    def _add_parameter_object(self, od: Dictionary) -> None:
         """0x1200, the default channel; further channels (0x1201-0x127F) are :class:`.sdo_channel.SdoChannel`."""
         od.add_record(
             0x1200,
@@ -104,8 +105,8 @@ class SdoServer(Service):
 
     def _load_cob_ids(self) -> None:
         """0x1200 is read-only: its COB-IDs change only with the node-ID (reset communication)."""
-        self.rx_cob = self.node.od.get(0x1200, 1) & 0x7FF
-        self.tx_cob = self.node.od.get(0x1200, 2) & 0x7FF
+        self.rx_cob = self.node.od.integer(0x1200, 1) & 0x7FF
+        self.tx_cob = self.node.od.integer(0x1200, 2) & 0x7FF
 
     # -- state ---------------------------------------------------------------------------
     def _idle(self) -> None:
@@ -134,17 +135,17 @@ class SdoServer(Service):
             self.counters["timeouts"] += 1
             self._abort(abort.TIMEOUT)
 
-    def on_nmt_state(self, old, new, now) -> None:
+    def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
         if new not in self.active_states and self.phase is not Phase.IDLE:  # Stopped, reset
             self.counters["dropped_by_state"] += 1
             self._idle()
 
-    def on_reset_communication(self, now) -> None:
+    def on_reset_communication(self, now: float) -> None:
         self._idle()
         self._load_cob_ids()
 
     # -- frames ---------------------------------------------------------------------------
-    def on_frame(self, frame: Frame, now: float) -> bool:
+    def on_frame(self, frame: Frame, now: float) -> Taken:
         if frame.can_id != self.rx_cob:
             return False
         if frame.rtr:
@@ -436,7 +437,7 @@ class SdoServer(Service):
         self._send(b"\xa1")
         self._done()
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         counts = Counter(self.counters)
         counts.update(requests=self.expedited_uploads, transfers=self.expedited_uploads)
         return {**counts, "phase": self.phase.name.lower()}

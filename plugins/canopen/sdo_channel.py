@@ -22,13 +22,19 @@ COB-IDs from its own parameter object:
 
 from __future__ import annotations
 
+from typing import Any
+
 from canopen.objectdictionary import datatypes as dt
 
 from . import abort
 from .abort import SdoAbort
 from .cobid import check_cob_id
 from .frame import Frame
+from .od import Dictionary
 from .sdo import DEFAULT_TIMEOUT_S, MAX_BLOCK_SIZE, Phase, SdoServer
+from .service import Taken
+
+NO_COB = -1  # the COB-IDs of a channel that is not valid: no frame has it
 
 NOT_VALID = 1 << 31
 FIRST_INDEX, LAST_INDEX = 0x1201, 0x127F
@@ -62,7 +68,7 @@ class SdoChannel(SdoServer):
         self._reload_pending = False
         super().__init__(timeout_s, block_size, zero_extend)
 
-    def _add_parameter_object(self, od) -> None:
+    def _add_parameter_object(self, od: Dictionary) -> None:
         index = self.parameter_index
         od.add_record(
             index,
@@ -78,20 +84,20 @@ class SdoChannel(SdoServer):
 
     def _cob_ids(self) -> tuple[int, int]:
         od, index = self.node.od, self.parameter_index
-        return od.get(index, 1), od.get(index, 2)
+        return od.integer(index, 1), od.integer(index, 2)
 
     def _load_cob_ids(self) -> None:
         rx, tx = self._cob_ids()
         valid = not (rx | tx) & NOT_VALID
-        self.rx_cob = rx & 0x7FF if valid else None  # None matches no frame
-        self.tx_cob = tx & 0x7FF if valid else None
+        self.rx_cob = rx & 0x7FF if valid else NO_COB
+        self.tx_cob = tx & 0x7FF if valid else NO_COB
 
     @property
     def valid(self) -> bool:
-        return self.rx_cob is not None
+        return self.rx_cob != NO_COB
 
     # -- frames: COB-ID changes take effect after the answer -------------------------------
-    def on_frame(self, frame: Frame, now: float) -> bool:
+    def on_frame(self, frame: Frame, now: float) -> Taken:
         if frame.can_id != self.rx_cob:
             return False
         self._in_frame = True
@@ -103,7 +109,7 @@ class SdoChannel(SdoServer):
                 self._reload_pending = False
                 self._reload()
 
-    def _written(self, index: int, sub: int, value) -> None:
+    def _written(self, index: int, sub: int, value: int) -> None:
         if sub not in (1, 2):
             return
         if self._in_frame:
@@ -119,14 +125,14 @@ class SdoChannel(SdoServer):
             self._idle()
 
     # -- write checks ----------------------------------------------------------------------
-    def _check(self, sub: int, value) -> None:
+    def _check(self, sub: int, value: int) -> None:
         if sub not in (1, 2):
             return
         valid = not value & NOT_VALID
         can_id = check_cob_id(value, "SDO", in_use=valid)
         if not valid:
             return
-        old = self.node.od.get(self.parameter_index, sub)
+        old = self.node.od.integer(self.parameter_index, sub)
         if not old & NOT_VALID and (old & 0x7FF) != can_id:
             raise SdoAbort(
                 abort.VALUE_RANGE,
@@ -149,6 +155,6 @@ class SdoChannel(SdoServer):
                 used.update((service.rx_cob, service.tx_cob))
         return used
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         rx, tx = self._cob_ids()
         return {**super().status(), "cob_id_rx": rx, "cob_id_tx": tx, "valid": self.valid}

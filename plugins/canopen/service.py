@@ -11,7 +11,7 @@ How a service plugs in (PDO engine, CiA 401 objects, LSS, ... are written this w
             node.od.add_validator(0x1400, ...)   # veto bad writes with SdoAbort
             node.od.on_write(0x1400, ...)        # react to accepted writes (resets reload without calling it)
 
-        def on_frame(self, frame, now) -> bool:  # every received frame, in add order,
+        def on_frame(self, frame: Frame, now: float) -> bool:  # every received frame, in add order,
             if frame.can_id != self.cob_id:      # until one service returns a true value
                 return False
             self.node.send(Frame(...))           # answers go to the node's outbox
@@ -151,8 +151,11 @@ class NodeHost(Protocol):
     def request_bit_timing(self, bitrate: int, delay_s: float) -> None: ...
 
 
+Taken = bool | _Quiet  # on_frame's answer: False (not taken), True or QUIET
+
+
 class Service:
-    name: ClassVar[str] = "service"
+    name: str = "service"  # a class constant, or per instance (one SDO server channel each)
     active_states: ClassVar[frozenset[NmtState]] = COMMUNICATING
 
     def __init__(self) -> None:
@@ -169,7 +172,7 @@ class Service:
     def attach(self, node: NodeHost) -> None:
         self._node = node
 
-    def on_frame(self, frame: Frame, now: float) -> bool:
+    def on_frame(self, frame: Frame, now: float) -> Taken:
         return False
 
     def answer_read(self, data: bytes | bytearray) -> Frame | None:

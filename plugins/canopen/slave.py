@@ -19,7 +19,7 @@ from .errctl import ErrorControl
 from .node import Node
 from .sdo import SdoServer
 from .sdo_channel import SdoChannel, channel_indices
-from .service import ALL_STATES, Service
+from .service import ALL_STATES, NodeHost, Service
 from .store import StoreService
 from .sync import SyncService
 from .timestamp import TimeConsumer
@@ -67,7 +67,7 @@ class IdentityObjects(Service):
         super().__init__()
         self.identity = identity
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         super().attach(node)
         ident, od = self.identity, node.od
         od.add_variable(0x1000, "Device type", dt.UNSIGNED32, "ro", ident.device_type)

@@ -28,7 +28,9 @@ import hashlib
 import json
 import logging
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 from canopen.objectdictionary import datatypes as dt
 
@@ -37,7 +39,8 @@ from fieldgate.persist import CorruptStore, read_json, write_atomic
 from . import abort
 from .abort import SdoAbort
 from .frame import NmtState
-from .service import ALL_STATES, Service
+from .od import Setter, Value
+from .service import ALL_STATES, NodeHost, Service
 
 SAVE = 0x65766173
 LOAD = 0x64616F6C
@@ -62,12 +65,17 @@ def _parse_key(text: str) -> tuple[int, int]:
     return int(index, 16), int(sub, 16)
 
 
-def _to_json(value):
+def _to_json(value: Value) -> Value | dict[str, str]:
     return {"b64": base64.b64encode(value).decode()} if isinstance(value, bytes) else value
 
 
-def _from_json(value):
+def _from_json(value: Value | dict[str, str]) -> Value:
     return base64.b64decode(value["b64"]) if isinstance(value, dict) else value
+
+
+def _ignoring_value(action: Callable[[int], None], sub: int) -> Setter:
+    """A setter that runs ``action(sub)`` whatever value is written (the signature is checked first)."""
+    return lambda value: action(sub)
 
 
 class StoreService(Service):
@@ -79,12 +87,12 @@ class StoreService(Service):
         self.path = Path(path) if path is not None else None
         self._fingerprint_parts = [fingerprint]
         self._area_hooks: list[AreaHook] = []
-        self.values: dict[tuple[int, int], object] = {}
+        self.values: dict[tuple[int, int], Value] = {}
         self.sections: dict[str, object] = {}
         self.problem: tuple[int, bytes] | None = None
         self._reported = False
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         super().attach(node)
         od = node.od
         for index, name, sig in (
@@ -99,15 +107,13 @@ class StoreService(Service):
                     for s in AREAS
                 ],
             )
-            od.add_validator(index, lambda sub, value, sig=sig: self._check_signature(sig, value))
+            od.add_validator(index, partial(self._check_signature, sig))
             for sub in AREAS:
                 od.bind(
                     index,
                     sub,
                     getter=lambda: 1,
-                    setter=(lambda v, sub=sub: self.save(sub))
-                    if sig == SAVE
-                    else (lambda v, sub=sub: self.restore(sub)),
+                    setter=_ignoring_value(self.save if sig == SAVE else self.restore, sub),
                     thread_safe=True,
                 )
 
@@ -130,7 +136,7 @@ class StoreService(Service):
         self._area_hooks.append(hook)
 
     @staticmethod
-    def _check_signature(expected: int, value: int) -> None:
+    def _check_signature(expected: int, sub: int, value: int) -> None:
         if value != expected:
             raise SdoAbort(abort.CANNOT_STORE, "wrong signature")
 
@@ -218,15 +224,15 @@ class StoreService(Service):
         for hook in self._area_hooks:
             hook(communication, application, saving)
 
-    def section(self, name: str, default=None):
+    def section(self, name: str, default: Any = None) -> Any:
         return self.sections.get(name, default)
 
-    def set_section(self, name: str, value) -> None:
+    def set_section(self, name: str, value: Any) -> None:
         """Change a section in memory (from an area hook); the save / load in progress writes it."""
         self.sections[name] = value
 
     # -- reporting ------------------------------------------------------------------------------
-    def on_nmt_state(self, old, new, now) -> None:
+    def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
         if (
             new is NmtState.PRE_OPERATIONAL
             and self.problem is not None
@@ -236,7 +242,7 @@ class StoreService(Service):
             self._reported = True
             self.node.emcy.raise_error(self.problem[0], 0x81, self.problem[1], now)
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             **self.counters,
             "file": str(self.path) if self.path else None,

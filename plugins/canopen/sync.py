@@ -26,13 +26,15 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from canopen.objectdictionary import datatypes as dt
 
 from . import abort
 from .abort import SdoAbort
 from .cobid import check_cob_id
 from .frame import Frame, NmtState
-from .service import COMMUNICATING, Service
+from .service import COMMUNICATING, NodeHost, Service
 
 SYNC_LOSS_CODE = 0x8100
 SYNC_LOSS_REGISTER = 0x11  # generic + communication
@@ -53,7 +55,7 @@ class SyncService(Service):
         self.counter = 0
         self.lost = False
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         super().attach(node)
         od = node.od
         od.add_variable(0x1005, "COB-ID SYNC message", dt.UNSIGNED32, "rw", self.default_cob_id)
@@ -66,17 +68,19 @@ class SyncService(Service):
 
     @property
     def cob_id(self) -> int:
-        return self.node.od.get(0x1005) & 0x7FF
+        return self.node.od.integer(0x1005) & 0x7FF
 
     def _period_s(self) -> float:
-        return self.node.od.get(0x1006) / 1e6
+        return self.node.od.integer(0x1006) / 1e6
 
     def _producer(self) -> bool:
-        return bool(self.node.od.get(0x1005) & PRODUCER_BIT) and self.node.od.get(0x1006) > 0
+        return (
+            bool(self.node.od.integer(0x1005) & PRODUCER_BIT) and self.node.od.integer(0x1006) > 0
+        )
 
     def supervising(self) -> bool:
         """SYNC loss is watched: a communication cycle period, and the SYNC comes from elsewhere."""
-        return self.node.od.get(0x1006) > 0 and not self._producer()
+        return self.node.od.integer(0x1006) > 0 and not self._producer()
 
     def _configure(self, now: float) -> None:
         self.loss_deadline = None  # supervision (re)starts at the first SYNC
@@ -93,7 +97,7 @@ class SyncService(Service):
     def on_reset_communication(self, now: float) -> None:
         self.produce_due = None  # the loss error ends after the boot-up (on_nmt_state)
 
-    def on_nmt_state(self, old, new, now) -> None:
+    def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
         if old is NmtState.INITIALISING and new is not NmtState.INITIALISING:
             self._end_loss(now)  # unless error control already ended it with its own (one EMCY)
         if new in COMMUNICATING:
@@ -120,7 +124,7 @@ class SyncService(Service):
     def on_frame(self, frame: Frame, now: float) -> bool:
         if frame.can_id != self.cob_id or frame.rtr:
             return False
-        overflow = self.node.od.get(0x1019)
+        overflow = self.node.od.integer(0x1019)
         if overflow > 1 and len(frame.data) != 1 or overflow <= 1 and len(frame.data) != 0:
             self.counters["bad_length"] += 1
             return True
@@ -147,7 +151,7 @@ class SyncService(Service):
         if self.produce_due is not None and now >= self.produce_due:
             period = self._period_s()
             self.produce_due = max(self.produce_due + period, now)
-            overflow = self.node.od.get(0x1019)
+            overflow = self.node.od.integer(0x1019)
             if overflow > 1:
                 self.counter = self.counter % overflow + 1
                 data = bytes([self.counter])
@@ -169,15 +173,15 @@ class SyncService(Service):
     # -- validators --------------------------------------------------------------------------
     def _check_cob_id(self, sub: int, value: int) -> None:
         check_cob_id(value, "SYNC")  # SYNC is always consumed: bit 31 does not free the identifier
-        old = self.node.od.get(0x1005)
+        old = self.node.od.integer(0x1005)
         if old & value & PRODUCER_BIT and (old & 0x7FF) != (value & 0x7FF):
             raise SdoAbort(abort.VALUE_RANGE, "clear bit 30 before changing the SYNC COB-ID")
 
     def _check_overflow(self, sub: int, value: int) -> None:
-        if self.node.od.get(0x1006):
+        if self.node.od.integer(0x1006):
             raise SdoAbort(abort.DEVICE_STATE, "0x1019 can change only while 0x1006 is 0")
         if value == 1 or value > 240:
             raise SdoAbort(abort.VALUE_RANGE, "0x1019 must be 0 or 2..240")
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {**self.counters, "sync_lost": self.lost, "producer": bool(self.produce_due)}

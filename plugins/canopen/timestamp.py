@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
+from typing import Any
 
 from canopen.objectdictionary import datatypes as dt
 
@@ -27,7 +28,7 @@ from . import abort
 from .abort import SdoAbort
 from .cobid import check_cob_id
 from .frame import Frame
-from .service import Service
+from .service import NodeHost, Service
 
 CONSUME_BIT = 1 << 31
 PRODUCE_BIT = 1 << 30
@@ -72,7 +73,7 @@ class TimeConsumer(Service):
         self.received_at: float | None = None  # node time (monotonic seconds) of the last reception
         self._listeners: list[TimeListener] = []
 
-    def attach(self, node) -> None:
+    def attach(self, node: NodeHost) -> None:
         super().attach(node)
         node.od.add_variable(0x1012, "COB-ID TIME", dt.UNSIGNED32, "rw", self.default_cob_id)
         node.od.add_validator(0x1012, self._check)
@@ -80,7 +81,7 @@ class TimeConsumer(Service):
         self._load()
 
     def _load(self) -> None:
-        value = self.node.od.get(0x1012)
+        value = self.node.od.integer(0x1012)
         self.cob_id = value & 0x7FF if value & CONSUME_BIT else None
 
     def on_reset_communication(self, now: float) -> None:
@@ -127,11 +128,11 @@ class TimeConsumer(Service):
             raise SdoAbort(abort.VALUE_RANGE, "TIME production (0x1012 bit 30) is not supported")
         consume = bool(value & CONSUME_BIT)
         can_id = check_cob_id(value, "TIME", in_use=consume)
-        old = self.node.od.get(0x1012)
+        old = self.node.od.integer(0x1012)
         if consume and old & CONSUME_BIT and (old & 0x7FF) != can_id:
             raise SdoAbort(
                 abort.VALUE_RANGE, "clear bit 31 of 0x1012 before changing the TIME CAN-ID"
             )
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {**self.counters, "consuming": self.cob_id is not None, "last": self.last}
