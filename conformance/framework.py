@@ -61,12 +61,15 @@ class Case:
 CASES: dict[str, Case] = {}
 
 
-def case(profile: str, name: str, title: str):
+CaseFn = Callable[["Context"], None]
+
+
+def case(profile: str, name: str, title: str) -> Callable[[CaseFn], CaseFn]:
     """Register ``fn`` as case ``<profile>.<name>``; the docstring explains the check."""
     if profile not in PROFILES + DEVICENET_PROFILES:
         raise ValueError(f"unknown profile {profile!r}")
 
-    def register(fn):
+    def register(fn: CaseFn) -> CaseFn:
         cid = f"{profile}.{name}"
         if cid in CASES:
             raise ValueError(f"duplicate case {cid}")
@@ -102,9 +105,9 @@ class Context:
         self.device = device
         self.timing = timing
         self.options = options
-        self._cleanups: list[Callable[[], None]] = []
+        self._cleanups: list[Callable[[], object]] = []
 
-    def cleanup(self, fn: Callable[[], None]) -> None:
+    def cleanup(self, fn: Callable[[], object]) -> None:
         self._cleanups.append(fn)
 
     def run_cleanups(self) -> list[str]:
