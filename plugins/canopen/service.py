@@ -158,19 +158,13 @@ class Service:
     name: str = "service"  # a class constant, or per instance (one SDO server channel each)
     active_states: ClassVar[frozenset[NmtState]] = COMMUNICATING
 
+    node: NodeHost  # the node this service is attached to: set by attach (node.add_service)
+
     def __init__(self) -> None:
-        self._node: NodeHost | None = None
         self.counters: Counter[str] = Counter()
 
-    @property
-    def node(self) -> NodeHost:
-        """The node this service is attached to (by ``node.add_service``)."""
-        if self._node is None:
-            raise RuntimeError(f"the {self.name} service is not attached to a node")
-        return self._node
-
     def attach(self, node: NodeHost) -> None:
-        self._node = node
+        self.node = node
 
     def on_frame(self, frame: Frame, now: float) -> Taken:
         return False
