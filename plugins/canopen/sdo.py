@@ -70,6 +70,9 @@ class Phase(Enum):
 class SdoServer(Service):
     name = "sdo"
 
+    rx_cob: int | None  # the request COB-ID; None (a channel that is not valid): no frame
+    tx_cob: int  # the answer COB-ID
+
     def __init__(
         self,
         timeout_s: float = DEFAULT_TIMEOUT_S,

@@ -34,8 +34,6 @@ from .od import Dictionary
 from .sdo import DEFAULT_TIMEOUT_S, MAX_BLOCK_SIZE, Phase, SdoServer
 from .service import Taken
 
-NO_COB = -1  # the COB-IDs of a channel that is not valid: no frame has it
-
 NOT_VALID = 1 << 31
 FIRST_INDEX, LAST_INDEX = 0x1201, 0x127F
 MAX_SERVERS = 1 + LAST_INDEX - FIRST_INDEX + 1  # 0x1200 plus 127 more
@@ -89,12 +87,12 @@ class SdoChannel(SdoServer):
     def _load_cob_ids(self) -> None:
         rx, tx = self._cob_ids()
         valid = not (rx | tx) & NOT_VALID
-        self.rx_cob = rx & 0x7FF if valid else NO_COB
-        self.tx_cob = tx & 0x7FF if valid else NO_COB
+        self.rx_cob = rx & 0x7FF if valid else None  # None matches no frame
+        self.tx_cob = tx & 0x7FF  # (used only for an answer: never while rx_cob is None)
 
     @property
     def valid(self) -> bool:
-        return self.rx_cob != NO_COB
+        return self.rx_cob is not None
 
     # -- frames: COB-ID changes take effect after the answer -------------------------------
     def on_frame(self, frame: Frame, now: float) -> Taken:
@@ -152,7 +150,7 @@ class SdoChannel(SdoServer):
                     if not cob & NOT_VALID and not (service is self and sub == except_sub):
                         used.add(cob & 0x7FF)
             elif isinstance(service, SdoServer):
-                used.update((service.rx_cob, service.tx_cob))
+                used.update(c for c in (service.rx_cob, service.tx_cob) if c is not None)
         return used
 
     def status(self) -> dict[str, Any]:
