@@ -3,6 +3,7 @@ type error or a lint finding, and naming the real file (core/..., not the link t
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import subprocess
@@ -17,11 +18,18 @@ ROOT = Path(__file__).resolve().parent.parent
 def _tools_missing() -> str | None:
     bin_dir = Path(sys.executable).parent
     missing = [tool for tool in ("ruff", "mypy") if not (bin_dir / tool).exists()]
-    return (
-        f"{', '.join(missing)} not installed in {bin_dir} (pip install -e '.[test]')"
-        if missing
-        else None
-    )
+    if missing:
+        return f"{', '.join(missing)} not installed in {bin_dir} (pip install -e '.[test]')"
+    # scripts/lint sources scripts/ensure-venv, which reinstalls (from the copy!) into a venv
+    # whose stamp does not match: only lint with a venv that script made for this tree
+    stamp = bin_dir.parent / ".fieldgate-installed"
+    want = hashlib.sha256(
+        (ROOT / "pyproject.toml").read_bytes()
+        + (ROOT / "tests" / "plugin_pkg" / "pyproject.toml").read_bytes()
+    ).hexdigest()
+    if not stamp.exists() or stamp.read_text().strip() != want:
+        return f"{bin_dir.parent} was not set up by scripts/ensure-venv for this pyproject.toml"
+    return None
 
 
 @pytest.fixture(scope="module")
