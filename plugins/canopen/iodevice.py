@@ -149,7 +149,7 @@ class IoDevice(Service):
     def _build_layout(self, compressed: bool, inactive: frozenset[int]) -> None:
         """The layout-dependent parts: layout, default PDOs, CiA 401 objects."""
         settings = self.settings
-        self.layout = build_layout(
+        self.layout: IoLayout = build_layout(
             self.channels,
             settings.style,
             compressed=compressed,

@@ -587,7 +587,9 @@ class Profile401:
                                 (lambda n=n: self.read_di_bit(n))
                                 if access == "ro"
                                 else (lambda n=n: self.read_do_bit(n)),
-                                (lambda v, n=n: self.write_do_bit(n, v)) if access == "rw" else None,
+                                (lambda v, n=n: self.write_do_bit(n, v))
+                                if access == "rw"
+                                else None,
                                 default=0 if access == "ro" else self.read_do_bit(n),
                                 mappable=True,
                             )

@@ -113,16 +113,16 @@ class ChannelGroup(StrictModel):
             raise _invalid(
                 f"{self.kind} channels cannot live in {self.table.value}; use one of: {allowed}"
             )
-        if self.type is not None and (
-            kind.is_digital or kind.is_special or self.table.is_bits
-        ):
+        if self.type is not None and (kind.is_digital or kind.is_special or self.table.is_bits):
             raise _invalid(
                 f"type applies to analog channels in registers, not to {self.kind} channels"
             )
         if self.byte_order is not None and not kind.is_special:
             raise _invalid(f"byte_order applies to si/so byte blocks, not to {self.kind} channels")
         if kind.is_special and self.first_bit:
-            raise _invalid("first_bit applies to digital channels; si/so blocks start at a register")
+            raise _invalid(
+                "first_bit applies to digital channels; si/so blocks start at a register"
+            )
         if self.write_fc is not None:
             if not kind.is_output:
                 raise _invalid("write_fc applies to outputs (do, ao) only")

@@ -31,7 +31,14 @@ def test_a_byte_block_is_one_uint8_channel_per_byte_two_per_register():
     assert {s.data_type for s in specs.values()} == {DataType.UINT8}
     points = module_points("rs485", cfg.modules[0])
     # byte_order big (default): byte 0 is the high byte of the first register, as on the wire
-    assert [(p.address, p.bit) for p in points[:6]] == [(0, 8), (0, 0), (1, 8), (1, 0), (2, 8), (2, 0)]
+    assert [(p.address, p.bit) for p in points[:6]] == [
+        (0, 8),
+        (0, 0),
+        (1, 8),
+        (1, 0),
+        (2, 8),
+        (2, 0),
+    ]
     little = {**HSC, "channels": [{**HSC["channels"][1], "byte_order": "little"}]}
     assert [(p.address, p.bit) for p in module_points("rs485", back(little).modules[0])] == [
         (0, 0),
@@ -42,10 +49,19 @@ def test_a_byte_block_is_one_uint8_channel_per_byte_two_per_register():
 @pytest.mark.parametrize(
     "group, message",
     [
-        ({"kind": "so", "table": "input_registers", "address": 0}, "cannot live in input_registers"),
-        ({"kind": "si", "table": "discrete_inputs", "address": 0}, "cannot live in discrete_inputs"),
+        (
+            {"kind": "so", "table": "input_registers", "address": 0},
+            "cannot live in input_registers",
+        ),
+        (
+            {"kind": "si", "table": "discrete_inputs", "address": 0},
+            "cannot live in discrete_inputs",
+        ),
         ({"kind": "si", "table": "input_registers", "address": 0, "type": "int16"}, "type applies"),
-        ({"kind": "ai", "table": "input_registers", "address": 0, "byte_order": "big"}, "byte_order"),
+        (
+            {"kind": "ai", "table": "input_registers", "address": 0, "byte_order": "big"},
+            "byte_order",
+        ),
         ({"kind": "si", "table": "input_registers", "address": 0, "first_bit": 3}, "first_bit"),
     ],
 )
