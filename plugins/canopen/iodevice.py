@@ -199,7 +199,8 @@ class IoDevice(Service):
         self.engine = self._new_engine(node)
         for obj in self.objects():
             bind_object(node.od, obj)
-        if (0x1000, 0) in node.od:
+        if (0x1000, 0) in node.od:  # the DI/DO/AI/AO bits of the new image (the reset reloads it)
+            node.od.variable(0x1000, 0).default = self.device_type
             node.od.set(0x1000, 0, self.device_type, notify=False)
         self.profile.attach(self.engine.object_changed)
 
