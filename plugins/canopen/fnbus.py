@@ -18,6 +18,16 @@ process image takes the new layout at the next NMT Reset Node ([AMBIG-35]; a mas
 reconfigures its PDOs then anyway). 0x1010 "save" (sub 1 or 3) keeps them across a
 restart of the gateway, 0x1011 "load" brings the topology's values back at the next start.
 A deactivated slot is left out of the image (see :mod:`.layouts`).
+
+0x4503 "Expansion module product code" (sub n = slot n, U32 ro) describes each slot
+with the seed's product-code layout (§2.5, read as wire order [AMBIG-20]): byte 0 input
+size, byte 1 output size (0xC0 none, 0x80|n-1 = n bits, 0x00|n-1 = n bytes, 0x40|n-1 =
+n 16-bit words), byte 2 class flags (0x40 inputs, 0x80 outputs, +0x20 analog, +0x10
+special), byte 3 family (0x01 digital, 0x03 analog or special). Our codes are synthetic
+(no CREVIS module behind them): a module with digital channels describes those in bytes
+0/1 (whatever else it has, as the flags say); otherwise its analog words, else its
+special bytes. An ST-2424-like module (4 DI + 4 DO) reads ``83 83 C0 01`` (TV-11), an
+ST-5101-like counter (6 bytes in, 2 out) ``05 01 D0 03``.
 """
 
 from __future__ import annotations
@@ -27,10 +37,11 @@ from collections.abc import Callable, Sequence
 from fieldgate.health import HealthRegistry
 
 from .abort import VALUE_RANGE
-from .entries import UNSIGNED8, UNSIGNED32, Abort, Entry, ObjectDef, count_entry
+from .entries import UNSIGNED8, UNSIGNED32, Abort, Entry, ObjectDef, array, const, count_entry
 from .layouts import MAX_SLOTS, ModuleRef
 
-FNBUS = 0x4500
+FNBUS, PRODUCT_CODES = 0x4500, 0x4503
+NO_DATA = 0xC0
 MODULE_OFFLINE = 0x01  # byte 0 of 0x4500:1 (gateway-defined; the seed lists no codes)
 FIELD_POWER_MISSING = 0x80  # byte 3 of 0x4500:1 (never set: the gateway cannot sense it)
 
@@ -115,6 +126,14 @@ class FnBusRegister:
 
     def objects(self) -> list[ObjectDef]:
         return [
+            array(
+                PRODUCT_CODES,
+                "Expansion module product code",
+                (
+                    Entry(n, f"Slot product code {n}", UNSIGNED32, "ro", const(code), default=code)
+                    for n, code in enumerate(map(product_code, self.modules), 1)
+                ),
+            ),
             ObjectDef(
                 FNBUS,
                 "FnBus communication register",
@@ -142,5 +161,37 @@ class FnBusRegister:
                         default=0,
                     ),
                 ],
-            )
+            ),
         ]
+
+
+def size_code(bits: int, words: int, raw_bytes: int) -> int:
+    """Byte 0/1 of a product code for one direction (seed-004 §2.5)."""
+    if bits:
+        return (bits // 8 - 1) if bits % 8 == 0 else 0x80 | (bits - 1)
+    if words:
+        return 0x40 | (words - 1)
+    if raw_bytes:
+        return raw_bytes - 1
+    return NO_DATA
+
+
+def product_code(m: ModuleRef) -> int:
+    """The slot's 0x4503 value: bytes 0..3 on the wire = in, out, class, family."""
+    has_in, has_out = bool(m.di or m.ai or m.si), bool(m.do or m.ao or m.so)
+    flags = (
+        (0x40 if has_in else 0)
+        | (0x80 if has_out else 0)
+        | (0x20 if m.ai or m.ao else 0)
+        | (0x10 if m.si or m.so else 0)
+    )
+    family = 0x01 if not (m.ai or m.ao or m.si or m.so) else 0x03
+    wire = bytes(
+        [
+            min(0xFF, size_code(m.di, m.ai, m.si)),
+            min(0xFF, size_code(m.do, m.ao, m.so)),
+            flags,
+            family,
+        ]
+    )
+    return int.from_bytes(wire, "little")
