@@ -226,3 +226,34 @@ def test_outputs_of_a_deactivated_slot_are_not_written_by_rpdos():
     bench.start()
     bench.rx(0x205, "FF 00 00 00 00 00 00 00")  # 0x6200:1 = slot 2's 8 points now
     assert do_value(image, 1, 4) == 0 and do_value(image, 2, 8) == 0xFF
+
+
+# -- 0x4503 product codes (TV-11) -----------------------------------------------------------
+
+TV11_SLOTS = [  # (address, di, do, ai, ao): ST-2424, ST-2318, ST-4112, ST-222F, ST-2314, ST-2328, ST-2742
+    (1, 4, 4, 0, 0),
+    (2, 0, 8, 0, 0),
+    (3, 0, 0, 0, 2),
+    (4, 0, 16, 0, 0),
+    (5, 0, 4, 0, 0),
+    (6, 0, 8, 0, 0),
+    (7, 0, 2, 0, 0),
+]
+TV11_ANSWERS = [
+    "4F 03 45 00 07 00 00 00",
+    "43 03 45 01 83 83 C0 01",
+    "43 03 45 02 C0 00 80 01",
+    "43 03 45 03 C0 41 A0 03",
+    "43 03 45 04 C0 01 80 01",
+    "43 03 45 05 C0 83 80 01",
+    "43 03 45 06 C0 00 80 01",
+    "43 03 45 07 C0 81 80 01",
+]
+
+
+def test_tv11_product_codes_of_the_slots_byte_for_byte():
+    bench = Bench(make_image(TV11_SLOTS), IoSettings(style="na9161"), node_id=5)
+    assert [bench.read(0x4503, sub) for sub in range(8)] == TV11_ANSWERS
+    counter = Bench(make_image([HSC_IN[:5] + (6, 2)]), IoSettings(style="na9161"))
+    assert counter.read(0x4503, 1) == "43 03 45 01 05 01 D0 03"  # ST-5101: 6 bytes in, 2 out
+    assert counter.write(0x4503, 1, 0, 4).startswith("80 03 45 01")  # read-only
