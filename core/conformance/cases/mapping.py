@@ -137,8 +137,12 @@ def bit_mapping(ctx: Context) -> None:
         raise Skip("no 1-bit mappable BOOLEAN outputs in the EDS (byte granularity)")
     a, b = outs[0], outs[1]
     old = [dev.read(v.index, v.subindex) for v in (a, b)]
-    for v, value in zip((a, b), old, strict=True):
-        ctx.cleanup(lambda v=v, value=value: dev.write(v.index, v.subindex, value))
+
+    def restore_bits() -> None:
+        for v, value in zip((a, b), old, strict=True):
+            dev.write(v.index, v.subindex, value)
+
+    ctx.cleanup(restore_bits)
     rpdo = active_pdo(dev, tx=False)
     entries = [entry(a, 1), entry(b, 1)]
     remap(ctx, rpdo, entries)

@@ -219,7 +219,11 @@ def special_areas(ctx: Context) -> None:
             dev.expect_write_abort(SI, 1, b"\x00", RO_WRITE_ABORTS, "0x3000:1 (inputs)")
         else:
             value = dev.upload(SO, 1)
-            ctx.cleanup(lambda value=value: dev.download(SO, 1, value))
+
+            def restore(value: bytes = value) -> None:
+                dev.download(SO, 1, value)
+
+            ctx.cleanup(restore)
             dev.download(SO, 1, value)  # AMBIG-13: the seed prints ro; outputs must be writable
     defaults = [e for p in pdos(dev, True) + pdos(dev, False) for e in p.entries]
     mapped = sorted({e >> 16 for e in defaults} & {SI, SO})
