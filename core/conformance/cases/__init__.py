@@ -1,6 +1,6 @@
 """Importing this package registers every case, profile by profile."""
 
-from . import (  # noqa: F401  # noqa: F401  (granularity and dummy entries; NA-9161 profile)
+from . import (  # noqa: F401
     cia401,
     devicenet,
     emcy,
