@@ -122,6 +122,8 @@ class Pdo:
     timer_due: float | None = None
     sample: bytes | None = None  # data sampled at the last SYNC
     latched: bytes | None = None  # RPDO data waiting for the next SYNC
+    _aligned_for: list[_Slot] | None = field(default=None, repr=False)
+    _aligned: bool = field(default=True, repr=False)
 
     @property
     def comm_index(self) -> int:
@@ -150,7 +152,11 @@ class Pdo:
 
     @property
     def aligned(self) -> bool:
-        return all(s.bits % 8 == 0 for s in self.slots)
+        """Every entry whole bytes (the fast path); computed once per mapping."""
+        if self._aligned_for is not self.slots:
+            self._aligned_for = self.slots
+            self._aligned = all(s.bits % 8 == 0 for s in self.slots)
+        return self._aligned
 
     def clear_runtime(self) -> None:
         self.sync_count = 0

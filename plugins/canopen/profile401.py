@@ -52,7 +52,16 @@ from .entries import (
     ObjectDef,
     array,
 )
-from .layouts import AI_OBJECT, AO_OBJECT, DI_OBJECT, DO_OBJECT, SI_OBJECT, SO_OBJECT, IoLayout
+from .layouts import (
+    AI_OBJECT,
+    AO_OBJECT,
+    DI_OBJECT,
+    DO_OBJECT,
+    SI_OBJECT,
+    SO_OBJECT,
+    IoLayout,
+    LayoutError,
+)
 
 DI_POLARITY, DO_ERROR_MODE, DO_ERROR_VALUE, DO_FILTER = 0x6002, 0x6206, 0x6207, 0x6208
 AI_TRIGGER, AI_SOURCE, AI_ENABLE, AI_UPPER, AI_LOWER, AI_DELTA = (
@@ -122,7 +131,9 @@ class Profile401:
         if bit_objects and 8 * max(len(layout.di_bytes), len(layout.do_bytes)) > (
             BITS_PER_OBJECT * BIT_OBJECTS
         ):
-            raise ValueError(f"bit objects hold at most {BITS_PER_OBJECT * BIT_OBJECTS} channels")
+            raise LayoutError(
+                f"bit_mapping: the bit objects hold at most {BITS_PER_OBJECT * BIT_OBJECTS} digital channels per direction"
+            )
         n_di, n_do, n_ai = len(layout.di_bytes), len(layout.do_bytes), len(layout.ai)
         self.polarity = [0] * n_di
         self.filter = [filter_default] * n_do

@@ -45,7 +45,7 @@ def test_tv18_counter_bytes_in_0x3000_and_no_digital_bits_of_the_counter():
     assert digital(bench) == "CA F5 EE 3B 81 46 23 01"  # 60 bits, the counter adds none
     assert special(bench) == "01 02 03 04 05 06"  # 0x3000:1..6 = byte 0..5
     assert bench.read(0x3000, 0) == "4F 00 30 00 06 00 00 00"
-    assert bench.value(0x2020, 1) == 60
+    assert bench.read(0x2020, 1) == "4B 20 20 01 3C 00 00 00"  # TV-04: 60 bits
     assert bench.value(0x1000, 0) == 0x00050191  # TV-17: special data sets no 0x1000 bit
     # not in the default mapping (§A.3): the start TPDOs are TV-18's
     assert bench.start() == ["185 [8] CA F5 EE 3B 81 46 23 01", "285 [8] 34 12 FF 0F 00 00 01 80"]
