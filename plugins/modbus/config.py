@@ -295,6 +295,18 @@ class Point:
         return self.address + self.width
 
 
+def _place(g: ChannelGroup, i: int) -> tuple[int, int | None]:
+    """(address, bit inside the register or None) of channel ``i`` of a group."""
+    if g.table.is_bits:
+        return g.address + i, None
+    if Kind(g.kind).is_special:  # two bytes per register
+        return g.address + i // 2, _byte_shift(g, i)
+    if Kind(g.kind).is_digital:
+        bit = g.first_bit + i
+        return g.address + bit // 16, bit % 16
+    return g.address + i * WORDS[g.dtype], None
+
+
 def module_points(back: str, module: ModbusModuleConfig) -> list[Point]:
     points: list[Point] = []
     next_index = {k: 0 for k in Kind}
@@ -304,45 +316,21 @@ def module_points(back: str, module: ModbusModuleConfig) -> list[Point]:
         for i in range(g.count):
             index = next_index[kind]
             next_index[kind] += 1
-            cid = channel_id(back, module.address, kind, index)
-            common = {"write_fc": g.write_fc, "period": period, "word_order": g.word_order}
-            if g.table.is_bits:
-                points.append(
-                    Point(cid, kind, index, g.table, g.address + i, DataType.BOOL, **common)
+            address, bit = _place(g, i)
+            points.append(
+                Point(
+                    channel_id(back, module.address, kind, index),
+                    kind,
+                    index,
+                    g.table,
+                    address,
+                    g.dtype,
+                    word_order=g.word_order,
+                    bit=bit,
+                    write_fc=g.write_fc,
+                    period=period,
                 )
-            elif kind.is_special:
-                points.append(
-                    Point(
-                        cid,
-                        kind,
-                        index,
-                        g.table,
-                        g.address + i // 2,
-                        DataType.UINT8,
-                        bit=_byte_shift(g, i),
-                        **common,
-                    )
-                )
-            elif kind.is_digital:
-                bit = g.first_bit + i
-                points.append(
-                    Point(
-                        cid,
-                        kind,
-                        index,
-                        g.table,
-                        g.address + bit // 16,
-                        DataType.BOOL,
-                        bit=bit % 16,
-                        **common,
-                    )
-                )
-            else:
-                points.append(
-                    Point(
-                        cid, kind, index, g.table, g.address + i * WORDS[g.dtype], g.dtype, **common
-                    )
-                )
+            )
     return points
 
 

@@ -167,6 +167,21 @@ class ProcessDut:
         self.proc = None
 
 
+def write_eds(topo: dict, workdir: Path, name: str = "dut.eds") -> Path:
+    """The EDS of the topology's canopen front, written by ``fieldgate eds`` in a subprocess."""
+    source = workdir / "eds-topology.yaml"
+    source.write_text(json.dumps(topo))  # JSON is YAML
+    eds = workdir / name
+    done = subprocess.run(
+        [sys.executable, "-m", "fieldgate", "eds", str(source), "-o", str(eds)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    return eds
+
+
 def make_dut(topo: dict, interface: str, channel: str, external: bool, workdir: Path):
     return (
         ProcessDut(topo, interface, channel, workdir)

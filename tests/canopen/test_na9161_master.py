@@ -5,15 +5,12 @@ travel between the simulated modules and the bus (in-process, virtual bus)."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import canopen
 import pytest
-from canopen_dut import InProcessDut
+from canopen_dut import InProcessDut, write_eds
 from ruamel.yaml import YAML
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "na9161-style.yaml"
@@ -36,16 +33,7 @@ def na9161(tmp_path):
     topo["fronts"][0].update(bit_mapping=True, guard_time_ms=0, life_time_factor=0)
     topo["backs"][0]["poll_ms"] = 5
     channel = f"fg-na9161-{tmp_path.name[-12:]}"
-    source = tmp_path / "topology.json"
-    source.write_text(json.dumps(topo))
-    eds = tmp_path / "na9161.eds"
-    done = subprocess.run(
-        [sys.executable, "-m", "fieldgate", "eds", str(source), "-o", str(eds)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert done.returncode == 0, done.stderr
+    eds = write_eds(topo, tmp_path, "na9161.eds")
     network = canopen.Network()
     network.NOTIFIER_CYCLE = 0.05
     network.connect(interface="virtual", channel=channel)

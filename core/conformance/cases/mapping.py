@@ -12,7 +12,7 @@ from canopen.objectdictionary import BOOLEAN, ODVariable
 
 from ..device import SdoAbort, abort_text
 from ..framework import Context, Fail, Skip, case
-from .common import Pdo, active_pdo, invalidate, operational, preop, remap
+from .common import Pdo, active_pdo, invalidate, keep_mapping, operational, preop, remap
 from .pdo import rtr, sync
 
 NOT_MAPPABLE = 0x06040041
@@ -104,15 +104,7 @@ def dummy_undeclared(ctx: Context) -> None:
         raise Skip("the EDS declares every dummy entry")
     pdo = active_pdo(dev, tx=False)
     invalidate(ctx, pdo)
-    keep = [dev.read(pdo.mapping, s) for s in range(1, dev.read(pdo.mapping, 0) + 1)]
-
-    def restore() -> None:
-        dev.write(pdo.mapping, 0, 0)
-        for s, e in enumerate(keep, 1):
-            dev.write(pdo.mapping, s, e)
-        dev.write(pdo.mapping, 0, len(keep))
-
-    ctx.cleanup(restore)
+    keep_mapping(ctx, pdo)
     dev.write(pdo.mapping, 0, 0)
     dummy = missing[0]
     dev.expect_write_abort(
@@ -195,15 +187,7 @@ def granularity_whole_bytes(ctx: Context) -> None:
     if target is None:
         raise Skip(f"{pdo.name} maps no whole-byte object")
     invalidate(ctx, pdo)
-    keep = list(pdo.entries)
-
-    def restore() -> None:
-        dev.write(pdo.mapping, 0, 0)
-        for s, e in enumerate(keep, 1):
-            dev.write(pdo.mapping, s, e)
-        dev.write(pdo.mapping, 0, len(keep))
-
-    ctx.cleanup(restore)
+    keep_mapping(ctx, pdo)
     dev.write(pdo.mapping, 0, 0)
     short = target & ~0xFF | 4
     try:
