@@ -5,12 +5,14 @@ mapping (Delta AS300, seed-002 REQ-AS-12), and what the EDS says about it."""
 from __future__ import annotations
 
 import configparser
+import json
 import subprocess
 
 import pytest
 from io_bench import Bench, make_image
-from test_eds_generation import dcfchk, generate
+from test_eds_generation import dcfchk, generate, topology
 
+from fieldgate.cli import main as cli_main
 from fieldgate.plugins.canopen.iodevice import IoSettings
 
 NOT_MAPPABLE = "41 00 04 06"
@@ -139,4 +141,19 @@ def test_the_eds_states_granularity_and_dummy_usage_and_passes_dcfchk(tmp_path, 
         sub1 = eds["6020sub1"]
         assert int(sub1["DataType"], 0) == 0x0001 and int(sub1["PDOMapping"], 0) == 1
     result: subprocess.CompletedProcess = dcfchk(path)
+    assert result.returncode == 0 and not result.stderr.strip(), result.stderr
+
+
+@pytest.mark.parametrize("style", ["icpdas", "na9161"])
+def test_special_bytes_bit_objects_and_fnbus_in_the_eds_pass_dcfchk(tmp_path, style):
+    topo = topology(tmp_path, style=style, bit_mapping=True)
+    topo["backs"][0]["modules"].append({"address": 4, "special": 6})
+    source = tmp_path / "topo.json"
+    source.write_text(json.dumps(topo))
+    path = tmp_path / "plc.eds"
+    assert cli_main(["eds", str(source), "-o", str(path)]) == 0
+    eds = read_eds(path)
+    assert eds["3000"]["SubNumber"] == "0x7" and eds["3200sub6"]["AccessType"] == "rw"
+    assert eds.has_section("4500") == (style == "na9161")
+    result = dcfchk(path)
     assert result.returncode == 0 and not result.stderr.strip(), result.stderr
