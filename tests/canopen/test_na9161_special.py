@@ -257,3 +257,12 @@ def test_tv11_product_codes_of_the_slots_byte_for_byte():
     counter = Bench(make_image([HSC_IN[:5] + (6, 2)]), IoSettings(style="na9161"))
     assert counter.read(0x4503, 1) == "43 03 45 01 05 01 D0 03"  # ST-5101: 6 bytes in, 2 out
     assert counter.write(0x4503, 1, 0, 4).startswith("80 03 45 01")  # read-only
+
+
+def test_tv10_as_printed_needs_the_lenient_sdo_option():
+    bench = Bench(hsc_inputs(), IoSettings(style="na9161"), node_id=5)
+    tv10 = "2B 00 45 03 01 00 00 00"  # a 2-byte write to a U32, as the seed prints it
+    assert bench.sdo(tv10) == "80 00 45 03 13 00 07 06"  # 0607 0013 by default (CiA 301)
+    bench.node.service("sdo").zero_extend = True  # sdo_zero_extend: true on the front
+    assert bench.sdo(tv10) == "60 00 45 03 00 00 00 00"
+    assert bench.read(0x4500, 3) == "43 00 45 03 01 00 00 00"
