@@ -17,7 +17,9 @@ Sub 2 and sub 3 are *configuration*: a write is accepted at once (and read back)
 process image takes the new layout at the next NMT Reset Node ([AMBIG-35]; a master
 reconfigures its PDOs then anyway). 0x1010 "save" (sub 1 or 3) keeps them across a
 restart of the gateway, 0x1011 "load" brings the topology's values back at the next start.
-A deactivated slot is left out of the image (see :mod:`.layouts`).
+A deactivated slot is left out of the image (see :mod:`.layouts`). A value with which the
+image would not fit (64 bytes per direction, non-compressed needing more) is refused
+with 0604 0047 at the write, so a reset never meets an image it cannot build.
 
 0x4503 "Expansion module product code" (sub n = slot n, U32 ro) describes each slot
 with the seed's product-code layout (§2.5, read as wire order [AMBIG-20]): byte 0 input
@@ -36,9 +38,9 @@ from collections.abc import Callable, Sequence
 
 from fieldgate.health import HealthRegistry
 
-from .abort import VALUE_RANGE
+from .abort import INTERNAL_INCOMPATIBILITY, VALUE_RANGE
 from .entries import UNSIGNED8, UNSIGNED32, Abort, Entry, ObjectDef, array, const, count_entry
-from .layouts import MAX_SLOTS, ModuleRef
+from .layouts import MAX_SLOTS, LayoutError, ModuleRef
 
 FNBUS, PRODUCT_CODES = 0x4500, 0x4503
 NO_DATA = 0xC0
@@ -55,8 +57,10 @@ class FnBusRegister:
         health: HealthRegistry,
         *,
         compressed: bool = True,
+        check: Callable[[bool, frozenset[int]], object] | None = None,
     ) -> None:
         self.modules = list(modules)
+        self.check = check  # raises LayoutError when the image would not fit that setting
         self.health = health
         self.compressed = compressed  # what the image is built with now
         self.inactive_mask = 0
@@ -78,11 +82,20 @@ class FnBusRegister:
 
     @property
     def inactive(self) -> frozenset[int]:
-        return frozenset(n for n in range(1, MAX_SLOTS + 1) if self.inactive_mask >> (n - 1) & 1)
+        return slots_of(self.inactive_mask)
+
+    def _fits(self, compressed: bool, mask: int) -> None:
+        if self.check is None:
+            return
+        try:
+            self.check(compressed, slots_of(mask))
+        except LayoutError as exc:
+            raise Abort(INTERNAL_INCOMPATIBILITY, str(exc)) from None
 
     def write_mode(self, value: int) -> None:
         if value > 1:
             raise Abort(VALUE_RANGE, "data mode 0 (non-compressed) or 1 (compressed)")
+        self._fits(bool(value), self.next_inactive_mask)
         self.next_compressed = bool(value)
         self._changed()
 
@@ -92,6 +105,7 @@ class FnBusRegister:
                 VALUE_RANGE,
                 f"slot active flags: this head has {len(self.modules)} slots (bits 0..{len(self.modules) - 1})",
             )
+        self._fits(self.next_compressed, value)
         self.next_inactive_mask = value
         self._changed()
 
@@ -105,6 +119,10 @@ class FnBusRegister:
             return
         mode, inactive = stored.get("mode"), stored.get("inactive")
         if mode in (0, 1) and isinstance(inactive, int) and not inactive >> len(self.modules):
+            try:
+                self._fits(bool(mode), inactive)
+            except Abort:
+                return
             self.next_compressed, self.next_inactive_mask = bool(mode), inactive
 
     def _changed(self) -> None:
@@ -163,6 +181,11 @@ class FnBusRegister:
                 ],
             ),
         ]
+
+
+def slots_of(mask: int) -> frozenset[int]:
+    """Slot numbers (1-based) whose bit is set in a 0x4500:3 value."""
+    return frozenset(n for n in range(1, MAX_SLOTS + 1) if mask >> (n - 1) & 1)
 
 
 def size_code(bits: int, words: int, raw_bytes: int) -> int:

@@ -118,7 +118,18 @@ class IoDevice(Service):
         self._build_layout(settings.compressed, frozenset())
         health = health or HealthRegistry()
         self.fnbus = (
-            FnBusRegister(self.layout.modules, health, compressed=settings.compressed)
+            FnBusRegister(
+                self.layout.modules,
+                health,
+                compressed=settings.compressed,
+                check=lambda compressed, inactive: build_layout(
+                    self.channels,
+                    settings.style,
+                    compressed=compressed,
+                    models=self.models,
+                    inactive=inactive,
+                ),
+            )
             if settings.style == "na9161"
             else None
         )

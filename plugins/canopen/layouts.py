@@ -26,6 +26,9 @@ slot order (sub n = byte n-1), never into the default PDO mapping (seed-004 §2.
 A module's digital channels are in the digital area in both packing modes, whatever
 else it has ([AMBIG-10]: a counter block declared without digital channels has none).
 
+Limits of ``na9161`` (seed-004 §2.6): 32 slots, 64 bytes of image per direction
+(analog words, digital bytes and special bytes together); more is a :class:`LayoutError`.
+
 Slots (``na9161``, at most 32): the front's modules in order, numbered from 1. A slot
 named in ``inactive`` (0x4500:3) keeps its number and its 0x2010-/0x4503 entries, but
 its channels are left out of every I/O object: the next slots move up.
@@ -49,6 +52,7 @@ Style = Literal["icpdas", "na9161"]
 DI_OBJECT, DO_OBJECT, AI_OBJECT, AO_OBJECT = 0x6000, 0x6200, 0x6401, 0x6411
 SI_OBJECT, SO_OBJECT = 0x3000, 0x3200  # NA-9161 special areas: one byte per sub-index
 MAX_SLOTS = 32  # NA-9161 expansion slots (0x4500:3 has a bit for each)
+MAX_IMAGE_BYTES = 64  # NA-9161 process image per direction (seed-004 §1.2, §2.6)
 COB_INVALID = 0x8000_0000
 DIGITAL_PER_PDO = 8  # bytes
 ANALOG_PER_PDO = 4  # 16-bit channels
@@ -141,6 +145,18 @@ def build_layout(
         compressed=not per_module,
         inactive=frozenset(inactive),
     )
+    if style == "na9161":
+        for direction, analog, digital, special in (
+            ("inputs", layout.ai, layout.di_bytes, layout.si),
+            ("outputs", layout.ao, layout.do_bytes, layout.so),
+        ):
+            size = 2 * len(analog) + len(digital) + len(special)
+            if size > MAX_IMAGE_BYTES:
+                raise LayoutError(
+                    f"the {direction} need {size} bytes ({len(analog)} analog channels, "
+                    f"{len(digital)} digital bytes, {len(special)} special bytes); an NA-9161-style "
+                    f"head holds {MAX_IMAGE_BYTES} per direction"
+                )
     for name, count, limit in (
         ("DI bytes", len(layout.di_bytes), 254),
         ("DO bytes", len(layout.do_bytes), 254),

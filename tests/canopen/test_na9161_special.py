@@ -110,6 +110,18 @@ def test_an_na9161_head_has_at_most_32_slots():
     assert len(build_layout(list(image), "icpdas").modules) == 33
 
 
+def test_an_na9161_image_holds_64_bytes_per_direction():
+    fits = make_image([(1, 0, 0, 24, 0), (2, 64, 0, 0, 0), (3, 0, 0, 0, 0, 8, 0)])  # 48 + 8 + 8
+    assert len(build_layout(list(fits), "na9161").si) == 8
+    over = make_image([(1, 0, 0, 24, 0), (2, 64, 0, 0, 0), (3, 0, 0, 0, 0, 9, 0)])
+    with pytest.raises(LayoutError, match="the inputs need 65 bytes"):
+        build_layout(list(over), "na9161")
+    non_compressed = make_image([(1, 0, 0, 0, 28)] + [(a, 0, 1, 0, 0) for a in range(2, 11)])
+    assert len(build_layout(list(non_compressed), "na9161").do_bytes) == 2  # 56 + 2 bytes
+    with pytest.raises(LayoutError, match="the outputs need 65 bytes"):  # 56 + a byte per module
+        build_layout(list(non_compressed), "na9161", compressed=False)
+
+
 # -- 0x4500 -------------------------------------------------------------------------------------
 
 
@@ -266,3 +278,14 @@ def test_tv10_as_printed_needs_the_lenient_sdo_option():
     bench.node.service("sdo").zero_extend = True  # sdo_zero_extend: true on the front
     assert bench.sdo(tv10) == "60 00 45 03 00 00 00 00"
     assert bench.read(0x4500, 3) == "43 00 45 03 01 00 00 00"
+
+
+def test_a_data_mode_the_image_cannot_hold_is_refused_at_the_write():
+    image = make_image([(1, 0, 0, 0, 28)] + [(a, 0, 1, 0, 0) for a in range(2, 11)])
+    bench = Bench(image, IoSettings(style="na9161"), node_id=5)
+    assert bench.write(0x4500, 2, 0, 1) == "80 00 45 02 47 00 04 06"  # 0604 0047: 65 bytes
+    assert bench.read(0x4500, 2) == "4F 00 45 02 01 00 00 00"
+    assert bench.write(0x4500, 3, 1, 4).startswith("60")  # slot 1 (the AO) off: now it fits
+    assert bench.write(0x4500, 2, 0, 1) == "60 00 45 02 00 00 00 00"
+    bench.nmt(0x81)
+    assert bench.value(0x6200, 0) == 9 and (0x6411, 0) not in bench.node.od
