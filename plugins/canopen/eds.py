@@ -32,6 +32,7 @@ import canopen
 from fieldgate.plugin import GatewayContext, Registry, load_registry
 from fieldgate.topology import TopologyError, load_topology
 
+from .layouts import LayoutError
 from .pdo import dummy_types
 
 STANDARD_BITRATES = {10e3, 20e3, 50e3, 125e3, 250e3, 500e3, 800e3, 1000e3}
@@ -194,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
         for issue in exc.issues:
             print(issue, file=sys.stderr)
         return 1
-    except EdsError as exc:
+    except (EdsError, LayoutError) as exc:
         print(f"{args.topology}: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:

@@ -157,3 +157,13 @@ def test_special_bytes_bit_objects_and_fnbus_in_the_eds_pass_dcfchk(tmp_path, st
     assert eds.has_section("4500") == (style == "na9161")
     result = dcfchk(path)
     assert result.returncode == 0 and not result.stderr.strip(), result.stderr
+
+
+def test_eds_of_an_image_too_big_for_an_na9161_is_one_line(tmp_path, capsys):
+    topo = topology(tmp_path, style="na9161")
+    topo["backs"][0]["modules"].append({"address": 4, "special": 64})
+    source = tmp_path / "topo.json"
+    source.write_text(json.dumps(topo))
+    assert cli_main(["eds", str(source)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("an NA-9161-style head holds 64 per direction") and "\n" not in err
