@@ -16,7 +16,9 @@ from .cases import (
     emcy,
     errctl,
     lss,
+    mapping,
     monitoring,
+    na9161,
     nmt,
     od,
     pdo,
@@ -26,7 +28,22 @@ from .cases import (
 )
 from .framework import CASES, DEVICENET_PROFILES, OPT_IN, PROFILES, PROTOCOL_PROFILES, Case
 
-CASE_MODULES = (cia401, devicenet, emcy, errctl, lss, monitoring, nmt, od, pdo, sdo, seed, store)
+CASE_MODULES = (
+    cia401,
+    devicenet,
+    emcy,
+    errctl,
+    lss,
+    mapping,
+    monitoring,
+    na9161,
+    nmt,
+    od,
+    pdo,
+    sdo,
+    seed,
+    store,
+)
 
 
 def select(

@@ -111,8 +111,10 @@ class Device:
         return None
 
     def variables(self) -> list[ODVariable]:
+        """Every entry the EDS lists; not the data types [DummyUsage] declares (0x0001-0x0007:
+        canopen imports them as objects, but they are mapping placeholders, not entries)."""
         out = []
-        for index in sorted(i for i in self.od.indices if isinstance(i, int)):
+        for index in sorted(i for i in self.od.indices if isinstance(i, int) and i >= 0x1000):
             obj = self.od[index]
             if isinstance(obj, ODVariable):
                 out.append(obj)

@@ -35,10 +35,22 @@ __all__ = [
     "run_cases",
 ]
 
-PROFILES = ("od", "sdo", "nmt", "errctl", "emcy", "sync-pdo", "lss", "store", "cia401", "seed")
+PROFILES = (
+    "od",
+    "sdo",
+    "nmt",
+    "errctl",
+    "emcy",
+    "sync-pdo",
+    "lss",
+    "store",
+    "cia401",
+    "seed",
+    "na9161",
+)
 # run only when asked for by name (or "all"): the seed vectors concern devices that claim
-# I-7232D / I-7231D compatibility
-OPT_IN = ("seed",)
+# I-7232D / I-7231D compatibility, na9161 those that claim CREVIS NA-9161 compatibility
+OPT_IN = ("seed", "na9161")
 # DeviceNet devices get their own profiles, selected with protocol="devicenet" (no EDS needed)
 DEVICENET_PROFILES = ("devicenet",)
 PROTOCOL_PROFILES = {"canopen": PROFILES, "devicenet": DEVICENET_PROFILES}

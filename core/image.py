@@ -14,8 +14,10 @@ is logged and skipped, it never breaks the writer (a poller or a CAN engine).
 
 Direction of data
 -----------------
-* Inputs (DI, AI) are written by backs (``update_input``) and read by fronts.
-* Outputs (DO, AO) are written by fronts (``write_output``) and read by backs.
+* Inputs (DI, AI, SI) are written by backs (``update_input``) and read by fronts.
+* Outputs (DO, AO, SO) are written by fronts (``write_output``) and read by backs.
+* SI/SO channels are the bytes (UINT8) of a module's raw byte block, e.g. a high-speed
+  counter's 6 input and 2 output bytes; fronts that know no such area leave them out.
 Both sides subscribe to changes, so event-driven PDOs, DeviceNet change-of-state and
 write-on-change polling need no busy loops.
 """
@@ -40,10 +42,17 @@ class Kind(StrEnum):
     DO = "do"
     AI = "ai"
     AO = "ao"
+    SI = "si"  # special input: one byte of a module's raw byte block (NA-9161 0x3000)
+    SO = "so"  # special output: one byte of a module's raw byte block (NA-9161 0x3200)
 
     @property
     def is_output(self) -> bool:
-        return self in (Kind.DO, Kind.AO)
+        return self in (Kind.DO, Kind.AO, Kind.SO)
+
+    @property
+    def is_special(self) -> bool:
+        """A byte of a raw block (a counter's data), neither a digital point nor an analog value."""
+        return self in (Kind.SI, Kind.SO)
 
     @property
     def is_digital(self) -> bool:
@@ -63,6 +72,7 @@ class Quality(StrEnum):
 
 class DataType(StrEnum):
     BOOL = "bool"
+    UINT8 = "uint8"  # the bytes of special blocks (Kind.SI / Kind.SO)
     INT16 = "int16"
     UINT16 = "uint16"
     INT32 = "int32"
@@ -93,6 +103,7 @@ def integer_range(dtype: DataType) -> tuple[int, int]:
 
 
 _INT_RANGES = {
+    DataType.UINT8: (0, 0xFF),
     DataType.INT16: (-0x8000, 0x7FFF),
     DataType.UINT16: (0, 0xFFFF),
     DataType.INT32: (-0x8000_0000, 0x7FFF_FFFF),
@@ -164,6 +175,8 @@ class ChannelSpec:
     def data_type(self) -> DataType:
         if self.dtype is not None:
             return self.dtype
+        if self.kind.is_special:
+            return DataType.UINT8
         return DataType.BOOL if self.kind.is_digital else DataType.INT16
 
 

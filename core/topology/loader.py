@@ -70,7 +70,10 @@ class Topology:
         modules = sum(len(b.modules) for b in self.backs)
         lines = [
             f"gateway {self.gateway.name}: {len(self.fronts)} front(s), {len(self.backs)} back(s), {modules} module(s), {len(self.channel_specs)} channel(s)",
-            "  channels: " + ", ".join(f"{counts[k]} {k.value.upper()}" for k in Kind),
+            "  channels: "
+            + ", ".join(
+                f"{counts[k]} {k.value.upper()}" for k in Kind if counts[k] or not k.is_special
+            ),
         ]
         for f in self.fronts:
             lines.append(f"  front {f.name} ({f.type})")

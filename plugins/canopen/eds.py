@@ -6,8 +6,10 @@ defaults and access types) without opening a bus, and exports its dictionary wit
 canopen's EDS writer, plus what that writer cannot know:
 
 * ``[DeviceInfo]``: vendor/product/revision from the identity settings, the standard
-  bit rates, ``SimpleBootUpSlave=1``, ``Granularity=8``, ``NrOfRXPDO``/``NrOfTXPDO``,
+  bit rates, ``SimpleBootUpSlave=1``, ``Granularity=8`` (1 with ``bit_mapping``),
+  ``DynamicChannelsSupported=0`` (no CiA 302-4 dynamic channels), ``NrOfRXPDO``/``NrOfTXPDO``,
   ``LSS_Supported=1``;
+* ``[DummyUsage]``: the dummy entries RPDOs accept (0x0002-0x0007; 0x0001 with bit mapping);
 * COB-IDs that depend on the node-ID are written ``$NODEID+0x180`` so one EDS serves
   every node-ID.
 
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import re
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -28,6 +31,9 @@ import canopen
 
 from fieldgate.plugin import GatewayContext, Registry, load_registry
 from fieldgate.topology import TopologyError, load_topology
+
+from .layouts import LayoutError
+from .pdo import dummy_types
 
 STANDARD_BITRATES = {10e3, 20e3, 50e3, 125e3, 250e3, 500e3, 800e3, 1000e3}
 
@@ -85,10 +91,11 @@ def eds_text(front: Any, node: Any, file_name: str | None = None) -> str:
     info.order_code = front.name
     info.simple_boot_up_master = False
     info.simple_boot_up_slave = True
-    info.granularity = 8
+    io_device = getattr(front, "io", None)
+    granularity = io_device.settings.granularity if io_device is not None else 8
+    info.granularity = granularity
     info.dynamic_channels_supported = False
     info.group_messaging = False
-    io_device = getattr(front, "io", None)
     if io_device is not None and io_device.engine is not None:
         info.nr_of_RXPDO = len(io_device.engine.rpdos)
         info.nr_of_TXPDO = len(io_device.engine.tpdos)
@@ -118,7 +125,18 @@ def eds_text(front: Any, node: Any, file_name: str | None = None) -> str:
     buffer = io.StringIO()
     canopen.export_od(od, buffer, doc_type="eds")
     text = buffer.getvalue()
-    return _replace_file_info(text, file_info)
+    dummies = dummy_types(granularity) if io_device is not None else []
+    return _set_dummy_usage(_replace_file_info(text, file_info), dummies)
+
+
+def _set_dummy_usage(text: str, dummies: list[int]) -> str:
+    """canopen writes DummyN=1 only for objects named DummyN; say which ones RPDOs take."""
+    return re.sub(
+        r"^Dummy(000[1-7])=\d+$",
+        lambda m: f"Dummy{m.group(1)}={int(int(m.group(1), 16) in dummies)}",
+        text,
+        flags=re.MULTILINE,
+    )
 
 
 def _replace_file_info(text: str, file_info: dict[str, object]) -> str:
@@ -179,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
         for issue in exc.issues:
             print(issue, file=sys.stderr)
         return 1
-    except EdsError as exc:
+    except (EdsError, LayoutError) as exc:
         print(f"{args.topology}: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:

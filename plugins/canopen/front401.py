@@ -16,7 +16,8 @@ YAML::
         type: canopen
         node_id: 5
         style: na9161          # or icpdas (default)
-        compressed: true       # na9161: digital bits packed across modules
+        compressed: true       # na9161: digital bits packed across modules (0x4500:2)
+        bit_mapping: false     # 0x6020-/0x6220- bit objects, 1-bit PDO mapping
         pdo_count: 8           # PDOs per direction (default 32 icpdas / 8 na9161)
 """
 
@@ -49,6 +50,10 @@ class IoFrontOptions(StrictModel):
         True,
         description="na9161: digital channels packed across modules (0x4500:2 = 1); false: each module starts a byte",
     )
+    bit_mapping: bool = Field(
+        False,
+        description="CiA 401 bit objects 0x6020-/0x6220- and 1-bit PDO mapping (EDS Granularity=1, Dummy0001); default PDOs stay byte-aligned",
+    )
     tpdo_on_start: Literal["async", "all", "none"] | None = Field(
         None,
         description="TPDOs sent once on entering Operational; default async (icpdas) / all (na9161)",
@@ -67,6 +72,7 @@ def io_settings(options: Any) -> IoSettings:
         compressed=options.compressed,
         start_policy=options.tpdo_on_start,
         error_on_stopped=options.error_on_stopped,
+        bit_mapping=options.bit_mapping,
     )
 
 

@@ -23,6 +23,11 @@ What it does on the node:
   with an error mode to its error value; ``masters.ok`` when neither holds any more.
   Outputs keep their error values until new data is written (NA-9161 §9.7.3).
 
+``na9161`` style: 0x4500 (:mod:`.fnbus`). A written data mode or slot deactivation takes
+effect at the next NMT Reset Node: the layout, the CiA 401 and special objects, 0x2020
+and the PDO engine (with its default mapping) are built again and bound in place of the
+old ones, before the stored settings are reloaded.
+
 Frames produced between node calls (a DI change from a back) are queued with
 ``node.send`` and ``wakeup()`` is called so the adapter flushes the node.
 """
@@ -39,6 +44,7 @@ from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
 
 from .entries import BOOLEAN, Directory, Entry, ObjectDef
+from .fnbus import FnBusRegister
 from .frame import Frame, NmtState
 from .iostore import IoStore
 from .layouts import STYLE_PDO_COUNT, IoLayout, Style, build_layout, default_pdos
@@ -65,6 +71,11 @@ class IoSettings:
     do_error_default: tuple[int, int] | None = (
         None  # (0x6206, 0x6207) for outputs without a configured mode
     )
+    bit_mapping: bool = False  # 0x6020-/0x6220- bit objects, 1-bit mapping, dummy 0x0001
+
+    @property
+    def granularity(self) -> int:
+        return 1 if self.bit_mapping else 8
 
     @property
     def count(self) -> int:
@@ -102,19 +113,30 @@ class IoDevice(Service):
         self.settings = settings
         self.image = image
         self.front = front or origin
-        self.layout: IoLayout = build_layout(
-            channels, settings.style, compressed=settings.compressed, models=models
+        self.origin = origin
+        self.channels = list(channels)
+        self.models = models or {}
+        self._build_layout(settings.compressed, frozenset())
+        health = health or HealthRegistry()
+        self.fnbus = (
+            FnBusRegister(
+                self.layout.modules,
+                health,
+                compressed=settings.compressed,
+                check=lambda compressed, inactive: build_layout(
+                    self.channels,
+                    settings.style,
+                    compressed=compressed,
+                    models=self.models,
+                    inactive=inactive,
+                ),
+            )
+            if settings.style == "na9161"
+            else None
         )
-        self.defaults = default_pdos(
-            self.layout,
-            settings.style,
-            count=settings.count,
-            mapping_closed=settings.mapping_closed,
-        )
-        self.profile = Profile401(image, self.layout, origin)
         self.manufacturer = ManufacturerObjects(
             self.layout,
-            health or HealthRegistry(),
+            health,
             style=settings.style,
             host_watchdogs=host_watchdogs,
             module_emcy=module_emcy,
@@ -124,16 +146,75 @@ class IoDevice(Service):
             MasterState(
                 masters if masters is not None else MasterMonitor(image),
                 self.front,
-                self.profile.output_ids,
+                lambda: self.profile.output_ids(),
                 stopped_is_error=settings.stopped_is_error,
             )
             if master_events
             else None
         )
-        self.directory = Directory(self.profile.objects() + self.manufacturer.objects())
+        self.directory = self._directory()
         self.engine: PdoEngine | None = None
         self.store = IoStore(self)
         self.wakeup: Callable[[], None] | None = None
+        self._powered_on = False
+
+    def _build_layout(self, compressed: bool, inactive: frozenset[int]) -> None:
+        """The layout-dependent parts: layout, default PDOs, CiA 401 objects."""
+        settings = self.settings
+        self.layout: IoLayout = build_layout(
+            self.channels,
+            settings.style,
+            compressed=compressed,
+            models=self.models,
+            inactive=inactive,
+        )
+        self.defaults = default_pdos(
+            self.layout,
+            settings.style,
+            count=settings.count,
+            mapping_closed=settings.mapping_closed,
+        )
+        self.profile = Profile401(
+            self.image, self.layout, self.origin, bit_objects=settings.bit_mapping
+        )
+
+    def _directory(self) -> Directory:
+        fnbus = self.fnbus.objects() if self.fnbus is not None else []
+        return Directory(self.profile.objects() + self.manufacturer.objects() + fnbus)
+
+    def _new_engine(self, node) -> PdoEngine:
+        return PdoEngine(
+            self.directory,
+            self.defaults.tpdo,
+            self.defaults.rpdo,
+            node.node_id if node.configured else 0,
+            start_policy=self.settings.policy,
+            rpdo_timing=self.settings.style == "na9161",
+            clock=lambda: node.now,
+            length_error=self._length_error,
+            wakeup=self._engine_wakeup,
+            exists=lambda index, sub: (index, sub) in node.od,
+            granularity=self.settings.granularity,
+        )
+
+    def _rebuild(self) -> None:
+        """Reset node with a new data mode or slot set (0x4500): the image's objects again."""
+        node = self.node
+        assert self.fnbus is not None
+        for obj in self.objects():
+            node.od.remove(obj.index)
+        self.profile.detach()
+        self.fnbus.apply()
+        self._build_layout(self.fnbus.compressed, self.fnbus.inactive)
+        self.manufacturer.layout = self.layout
+        self.directory = self._directory()
+        self.engine = self._new_engine(node)
+        for obj in self.objects():
+            bind_object(node.od, obj)
+        if (0x1000, 0) in node.od:  # the DI/DO/AI/AO bits of the new image (the reset reloads it)
+            node.od.variable(0x1000, 0).default = self.device_type
+            node.od.set(0x1000, 0, self.device_type, notify=False)
+        self.profile.attach(self.engine.object_changed)
 
     @property
     def device_type(self) -> int:
@@ -147,18 +228,7 @@ class IoDevice(Service):
     # -- Service ----------------------------------------------------------------------------
     def attach(self, node: NodeHost) -> None:
         super().attach(node)
-        self.engine = PdoEngine(
-            self.directory,
-            self.defaults.tpdo,
-            self.defaults.rpdo,
-            node.node_id if node.configured else 0,
-            start_policy=self.settings.policy,
-            rpdo_timing=self.settings.style == "na9161",
-            clock=lambda: node.now,
-            length_error=self._length_error,
-            wakeup=self._engine_wakeup,
-            exists=lambda index, sub: (index, sub) in node.od,
-        )
+        self.engine = self._new_engine(node)
         for obj in self.objects():
             bind_object(node.od, obj)
         self.store.attach(node)
@@ -198,8 +268,15 @@ class IoDevice(Service):
             self.store.load_communication()
 
     def on_reset_application(self, now: float) -> None:
-        if self.engine is not None:
-            self.store.load_application()
+        if self.engine is None:
+            return
+        if self.fnbus is not None:
+            if not self._powered_on:  # power-on: the 0x4500 settings a 0x1010 save kept
+                self.fnbus.load(self.store.fnbus_settings())
+            if self.fnbus.pending:
+                self._rebuild()
+        self._powered_on = True
+        self.store.load_application()
 
     def deadline(self) -> float | None:
         return self.engine.next_deadline() if self.engine is not None else None

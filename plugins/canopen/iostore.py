@@ -8,7 +8,10 @@ through the store's area hook: one file, one atomic write per command. They come
 at the next reset: PDO parameters at reset communication, CiA 401 settings (0x6002,
 0x6206/0x6207, 0x6208, 0x6421-0x6426, 0x6443/0x6444) at reset node.
 
-The layout settings (style, PDO count, packing) are added to the store's fingerprint:
+The ``na9161`` FnBus settings (0x4500:2 data mode, :3 slot flags) are the ``fnbus`` part
+of the application area: saved with sub 1 or 3, read back once at power-on.
+
+The layout settings (style, PDO count, packing as configured) are added to the store's fingerprint:
 after the module set or the layout changes, the store drops everything it holds and the
 defaults are used (the NA-9161 discards its stored settings when modules are added or
 removed).
@@ -109,6 +112,9 @@ class IoStore:
                 doc["pdo"] = self.io.engine.parameters()
         if application:
             doc.pop("application", None)
+            doc.pop("fnbus", None)
+            if saving and self.io.fnbus is not None:
+                doc["fnbus"] = self.io.fnbus.settings()
             if saving:
                 doc["application"] = {
                     f"{obj.index:04X}.{e.sub:02X}": e.get()
@@ -121,6 +127,9 @@ class IoStore:
             self.store.set_section(SECTION, doc)
 
     # -- at reset -------------------------------------------------------------------------
+    def fnbus_settings(self) -> object:
+        return self._section().get("fnbus")
+
     def load_communication(self) -> None:
         records = self._section().get("pdo")
         if isinstance(records, list) and self.io.engine is not None:

@@ -20,6 +20,19 @@ Two styles, chosen per front with ``style:``:
     are valid only when they carry data; PDO3 and up start invalid. Type 254, TPDO
     inhibit time 5000 x 100 us (500 ms).
 
+Special channels (``si``/``so``: the raw byte blocks of modules such as a high-speed
+counter) go to 0x3000 (inputs) / 0x3200 (outputs) in both styles, byte after byte in
+slot order (sub n = byte n-1), never into the default PDO mapping (seed-004 §2.2).
+A module's digital channels are in the digital area in both packing modes, whatever
+else it has ([AMBIG-10]: a counter block declared without digital channels has none).
+
+Limits of ``na9161`` (seed-004 §2.6): 32 slots, 64 bytes of image per direction
+(analog words, digital bytes and special bytes together); more is a :class:`LayoutError`.
+
+Slots (``na9161``, at most 32): the front's modules in order, numbered from 1. A slot
+named in ``inactive`` (0x4500:3) keeps its number and its 0x2010-/0x4503 entries, but
+its channels are left out of every I/O object: the next slots move up.
+
 The result is a :class:`IoLayout` (what 0x6000/0x6200/0x6401/0x6411 and 0x2000 hold)
 and a :class:`PdoDefaults` per direction (what 0x1400-/0x1600-/0x1800-/0x1A00- hold
 after a reset).
@@ -37,6 +50,9 @@ from fieldgate.layout import of_kind, pack_bits
 Style = Literal["icpdas", "na9161"]
 
 DI_OBJECT, DO_OBJECT, AI_OBJECT, AO_OBJECT = 0x6000, 0x6200, 0x6401, 0x6411
+SI_OBJECT, SO_OBJECT = 0x3000, 0x3200  # NA-9161 special areas: one byte per sub-index
+MAX_SLOTS = 32  # NA-9161 expansion slots (0x4500:3 has a bit for each)
+MAX_IMAGE_BYTES = 64  # NA-9161 process image per direction (seed-004 §1.2, §2.6)
 COB_INVALID = 0x8000_0000
 DIGITAL_PER_PDO = 8  # bytes
 ANALOG_PER_PDO = 4  # 16-bit channels
@@ -62,6 +78,8 @@ class ModuleRef:
     do: int = 0
     ai: int = 0
     ao: int = 0
+    si: int = 0
+    so: int = 0
 
 
 @dataclass
@@ -71,6 +89,10 @@ class IoLayout:
     ai: list[Channel]
     ao: list[Channel]
     modules: list[ModuleRef]
+    si: list[Channel] = field(default_factory=list)  # 0x3000 sub n = si[n - 1]
+    so: list[Channel] = field(default_factory=list)  # 0x3200 sub n = so[n - 1]
+    compressed: bool = True  # the packing the digital bytes were built with
+    inactive: frozenset[int] = frozenset()  # deactivated slots (1-based), left out
 
     @property
     def device_type(self) -> int:
@@ -98,22 +120,52 @@ def build_layout(
     *,
     compressed: bool = True,
     models: dict[tuple[str, int], str] | None = None,
+    inactive: frozenset[int] = frozenset(),
 ) -> IoLayout:
-    """Place a front's channels (in the seeds' default order) into the CiA 401 objects."""
+    """Place a front's channels (in the seeds' default order) into the CiA 401 objects.
+
+    ``inactive``: slots (1-based module positions) whose channels are left out.
+    """
     ordered = list(channels)  # the front's order: its expose list, or backs then ascending address
+    modules = _modules(ordered, models or {})
+    if style == "na9161" and len(modules) > MAX_SLOTS:
+        raise LayoutError(
+            f"{len(modules)} modules exceed the {MAX_SLOTS} slots of an NA-9161-style head"
+        )
+    if inactive:
+        dropped = {(m.back, m.address) for n, m in enumerate(modules, 1) if n in inactive}
+        ordered = [c for c in ordered if (c.source.back, c.source.module) not in dropped]
     per_module = style == "icpdas" or not compressed
     layout = IoLayout(
         di_bytes=pack_bits(of_kind(ordered, Kind.DI), per_module=per_module),
         do_bytes=pack_bits(of_kind(ordered, Kind.DO), per_module=per_module),
         ai=of_kind(ordered, Kind.AI),
         ao=of_kind(ordered, Kind.AO),
-        modules=_modules(ordered, models or {}),
+        modules=modules,
+        si=of_kind(ordered, Kind.SI),
+        so=of_kind(ordered, Kind.SO),
+        compressed=not per_module,
+        inactive=frozenset(inactive),
     )
+    if style == "na9161":
+        for direction, analog, digital, special in (
+            ("inputs", layout.ai, layout.di_bytes, layout.si),
+            ("outputs", layout.ao, layout.do_bytes, layout.so),
+        ):
+            size = 2 * len(analog) + len(digital) + len(special)
+            if size > MAX_IMAGE_BYTES:
+                raise LayoutError(
+                    f"the {direction} need {size} bytes ({len(analog)} analog channels, "
+                    f"{len(digital)} digital bytes, {len(special)} special bytes); an NA-9161-style "
+                    f"head holds {MAX_IMAGE_BYTES} per direction"
+                )
     for name, count, limit in (
         ("DI bytes", len(layout.di_bytes), 254),
         ("DO bytes", len(layout.do_bytes), 254),
         ("AI channels", len(layout.ai), 254),
         ("AO channels", len(layout.ao), 254),
+        ("special input bytes", len(layout.si), 254),
+        ("special output bytes", len(layout.so), 254),
         ("modules", len(layout.modules), 254),
     ):
         if count > limit:
@@ -134,6 +186,8 @@ def _modules(channels: Sequence[Channel], models: dict[tuple[str, int], str]) ->
             n[Kind.DO],
             n[Kind.AI],
             n[Kind.AO],
+            n[Kind.SI],
+            n[Kind.SO],
         )
         for (back, address), n in counts.items()
     ]

@@ -21,6 +21,12 @@ of CiA 301: a COB-ID changes only while the PDO is invalid, mapping entries only
 sub 0 is 0, sub 0 checks every entry (exists, mappable in this direction, whole bytes,
 total <= 64 bits). Reserved transmission types are refused (0609 0030).
 
+Mapping granularity: with ``granularity=8`` (the default, what the seeds' masters expect)
+every entry is whole bytes; with ``granularity=1`` 1-bit BOOLEAN entries (CiA 401
+0x6020-/0x6220-) pack bit after bit, LSB first, as CiA 301 lays out PDO data. RPDOs may
+map CiA 301 dummy entries (index 0x0001-0x0007, sub 0, the data type's length) to skip
+bits nobody uses; 0x0001 (1 bit) only with granularity 1; TPDOs refuse them (0604 0041).
+
 Transmission types (seed-000 §2.7): 0 acyclic synchronous (on SYNC, only after an event),
 1-240 every n-th SYNC (from the SYNC start value when SYNC counters are used), 252 sampled
 at SYNC and sent on RTR, 253 sent on RTR, 254/255 on events and the event timer. RPDOs
@@ -41,6 +47,7 @@ from typing import Any, Literal
 from .abort import DEVICE_STATE, NOT_MAPPABLE, PDO_TOO_LONG, VALUE_RANGE
 from .cobid import check_cob_id
 from .entries import (
+    BOOLEAN,
     UNSIGNED8,
     UNSIGNED16,
     UNSIGNED32,
@@ -63,6 +70,12 @@ MAX_ENTRIES = 8
 MAX_BITS = 64
 MAX_PDOS = 512
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
+DUMMY_BITS = {0x0001: 1, 0x0002: 8, 0x0003: 16, 0x0004: 32, 0x0005: 8, 0x0006: 16, 0x0007: 32}
+
+
+def dummy_types(granularity: int) -> list[int]:
+    """The dummy entries (CiA 301 data type indices) an RPDO of this granularity may map."""
+    return [index for index, bits in DUMMY_BITS.items() if bits % granularity == 0]
 
 
 # CiA 301 §7.3.5: identifiers a PDO may not use.
@@ -80,12 +93,16 @@ def _map_entry(pdo: Pdo, position: int) -> int:
 
 @dataclass
 class _Slot:
-    """One mapped object, compiled for fast packing."""
+    """One mapped object, compiled for fast packing; ``entry`` None: a dummy entry."""
 
     index: int
     sub: int
-    entry: Entry
-    size: int
+    entry: Entry | None
+    bits: int
+
+    @property
+    def size(self) -> int:
+        return self.bits // 8
 
 
 @dataclass
@@ -110,6 +127,8 @@ class Pdo:
     timer_due: float | None = None
     sample: bytes | None = None  # data sampled at the last SYNC
     latched: bytes | None = None  # RPDO data waiting for the next SYNC
+    _aligned_for: list[_Slot] | None = field(default=None, repr=False)
+    _aligned: bool = field(default=True, repr=False)
 
     @property
     def comm_index(self) -> int:
@@ -133,7 +152,16 @@ class Pdo:
 
     @property
     def length(self) -> int:
-        return sum(s.size for s in self.slots)
+        """Bytes the mapping fills (the last one padded with zero bits)."""
+        return (sum(s.bits for s in self.slots) + 7) // 8
+
+    @property
+    def aligned(self) -> bool:
+        """Every entry whole bytes (the fast path); computed once per mapping."""
+        if self._aligned_for is not self.slots:
+            self._aligned_for = self.slots
+            self._aligned = all(s.bits % 8 == 0 for s in self.slots)
+        return self._aligned
 
     def clear_runtime(self) -> None:
         self.sync_count = 0
@@ -170,7 +198,11 @@ class PdoEngine:
         length_error: Callable[[bool], None] | None = None,
         wakeup: Callable[[], None] | None = None,
         exists: Callable[[int, int], bool] | None = None,
+        granularity: int = 8,
     ):
+        if granularity not in (1, 8):
+            raise ValueError("mapping granularity 1 (bits) or 8 (bytes)")
+        self.granularity = granularity
         if not 1 <= len(tpdo_defaults) <= MAX_PDOS or not 1 <= len(rpdo_defaults) <= MAX_PDOS:
             raise ValueError(f"1 to {MAX_PDOS} PDOs per direction")
         self.directory = directory
@@ -359,7 +391,18 @@ class PdoEngine:
         return PdoEngine._CallGuard(self)
 
     def _build(self, pdo: Pdo) -> bytes:
-        return b"".join(encode(s.entry.dtype, s.entry.get()) for s in pdo.slots)
+        if pdo.aligned:
+            return b"".join(
+                bytes(s.size) if s.entry is None else encode(s.entry.dtype, s.entry.get())
+                for s in pdo.slots
+            )
+        packed, offset = 0, 0
+        for s in pdo.slots:
+            if s.entry is not None:
+                raw = int.from_bytes(encode(s.entry.dtype, s.entry.get()), "little")
+                packed |= (raw & ((1 << s.bits) - 1)) << offset
+            offset += s.bits
+        return packed.to_bytes(pdo.length, "little")
 
     def _send(self, pdo: Pdo, now: float, data: bytes | None = None) -> None:
         self._outbox.append((pdo.can_id, self._build(pdo) if data is None else data))
@@ -428,18 +471,31 @@ class PdoEngine:
             self._apply(pdo, payload)
 
     def _apply(self, pdo: Pdo, payload: bytes) -> None:
-        offset = 0
+        packed = None if pdo.aligned else int.from_bytes(payload, "little")
+        offset = 0  # bits
         for slot in pdo.slots:
+            entry = slot.entry
             try:
-                slot.entry.write(decode(slot.entry.dtype, payload[offset : offset + slot.size]))  # type: ignore[arg-type]
+                if entry is None:
+                    pass  # a dummy entry: these bits are skipped
+                elif packed is None:
+                    start = offset // 8
+                    entry.write(decode(entry.dtype, payload[start : start + slot.size]))  # type: ignore[arg-type]
+                elif entry.dtype == BOOLEAN and slot.bits == 1:
+                    entry.write(packed >> offset & 1)
+                else:
+                    raw = packed >> offset & ((1 << slot.bits) - 1)
+                    entry.write(decode(entry.dtype, raw.to_bytes(slot.bits // 8, "little")))  # type: ignore[arg-type]
             except Abort as exc:
                 self.counters.rpdo_write_refused += 1
                 log.debug("RPDO%d: 0x%04X:%d refused: %s", pdo.number, slot.index, slot.sub, exc)
-            offset += slot.size
+            offset += slot.bits
 
     # -- mapping ----------------------------------------------------------------------
     def _check_entry(self, pdo: Pdo, value: int) -> _Slot:
         index, sub, bits = value >> 16, value >> 8 & 0xFF, value & 0xFF
+        if index in DUMMY_BITS:
+            return self._check_dummy(pdo, index, sub, bits)
         try:
             entry = self.directory.entry(index, sub)  # 0602 0000 / 0609 0011 when missing
         except Abort:
@@ -452,17 +508,37 @@ class PdoEngine:
                 NOT_MAPPABLE,
                 f"0x{index:04X}:{sub} cannot be mapped into a {'T' if pdo.transmit else 'R'}PDO",
             )
-        if bits != entry.bits:
-            raise Abort(NOT_MAPPABLE, f"0x{index:04X}:{sub} is {entry.bits} bits, not {bits}")
-        return _Slot(index, sub, entry, bits // 8)
+        length = 1 if entry.dtype == BOOLEAN else entry.bits
+        if bits != length:
+            raise Abort(NOT_MAPPABLE, f"0x{index:04X}:{sub} is {length} bits, not {bits}")
+        if bits % self.granularity:
+            raise Abort(
+                NOT_MAPPABLE, f"0x{index:04X}:{sub}: the mapping granularity is {self.granularity}"
+            )
+        return _Slot(index, sub, entry, bits)
+
+    def _check_dummy(self, pdo: Pdo, index: int, sub: int, bits: int) -> _Slot:
+        """CiA 301 dummy mapping: RPDOs only, sub 0, the data type's own length."""
+        if pdo.transmit:
+            raise Abort(NOT_MAPPABLE, f"dummy entry 0x{index:04X} in a TPDO")
+        if index not in dummy_types(self.granularity):
+            raise Abort(
+                NOT_MAPPABLE,
+                f"dummy entry 0x{index:04X} ({DUMMY_BITS[index]} bits) needs bit granularity",
+            )
+        if sub != 0:
+            raise Abort(NOT_MAPPABLE, f"dummy entry 0x{index:04X} has only sub-index 0")
+        if bits != DUMMY_BITS[index]:
+            raise Abort(
+                NOT_MAPPABLE, f"dummy entry 0x{index:04X} is {DUMMY_BITS[index]} bits, not {bits}"
+            )
+        return _Slot(index, sub, None, bits)
 
     def _compile(self, pdo: Pdo, values: list[int]) -> list[_Slot]:
         slots = [self._check_entry(pdo, v) for v in values]
-        if sum(s.size for s in slots) * 8 > MAX_BITS:
-            raise Abort(
-                PDO_TOO_LONG,
-                f"the mapping needs {sum(s.size for s in slots) * 8} bits, at most {MAX_BITS}",
-            )
+        total = sum(s.bits for s in slots)
+        if total > MAX_BITS:
+            raise Abort(PDO_TOO_LONG, f"the mapping needs {total} bits, at most {MAX_BITS}")
         return slots
 
     def _reindex(self) -> None:
@@ -477,6 +553,8 @@ class PdoEngine:
         self._events = {}
         for pdo in self.tpdos:
             for slot in pdo.slots:
+                if slot.entry is None:
+                    continue
                 bucket = self._events.setdefault((slot.index, slot.sub), [])
                 if pdo not in bucket:
                     bucket.append(pdo)

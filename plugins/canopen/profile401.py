@@ -20,9 +20,16 @@ The process image is the one source of truth: 0x6000/0x6401 read input channels,
 | 0x6424 / 0x6425 | AI upper / lower limit (INTEGER32) | AI channel |
 | 0x6426 | AI delta (UNSIGNED32) | AI channel |
 | 0x6443 / 0x6444 | AO error mode (1 = error value) / error value (INTEGER32) | AO channel |
+| 0x6020-0x6027 | read DI bit, BOOLEAN, 128 per object (``bit_objects``) | DI bit |
+| 0x6220-0x6227 | write DO bit, BOOLEAN, 128 per object (``bit_objects``) | DO bit |
+| 0x3000 / 0x3200 | special input / output byte (NA-9161), UNSIGNED8 | byte |
 
-Events: a change of a DI value fires ``engine.object_changed(0x6000, byte)``; with 0x6423
-TRUE an AI change that meets its 0x6421 trigger fires ``(0x6401, channel)``.
+Bit sub-index n is bit (n-1) % 8 of 0x6000/0x6200 sub (n-1) // 8 + 1 (padding bits read
+0 and ignore writes); the bit objects let a master map single channels (1-bit entries).
+
+Events: a change of a DI value fires ``engine.object_changed(0x6000, byte)`` (and the bit
+object's entry when served); with 0x6423 TRUE an AI change that meets its 0x6421
+trigger fires ``(0x6401, channel)``; a special input byte fires ``(0x3000, byte)``.
 """
 
 from __future__ import annotations
@@ -46,7 +53,16 @@ from .entries import (
     ObjectDef,
     array,
 )
-from .layouts import AI_OBJECT, AO_OBJECT, DI_OBJECT, DO_OBJECT, IoLayout
+from .layouts import (
+    AI_OBJECT,
+    AO_OBJECT,
+    DI_OBJECT,
+    DO_OBJECT,
+    SI_OBJECT,
+    SO_OBJECT,
+    IoLayout,
+    LayoutError,
+)
 
 DI_POLARITY, DO_ERROR_MODE, DO_ERROR_VALUE, DO_FILTER = 0x6002, 0x6206, 0x6207, 0x6208
 AI_TRIGGER, AI_SOURCE, AI_ENABLE, AI_UPPER, AI_LOWER, AI_DELTA = (
@@ -59,6 +75,12 @@ AI_TRIGGER, AI_SOURCE, AI_ENABLE, AI_UPPER, AI_LOWER, AI_DELTA = (
 )
 AO_ERROR_MODE, AO_ERROR_VALUE = 0x6443, 0x6444
 TRIGGER_UPPER, TRIGGER_LOWER, TRIGGER_DELTA = 0x01, 0x02, 0x04
+DI_BIT_OBJECT, DO_BIT_OBJECT, BITS_PER_OBJECT, BIT_OBJECTS = 0x6020, 0x6220, 128, 8
+
+
+def bit_position(n: int) -> tuple[int, int, int]:
+    """Digital channel n (0-based) -> (bit object offset, its sub-index, 8-bit byte index)."""
+    return n // BITS_PER_OBJECT, n % BITS_PER_OBJECT + 1, n // 8
 
 
 def to_int16(channel: Channel, value: bool | int | float | None = None) -> int:
@@ -113,10 +135,18 @@ class Profile401:
         *,
         filter_default: int = 0xFF,
         trigger_default: int = 0x07,
+        bit_objects: bool = False,
     ):
         self.image = image
         self.layout = layout
         self.origin = origin
+        self.bit_objects = bit_objects
+        if bit_objects and 8 * max(len(layout.di_bytes), len(layout.do_bytes)) > (
+            BITS_PER_OBJECT * BIT_OBJECTS
+        ):
+            raise LayoutError(
+                f"bit_mapping: the bit objects hold at most {BITS_PER_OBJECT * BIT_OBJECTS} digital channels per direction"
+            )
         n_di, n_do, n_ai = len(layout.di_bytes), len(layout.do_bytes), len(layout.ai)
         self.polarity = [0] * n_di
         self.filter = [filter_default] * n_do
@@ -133,6 +163,13 @@ class Profile401:
             for ch in slots
             if ch is not None
         }
+        self._di_bit = {
+            ch.id: 8 * n + bit
+            for n, slots in enumerate(layout.di_bytes)
+            for bit, ch in enumerate(slots)
+            if ch is not None
+        }
+        self._si_sub = {ch.id: n + 1 for n, ch in enumerate(layout.si)}
         self._ai_number = {ch.id: n + 1 for n, ch in enumerate(layout.ai)}
         self._subscriptions: list[Subscription] = []
         self._event: Callable[[int, int, float], None] | None = None
@@ -147,6 +184,8 @@ class Profile401:
             self._subscriptions.append(self.image.subscribe(self._di_changed, ids=self._di_sub))
         if self._ai_number:
             self._subscriptions.append(self.image.subscribe(self._ai_changed, ids=self._ai_number))
+        if self._si_sub:
+            self._subscriptions.append(self.image.subscribe(self._si_changed, ids=self._si_sub))
 
     def detach(self) -> None:
         for sub in self._subscriptions:
@@ -156,7 +195,15 @@ class Profile401:
 
     def _di_changed(self, change: Change) -> None:
         if change.value_changed and self._event is not None:
-            self._event(DI_OBJECT, self._di_sub[change.channel.id], self.image.clock())
+            now = self.image.clock()
+            self._event(DI_OBJECT, self._di_sub[change.channel.id], now)
+            if self.bit_objects:
+                offset, sub, _ = bit_position(self._di_bit[change.channel.id])
+                self._event(DI_BIT_OBJECT + offset, sub, now)
+
+    def _si_changed(self, change: Change) -> None:
+        if change.value_changed and self._event is not None:
+            self._event(SI_OBJECT, self._si_sub[change.channel.id], self.image.clock())
 
     def _ai_changed(self, change: Change) -> None:
         if not change.value_changed or self._event is None or not self.interrupt_enable:
@@ -189,6 +236,21 @@ class Profile401:
         for bit, ch in enumerate(self.layout.do_bytes[n]):
             if ch is not None and mask >> bit & 1:
                 self.image.write_output(ch.id, bool(value >> bit & 1), self.origin)
+
+    def read_di_bit(self, n: int) -> int:
+        return self.read_di(n // 8) >> n % 8 & 1
+
+    def read_do_bit(self, n: int) -> int:
+        return self.read_do(n // 8) >> n % 8 & 1
+
+    def write_do_bit(self, n: int, value: int) -> None:
+        ch = self.layout.do_bytes[n // 8][n % 8]
+        if ch is not None and self.filter[n // 8] >> n % 8 & 1:
+            self.image.write_output(ch.id, bool(value), self.origin)
+
+    # -- special bytes ----------------------------------------------------------------
+    def write_so(self, n: int, value: int) -> None:
+        self.image.write_output(self.layout.so[n].id, value, self.origin)
 
     def _write_do_error(self, n: int, value: int, *, mode: bool) -> None:
         for bit, ch in enumerate(self.layout.do_bytes[n]):
@@ -522,9 +584,92 @@ class Profile401:
                     ),
                 ),
             ]
+        if self.bit_objects:
+            objs += self._bit_objects()
+        objs += self._special_objects()
+        return objs
+
+    def _bit_objects(self) -> list[ObjectDef]:
+        objs: list[ObjectDef] = []
+        for base, n_bits, verb, access in (
+            (DI_BIT_OBJECT, 8 * len(self.layout.di_bytes), "Read input", "ro"),
+            (DO_BIT_OBJECT, 8 * len(self.layout.do_bytes), "Write output", "rw"),
+        ):
+            for offset in range((n_bits + BITS_PER_OBJECT - 1) // BITS_PER_OBJECT):
+                first = offset * BITS_PER_OBJECT
+                last = min(n_bits, first + BITS_PER_OBJECT)
+                objs.append(
+                    array(
+                        base + offset,
+                        f"{verb} bit {first + 1} to {first + BITS_PER_OBJECT}",
+                        (
+                            Entry(
+                                n - first + 1,
+                                f"{verb} bit {n + 1}",
+                                BOOLEAN,
+                                access,
+                                (lambda n=n: self.read_di_bit(n))
+                                if access == "ro"
+                                else (lambda n=n: self.read_do_bit(n)),
+                                (lambda v, n=n: self.write_do_bit(n, v))
+                                if access == "rw"
+                                else None,
+                                default=0 if access == "ro" else self.read_do_bit(n),
+                                mappable=True,
+                            )
+                            for n in range(first, last)
+                        ),
+                    )
+                )
+        return objs
+
+    def _special_objects(self) -> list[ObjectDef]:
+        lay = self.layout
+        objs: list[ObjectDef] = []
+        if lay.si:
+            objs.append(
+                array(
+                    SI_OBJECT,
+                    "Read special input data",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Special input byte {n}",
+                            UNSIGNED8,
+                            "ro",
+                            lambda n=n: int(lay.si[n].value),
+                            default=0,
+                            mappable=True,
+                        )
+                        for n in range(len(lay.si))
+                    ),
+                )
+            )
+        if lay.so:
+            objs.append(
+                array(
+                    SO_OBJECT,
+                    "Write special output data",
+                    (
+                        Entry(
+                            n + 1,
+                            f"Special output byte {n}",
+                            UNSIGNED8,
+                            "rw",
+                            lambda n=n: int(lay.so[n].value),
+                            lambda v, n=n: self.write_so(n, v),
+                            default=int(lay.so[n].value),
+                            mappable=True,
+                        )
+                        for n in range(len(lay.so))
+                    ),
+                )
+            )
         return objs
 
     def output_ids(self) -> list[str]:
-        return [ch.id for slots in self.layout.do_bytes for ch in slots if ch is not None] + [
-            ch.id for ch in self.layout.ao
-        ]
+        return (
+            [ch.id for slots in self.layout.do_bytes for ch in slots if ch is not None]
+            + [ch.id for ch in self.layout.ao]
+            + [ch.id for ch in self.layout.so]
+        )

@@ -226,12 +226,12 @@ class ModbusModule(PolledModule):
     async def _write_bits_of_register(
         self, address: int, items: list[tuple[Point, object]]
     ) -> None:
-        """Digital outputs inside a holding register: read, change the bits, write back."""
+        """Digital outputs or special bytes inside a holding register: read, change them, write back."""
         (current,) = await self.link.read_registers(
             self.unit, Function.READ_HOLDING_REGISTERS, address, 1
         )
         for p, value in items:
-            current = regvalues.set_bit(current, p.bit, bool(value))
+            current = regvalues.set_field(current, p.bit, p.dtype, value)
         forced = (
             Function.WRITE_MULTIPLE_REGISTERS
             if any(p.write_fc == 16 for p, _ in items)

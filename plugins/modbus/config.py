@@ -59,15 +59,22 @@ _ALLOWED = {
     Kind.DO: {Table.COILS, Table.HOLDING_REGISTERS},
     Kind.AI: {Table.INPUT_REGISTERS, Table.HOLDING_REGISTERS},
     Kind.AO: {Table.HOLDING_REGISTERS},
+    Kind.SI: {Table.INPUT_REGISTERS, Table.HOLDING_REGISTERS},
+    Kind.SO: {Table.HOLDING_REGISTERS},
 }
 
 RegisterType = Literal["int16", "uint16", "int32", "uint32", "float32"]
 
 
 class ChannelGroup(StrictModel):
-    """``count`` consecutive channels of one kind, starting at ``address`` in ``table``."""
+    """``count`` consecutive channels of one kind, starting at ``address`` in ``table``.
 
-    kind: Literal["di", "do", "ai", "ao"]
+    ``si`` / ``so`` declare a raw byte block (special input / output, e.g. a counter's data):
+    ``count`` bytes, two per register, ``byte_order`` big = byte 0 is the high byte of the
+    first register (the bytes as they travel on the wire), little = its low byte.
+    """
+
+    kind: Literal["di", "do", "ai", "ao", "si", "so"]
     table: Table
     address: int = Field(ge=0, le=0xFFFF, description="first PDU address (0-based, as on the wire)")
     count: int = Field(1, ge=1, le=2000, description="number of channels")
@@ -76,6 +83,10 @@ class ChannelGroup(StrictModel):
     )
     word_order: Literal["big", "little"] = Field(
         "big", description="32-bit types: big = high word first, little = low word first"
+    )
+    byte_order: Literal["big", "little"] | None = Field(
+        None,
+        description="si/so byte blocks: big (default) = byte 0 is the first register's high byte, little = its low byte",
     )
     first_bit: int = Field(
         0,
@@ -102,9 +113,15 @@ class ChannelGroup(StrictModel):
             raise _invalid(
                 f"{self.kind} channels cannot live in {self.table.value}; use one of: {allowed}"
             )
-        if self.type is not None and (kind.is_digital or self.table.is_bits):
+        if self.type is not None and (kind.is_digital or kind.is_special or self.table.is_bits):
             raise _invalid(
                 f"type applies to analog channels in registers, not to {self.kind} channels"
+            )
+        if self.byte_order is not None and not kind.is_special:
+            raise _invalid(f"byte_order applies to si/so byte blocks, not to {self.kind} channels")
+        if kind.is_special and self.first_bit:
+            raise _invalid(
+                "first_bit applies to digital channels; si/so blocks start at a register"
             )
         if self.write_fc is not None:
             if not kind.is_output:
@@ -124,12 +141,16 @@ class ChannelGroup(StrictModel):
     def dtype(self) -> DataType:
         if Kind(self.kind).is_digital:
             return DataType.BOOL
+        if Kind(self.kind).is_special:
+            return DataType.UINT8
         return DataType(self.type or "int16")
 
     @property
     def last_address(self) -> int:
         if self.table.is_bits:
             return self.address + self.count - 1
+        if Kind(self.kind).is_special:
+            return self.address + (self.count - 1) // 2
         if Kind(self.kind).is_digital:
             return self.address + (self.first_bit + self.count - 1) // 16
         return self.address + self.count * WORDS[self.dtype] - 1
@@ -234,7 +255,19 @@ def _cells(g: ChannelGroup):
             (g.table, g.address + (g.first_bit + i) // 16, (g.first_bit + i) % 16)
             for i in range(g.count)
         ]
+    if Kind(g.kind).is_special:  # a byte covers 8 bit cells of its register
+        return [
+            (g.table, g.address + i // 2, _byte_shift(g, i) + b)
+            for i in range(g.count)
+            for b in range(8)
+        ]
     return [(g.table, a) for a in range(g.address, g.last_address + 1)]
+
+
+def _byte_shift(g: ChannelGroup, i: int) -> int:
+    """Where byte ``i`` of a si/so block sits in its register: 8 (high byte) or 0."""
+    first_high = (g.byte_order or "big") == "big"
+    return 8 if (i % 2 == 0) == first_high else 0
 
 
 @dataclass(frozen=True)
@@ -248,7 +281,7 @@ class Point:
     address: int  # bit address, or first register
     dtype: DataType
     word_order: str = "big"
-    bit: int | None = None  # digital channel inside a register
+    bit: int | None = None  # digital channel (or si/so byte: 0 low, 8 high) inside a register
     write_fc: int | None = None
     period: float | None = None
 
@@ -262,6 +295,18 @@ class Point:
         return self.address + self.width
 
 
+def _place(g: ChannelGroup, i: int) -> tuple[int, int | None]:
+    """(address, bit inside the register or None) of channel ``i`` of a group."""
+    if g.table.is_bits:
+        return g.address + i, None
+    if Kind(g.kind).is_special:  # two bytes per register
+        return g.address + i // 2, _byte_shift(g, i)
+    if Kind(g.kind).is_digital:
+        bit = g.first_bit + i
+        return g.address + bit // 16, bit % 16
+    return g.address + i * WORDS[g.dtype], None
+
+
 def module_points(back: str, module: ModbusModuleConfig) -> list[Point]:
     points: list[Point] = []
     next_index = {k: 0 for k in Kind}
@@ -271,32 +316,21 @@ def module_points(back: str, module: ModbusModuleConfig) -> list[Point]:
         for i in range(g.count):
             index = next_index[kind]
             next_index[kind] += 1
-            cid = channel_id(back, module.address, kind, index)
-            common = {"write_fc": g.write_fc, "period": period, "word_order": g.word_order}
-            if g.table.is_bits:
-                points.append(
-                    Point(cid, kind, index, g.table, g.address + i, DataType.BOOL, **common)
+            address, bit = _place(g, i)
+            points.append(
+                Point(
+                    channel_id(back, module.address, kind, index),
+                    kind,
+                    index,
+                    g.table,
+                    address,
+                    g.dtype,
+                    word_order=g.word_order,
+                    bit=bit,
+                    write_fc=g.write_fc,
+                    period=period,
                 )
-            elif kind.is_digital:
-                bit = g.first_bit + i
-                points.append(
-                    Point(
-                        cid,
-                        kind,
-                        index,
-                        g.table,
-                        g.address + bit // 16,
-                        DataType.BOOL,
-                        bit=bit % 16,
-                        **common,
-                    )
-                )
-            else:
-                points.append(
-                    Point(
-                        cid, kind, index, g.table, g.address + i * WORDS[g.dtype], g.dtype, **common
-                    )
-                )
+            )
     return points
 
 

@@ -75,7 +75,7 @@ def decode_block(block: ReadBlock, data: list) -> dict[str, object]:
         if block.table.is_bits:
             readings[p.channel] = bool(data[offset])
         elif p.bit is not None:
-            readings[p.channel] = regvalues.get_bit(data[offset], p.bit)
+            readings[p.channel] = regvalues.get_field(data[offset], p.bit, p.dtype)
         else:
             try:
                 readings[p.channel] = regvalues.decode(

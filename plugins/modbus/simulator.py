@@ -120,7 +120,7 @@ class SimModule:
         if p.table.is_bits:
             cells[p.address] = bool(value)
         elif p.bit is not None:
-            cells[p.address] = regvalues.set_bit(cells[p.address], p.bit, bool(value))
+            cells[p.address] = regvalues.set_field(cells[p.address], p.bit, p.dtype, value)
         else:
             for i, word in enumerate(regvalues.encode(p.dtype, value, p.word_order)):
                 cells[p.address + i] = word
@@ -130,7 +130,7 @@ class SimModule:
         if p.table.is_bits:
             return cells[p.address]
         if p.bit is not None:
-            return regvalues.get_bit(cells[p.address], p.bit)
+            return regvalues.get_field(cells[p.address], p.bit, p.dtype)
         return regvalues.decode(
             p.dtype, [cells[p.address + i] for i in range(p.width)], p.word_order
         )
@@ -435,6 +435,8 @@ class ModbusSimulator(Simulator):
 
 
 def _animated_value(p: Point, tick: int):
+    if p.kind is Kind.SI:  # a counter block: the tick count, little-endian, every 4 bytes
+        return tick >> 8 * (p.index % 4) & 0xFF
     if p.kind is Kind.DI:
         return bool(
             (tick // 4) >> p.index & 1

@@ -52,6 +52,21 @@ def encode(dtype: DataType, value: int | float, word_order: str = "big") -> list
     return [high, low] if word_order == "big" else [low, high]
 
 
+def get_field(register: int, bit: int, dtype: DataType) -> bool | int:
+    """A point inside a register: one bit (BOOL) or one byte (UINT8) starting at ``bit``."""
+    if dtype is DataType.UINT8:
+        return register >> bit & 0xFF
+    return get_bit(register, bit)
+
+
+def set_field(register: int, bit: int, dtype: DataType, value: object) -> int:
+    """``register`` with the bit (BOOL) or byte (UINT8) at ``bit`` replaced by ``value``."""
+    if dtype is DataType.UINT8:
+        byte = DataType.UINT8.check(value)
+        return (register & ~(0xFF << bit) | byte << bit) & 0xFFFF
+    return set_bit(register, bit, bool(value))
+
+
 def get_bit(register: int, bit: int) -> bool:
     return bool(register >> bit & 1)
 

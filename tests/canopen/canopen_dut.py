@@ -65,8 +65,15 @@ class InProcessDut:
     """The gateway on its own event loop in a thread of the test process."""
 
     def __init__(
-        self, topo: dict, interface: str, channel: str, loop_factory=asyncio.new_event_loop
+        self,
+        topo: dict,
+        interface: str,
+        channel: str,
+        loop_factory=asyncio.new_event_loop,
+        *,
+        simulate: bool = False,
     ):
+        self.simulate = simulate  # serve the backs from their simulators (gateway.bench)
         self.topo = {
             **topo,
             "fronts": [{**topo["fronts"][0], "interface": interface, "channel": channel}],
@@ -85,7 +92,9 @@ class InProcessDut:
         def run() -> None:
             asyncio.set_event_loop(self._loop)
             try:
-                self.gateway = Gateway.load(self.topo, registry=load_registry())
+                self.gateway = Gateway.load(
+                    self.topo, registry=load_registry(), simulate=self.simulate
+                )
                 self._loop.run_until_complete(self.gateway.start())
             except BaseException as exc:
                 errors.append(exc)
@@ -156,6 +165,21 @@ class ProcessDut:
                 self.proc.kill()
                 self.proc.wait()
         self.proc = None
+
+
+def write_eds(topo: dict, workdir: Path, name: str = "dut.eds") -> Path:
+    """The EDS of the topology's canopen front, written by ``fieldgate eds`` in a subprocess."""
+    source = workdir / "eds-topology.yaml"
+    source.write_text(json.dumps(topo))  # JSON is YAML
+    eds = workdir / name
+    done = subprocess.run(
+        [sys.executable, "-m", "fieldgate", "eds", str(source), "-o", str(eds)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    return eds
 
 
 def make_dut(topo: dict, interface: str, channel: str, external: bool, workdir: Path):

@@ -25,10 +25,13 @@ class Clock:
 
 
 def make_image(modules, clock=None, *, dtypes=None) -> ProcessImage:
-    """``modules``: (address, di, do, ai, ao) counts; ``dtypes``: {(address, kind): DataType}."""
+    """``modules``: (address, di, do, ai, ao[, si, so]) counts; ``dtypes``: {(address, kind): DataType}."""
     image = ProcessImage(clock or Clock())
     for address, *counts in modules:
-        for kind, count in zip((Kind.DI, Kind.DO, Kind.AI, Kind.AO), counts, strict=True):
+        # four counts (DI, DO, AI, AO) or six (with SI, SO): pairing stops at the shorter side
+        for kind, count in zip(
+            (Kind.DI, Kind.DO, Kind.AI, Kind.AO, Kind.SI, Kind.SO), counts, strict=False
+        ):
             for i in range(count):
                 dtype = (dtypes or {}).get((address, kind))
                 image.add(

@@ -8,14 +8,11 @@ enable), so this is also an interoperability check of the mapping rules.
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 import time
 
 import canopen
 import pytest
-from canopen_dut import bus_under_test, make_dut, topology
+from canopen_dut import bus_under_test, make_dut, topology, write_eds
 
 NODE = 5
 
@@ -24,16 +21,7 @@ NODE = 5
 def master_and_dut(tmp_path):
     interface, channel, external = bus_under_test()
     topo = topology(tmp_path / "state", NODE)
-    source = tmp_path / "eds-topology.yaml"
-    source.write_text(json.dumps(topo))
-    eds = tmp_path / "dut.eds"
-    done = subprocess.run(
-        [sys.executable, "-m", "fieldgate", "eds", str(source), "-o", str(eds)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert done.returncode == 0, done.stderr
+    eds = write_eds(topo, tmp_path)
     network = canopen.Network()
     network.NOTIFIER_CYCLE = 0.05
     network.connect(interface=interface, channel=channel)

@@ -1,6 +1,7 @@
 """A third-party fieldgate plugin with one back and one front, used by the tests.
 
-* back ``loopback``: each module's DO n is wired to its DI n, AO n to AI n, like the
+* back ``loopback``: each module's DO n is wired to its DI n, AO n to AI n (SO byte n to
+  SI byte n: a special module's raw block), like the
   demo bench of the I-7232D manual (M-7055D outputs wired to M-7052D inputs), in software.
 * front ``memory``: a front without a bus; it records the channels it serves and can
   be told its master is lost.
@@ -28,6 +29,9 @@ class LoopbackModule(ModuleConfig):
     analog: int = Field(
         0, ge=0, le=32, description="number of AO channels, each looped back to an AI"
     )
+    special: int = Field(
+        0, ge=0, le=64, description="number of SO bytes, each looped back to an SI byte"
+    )
 
 
 class LoopbackConfig(BackConfig):
@@ -41,7 +45,11 @@ class LoopbackConfig(BackConfig):
     def channel_specs(self) -> list[ChannelSpec]:
         specs = []
         for m in self.modules:
-            for kinds, count in (((Kind.DI, Kind.DO), m.digital), ((Kind.AI, Kind.AO), m.analog)):
+            for kinds, count in (
+                ((Kind.DI, Kind.DO), m.digital),
+                ((Kind.AI, Kind.AO), m.analog),
+                ((Kind.SI, Kind.SO), m.special),
+            ):
                 for i in range(count):
                     for kind in kinds:
                         err, shut = m.output_modes(kind, i) if kind.is_output else (None, None)
@@ -81,7 +89,7 @@ class LoopbackBack(Back):
         twin = channel_id(
             self.name,
             out.source.module,
-            Kind.DI if out.kind is Kind.DO else Kind.AI,
+            {Kind.DO: Kind.DI, Kind.AO: Kind.AI, Kind.SO: Kind.SI}[out.kind],
             out.source.index,
         )
         self.context.image.update_input(twin, out.value)

@@ -1,0 +1,120 @@
+"""The na9161 profile and the mapping-granularity cases against fieldgate's NA-9161-style front
+(in-process, virtual bus, loopback back with a special module), and the same cases failing
+for the reason they check when the front is broken on purpose."""
+
+from __future__ import annotations
+
+import uuid
+
+import can
+import pytest
+from conformance_gateway import NODE_ID, GatewayThread, front_unavailable, topology, write_eds
+
+from fieldgate.conformance import Options, SuiteConfig, Timing, Verdict, run_suite
+from fieldgate.conformance.report import text_report
+from fieldgate.plugins.canopen.abort import SdoAbort
+
+CASES = [
+    "na9161.*",
+    "sync-pdo.dummy_mapping",
+    "sync-pdo.dummy_undeclared",
+    "sync-pdo.bit_mapping",
+    "sync-pdo.granularity_whole_bytes",
+]
+
+
+def run(work, *, bit_mapping: bool = True, patterns=CASES):
+    reason = front_unavailable()
+    if reason:
+        pytest.skip(reason)
+    channel = f"na-{uuid.uuid4().hex[:8]}"
+    topo = topology(work / "state", channel)
+    topo["fronts"][0].update(style="na9161", bit_mapping=bit_mapping)
+    topo["backs"][0]["modules"] = [
+        {"address": 1, "digital": 4},
+        {"address": 2, "digital": 12},
+        {"address": 3, "analog": 2},
+        {"address": 4, "special": 6},
+    ]
+    eds = write_eds(topo, work)
+    timing = Timing(response=0.3, silence=0.1, heartbeat_ms=50, bootup=1.0, sdo_server_timeout=1.0)
+    with GatewayThread(topo):
+        bus = can.Bus(interface="virtual", channel=channel)
+        try:
+            return run_suite(
+                SuiteConfig(
+                    NODE_ID,
+                    str(eds),
+                    timing=timing,
+                    options=Options(loopback=True),
+                    profiles=["all"],
+                    patterns=patterns,
+                ),
+                bus=bus,
+            )
+        finally:
+            bus.shutdown()
+
+
+def refuse(self, value):
+    raise SdoAbort(0x06090030, "broken on purpose")
+
+
+def verdicts(results) -> dict[str, Verdict]:
+    return {r.case.id: r.verdict for r in results}
+
+
+def test_the_na9161_front_passes_the_na9161_and_granularity_cases(tmp_path):
+    results = run(tmp_path)
+    seen = verdicts(results)
+    assert {cid for cid, v in seen.items() if v is not Verdict.PASS} == {
+        "sync-pdo.granularity_whole_bytes",  # SKIP: this front maps single bits
+        "sync-pdo.dummy_undeclared",  # SKIP: with bit mapping every dummy entry is declared
+    }, text_report(results)
+    assert len(seen) == 10
+
+
+def test_with_byte_granularity_the_bit_case_skips_and_the_byte_case_runs(tmp_path):
+    results = run(
+        tmp_path,
+        bit_mapping=False,
+        patterns=["sync-pdo.*mapping*", "sync-pdo.*dumm*", "sync-pdo.granularity*"],
+    )
+    seen = verdicts(results)
+    assert seen["sync-pdo.bit_mapping"] is Verdict.SKIP
+    assert seen["sync-pdo.granularity_whole_bytes"] is Verdict.PASS
+    assert seen["sync-pdo.dummy_undeclared"] is Verdict.PASS  # Dummy0001 is not declared
+    assert seen["sync-pdo.dummy_mapping"] is Verdict.PASS, text_report(results)
+
+
+@pytest.mark.parametrize(
+    "target, attribute, broken, case_id",
+    [
+        (
+            "fieldgate.plugins.canopen.fnbus.FnBusRegister",
+            "write_mode",
+            refuse,
+            "na9161.fnbus_register",  # TV-08: writing the mode back is refused
+        ),
+        (
+            "fieldgate.plugins.canopen.fnbus.FnBusRegister",
+            "apply",
+            lambda self: None,  # the written mode never takes effect
+            "na9161.data_mode_layout",
+        ),
+        (
+            "fieldgate.plugins.canopen.pdo.PdoEngine",
+            "_apply",
+            lambda self, pdo, payload: None,  # RPDO data dropped
+            "sync-pdo.dummy_mapping",
+        ),
+    ],
+)
+def test_a_broken_front_fails_the_case_that_checks_it(
+    tmp_path, monkeypatch, target, attribute, broken, case_id
+):
+    module_name, class_name = target.rsplit(".", 1)
+    module = __import__(module_name, fromlist=[class_name])
+    monkeypatch.setattr(getattr(module, class_name), attribute, broken)
+    results = run(tmp_path, patterns=[case_id])
+    assert verdicts(results) == {case_id: Verdict.FAIL}, text_report(results)
