@@ -30,11 +30,11 @@ NMT_STATE = "nmt-state"
 EMCY_SENT = "emcy-sent"
 BUS_OFF = "bus-off"
 BUS_ON = "bus-recovered"
-CONNECTION = "connection"
+FAULT = "fault"  # a front stopped communicating by itself (DeviceNet duplicate MAC ID, ...)
 COMPONENT_FAILED = "component-failed"
 COMPONENT_RESTARTED = "component-restarted"
 
-WARNING_KINDS = frozenset({MODULE_OFFLINE, MASTER_LOST, BUS_OFF, COMPONENT_FAILED})
+WARNING_KINDS = frozenset({MODULE_OFFLINE, MASTER_LOST, BUS_OFF, COMPONENT_FAILED, FAULT})
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,8 @@ from pydantic import Field, field_validator
 
 from fieldgate import __version__
 from fieldgate.can.adapter import CanAdapter, open_bus
+from fieldgate.can.busmetrics import can_bus_samples
+from fieldgate.events import BUS_OFF, BUS_ON, EMCY_SENT, NMT_STATE
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.plugin import Front, GatewayContext, hookimpl
 from fieldgate.topology import FrontConfig
@@ -28,6 +30,7 @@ from fieldgate.topology.model import StrictModel
 
 from .cobid import restricted
 from .eds import register_command as register_eds_command
+from .frame import Frame, NmtState
 from .front401 import IoFrontOptions, io_settings
 from .front401 import install as install_io_device
 from .layouts import device_type as io_device_type
@@ -238,7 +241,36 @@ class CanopenFront(Front):
             stopped_is_error=io_settings(cfg).stopped_is_error,
         )
         self.master.attach(node)
+        node.on_nmt(self._nmt_changed)
+        if node.emcy is not None:
+            node.emcy.on_sent = self._emcy_sent
         return node
+
+    # -- events for people watching (fieldgate.events) -----------------------------------
+    def _nmt_changed(self, old: NmtState, new: NmtState) -> None:
+        self.context.events.publish(
+            NMT_STATE, self.name, f"NMT {old.label} -> {new.label}", old=old.label, new=new.label
+        )
+
+    def _emcy_sent(self, frame: Frame) -> None:
+        data = frame.data
+        code = int.from_bytes(data[0:2], "little")
+        self.context.events.publish(
+            EMCY_SENT,
+            self.name,
+            f"EMCY {code:04X} register {data[2]:02X} data {data[3:].hex(' ').upper()}",
+            code=f"{code:04X}",
+            register=data[2],
+            data=data[3:].hex(),
+        )
+
+    def _bus_state(self, off: bool, now: float) -> None:
+        if off:
+            self.context.events.publish(BUS_OFF, self.name, "CAN bus-off")
+        else:
+            self.context.events.publish(BUS_ON, self.name, "CAN bus recovered from bus-off")
+        if self.node is not None:
+            self.node.service("error_control").bus_state(off, now)
 
     # -- life cycle ---------------------------------------------------------------------
     async def start(self) -> None:
@@ -252,7 +284,7 @@ class CanopenFront(Front):
             self.node,
             bus,
             loop,
-            on_bus_state=lambda off, now: self.node.service("error_control").bus_state(off, now),
+            on_bus_state=self._bus_state,
             transmit_allowed=lss.transmit_allowed,
             reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
         )
@@ -299,6 +331,72 @@ class CanopenFront(Front):
             self.adapter.pump(action)
         else:
             action()
+
+    def metrics(self) -> list[tuple[str, str, str, float, dict[str, str]]]:
+        """Series for /metrics (contract: fieldgate.http.metrics), read from the node's counters."""
+        if self.node is None:
+            return []
+        node, services = self.node, self.node.status()["services"]
+        io = services.get("io", {})
+        samples: list[tuple[str, str, str, float, dict[str, str]]] = [
+            (
+                "canopen_nmt_state",
+                "gauge",
+                "1 for the NMT state the node is in",
+                float(node.state is state),
+                {"state": state.label},
+            )
+            for state in NmtState
+        ]
+        emcy = services.get("emcy", {})
+        sdo = services.get("sdo", {})
+        samples += [
+            (
+                "canopen_emcy_sent_total",
+                "counter",
+                "EMCY frames sent",
+                float(emcy.get("sent", 0)),
+                {},
+            ),
+            (
+                "canopen_emcy_active",
+                "gauge",
+                "EMCY errors active now",
+                float(len(emcy.get("active", []))),
+                {},
+            ),
+            (
+                "canopen_sdo_requests_total",
+                "counter",
+                "SDO requests served",
+                float(sdo.get("requests", 0)),
+                {},
+            ),
+            (
+                "canopen_sdo_aborts_total",
+                "counter",
+                "SDO transfers aborted by the server",
+                float(sdo.get("aborts", 0)),
+                {},
+            ),
+            ("canopen_tpdo_sent_total", "counter", "TPDOs sent", float(io.get("tpdo_sent", 0)), {}),
+            (
+                "master_output_writes_total",
+                "counter",
+                "output process data received from the master (RPDOs, DeviceNet polls with data)",
+                float(io.get("rpdo_received", 0)),
+                {},
+            ),
+            (
+                "master_losses_total",
+                "counter",
+                "times the front lost its master (guarding, heartbeat, bus-off, ...)",
+                float(self.master.status().get("losses", 0) if self.master else 0),
+                {},
+            ),
+        ]
+        ignored = node.status()["counters"].get("ignored", 0) + io.get("frames_ignored", 0)
+        return samples + can_bus_samples(self.adapter.status() if self.adapter else None, ignored)
 
     def status(self) -> dict:
         if self.node is None:

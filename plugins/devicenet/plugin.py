@@ -18,6 +18,8 @@ from typing import Any, Literal
 from pydantic import Field
 
 from fieldgate.can.adapter import CanAdapter, open_bus
+from fieldgate.can.busmetrics import can_bus_samples
+from fieldgate.events import BUS_OFF, BUS_ON, FAULT
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Change
@@ -28,6 +30,9 @@ from fieldgate.topology.model import StrictModel
 from .assembly import Assemblies
 from .engine import BAUD_RATES, DeviceNetSlave, Settings
 from .store import NetworkStore
+
+DEVICE_STATES = ("offline", "dup-mac-check", "online", "comm-fault")  # DeviceNetSlave.state
+CONNECTION_NAMES = ("explicit", "poll", "bit-strobe", "cos-cyclic")
 
 
 class DeviceNetIdentity(StrictModel):
@@ -124,7 +129,7 @@ class DeviceNetFront(Front):
         slave.host_watchdogs = HostWatchdogs.from_context(self.context)
         slave.on_master(self._master_state)
         slave.on_settings(store.save)
-        slave.on_fault(lambda reason: self.log.error("DeviceNet communication fault: %s", reason))
+        slave.on_fault(self._fault)
         return slave
 
     async def start(self) -> None:
@@ -173,9 +178,16 @@ class DeviceNetFront(Front):
             adapter = self.adapter
             adapter.pump(lambda: self.slave.inputs_changed(adapter.now))
 
+    def _fault(self, reason: str) -> None:
+        self.log.error("DeviceNet communication fault: %s", reason)
+        self.context.events.publish(FAULT, self.name, f"DeviceNet communication fault: {reason}")
+
     def _bus_state(self, bus_off: bool, now: float) -> None:
         if bus_off:
             self.slave.bus_off_count = min(255, self.slave.bus_off_count + 1)
+            self.context.events.publish(BUS_OFF, self.name, "CAN bus-off")
+        else:
+            self.context.events.publish(BUS_ON, self.name, "CAN bus recovered from bus-off")
 
     def _master_state(self, ok: bool, reason: str) -> None:
         if ok:
@@ -197,6 +209,72 @@ class DeviceNetFront(Front):
         elif event is HealthEvent.ONLINE:
             self._offline.discard(health.key)
         self.slave.module_fault = bool(self._offline)
+
+    def metrics(self) -> list[tuple[str, str, str, float, dict[str, str]]]:
+        """Series for /metrics (contract: fieldgate.http.metrics), read from the engine's counters."""
+        if self.slave is None:
+            return []
+        st = self.slave.status()
+        samples: list[tuple[str, str, str, float, dict[str, str]]] = [
+            (
+                "devicenet_state",
+                "gauge",
+                "1 for the state the DeviceNet node is in",
+                float(st["state"] == state),
+                {"state": state},
+            )
+            for state in DEVICE_STATES
+        ]
+        connections = st.get("connections", {})
+        for name in CONNECTION_NAMES:
+            state = connections.get(name, {}).get("state", "non_existent")
+            samples.append(
+                (
+                    "devicenet_connection_established",
+                    "gauge",
+                    "1 while a predefined master/slave connection is established",
+                    float(state == "established"),
+                    {"connection": name},
+                )
+            )
+            samples.append(
+                (
+                    "devicenet_connection_timeouts_total",
+                    "counter",
+                    "inactivity/watchdog timeouts of a connection",
+                    float(st.get(f"{name}_timeouts", 0)),
+                    {"connection": name},
+                )
+            )
+        samples += [
+            (
+                "master_output_writes_total",
+                "counter",
+                "output process data received from the master (RPDOs, DeviceNet polls with data)",
+                float(st.get("rx_poll_outputs", 0)),
+                {},
+            ),
+            (
+                "devicenet_cos_cyclic_produced_total",
+                "counter",
+                "change-of-state / cyclic productions sent",
+                float(st.get("cos_cyclic_produced", 0)),
+                {},
+            ),
+            (
+                "devicenet_cip_errors_total",
+                "counter",
+                "explicit requests answered with a CIP error",
+                float(st.get("cip_errors", 0)),
+                {},
+            ),
+        ]
+        ignored = sum(
+            v
+            for k, v in st.items()
+            if k.startswith("rx_") and isinstance(v, int) and k != "rx_poll_outputs"
+        )
+        return samples + can_bus_samples(self.adapter.status() if self.adapter else None, ignored)
 
     def status(self) -> dict:
         if self.slave is None:
