@@ -34,6 +34,7 @@ from .frame import Frame, NmtState
 from .front401 import IoFrontOptions, io_settings
 from .front401 import install as install_io_device
 from .layouts import device_type as io_device_type
+from .locations import point_locations
 from .lss import BIT_TIMING_TABLES, LssService, LssStore
 from .master_state import MasterState
 from .node import Node
@@ -331,6 +332,15 @@ class CanopenFront(Front):
             self.adapter.pump(action)
         else:
             action()
+
+    def point_locations(self) -> dict[str, list[str]]:
+        """Where each point is served: CiA 401 object/sub and PDO byte/bit (status API)."""
+        io = getattr(self, "io", None)
+        if io is None:
+            return {}
+        engine = io.engine
+        pdos = (engine.tpdos + engine.rpdos) if engine is not None else []
+        return point_locations(io.layout, pdos)
 
     def metrics(self) -> list[tuple[str, str, str, float, dict[str, str]]]:
         """Series for /metrics (contract: fieldgate.http.metrics), read from the node's counters."""

@@ -210,6 +210,34 @@ class DeviceNetFront(Front):
             self._offline.discard(health.key)
         self.slave.module_fault = bool(self._offline)
 
+    def point_locations(self) -> dict[str, list[str]]:
+        """Where each point is served: assembly instance, byte and bit, and its byte in the
+        I/O message (the poll response for inputs, the poll request for outputs)."""
+        if self.slave is None:
+            return {}
+        out: dict[str, list[str]] = {}
+        assemblies = self.slave.assemblies
+        for group in (assemblies.inputs, assemblies.outputs):
+            message = "poll response" if group is assemblies.inputs else "poll request"
+            offset = 0
+            for assembly in group:
+                if assembly.kind.is_digital:
+                    for byte, slots in enumerate(assembly.slots):
+                        for bit, ch in enumerate(slots):
+                            if ch is not None:
+                                out[ch.id] = [
+                                    f"assembly {assembly.instance} byte {byte} bit {bit} "
+                                    f"({message} byte {offset + byte})"
+                                ]
+                else:
+                    for n, ch in enumerate(assembly.slots):
+                        out[ch.id] = [
+                            f"assembly {assembly.instance} bytes {2 * n}-{2 * n + 1} "
+                            f"({message} bytes {offset + 2 * n}-{offset + 2 * n + 1}, little-endian)"
+                        ]
+                offset += assembly.size
+        return out
+
     def metrics(self) -> list[tuple[str, str, str, float, dict[str, str]]]:
         """Series for /metrics (contract: fieldgate.http.metrics), read from the engine's counters."""
         if self.slave is None:
