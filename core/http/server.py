@@ -65,7 +65,11 @@ StreamBody = Callable[[asyncio.StreamWriter], Awaitable[None]]
 
 @dataclass
 class Stream:
-    """A response whose body a coroutine writes until it returns (Server-Sent Events)."""
+    """A response whose body a coroutine writes until it returns (Server-Sent Events).
+
+    The body is cancelled as soon as the client closes its end (or sends anything more:
+    an event stream takes no further requests on its connection).
+    """
 
     body: StreamBody
     content_type: str = "text/event-stream; charset=utf-8"
@@ -191,6 +195,10 @@ class HttpServer:
             await self._serve(reader, writer)
         except (ConnectionError, TimeoutError, asyncio.IncompleteReadError):
             pass
+        except asyncio.CancelledError:
+            # stop() cancels open connections; ending here keeps asyncio's start_server
+            # callback (Python 3.11) from logging the cancellation as an error
+            pass
         finally:
             self.connections -= 1
             self._tasks.discard(task)
@@ -238,7 +246,7 @@ class HttpServer:
                     self._handler_errors_logged = True
                 result = text_response(500, "internal error (logged by the gateway)")
             if isinstance(result, Stream):
-                await self._stream(writer, result)
+                await self._stream(reader, writer, result)
                 return
             await self._send(writer, result, close=not keep_alive, head=request.method == "HEAD")
             if not keep_alive:
@@ -271,7 +279,9 @@ class HttpServer:
         async with asyncio.timeout(WRITE_TIMEOUT):
             await writer.drain()
 
-    async def _stream(self, writer: asyncio.StreamWriter, stream: Stream) -> None:
+    async def _stream(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, stream: Stream
+    ) -> None:
         self.responses[200] += 1
         lines = [
             "HTTP/1.1 200 OK",
@@ -285,4 +295,11 @@ class HttpServer:
         writer.write(("\r\n".join(lines) + "\r\n\r\n").encode("latin-1"))
         async with asyncio.timeout(WRITE_TIMEOUT):
             await writer.drain()
-        await stream.body(writer)
+        body = asyncio.ensure_future(stream.body(writer))
+        gone = asyncio.ensure_future(reader.read(1))  # EOF (b"") when the client closes
+        try:
+            await asyncio.wait({body, gone}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in (body, gone):
+                task.cancel()
+            await asyncio.gather(body, gone, return_exceptions=True)
