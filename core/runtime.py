@@ -108,8 +108,8 @@ class Gateway:
         if self.topology.gateway.http is not None and self.http is None:
             from .http.service import HttpService
 
-            self.http = HttpService(self, self.topology.gateway.http)
             try:
+                self.http = HttpService(self, self.topology.gateway.http)
                 await self.http.start()
             except Exception as exc:
                 self.http = None

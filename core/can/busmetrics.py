@@ -64,7 +64,7 @@ def can_bus_samples(status: dict[str, Any] | None, ignored: int = 0) -> list[Sam
             {},
         ),
         (
-            "can_bus_off_total",
+            "can_bus_off_events_total",
             "counter",
             "times the CAN controller went bus-off",
             float(status.get("bus_off_events", 0)),

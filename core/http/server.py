@@ -22,6 +22,7 @@ answered with a 500 without a traceback.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 from collections import Counter
 from collections.abc import Awaitable, Callable
@@ -190,6 +191,11 @@ class HttpServer:
         self.connections += 1
         try:
             if self.connections > self.max_connections:
+                # read the request first: closing on unread data would reset the connection
+                # and the client would never see the answer
+                with contextlib.suppress(Exception):
+                    async with asyncio.timeout(1.0):
+                        await reader.readuntil(b"\r\n\r\n")
                 await self._send(writer, text_response(503, "too many connections"), close=True)
                 return
             await self._serve(reader, writer)
