@@ -3,7 +3,8 @@
 
 const QUALITIES = ["good", "not-read", "stale", "comm-fault", "over-range", "under-range", "watchdog", "config-error"];
 const STATUS_PERIOD_MS = 2000;
-const TREND_WINDOW_S = 300;
+const TREND_WINDOW_S = 300;  // at most: the server keeps 5 minutes
+const TREND_MIN_SPAN_S = 10;
 
 const state = {
   points: new Map(),   // id -> point (full or compact fields)
@@ -84,6 +85,9 @@ function frontFacts(name, f) {
   }
   facts.push(["master", f.master_ok ? "present" : "lost" + (f.master && f.master.reason ? `: ${f.master.reason}` : "")]);
   if (f.bus) facts.push(["CAN", `${f.bus.bus_off ? "BUS-OFF" : "ok"} · rx ${f.bus.rx} · tx ${f.bus.tx}`]);
+  const services = f.services || {};
+  if (services.emcy) facts.push(["EMCY", services.emcy.active.length ? `active ${services.emcy.active.join(", ")}` : "none active"]);
+  if (services.io) facts.push(["PDO", `TPDOs sent ${services.io.tpdo_sent} · RPDOs ${services.io.rpdo_received}`]);
   if (f.restarts) facts.push(["restarts", f.restarts]);
   return facts;
 }
@@ -252,9 +256,11 @@ function renderTrends(data) {
     const s = data.series[id];
     const canvas = el("canvas", { width: "480", height: "140" });
     const value = el("b", { text: "-" });
+    const span = el("span", { class: "span" });
     box.append(el("div", { class: "trend", "data-point": id },
-      el("div", { class: "head" }, el("span", { text: id + (s.unit ? ` [${s.unit}]` : "") }), value), canvas));
-    state.trends.set(id, { samples: s.samples.slice(), unit: s.unit, canvas, value });
+      el("div", { class: "head" }, el("span", { text: id + (s.unit ? ` [${s.unit}]` : "") }), value), canvas,
+      el("div", { class: "foot" }, span, el("span", { text: "now" }))));
+    state.trends.set(id, { samples: s.samples.slice(), unit: s.unit, canvas, value, span });
     drawTrend(id);
   }
 }
@@ -265,7 +271,13 @@ function drawTrend(id) {
   t.samples = t.samples.filter((s) => s[0] >= now - TREND_WINDOW_S);
   const vals = t.samples.map((s) => s[1]).filter((v) => v !== null);
   const last = t.samples.length ? t.samples[t.samples.length - 1][1] : null;
-  t.value.textContent = last === null ? "-" : `${round(last)}${t.unit ? " " + t.unit : ""}`;
+  const p = state.points.get(id);
+  const bad = p && p.quality !== "good";
+  t.value.textContent = last === null ? (bad ? p.quality : "-") : `${round(last)}${t.unit ? " " + t.unit : ""}`;
+  t.value.className = bad ? "bad" : "";
+  // the time axis spans the data there is (a fresh page fills the plot), up to 5 minutes
+  const span = Math.min(TREND_WINDOW_S, Math.max(TREND_MIN_SPAN_S, t.samples.length ? now - t.samples[0][0] : 0));
+  t.span.textContent = span >= 120 ? `last ${Math.round(span / 60)} min` : `last ${Math.round(span)} s`;
   const c = t.canvas, g = c.getContext("2d");
   const W = c.width, H = c.height, pad = 10;
   g.clearRect(0, 0, W, H);
@@ -278,7 +290,7 @@ function drawTrend(id) {
   if (!vals.length) return;
   let lo = Math.min(...vals), hi = Math.max(...vals);
   if (hi - lo < 1e-9) { lo -= 1; hi += 1; }
-  const x = (ts) => W - ((now - ts) / TREND_WINDOW_S) * W;
+  const x = (ts) => W - ((now - ts) / span) * W;
   const y = (v) => H - pad - ((v - lo) / (hi - lo)) * (H - 2 * pad);
   g.strokeStyle = "#1f6feb";
   g.lineWidth = 2.5;
