@@ -310,6 +310,10 @@ class Gateway:
     def write(self, channel_id: str, value: bool | int | float) -> None:
         self.image.write_output(channel_id, value, origin="api")
 
+    def restarts(self, name: str) -> int:
+        """How often a front or back was restarted after a run-time failure."""
+        return self._restarts.get(name, 0)
+
     def component(self, name: str) -> Component:
         for comp in self.fronts + self.backs:
             if comp.name == name:

@@ -18,6 +18,7 @@ samples of one name) is dropped and logged once; a scrape never fails because of
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 import platform
@@ -38,6 +39,7 @@ from prometheus_client.core import (
 from .. import __version__
 from ..health import RTT_BUCKETS, ErrorKind
 from ..image import Quality
+from ..polling import LineScheduler
 from .views import readiness
 
 if TYPE_CHECKING:
@@ -158,13 +160,11 @@ class GatewayCollector:
             "1 while a front's fieldbus master is present (guarding, heartbeat, connection)",
             labels=["component"],
         )
-        status = gw.status()
         for role, comps in (("back", gw.backs), ("front", gw.fronts)):
             for comp in comps:
                 running = getattr(comp, "started", False) and comp.name not in gw.down
                 up.add_metric([comp.name, role], float(running))
-                section = status["fronts" if role == "front" else "backs"].get(comp.name, {})
-                restarts.add_metric([comp.name, role], float(section.get("restarts", 0)))
+                restarts.add_metric([comp.name, role], float(gw.restarts(comp.name)))
         for comp in gw.fronts:
             master.add_metric([comp.name], float(gw.masters.is_ok(comp.name)))
         yield from (up, restarts, master)
@@ -224,14 +224,15 @@ class GatewayCollector:
             "fieldgate_line_pending_writes", "outputs waiting to be written", labels=["back"]
         )
         for comp in gw.backs:
-            st = comp.status()
-            if "cycles" not in st:
+            scheduler = getattr(comp, "scheduler", None)
+            if not isinstance(scheduler, LineScheduler):
                 continue
-            cycles.add_metric([comp.name], float(st["cycles"]))
-            if st.get("last_cycle_ms") is not None:
-                cycle_time.add_metric([comp.name], st["last_cycle_ms"] / 1000.0)
-            writes.add_metric([comp.name], float(st.get("writes", 0)))
-            pending.add_metric([comp.name], float(st.get("pending_writes", 0)))
+            stats = scheduler.stats
+            cycles.add_metric([comp.name], float(stats.cycles))
+            if stats.last_cycle_time is not None:
+                cycle_time.add_metric([comp.name], stats.last_cycle_time)
+            writes.add_metric([comp.name], float(stats.writes))
+            pending.add_metric([comp.name], float(scheduler.pending_writes))
         yield from (cycles, cycle_time, writes, pending)
 
     def _points(self, gw: Gateway) -> Iterator[Metric]:
@@ -317,6 +318,16 @@ class GatewayCollector:
             yield family
 
 
+class _Families:
+    """A registry-like holder of already collected families, for ``generate_latest``."""
+
+    def __init__(self, families: list[Metric]):
+        self.families = families
+
+    def collect(self) -> list[Metric]:
+        return self.families
+
+
 class GatewayMetrics:
     """The private registry and its text output."""
 
@@ -327,3 +338,21 @@ class GatewayMetrics:
 
     def render(self) -> bytes:
         return generate_latest(self.registry)
+
+    async def render_async(self, slice_s: float = 0.0005) -> bytes:
+        """The same text, collected and formatted in slices with a loop turn in between.
+
+        prometheus-client's ``generate_latest`` costs about 20 us a sample, so a big
+        gateway's scrape would hold the event loop for milliseconds in one go. Here the
+        families are collected and formatted one by one, and after every ``slice_s`` of
+        work the loop serves whatever waits (a CAN frame, a poll reply). Each family is
+        read in one go, so its samples are consistent with each other.
+        """
+        parts: list[bytes] = []
+        started = time.perf_counter()
+        for family in self.collector.collect():
+            parts.append(generate_latest(_Families([family])))  # type: ignore[arg-type]
+            if time.perf_counter() - started >= slice_s:
+                await asyncio.sleep(0)
+                started = time.perf_counter()
+        return b"".join(parts)

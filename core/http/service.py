@@ -51,6 +51,8 @@ log = logging.getLogger("fieldgate.http")
 COOKIE = "fieldgate_token"
 LAG_PERIOD_S = 0.25
 LAG_UNHEALTHY_S = 1.0
+SLICE_S = 0.0005  # longest stretch of work for one request before the loop serves others
+PLACES_TTL_S = 2.0
 STATIC = {
     "index.html": "text/html; charset=utf-8",
     "app.js": "text/javascript; charset=utf-8",
@@ -143,6 +145,7 @@ class HttpService:
         self.started_at = time.monotonic()
         self.unauthorized = 0
         self._static: dict[str, bytes] = {}
+        self._places_cache: tuple[float, dict[str, list[dict[str, str]]]] | None = None
         self._routes = {
             "/healthz": self._healthz,
             "/readyz": self._readyz,
@@ -266,16 +269,21 @@ class HttpService:
         back = request.query.get("back")
         if back is not None:
             channels = [c for c in channels if c.source.back == back]
-        places = views.locations(self.gateway.backs + self.gateway.fronts)
+        places = self._places()
         now = image.clock()
-        return self._json({"points": [views.point(self.gateway, c, places, now) for c in channels]})
+        points, started = [], time.perf_counter()
+        for channel in channels:
+            points.append(views.point(self.gateway, channel, places, now))
+            if time.perf_counter() - started >= SLICE_S:  # a big image: let frames through
+                await asyncio.sleep(0)
+                started = time.perf_counter()
+        return self._json({"points": points})
 
     async def _point(self, request: Request) -> Response:
         cid = request.path[len("/api/v1/points/") :]
         if cid not in self.gateway.image:
             return text_response(404, f"no point {cid!r} (ids look like rs485/m3/do0)")
-        places = views.locations(self.gateway.backs + self.gateway.fronts)
-        return self._json(views.point(self.gateway, self.gateway.image[cid], places))
+        return self._json(views.point(self.gateway, self.gateway.image[cid], self._places()))
 
     async def _events(self, request: Request) -> Response | Stream:
         if self.streams.full:
@@ -302,7 +310,8 @@ class HttpService:
         return self._json(self.trends.as_dict())
 
     async def _metrics(self, request: Request) -> Response:
-        return Response(200, self.metrics.render(), CONTENT_TYPE, list(JSON_HEADERS))
+        body = await self.metrics.render_async()
+        return Response(200, body, CONTENT_TYPE, list(JSON_HEADERS))
 
     async def _page(self, request: Request) -> Response:
         return Response(200, self._static["index.html"], STATIC["index.html"], list(PAGE_HEADERS))
@@ -314,6 +323,14 @@ class HttpService:
         return Response(200, self._static[name], STATIC[name], list(PAGE_HEADERS))
 
     # -- helpers -------------------------------------------------------------------------
+    def _places(self) -> dict[str, list[dict[str, str]]]:
+        """Every component's point locations, reused for ``PLACES_TTL_S`` (a mapping a master
+        changes shows up that much later; hovering the page's grid asks for one point at a time)."""
+        now = time.monotonic()
+        if self._places_cache is None or now - self._places_cache[0] > PLACES_TTL_S:
+            self._places_cache = (now, views.locations(self.gateway.backs + self.gateway.fronts))
+        return self._places_cache[1]
+
     @staticmethod
     def _json(body: Any) -> Response:
         data = json.dumps(body, separators=(",", ":"), allow_nan=False).encode()

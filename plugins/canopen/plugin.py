@@ -346,7 +346,8 @@ class CanopenFront(Front):
         """Series for /metrics (contract: fieldgate.http.metrics), read from the node's counters."""
         if self.node is None:
             return []
-        node, services = self.node, self.node.status()["services"]
+        node, node_status = self.node, self.node.status()
+        services = node_status["services"]
         io = services.get("io", {})
         samples: list[tuple[str, str, str, float, dict[str, str]]] = [
             (
@@ -405,7 +406,7 @@ class CanopenFront(Front):
                 {},
             ),
         ]
-        ignored = node.status()["counters"].get("ignored", 0) + io.get("frames_ignored", 0)
+        ignored = node_status["counters"].get("ignored", 0) + io.get("frames_ignored", 0)
         return samples + can_bus_samples(self.adapter.status() if self.adapter else None, ignored)
 
     def status(self) -> dict:
