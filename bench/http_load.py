@@ -249,7 +249,8 @@ def run(phase_s: float, rounds: int, loop_choice: str) -> int:
 def report(results: dict, per_round: dict, counts: dict, seconds: float, status: dict) -> int:
     print()
     print(
-        f"{'measure':34} {'quiet p50':>10} {'p99':>9} {'observed p50':>13} {'p99':>9} {'p99 ratio':>10}"
+        f"{'measure':34} {'quiet p50':>10} {'p99':>9} {'observed p50':>13} {'p99':>9}"
+        f" {'p50 ratio':>10} {'p99 ratio':>10}"
     )
     worst = 0.0
     for name in [*OBJECTS, "cycle"]:
