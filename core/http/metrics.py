@@ -334,7 +334,7 @@ class GatewayMetrics:
     def __init__(self, gateway: Gateway, *, point_metrics: bool = False, extra: Any = None):
         self.registry = CollectorRegistry(auto_describe=False)
         self.collector = GatewayCollector(gateway, point_metrics=point_metrics, extra=extra)
-        self.registry.register(self.collector)  # type: ignore[arg-type]
+        self.registry.register(self.collector)
 
     def render(self) -> bytes:
         return generate_latest(self.registry)
@@ -351,7 +351,7 @@ class GatewayMetrics:
         parts: list[bytes] = []
         started = time.perf_counter()
         for family in self.collector.collect():
-            parts.append(generate_latest(_Families([family])))  # type: ignore[arg-type]
+            parts.append(generate_latest(_Families([family])))
             if time.perf_counter() - started >= slice_s:
                 await asyncio.sleep(0)
                 started = time.perf_counter()

@@ -37,7 +37,7 @@ from ..image import Kind
 from ..topology.model import HttpSettings, split_listen
 from . import views
 from .metrics import CONTENT_TYPE, GatewayMetrics
-from .server import HttpServer, Request, Response, Stream, text_response
+from .server import Handler, HttpServer, Request, Response, Stream, text_response
 from .sse import EventStreams
 from .trends import TrendRecorder
 
@@ -146,7 +146,7 @@ class HttpService:
         self.unauthorized = 0
         self._static: dict[str, bytes] = {}
         self._places_cache: tuple[float, dict[str, list[dict[str, str]]]] | None = None
-        self._routes = {
+        self._routes: dict[str, Handler] = {
             "/healthz": self._healthz,
             "/readyz": self._readyz,
             "/api/v1/status": self._status,
@@ -186,6 +186,7 @@ class HttpService:
     # -- dispatch ------------------------------------------------------------------------
     async def handle(self, request: Request) -> Response | Stream:
         path = request.path
+        route: Handler
         if path.startswith("/api/v1/points/"):
             route = self._point
         elif path.startswith("/static/"):
