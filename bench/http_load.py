@@ -61,7 +61,7 @@ def observers(url: str) -> None:
         period, next_at = 1 / SCRAPES_PER_S, time.monotonic()
         while True:
             reader, writer = await asyncio.open_connection(host, int(port))
-            writer.write(b"GET /metrics HTTP/1.1\r\nHost: b\r\nConnection: close\r\n\r\n")
+            writer.write(b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
             data = await reader.read()
             writer.close()
             if data.startswith(b"HTTP/1.1 200") and b"fieldgate_module_up" in data:
@@ -72,7 +72,7 @@ def observers(url: str) -> None:
     async def stream(counts: dict) -> None:
         host, port = url.split("//")[1].rstrip("/").split(":")
         reader, writer = await asyncio.open_connection(host, int(port))
-        writer.write(b"GET /api/v1/events HTTP/1.1\r\nHost: b\r\n\r\n")
+        writer.write(b"GET /api/v1/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         while True:
             block = await reader.readuntil(b"\n\n")
             if block.startswith(b"event: points"):

@@ -34,7 +34,7 @@ from urllib.parse import quote
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 
 from ..image import Kind
-from ..topology.model import HttpSettings, split_listen
+from ..topology.model import HttpSettings, is_loopback, split_listen
 from . import views
 from .metrics import CONTENT_TYPE, GatewayMetrics
 from .server import Handler, HttpServer, Request, Response, Stream, text_response
@@ -135,6 +135,7 @@ class HttpService:
         self.settings = settings
         self.token = resolve_token(settings, gateway.topology.base_dir)
         host, port = split_listen(settings.listen)
+        self._hosts = {host.lower(), *(h.lower() for h in settings.allowed_hosts)}
         self.server = HttpServer(self.handle, host, port)
         self.metrics = GatewayMetrics(gateway, point_metrics=settings.point_metrics, extra=self)
         self.streams = EventStreams(
@@ -198,11 +199,34 @@ class HttpService:
             route = found
         if request.method not in ("GET", "HEAD"):
             return text_response(405, "this API is read-only", [("Allow", "GET, HEAD")])
-        if path != "/healthz" and self.token is not None:
-            denied = self._authorize(request)
+        if path != "/healthz":
+            denied = (
+                self._authorize(request) if self.token is not None else self._check_host(request)
+            )
             if denied is not None:
                 return denied
+        if route == self._events and request.method == "HEAD":
+            return Response(200, b"", "text/event-stream; charset=utf-8")
         return await route(request)
+
+    def _check_host(self, request: Request) -> Response | None:
+        """Without a token, only requests addressed to a loopback name (or an allowed host).
+
+        A web page elsewhere can make the browser resolve its own name to 127.0.0.1 (DNS
+        rebinding) and then read a token-less gateway as "same origin"; its requests still
+        carry that page's name in Host, and are refused here.
+        """
+        host = request.headers.get("host", "")
+        name = host.rsplit(":", 1)[0] if not host.endswith("]") else host
+        name = name.strip("[]").lower()
+        if not host or is_loopback(name) or name in self._hosts:
+            return None
+        self.unauthorized += 1
+        return text_response(
+            421,
+            f"this gateway answers requests for loopback names only, not {host!r} "
+            "(add it to gateway.http.allowed_hosts, or configure a token)",
+        )
 
     def _authorize(self, request: Request) -> Response | None:
         assert self.token is not None

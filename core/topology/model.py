@@ -106,6 +106,11 @@ class HttpSettings(StrictModel):
     token_env: str | None = Field(
         None, description="environment variable holding the token, e.g. FIELDGATE_HTTP_TOKEN"
     )
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        description="without a token: Host header names accepted besides loopback ones (a reverse proxy's name); "
+        "others get 421, which stops DNS-rebinding pages from reading the gateway",
+    )
     point_metrics: bool = Field(
         False,
         description="also export one series per point on /metrics (value, good); off: counts by quality only",

@@ -139,3 +139,28 @@ async def test_a_port_in_use_is_a_start_error(running, tmp_path):
         GatewayStartError, match=r"gateway.http.listen 127.0.0.1:\d+: cannot listen there"
     ):
         await gw.start()
+
+
+async def test_without_a_token_only_loopback_host_names_are_answered(tmp_path):
+    """A DNS-rebinding page (its own name resolving to 127.0.0.1) cannot read the gateway."""
+    gw = load_gateway(tmp_path, allowed_hosts=["gw.plant.example"])
+    running = await start(gw)
+    try:
+        from httpkit import send_raw
+
+        async def with_host(host: str, path: str = "/api/v1/status"):
+            data = f"GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n".encode()
+            return await send_raw(running.port, data)
+
+        for host in (
+            f"127.0.0.1:{running.port}",
+            "localhost",
+            f"[::1]:{running.port}",
+            "gw.plant.example:8400",
+        ):
+            assert (await with_host(host)).status == 200, host
+        reply = await with_host("evil.example:8400")
+        assert reply.status == 421 and "allowed_hosts" in reply.text
+        assert (await with_host("evil.example", "/healthz")).status == 200  # liveness stays open
+    finally:
+        await gw.stop()
