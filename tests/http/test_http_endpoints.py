@@ -250,3 +250,29 @@ async def test_the_page_and_its_files_are_served_from_the_package(running):
     assert (await running.get("/static/index.html")).status == 404
     head = await running.get("/", method="HEAD")
     assert head.status == 200 and head.body == b"" and int(head.headers["content-length"]) > 0
+
+
+async def test_a_failing_back_is_down_then_restarted_with_events_and_causes(running):
+    from fieldgate.events import COMPONENT_FAILED, COMPONENT_RESTARTED
+    from fieldgate.image import Quality
+
+    gw = running.gateway
+    back = gw.component("rs485")
+    back.config.restart_backoff_s = 0.05
+
+    async def broken_step():
+        raise RuntimeError("line driver crashed")
+
+    back.scheduler.step = broken_step  # the next step fails; start() makes a new scheduler
+    await wait_for(lambda: any(e.kind == COMPONENT_RESTARTED for e in running.events))
+    failed = next(e for e in running.events if e.kind == COMPONENT_FAILED)
+    assert (
+        failed.source == "rs485"
+        and failed.text == "back rs485 failed: RuntimeError: line driver crashed"
+    )
+    assert failed.level == "warning" and "rs485" not in gw.down and gw.restarts("rs485") == 1
+    # while a back is down its points say so (as the supervisor leaves them)
+    gw.down["rs485"] = "RuntimeError: line driver crashed"
+    gw.image.set_quality(["rs485/m1/di0"], Quality.COMM_FAULT)
+    point = (await running.get("/api/v1/points/rs485/m1/di0")).json()
+    assert point["cause"] == "back rs485 not running: RuntimeError: line driver crashed"

@@ -42,7 +42,8 @@ function fmtValue(p) {
 
 function round(x) {
   if (typeof x !== "number") return x;
-  return Math.abs(x) >= 100 ? x.toFixed(0) : Math.abs(x) >= 1 ? x.toFixed(2) : x.toPrecision(3);
+  const a = Math.abs(x);
+  return a >= 100 ? x.toFixed(0) : a >= 1 ? x.toFixed(2) : a >= 0.001 ? x.toFixed(3) : "0";
 }
 
 function fmtAge(seconds) {
