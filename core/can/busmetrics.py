@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-Sample = tuple[str, str, str, float, dict[str, str]]
+from ..metric_samples import Sample, counter, gauge
 
 # adapter counters that count frames that were received or meant to be sent but not used
 _DROPPED = {
@@ -27,58 +27,29 @@ def can_bus_samples(status: dict[str, Any] | None, ignored: int = 0) -> list[Sam
     """
     if not status:
         return []
-    samples: list[Sample] = [
-        (
-            "can_frames_total",
-            "counter",
-            "CAN frames by direction",
-            float(status.get("rx", 0)),
-            {"direction": "rx"},
-        ),
-        (
-            "can_frames_total",
-            "counter",
-            "CAN frames by direction",
-            float(status.get("tx", 0)),
-            {"direction": "tx"},
-        ),
-        (
+    frames = "CAN frames by direction"
+    dropped = "CAN frames dropped by the adapter, by reason"
+    return [
+        counter("can_frames_total", frames, status.get("rx", 0), direction="rx"),
+        counter("can_frames_total", frames, status.get("tx", 0), direction="tx"),
+        counter(
             "can_frames_ignored_total",
-            "counter",
             "received CAN frames the protocol engine had no use for",
-            float(ignored),
-            {},
+            ignored,
         ),
-        (
+        counter(
             "can_tx_errors_total",
-            "counter",
             "CAN frames the driver refused to send",
-            float(status.get("tx_errors", 0)),
-            {},
+            status.get("tx_errors", 0),
         ),
-        (
-            "can_bus_off",
-            "gauge",
-            "1 while the CAN controller is bus-off",
-            float(bool(status.get("bus_off"))),
-            {},
-        ),
-        (
+        gauge("can_bus_off", "1 while the CAN controller is bus-off", bool(status.get("bus_off"))),
+        counter(
             "can_bus_off_events_total",
-            "counter",
             "times the CAN controller went bus-off",
-            float(status.get("bus_off_events", 0)),
-            {},
+            status.get("bus_off_events", 0),
+        ),
+        *(
+            counter("can_frames_dropped_total", dropped, status.get(key, 0), reason=reason)
+            for key, reason in _DROPPED.items()
         ),
     ]
-    for key, reason in _DROPPED.items():
-        samples.append(
-            (
-                "can_frames_dropped_total",
-                "counter",
-                "CAN frames dropped by the adapter, by reason",
-                float(status.get(key, 0)),
-                {"reason": reason},
-            )
-        )
-    return samples

@@ -24,6 +24,7 @@ from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.can.busmetrics import can_bus_samples
 from fieldgate.events import BUS_OFF, BUS_ON, EMCY_SENT, NMT_STATE
 from fieldgate.health import HealthEvent, ModuleHealth
+from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
 from fieldgate.plugin import Front, GatewayContext, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
@@ -342,72 +343,39 @@ class CanopenFront(Front):
         pdos = (engine.tpdos + engine.rpdos) if engine is not None else []
         return point_locations(io.layout, pdos)
 
-    def metrics(self) -> list[tuple[str, str, str, float, dict[str, str]]]:
+    def metrics(self) -> list[Sample]:
         """Series for /metrics (contract: fieldgate.http.metrics), read from the node's counters."""
         if self.node is None:
             return []
-        node, node_status = self.node, self.node.status()
+        node_status = self.node.status()
         services = node_status["services"]
-        io = services.get("io", {})
-        samples: list[tuple[str, str, str, float, dict[str, str]]] = [
-            (
-                "canopen_nmt_state",
-                "gauge",
-                "1 for the NMT state the node is in",
-                float(node.state is state),
-                {"state": state.label},
-            )
-            for state in NmtState
-        ]
-        emcy = services.get("emcy", {})
-        sdo = services.get("sdo", {})
-        samples += [
-            (
-                "canopen_emcy_sent_total",
-                "counter",
-                "EMCY frames sent",
-                float(emcy.get("sent", 0)),
-                {},
-            ),
-            (
-                "canopen_emcy_active",
-                "gauge",
-                "EMCY errors active now",
-                float(len(emcy.get("active", []))),
-                {},
-            ),
-            (
-                "canopen_sdo_requests_total",
-                "counter",
-                "SDO requests served",
-                float(sdo.get("requests", 0)),
-                {},
-            ),
-            (
-                "canopen_sdo_aborts_total",
-                "counter",
-                "SDO transfers aborted by the server",
-                float(sdo.get("aborts", 0)),
-                {},
-            ),
-            ("canopen_tpdo_sent_total", "counter", "TPDOs sent", float(io.get("tpdo_sent", 0)), {}),
-            (
-                "master_output_writes_total",
-                "counter",
-                "output process data received from the master (RPDOs, DeviceNet polls with data)",
-                float(io.get("rpdo_received", 0)),
-                {},
-            ),
-            (
-                "master_losses_total",
-                "counter",
-                "times the front lost its master (guarding, heartbeat, bus-off, ...)",
-                float(self.master.status().get("losses", 0) if self.master else 0),
-                {},
-            ),
-        ]
+        io, emcy, sdo = (services.get(name, {}) for name in ("io", "emcy", "sdo"))
+        losses = self.master.status().get("losses", 0) if self.master else 0
         ignored = node_status["counters"].get("ignored", 0) + io.get("frames_ignored", 0)
-        return samples + can_bus_samples(self.adapter.status() if self.adapter else None, ignored)
+        return [
+            *state_gauges(
+                "canopen_nmt_state",
+                "1 for the NMT state the node is in",
+                [state.label for state in NmtState],
+                self.node.state.label,
+            ),
+            counter("canopen_emcy_sent_total", "EMCY frames sent", emcy.get("sent", 0)),
+            gauge("canopen_emcy_active", "EMCY errors active now", len(emcy.get("active", []))),
+            counter("canopen_sdo_requests_total", "SDO requests served", sdo.get("requests", 0)),
+            counter(
+                "canopen_sdo_aborts_total",
+                "SDO transfers aborted by the server",
+                sdo.get("aborts", 0),
+            ),
+            counter("canopen_tpdo_sent_total", "TPDOs sent", io.get("tpdo_sent", 0)),
+            master_output_writes(io.get("rpdo_received", 0)),
+            counter(
+                "master_losses_total",
+                "times the front lost its master (guarding, heartbeat, bus-off, ...)",
+                losses,
+            ),
+            *can_bus_samples(self.adapter.status() if self.adapter else None, ignored),
+        ]
 
     def status(self) -> dict:
         if self.node is None:

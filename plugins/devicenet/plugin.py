@@ -21,6 +21,7 @@ from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.can.busmetrics import can_bus_samples
 from fieldgate.events import BUS_OFF, BUS_ON, FAULT
 from fieldgate.health import HealthEvent, ModuleHealth
+from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Change
 from fieldgate.plugin import Front, GatewayContext, hookimpl
@@ -238,71 +239,56 @@ class DeviceNetFront(Front):
                 offset += assembly.size
         return out
 
-    def metrics(self) -> list[tuple[str, str, str, float, dict[str, str]]]:
+    def metrics(self) -> list[Sample]:
         """Series for /metrics (contract: fieldgate.http.metrics), read from the engine's counters."""
         if self.slave is None:
             return []
         st = self.slave.status()
-        samples: list[tuple[str, str, str, float, dict[str, str]]] = [
-            (
-                "devicenet_state",
-                "gauge",
-                "1 for the state the DeviceNet node is in",
-                float(st["state"] == state),
-                {"state": state},
-            )
-            for state in DEVICE_STATES
-        ]
         connections = st.get("connections", {})
+        samples = state_gauges(
+            "devicenet_state",
+            "1 for the state the DeviceNet node is in",
+            DEVICE_STATES,
+            st["state"],
+        )
         for name in CONNECTION_NAMES:
             state = connections.get(name, {}).get("state", "non_existent")
             samples.append(
-                (
+                gauge(
                     "devicenet_connection_established",
-                    "gauge",
                     "1 while a predefined master/slave connection is established",
-                    float(state == "established"),
-                    {"connection": name},
+                    state == "established",
+                    connection=name,
                 )
             )
             samples.append(
-                (
+                counter(
                     "devicenet_connection_timeouts_total",
-                    "counter",
                     "inactivity/watchdog timeouts of a connection",
-                    float(st.get(f"{name}_timeouts", 0)),
-                    {"connection": name},
+                    st.get(f"{name}_timeouts", 0),
+                    connection=name,
                 )
             )
-        samples += [
-            (
-                "master_output_writes_total",
-                "counter",
-                "output process data received from the master (RPDOs, DeviceNet polls with data)",
-                float(st.get("rx_poll_outputs", 0)),
-                {},
-            ),
-            (
-                "devicenet_cos_cyclic_produced_total",
-                "counter",
-                "change-of-state / cyclic productions sent",
-                float(st.get("cos_cyclic_produced", 0)),
-                {},
-            ),
-            (
-                "devicenet_cip_errors_total",
-                "counter",
-                "explicit requests answered with a CIP error",
-                float(st.get("cip_errors", 0)),
-                {},
-            ),
-        ]
         ignored = sum(
             v
             for k, v in st.items()
             if k.startswith("rx_") and isinstance(v, int) and k != "rx_poll_outputs"
         )
-        return samples + can_bus_samples(self.adapter.status() if self.adapter else None, ignored)
+        return [
+            *samples,
+            master_output_writes(st.get("rx_poll_outputs", 0)),
+            counter(
+                "devicenet_cos_cyclic_produced_total",
+                "change-of-state / cyclic productions sent",
+                st.get("cos_cyclic_produced", 0),
+            ),
+            counter(
+                "devicenet_cip_errors_total",
+                "explicit requests answered with a CIP error",
+                st.get("cip_errors", 0),
+            ),
+            *can_bus_samples(self.adapter.status() if self.adapter else None, ignored),
+        ]
 
     def status(self) -> dict:
         if self.slave is None:
