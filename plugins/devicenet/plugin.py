@@ -21,9 +21,9 @@ from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.can.busmetrics import can_bus_samples
 from fieldgate.events import BUS_OFF, BUS_ON, FAULT
 from fieldgate.health import HealthEvent, ModuleHealth
-from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Change
+from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
 from fieldgate.plugin import Front, GatewayContext, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
