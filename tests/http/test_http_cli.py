@@ -119,3 +119,25 @@ def test_run_with_http_and_json_logs_then_status_from_another_process(tmp_path):
     assert {"time", "level", "logger", "message"} <= set(records[0])
     assert any(r["logger"] == "fieldgate.http" and r["level"] == "info" for r in records)
     assert records[-1]["message"].startswith("gateway i7232d stopped")
+
+
+async def test_status_reads_the_token_from_a_file_or_the_environment(tmp_path, capsys, monkeypatch):
+    from httpkit import load_gateway, start
+
+    token = "status-token-0123456789"
+    (tmp_path / "token").write_text(token)
+    gw = load_gateway(tmp_path, token_env="FIELDGATE_TEST_TOKEN")
+    monkeypatch.setenv("FIELDGATE_TEST_TOKEN", token)
+    running = await start(gw)
+    try:
+        url = f"127.0.0.1:{running.port}"
+        monkeypatch.delenv("FIELDGATE_HTTP_TOKEN", raising=False)
+        assert await asyncio.to_thread(run_status, status_args(url)) == 2
+        assert "HTTP 401" in capsys.readouterr().err
+        args = status_args(url, token_file=str(tmp_path / "token"))
+        assert await asyncio.to_thread(run_status, args) == 0
+        monkeypatch.setenv("FIELDGATE_HTTP_TOKEN", token)
+        assert await asyncio.to_thread(run_status, status_args(url)) == 0
+        assert token not in capsys.readouterr().out
+    finally:
+        await gw.stop()
