@@ -25,12 +25,18 @@ if TYPE_CHECKING:  # ruamel.yaml is imported when --set is used, not at every st
     from .image import ProcessImage
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
+LOG_FORMATS = ("text", "json")
 
 
-def setup_logging(level: str) -> None:
+def setup_logging(level: str, fmt: str = "text") -> None:
     logging.basicConfig(
         level=getattr(logging, level.upper()), format=LOG_FORMAT, stream=sys.stderr, force=True
     )
+    if fmt == "json":
+        from .logjson import JsonFormatter
+
+        for handler in logging.getLogger().handlers:
+            handler.setFormatter(JsonFormatter())
 
 
 def add_overrides_argument(
@@ -97,10 +103,13 @@ def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
 
 
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
+    overrides = parse_overrides(args.set)
+    if args.http is not None:
+        overrides["gateway.http.listen"] = args.http
     try:
         gateway = Gateway.load(
             args.file,
-            parse_overrides(args.set),
+            overrides,
             registry,
             simulate=args.simulate,
             animate=args.simulate,
@@ -225,13 +234,25 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     parser.add_argument(
         "--log-level", default="info", choices=LOG_LEVELS, help="log verbosity (default info)"
     )
-    # the same option after the command too (`fieldgate run x.yaml --log-level debug`)
+    parser.add_argument(
+        "--log-format",
+        default="text",
+        choices=LOG_FORMATS,
+        help="text (default) or json: one JSON object a line",
+    )
+    # the same options after the command too (`fieldgate run x.yaml --log-level debug`)
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument(
         "--log-level",
         default=argparse.SUPPRESS,
         choices=LOG_LEVELS,
         help="log verbosity (default info)",
+    )
+    common.add_argument(
+        "--log-format",
+        default=argparse.SUPPRESS,
+        choices=LOG_FORMATS,
+        help="text (default) or json: one JSON object a line",
     )
     sub = _with_parents(
         parser.add_subparsers(dest="command", metavar="COMMAND", required=True), common
@@ -272,7 +293,22 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
         metavar="SECONDS",
         help="stop by itself after this long (0, the default: run until stopped)",
     )
+    p.add_argument(
+        "--http",
+        metavar="HOST:PORT",
+        help="serve the status API, /metrics and the live page there (sets gateway.http.listen; "
+        "a non-loopback address needs a token in the topology)",
+    )
     p.set_defaults(handler=cmd_run)
+
+    from .statuscmd import configure_status, run_status
+
+    p = sub.add_parser(
+        "status",
+        help="show a running gateway's status as a table (from its HTTP API); exit 1 when not ready",
+    )
+    configure_status(p)
+    p.set_defaults(handler=lambda a, r: run_status(a))
 
     p = sub.add_parser(
         "plugins", help="list installed plugins with what they provide and their version"
@@ -315,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
     registry = load_registry()
     parser = build_parser(registry)
     args = parser.parse_args(argv)
-    setup_logging(args.log_level)
+    setup_logging(args.log_level, args.log_format)
     try:
         return int(args.handler(args, registry) or 0)
     except KeyboardInterrupt:

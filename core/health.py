@@ -13,6 +13,7 @@ it back online. See README "Design notes".
 from __future__ import annotations
 
 import logging
+from bisect import bisect_left
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -22,6 +23,10 @@ from typing import Any
 log = logging.getLogger("fieldgate.health")
 
 COUNTER_WRAP = 0x10000  # the I-7232D's 0x2000 counters are UNSIGNED16
+
+# Upper bounds (seconds) of the poll round-trip histogram: around the wire time of RS-485
+# transactions from 115200 down to 1200 baud (a Prometheus client's defaults suit web services).
+RTT_BUCKETS = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 
 
 class ErrorKind(StrEnum):
@@ -58,6 +63,10 @@ class ModuleHealth:
     errors: Counter[str] = field(default_factory=Counter)
     last_rtt: float | None = None
     last_success: float | None = None
+    # successful transactions by round trip: rtt_counts[i] for RTT_BUCKETS[i-1] < rtt <= RTT_BUCKETS[i],
+    # the last one above every bucket (not cumulative; /metrics sums them up)
+    rtt_counts: list[int] = field(default_factory=lambda: [0] * (len(RTT_BUCKETS) + 1))
+    rtt_sum: float = 0.0
     _listeners: list[Callable[[ModuleHealth, HealthEvent], None]] = field(
         default_factory=list, repr=False
     )
@@ -71,6 +80,9 @@ class ModuleHealth:
         self.requests += 1
         self.last_rtt = rtt
         self.last_success = now
+        if rtt is not None:
+            self.rtt_counts[bisect_left(RTT_BUCKETS, rtt)] += 1
+            self.rtt_sum += rtt
         self.consecutive_failures = 0
         if not self.online:
             self.online = True

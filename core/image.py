@@ -192,6 +192,7 @@ class Channel:
     quality: Quality
     timestamp: float | None = None  # monotonic time of the last good update
     error_mode: ErrorMode = field(default_factory=ErrorMode)
+    last_good: bool | int | float | None = None  # value at the last good update
     written_by: str = ""  # origin of the last output write
 
     @property
@@ -353,6 +354,7 @@ class ProcessImage:
     ) -> bool:
         if quality is Quality.GOOD:
             channel.timestamp = self.clock()
+            channel.last_good = value
         old_value, old_quality = channel.value, channel.quality
         if old_value == value and old_quality is quality and type(old_value) is type(value):
             return False

@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import pluggy
 
-from .health import HealthRegistry
+from .events import MASTER_BACK, MASTER_LOST, MODULE_OFFLINE, MODULE_ONLINE, EventHub
+from .health import HealthEvent, HealthRegistry, ModuleHealth
 from .image import ProcessImage
 from .masters import MasterMonitor
 from .topology.model import BackConfig, FrontConfig
@@ -45,7 +46,12 @@ class PluginStartError(Exception):
 
 
 class GatewayContext:
-    """What a front or back may use: the process image, module health, master state."""
+    """What a front or back may use: the process image, module health, master state, events.
+
+    ``events`` (:class:`~fieldgate.events.EventHub`) is where a component publishes what
+    a person watching the gateway wants to know (NMT state change, EMCY sent, bus-off);
+    module offline/online and master lost/back are published here by core.
+    """
 
     def __init__(
         self,
@@ -53,14 +59,44 @@ class GatewayContext:
         image: ProcessImage,
         health: HealthRegistry,
         masters: MasterMonitor,
+        events: EventHub | None = None,
     ):
         self.topology = topology
         self.image = image
         self.health = health
         self.masters = masters
+        self.events = events if events is not None else EventHub()
         self.backs: dict[
             str, Component
         ] = {}  # running back instances by name (a front's manufacturer objects reach them)
+        health.subscribe(self._health_event)
+        masters.subscribe(self._master_event)
+
+    def _health_event(self, health: ModuleHealth, event: HealthEvent) -> None:
+        module = f"{health.back}/m{health.address}"
+        if event is HealthEvent.OFFLINE:
+            self.events.publish(
+                MODULE_OFFLINE,
+                module,
+                f"module {module} offline: {health.last_error}",
+                back=health.back,
+                address=health.address,
+                error=str(health.last_error_kind or ""),
+            )
+        elif event is HealthEvent.ONLINE:
+            self.events.publish(
+                MODULE_ONLINE,
+                module,
+                f"module {module} back online",
+                back=health.back,
+                address=health.address,
+            )
+
+    def _master_event(self, front: str, ok: bool, reason: str) -> None:
+        if ok:
+            self.events.publish(MASTER_BACK, front, f"front {front}: master back ({reason})")
+        else:
+            self.events.publish(MASTER_LOST, front, f"front {front} lost its master: {reason}")
 
     @classmethod
     def build(cls, topology: Topology, clock: Callable[[], float] | None = None) -> GatewayContext:

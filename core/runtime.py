@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from .cancellation import raise_if_cancelled
+from .events import COMPONENT_FAILED, COMPONENT_RESTARTED
 from .image import Quality
 from .plugin import Component, GatewayContext, PluginStartError, Registry, load_registry
 from .simulation import SimulationBench
@@ -81,7 +82,9 @@ class Gateway:
         self.fronts: list[Component] = []
         self._tasks: dict[str, asyncio.Task[None]] = {}
         self._restarts: dict[str, int] = {}
+        self.down: dict[str, str] = {}  # components waiting for a restart, with the cause
         self.running = False
+        self.http: Any = None  # fieldgate.http.service.HttpService while gateway.http is configured
 
     @classmethod
     def load(
@@ -97,7 +100,27 @@ class Gateway:
 
     # -- life cycle -----------------------------------------------------------
     async def start(self) -> None:
-        """Start every back, then every front. On any failure, stop what started and raise."""
+        """Start every back, then every front. On any failure, stop what started and raise.
+
+        The HTTP server (``gateway.http``) starts first, so /readyz answers 503 while the
+        components start.
+        """
+        if self.topology.gateway.http is not None and self.http is None:
+            from .http.service import HttpService
+
+            try:
+                self.http = HttpService(self, self.topology.gateway.http)
+                await self.http.start()
+            except Exception as exc:
+                self.http = None
+                raise GatewayStartError(str(exc)) from None
+        try:
+            await self._start_components()
+        except GatewayStartError:
+            await self._stop_http()
+            raise
+
+    async def _start_components(self) -> None:
         if self.bench is not None:
             try:
                 await self.bench.start()
@@ -170,6 +193,10 @@ class Gateway:
             backoff.ran(loop.time() - started)
             delay = backoff.next()
             log.error("%s %s failed: %s; restarting in %.1f s", comp.kind, comp.name, cause, delay)
+            self.down[comp.name] = cause
+            self.context.events.publish(
+                COMPONENT_FAILED, comp.name, f"{comp.kind} {comp.name} failed: {cause}"
+            )
             self.image.set_quality(comp.channel_ids(), Quality.COMM_FAULT, origin=comp.name)
             await self._safe_stop(comp)
             while True:
@@ -177,11 +204,16 @@ class Gateway:
                 try:
                     await comp.start()
                     log.info("%s %s restarted", comp.kind, comp.name)
+                    self.down.pop(comp.name, None)
+                    self.context.events.publish(
+                        COMPONENT_RESTARTED, comp.name, f"{comp.kind} {comp.name} restarted"
+                    )
                     break
                 except asyncio.CancelledError:
                     raise
                 except Exception as exc:
                     delay = backoff.next()
+                    self.down[comp.name] = str(exc)
                     log.error(
                         "%s %s restart failed: %s; next try in %.1f s",
                         comp.kind,
@@ -199,6 +231,7 @@ class Gateway:
 
     async def stop(self) -> None:
         """Fronts stop, outputs go to their shutdown values, backs flush and close."""
+        self.running = False  # not ready from here on (/readyz)
         for comp in self.fronts:
             await self._cancel(comp)
         for comp in self.fronts:
@@ -218,7 +251,13 @@ class Gateway:
         if self.bench is not None:
             await self.bench.stop()
         self.running = False
+        await self._stop_http()
         log.info("gateway %s stopped", self.topology.gateway.name)
+
+    async def _stop_http(self) -> None:
+        if self.http is not None:
+            http, self.http = self.http, None
+            await http.stop()
 
     async def _cancel(self, comp: Component) -> None:
         """Cancel a component's task and wait for it, cancelling again while it goes on.
@@ -270,6 +309,10 @@ class Gateway:
 
     def write(self, channel_id: str, value: bool | int | float) -> None:
         self.image.write_output(channel_id, value, origin="api")
+
+    def restarts(self, name: str) -> int:
+        """How often a front or back was restarted after a run-time failure."""
+        return self._restarts.get(name, 0)
 
     def component(self, name: str) -> Component:
         for comp in self.fronts + self.backs:

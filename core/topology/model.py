@@ -10,7 +10,17 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal, overload
 
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, StringConstraints, Tag
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    SecretStr,
+    StringConstraints,
+    Tag,
+    field_validator,
+    model_validator,
+)
 
 from ..image import ChannelSpec, ErrorMode, Kind
 
@@ -61,12 +71,98 @@ def to_error_mode(spec: ErrorModeSpec | None) -> ErrorMode | None:
     return ErrorMode.to(spec.value)
 
 
+def split_listen(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (IPv6 in brackets: ``[::1]:8400``) as (host, port); ValueError says what is wrong."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not host:
+        raise ValueError(f"expected HOST:PORT, e.g. 127.0.0.1:8400, got {text!r}")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ValueError(f"port must be 0..65535 (0: any free port), got {port!r}")
+    return host, int(port)
+
+
+def is_loopback(host: str) -> bool:
+    """True for 127.0.0.0/8, ::1 and ``localhost``; any other name or address counts as exposed."""
+    import ipaddress
+
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class HttpSettings(StrictModel):
+    """The read-only status server (docs/observability.md): off unless this section exists."""
+
+    listen: str = Field(
+        "127.0.0.1:8400",
+        description="HOST:PORT to bind; a non-loopback address needs auth_token, token_file or token_env",
+    )
+    auth_token: SecretStr | None = Field(
+        None,
+        description="bearer token every request but /healthz must carry; prefer token_file or token_env (secrets in the YAML end up in backups)",
+    )
+    token_file: str | None = Field(
+        None, description="file holding the token (relative to the topology file)"
+    )
+    token_env: str | None = Field(
+        None, description="environment variable holding the token, e.g. FIELDGATE_HTTP_TOKEN"
+    )
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        description="without a token: Host header names accepted besides loopback ones (a reverse proxy's name); "
+        "others get 421, which stops DNS-rebinding pages from reading the gateway",
+    )
+    point_metrics: bool = Field(
+        False,
+        description="also export one series per point on /metrics (value, good); off: counts by quality only",
+    )
+    sse_max_clients: int = Field(16, ge=1, le=256, description="concurrent event-stream clients")
+    sse_point_rate_hz: float = Field(
+        4.0,
+        gt=0,
+        le=50,
+        description="point-change batches per second and client (changes in between are merged)",
+    )
+
+    @field_validator("listen")
+    @classmethod
+    def _listen(cls, value: str) -> str:
+        split_listen(value)
+        return value
+
+    @model_validator(mode="after")
+    def _exposed_needs_token(self) -> HttpSettings:
+        sources = [self.auth_token, self.token_file, self.token_env]
+        if sum(s is not None for s in sources) > 1:
+            raise ValueError("give one of auth_token, token_file or token_env, not several")
+        host, _ = split_listen(self.listen)
+        if not is_loopback(host) and all(s is None for s in sources):
+            raise ValueError(
+                f"listen {self.listen} is not a loopback address: set token_file, token_env or "
+                "auth_token so that only clients with the token can read the gateway "
+                "(or listen on 127.0.0.1)"
+            )
+        return self
+
+    @property
+    def has_token(self) -> bool:
+        return any(s is not None for s in (self.auth_token, self.token_file, self.token_env))
+
+
 class GatewaySection(StrictModel):
     name: Identifier
     description: str = ""
     state_dir: str = Field(
         "fieldgate-state",
         description="directory for persisted settings (relative to the topology file)",
+    )
+    http: HttpSettings | None = Field(
+        None, description="HTTP status API, metrics and live page; off unless given"
     )
 
 

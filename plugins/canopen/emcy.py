@@ -24,7 +24,7 @@ them. Errors and history are kept in every state.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from functools import partial
 from typing import Any
 
@@ -62,6 +62,7 @@ class EmcyProducer(Service):
         self.history: deque[int] = deque(maxlen=history_depth)
         self._queue: deque[Frame] = deque()
         self._last_sent: float | None = None
+        self.on_sent: Callable[[Frame], None] | None = None  # the front publishes an event
 
     def attach(self, node: NodeHost) -> None:
         super().attach(node)
@@ -181,9 +182,12 @@ class EmcyProducer(Service):
 
     def _flush(self, now: float) -> None:
         while self._queue and (self._last_sent is None or now >= self._last_sent + self._inhibit()):
-            self.node.send(self._queue.popleft())
+            frame = self._queue.popleft()
+            self.node.send(frame)
             self.counters["sent"] += 1
             self._last_sent = now
+            if self.on_sent is not None:
+                self.on_sent(frame)
 
     def deadline(self) -> float | None:
         if not self._queue or self._last_sent is None:

@@ -22,17 +22,22 @@ from pydantic import Field, field_validator
 
 from fieldgate import __version__
 from fieldgate.can.adapter import CanAdapter, open_bus
+from fieldgate.can.busmetrics import can_bus_samples
+from fieldgate.events import BUS_OFF, BUS_ON, EMCY_SENT, NMT_STATE
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.image import Channel
+from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
 from fieldgate.plugin import Front, GatewayContext, Registry, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
 from .cobid import restricted
 from .eds import register_command as register_eds_command
+from .frame import Frame, NmtState
 from .front401 import IoFrontOptions, io_settings
 from .front401 import install as install_io_device
 from .layouts import device_type as io_device_type
+from .locations import point_locations
 from .lss import BIT_TIMING_TABLES, LssService, LssStore
 from .master_state import MasterState
 from .node import Node
@@ -240,7 +245,36 @@ class CanopenFront(Front):
             stopped_is_error=io_settings(cfg).stopped_is_error,
         )
         self.master.attach(node)
+        node.on_nmt(self._nmt_changed)
+        if node.emcy is not None:
+            node.emcy.on_sent = self._emcy_sent
         return node
+
+    # -- events for people watching (fieldgate.events) -----------------------------------
+    def _nmt_changed(self, old: NmtState, new: NmtState) -> None:
+        self.context.events.publish(
+            NMT_STATE, self.name, f"NMT {old.label} -> {new.label}", old=old.label, new=new.label
+        )
+
+    def _emcy_sent(self, frame: Frame) -> None:
+        data = frame.data
+        code = int.from_bytes(data[0:2], "little")
+        self.context.events.publish(
+            EMCY_SENT,
+            self.name,
+            f"EMCY {code:04X} register {data[2]:02X} data {data[3:].hex(' ').upper()}",
+            code=f"{code:04X}",
+            register=data[2],
+            data=data[3:].hex(),
+        )
+
+    def _bus_state(self, off: bool, now: float) -> None:
+        if off:
+            self.context.events.publish(BUS_OFF, self.name, "CAN bus-off")
+        else:
+            self.context.events.publish(BUS_ON, self.name, "CAN bus recovered from bus-off")
+        if self.node is not None:
+            self.node.service("error_control").bus_state(off, now)
 
     # -- life cycle ---------------------------------------------------------------------
     async def start(self) -> None:
@@ -254,7 +288,7 @@ class CanopenFront(Front):
             self.node,
             bus,
             loop,
-            on_bus_state=node.service("error_control").bus_state,
+            on_bus_state=self._bus_state,
             transmit_allowed=lss.transmit_allowed,
             reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
         )
@@ -303,6 +337,49 @@ class CanopenFront(Front):
             self.adapter.pump(action)
         else:
             action()
+
+    def point_locations(self) -> dict[str, list[str]]:
+        """Where each point is served: CiA 401 object/sub and PDO byte/bit (status API)."""
+        io = getattr(self, "io", None)
+        if io is None:
+            return {}
+        engine = io.engine
+        pdos = (engine.tpdos + engine.rpdos) if engine is not None else []
+        return point_locations(io.layout, pdos)
+
+    def metrics(self) -> list[Sample]:
+        """Series for /metrics (contract: fieldgate.http.metrics), read from the node's counters."""
+        if self.node is None:
+            return []
+        node_status = self.node.status()
+        services = node_status["services"]
+        io, emcy, sdo = (services.get(name, {}) for name in ("io", "emcy", "sdo"))
+        losses = self.master.status().get("losses", 0) if self.master else 0
+        ignored = node_status["counters"].get("ignored", 0) + io.get("frames_ignored", 0)
+        return [
+            *state_gauges(
+                "canopen_nmt_state",
+                "1 for the NMT state the node is in",
+                [state.label for state in NmtState],
+                self.node.state.label,
+            ),
+            counter("canopen_emcy_sent_total", "EMCY frames sent", emcy.get("sent", 0)),
+            gauge("canopen_emcy_active", "EMCY errors active now", len(emcy.get("active", []))),
+            counter("canopen_sdo_requests_total", "SDO requests served", sdo.get("requests", 0)),
+            counter(
+                "canopen_sdo_aborts_total",
+                "SDO transfers aborted by the server",
+                sdo.get("aborts", 0),
+            ),
+            counter("canopen_tpdo_sent_total", "TPDOs sent", io.get("tpdo_sent", 0)),
+            master_output_writes(io.get("rpdo_received", 0)),
+            counter(
+                "master_losses_total",
+                "times the front lost its master (guarding, heartbeat, bus-off, ...)",
+                losses,
+            ),
+            *can_bus_samples(self.adapter.status() if self.adapter else None, ignored),
+        ]
 
     def status(self) -> dict[str, Any]:
         if self.node is None:

@@ -27,7 +27,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from fieldgate.image import ChannelSpec
+from fieldgate.image import ChannelSpec, Kind
 from fieldgate.plugin import GatewayContext, PluginStartError
 from fieldgate.polling import CommError, LineJob, SerialBack
 from fieldgate.serial_link import AsyncSerial
@@ -36,6 +36,7 @@ from .codec import HOST_OK
 from .config import DconBackConfig, DconModuleConfig
 from .link import DconLink
 from .module import DconModule
+from .profiles import AIDIO, AO_SINGLE
 
 log = logging.getLogger("fieldgate.dcon")
 
@@ -74,6 +75,26 @@ class DconBack(SerialBack):
             if not future.done():
                 future.set_exception(PluginStartError("line closed"))
         self._requests.clear()
+
+    def point_locations(self) -> dict[str, list[str]]:
+        """The DCON command that reads or writes each point (status API)."""
+        out: dict[str, list[str]] = {}
+        for address, module in self.modules.items():
+            aa, p = f"{address:02X}", module.profile
+            read_di, write_do = (
+                (f"@{aa}DI reply", f"@{aa}DO(data)")
+                if p.digital == AIDIO
+                else (f"@{aa} reply", f"@{aa}(data)")
+            )
+            for i, cid in enumerate(module.by_kind[Kind.DI]):
+                out[cid] = [f"{read_di} bit {i}"]
+            for i, cid in enumerate(module.by_kind[Kind.DO]):
+                out[cid] = [f"{write_do} bit {i}"]
+            for i, cid in enumerate(module.by_kind[Kind.AI]):
+                out[cid] = [f"#{aa} reply, value {i + 1}"]
+            for i, cid in enumerate(module.by_kind[Kind.AO]):
+                out[cid] = [f"#{aa}(data)" if p.ao_style == AO_SINGLE else f"#{aa}{i}(data)"]
+        return out
 
     def make_module(self, config: DconModuleConfig, specs: list[ChannelSpec]) -> DconModule:
         assert self.dcon is not None

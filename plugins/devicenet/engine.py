@@ -603,6 +603,7 @@ class DeviceNetSlave:
         c.kick(now)
         if data:  # zero-length poll = idle: outputs keep their values
             self.assemblies.consume(data)
+            self.counters["rx_poll_outputs"] += 1
         else:
             self.counters["rx_poll_idle"] += 1
         self._io_send(ids.G1_POLL_RESPONSE, self.assemblies.produced())

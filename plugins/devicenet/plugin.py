@@ -18,9 +18,12 @@ from typing import Any, Literal
 from pydantic import Field
 
 from fieldgate.can.adapter import CanAdapter, open_bus
+from fieldgate.can.busmetrics import can_bus_samples
+from fieldgate.events import BUS_OFF, BUS_ON, FAULT
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Change, Subscription
+from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
 from fieldgate.plugin import Front, GatewayContext, Registry, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
@@ -29,6 +32,9 @@ from .assembly import Assemblies
 from .engine import DeviceNetSlave
 from .settings import BAUD_RATES, Settings
 from .store import NetworkStore
+
+DEVICE_STATES = ("offline", "dup-mac-check", "online", "comm-fault")  # DeviceNetSlave.state
+CONNECTION_NAMES = ("explicit", "poll", "bit-strobe", "cos-cyclic")
 
 
 class DeviceNetIdentity(StrictModel):
@@ -125,7 +131,7 @@ class DeviceNetFront(Front):
         slave.host_watchdogs = HostWatchdogs.from_context(self.context)
         slave.on_master(self._master_state)
         slave.on_settings(store.save)
-        slave.on_fault(lambda reason: self.log.error("DeviceNet communication fault: %s", reason))
+        slave.on_fault(self._fault)
         return slave
 
     async def start(self) -> None:
@@ -176,9 +182,17 @@ class DeviceNetFront(Front):
             adapter, slave = self.adapter, self.slave
             adapter.pump(lambda: slave.inputs_changed(adapter.now))
 
+    def _fault(self, reason: str) -> None:
+        self.log.error("DeviceNet communication fault: %s", reason)
+        self.context.events.publish(FAULT, self.name, f"DeviceNet communication fault: {reason}")
+
     def _bus_state(self, bus_off: bool, now: float) -> None:
-        if bus_off and self.slave is not None:
-            self.slave.bus_off_count = min(255, self.slave.bus_off_count + 1)
+        if bus_off:
+            if self.slave is not None:
+                self.slave.bus_off_count = min(255, self.slave.bus_off_count + 1)
+            self.context.events.publish(BUS_OFF, self.name, "CAN bus-off")
+        else:
+            self.context.events.publish(BUS_ON, self.name, "CAN bus recovered from bus-off")
 
     def _master_state(self, ok: bool, reason: str) -> None:
         if ok:
@@ -200,6 +214,85 @@ class DeviceNetFront(Front):
         elif event is HealthEvent.ONLINE:
             self._offline.discard(health.key)
         self.slave.module_fault = bool(self._offline)
+
+    def point_locations(self) -> dict[str, list[str]]:
+        """Where each point is served: assembly instance, byte and bit, and its byte in the
+        I/O message (the poll response for inputs, the poll request for outputs)."""
+        if self.slave is None:
+            return {}
+        out: dict[str, list[str]] = {}
+        assemblies = self.slave.assemblies
+        for group in (assemblies.inputs, assemblies.outputs):
+            message = "poll response" if group is assemblies.inputs else "poll request"
+            offset = 0
+            for assembly in group:
+                if assembly.kind.is_digital:
+                    for byte, slots in enumerate(assembly.slots):
+                        for bit, ch in enumerate(slots):
+                            if ch is not None:
+                                out[ch.id] = [
+                                    f"assembly {assembly.instance} byte {byte} bit {bit} "
+                                    f"({message} byte {offset + byte})"
+                                ]
+                else:
+                    for n, ch in enumerate(assembly.slots):
+                        out[ch.id] = [
+                            f"assembly {assembly.instance} bytes {2 * n}-{2 * n + 1} "
+                            f"({message} bytes {offset + 2 * n}-{offset + 2 * n + 1}, little-endian)"
+                        ]
+                offset += assembly.size
+        return out
+
+    def metrics(self) -> list[Sample]:
+        """Series for /metrics (contract: fieldgate.http.metrics), read from the engine's counters."""
+        if self.slave is None:
+            return []
+        st = self.slave.status()
+        connections = st.get("connections", {})
+        samples = state_gauges(
+            "devicenet_state",
+            "1 for the state the DeviceNet node is in",
+            DEVICE_STATES,
+            st["state"],
+        )
+        for name in CONNECTION_NAMES:
+            state = connections.get(name, {}).get("state", "non_existent")
+            samples.append(
+                gauge(
+                    "devicenet_connection_established",
+                    "1 while a predefined master/slave connection is established",
+                    state == "established",
+                    connection=name,
+                )
+            )
+            samples.append(
+                counter(
+                    "devicenet_connection_timeouts_total",
+                    "inactivity/watchdog timeouts of a connection",
+                    st.get(f"{name}_timeouts", 0),
+                    connection=name,
+                )
+            )
+        ignored = sum(
+            v
+            for k, v in st.items()
+            if k.startswith("rx_") and isinstance(v, int) and k != "rx_poll_outputs"
+        )
+        return [
+            *samples,
+            master_output_writes(st.get("rx_poll_outputs", 0)),
+            counter(
+                "devicenet_cos_cyclic_produced_total",
+                "change-of-state / cyclic productions sent",
+                st.get("cos_cyclic_produced", 0),
+            ),
+            counter(
+                "devicenet_cip_errors_total",
+                "explicit requests answered with a CIP error",
+                st.get("cip_errors", 0),
+            ),
+            *can_bus_samples(self.adapter.status() if self.adapter else None, ignored),
+        ]
 
     def status(self) -> dict[str, Any]:
         if self.slave is None:

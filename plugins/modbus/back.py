@@ -18,10 +18,17 @@ from fieldgate.topology import ModuleConfig
 from . import values as regvalues
 from .client import ModbusExceptionError, ModbusLink
 from .codec import ExceptionCode, Function
-from .config import ModbusBackConfig, ModbusModuleConfig, Point, module_points
+from .config import ModbusBackConfig, ModbusModuleConfig, Point, Table, module_points
 from .plan import ReadBlock, decode_block, plan_reads, plan_writes
 
 log = logging.getLogger("fieldgate.modbus")
+
+TABLE_NAMES = {
+    Table.COILS: "coil",
+    Table.DISCRETE_INPUTS: "discrete input",
+    Table.HOLDING_REGISTERS: "holding register",
+    Table.INPUT_REGISTERS: "input register",
+}
 
 
 class ModbusModule(PolledModule):
@@ -263,6 +270,23 @@ class ModbusBack(SerialBack):
 
     async def close_link(self) -> None:
         self.link.close()
+
+    def point_locations(self) -> dict[str, list[str]]:
+        """The Modbus table and address of each point (status API); addresses as on the
+        wire (0-based), the function codes that read and write it."""
+        out: dict[str, list[str]] = {}
+        for module in self.config.modules:
+            for p in module_points(self.name, module):
+                where = f"{TABLE_NAMES[p.table]} {p.address}"
+                if p.width > 1:
+                    where = f"{TABLE_NAMES[p.table]}s {p.address}-{p.end - 1} ({p.dtype.value}, {p.word_order} word first)"
+                if p.bit is not None:
+                    where += f" bit {p.bit}"
+                codes = f"FC{p.table.read_function}"
+                if p.write_fc is not None:
+                    codes += f", written with FC{p.write_fc}"
+                out[p.channel] = [f"{where} ({codes})"]
+        return out
 
     def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> ModbusModule:
         points = module_points(self.name, config)

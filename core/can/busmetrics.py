@@ -1,0 +1,55 @@
+"""Metric samples of a :class:`~fieldgate.can.adapter.CanAdapter`, for a CAN front's ``metrics()``.
+
+Read from the adapter's ``status()`` when ``/metrics`` is scraped (the adapter keeps these
+counters anyway); in the format of the component metrics contract (fieldgate.http.metrics).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..metric_samples import Sample, counter, gauge
+
+# adapter counters that count frames that were received or meant to be sent but not used
+_DROPPED = {
+    "rx_extended_dropped": "extended-id",
+    "rx_fd_dropped": "can-fd",
+    "rx_error_frames": "error-frame",
+    "tx_suppressed": "tx-suppressed",
+}
+
+
+def can_bus_samples(status: dict[str, Any] | None, ignored: int = 0) -> list[Sample]:
+    """Frames received and sent, dropped by reason, ignored by the engine, bus-off state.
+
+    ``ignored``: frames the protocol engine received but had no use for (another node's
+    traffic, a PDO it does not consume), counted by the engine.
+    """
+    if not status:
+        return []
+    frames = "CAN frames by direction"
+    dropped = "CAN frames dropped by the adapter, by reason"
+    return [
+        counter("can_frames_total", frames, status.get("rx", 0), direction="rx"),
+        counter("can_frames_total", frames, status.get("tx", 0), direction="tx"),
+        counter(
+            "can_frames_ignored_total",
+            "received CAN frames the protocol engine had no use for",
+            ignored,
+        ),
+        counter(
+            "can_tx_errors_total",
+            "CAN frames the driver refused to send",
+            status.get("tx_errors", 0),
+        ),
+        gauge("can_bus_off", "1 while the CAN controller is bus-off", bool(status.get("bus_off"))),
+        counter(
+            "can_bus_off_events_total",
+            "times the CAN controller went bus-off",
+            status.get("bus_off_events", 0),
+        ),
+        *(
+            counter("can_frames_dropped_total", dropped, status.get(key, 0), reason=reason)
+            for key, reason in _DROPPED.items()
+        ),
+    ]
