@@ -1,0 +1,509 @@
+"""CANopen slaves on a busy bus over real SocketCAN: fieldgate against canopen's LocalNode
+(and durand where installed), in one User-Mode Linux boot, with one raw client.
+
+    FIELDGATE_UML_TIMEOUT=2400 .ci/uml/run python bench/can_load.py            # 60 s per phase
+    .ci/uml/run python bench/can_load.py --duration 5 --requests 500          # a quick run
+
+Each slave is its own process on vcan0, node-ID 5, serving 0x1000 (device type):
+``fieldgate run`` with a canopen front and the in-memory ``loopback`` back (no serial
+polling: only the CAN front is billed), ``canopen.LocalNode`` on a ``canopen.Network``,
+``durand.Node`` on its ``CANBusNetwork``. The bench process is the client: a raw
+``AF_CAN`` socket that hears only the answers (kernel filter). Phases, per slave:
+
+1. **idle**: the slave's CPU with no traffic (``/proc/<pid>/stat``, user + system).
+2. **SDO**: ``--requests`` expedited uploads of 0x1000:00 back to back: p50/p99 round
+   trip, the slave's CPU per request (idle CPU over the same time subtracted).
+3. **flood**: ``bench/can_flood.py`` in its own process sends other nodes' PDOs
+   (0x181-0x1FF without 0x185) as fast as it goes for ``--duration`` s, printed beside the
+   1 Mbit/s line rate; meanwhile one SDO read every ``--gap-ms``: p50/p99, lost (no answer
+   in 1 s), and the slave's CPU per foreign frame (CPU above idle, minus the reads').
+4. **flood + SYNC + RPDO** (fieldgate): the same flood, and SYNC at ``--sync-hz`` with one
+   RPDO per SYNC (RPDO1 synchronous: each value is applied at the next SYNC); the loopback
+   back wires DO to DI, so each applied value comes back in TPDO1: RPDOs sent, outputs seen
+   to follow (in order), lost.
+
+Inside UML there is one CPU: the flood sender, the client and the slave share it, so the
+flood rate a slave leaves the sender is part of the result. Figures are noisy on a shared
+machine: compare the slaves of one run (ratios), not runs. Targets (issue 13): no SDO read
+lost during the flood and its p99 <= 3x the idle p99; <= 2 us of slave CPU per foreign
+frame; fieldgate's CPU per SDO read <= LocalNode's; no RPDO lost at 1 kHz during the flood.
+Results: docs/canopen-bench.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import select
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from can_flood import FRAME  # noqa: E402
+
+NODE = 5
+DEVICE_TYPE = 0x000F0191
+REQUEST = FRAME.pack(0x600 + NODE, 8, bytes([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0]))
+FOREIGN = "0x181-0x184,0x186-0x1FF"  # other nodes' TPDO1s; 0x185 is ours
+CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+LINE_RATE = (7_400, 9_000)  # 8-byte standard frames at 1 Mbit/s: 135 bits (worst stuffing) .. 111
+
+
+# -- the slaves (each its own process: python bench/can_load.py --serve KIND) -----------------
+def serve_localnode(channel: str) -> None:
+    import canopen
+    from canopen.objectdictionary import ObjectDictionary, ODVariable
+    from canopen.objectdictionary import datatypes as dt
+
+    od = ObjectDictionary()
+    var = ODVariable("Device type", 0x1000)
+    var.data_type, var.access_type, var.default = dt.UNSIGNED32, "ro", DEVICE_TYPE
+    od.add_object(var)
+    network = canopen.Network()
+    network.connect(interface="socketcan", channel=channel)
+    network.add_node(canopen.LocalNode(NODE, od))
+    print("ready", flush=True)
+    _wait_for_stdin_eof()
+    network.disconnect()
+
+
+def serve_durand(channel: str) -> None:
+    import can
+    from durand import CANBusNetwork, Node
+
+    bus = can.Bus(interface="socketcan", channel=channel)
+    network = CANBusNetwork(bus)
+    node = Node(network, NODE)
+    node.object_dictionary.write(0x1000, 0, DEVICE_TYPE)
+    print("ready", flush=True)
+    _wait_for_stdin_eof()
+    network.stop()
+    bus.shutdown()
+
+
+def _wait_for_stdin_eof() -> None:
+    while sys.stdin.read(1):
+        pass
+
+
+def fieldgate_topology(state_dir: str, channel: str) -> dict:
+    return {
+        "gateway": {"name": "can-load", "state_dir": state_dir},
+        "fronts": [
+            {
+                "name": "can",
+                "type": "canopen",
+                "interface": "socketcan",
+                "channel": channel,
+                "node_id": NODE,
+                "identity": {"device_type": DEVICE_TYPE},
+            }
+        ],
+        "backs": [
+            {
+                "name": "io",
+                "type": "loopback",
+                "modules": [{"address": 1, "digital": 8, "analog": 2}],
+            }
+        ],
+    }
+
+
+@dataclass
+class Slave:
+    kind: str
+    channel: str
+    proc: subprocess.Popen[str] | None = None
+    tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    @property
+    def label(self) -> str:
+        return {"fieldgate": "fieldgate", "localnode": "canopen LocalNode", "durand": "durand"}[
+            self.kind
+        ]
+
+    def start(self, client: Client) -> None:
+        if self.kind == "fieldgate":
+            self.tmp = tempfile.TemporaryDirectory()
+            topo = Path(self.tmp.name) / "can-load.yaml"
+            topo.write_text(json.dumps(fieldgate_topology(self.tmp.name, self.channel)))
+            args = [sys.executable, "-m", "fieldgate", "run", str(topo)]
+        else:
+            args = [sys.executable, __file__, "--serve", self.kind, "--channel", self.channel]
+        self.proc = subprocess.Popen(
+            args, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise SystemExit(f"{self.label} exited with code {self.proc.returncode}")
+            if client.sdo_read(0.2) is not None:
+                time.sleep(0.5)  # let start-up work settle before anything is measured
+                client.drain()
+                return
+        raise SystemExit(f"{self.label} did not answer an SDO read within 30 s")
+
+    def cpu_s(self) -> float:
+        assert self.proc is not None
+        fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime, stime
+
+    def stop(self) -> None:
+        if self.proc is not None:
+            if self.kind == "fieldgate":
+                self.proc.send_signal(2)
+            else:
+                assert self.proc.stdin is not None
+                self.proc.stdin.close()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.tmp is not None:
+            self.tmp.cleanup()
+
+
+# -- the client ------------------------------------------------------------------------------------
+class Client:
+    """A raw AF_CAN socket hearing only ``ids`` (kernel filter)."""
+
+    def __init__(self, channel: str, ids: tuple[int, ...] = (0x580 + NODE,)):
+        self.sock = socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW)
+        self.sock.setsockopt(
+            socket.SOL_CAN_RAW,
+            socket.CAN_RAW_FILTER,
+            b"".join(struct.pack("=II", i, 0x7FF) for i in ids),
+        )
+        self.sock.bind((channel,))
+
+    def send(self, can_id: int, data: bytes = b"") -> None:
+        frame = FRAME.pack(can_id, len(data), data.ljust(8, b"\0"))
+        while True:
+            try:
+                self.sock.send(frame)
+                return
+            except OSError:  # ENOBUFS: the flood filled the queue
+                time.sleep(0.0001)
+
+    def recv(self, timeout: float) -> tuple[int, bytes] | None:
+        ready, _, _ = select.select([self.sock], [], [], timeout)
+        if not ready:
+            return None
+        can_id, dlc, data = FRAME.unpack(self.sock.recv(16))
+        return can_id & 0x7FF, data[:dlc]
+
+    def drain(self) -> None:
+        while self.recv(0.05) is not None:
+            pass
+
+    def sdo_read(self, timeout: float = 1.0) -> float | None:
+        """Round trip of one expedited upload in seconds, or None (no answer in ``timeout``)."""
+        started = time.perf_counter()
+        while True:
+            try:
+                self.sock.send(REQUEST)
+                break
+            except OSError:
+                time.sleep(0.0001)
+        end = started + timeout
+        while True:
+            got = self.recv(max(0.0, end - time.perf_counter()))
+            if got is None:
+                return None
+            if got[0] == 0x580 + NODE and got[1][:4] == b"\x43\x00\x10\x00":
+                return time.perf_counter() - started
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def start_flood(channel: str, seconds: float, rate: float) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, str(HERE / "can_flood.py"), "--channel", channel]
+        + ["--seconds", str(seconds), "--ids", FOREIGN, "--rate", str(rate)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+
+
+def flood_result(proc: subprocess.Popen[str]) -> dict[str, float]:
+    out, _ = proc.communicate(timeout=600)
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def pct(values: list[float], q: float) -> float:
+    if not values:
+        return float("nan")
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+@dataclass
+class Result:
+    label: str
+    idle_cpu: float = 0.0  # share of one CPU
+    sdo: list[float] = field(default_factory=list)
+    sdo_lost: int = 0
+    sdo_cpu_us: float = 0.0
+    flood: dict[str, float] = field(default_factory=dict)
+    flood_sdo: list[float] = field(default_factory=list)
+    flood_lost: int = 0
+    flood_cpu: float = 0.0  # share of one CPU during the flood
+    foreign_us: float = 0.0
+    sync: dict[str, float] = field(default_factory=dict)
+
+
+def measure(slave: Slave, client: Client, args: argparse.Namespace) -> Result:
+    result = Result(slave.label)
+    # 1. idle
+    cpu0, t0 = slave.cpu_s(), time.monotonic()
+    time.sleep(args.duration)
+    result.idle_cpu = (slave.cpu_s() - cpu0) / (time.monotonic() - t0)
+    print(f"  idle: {100 * result.idle_cpu:.2f} % CPU", flush=True)
+    # 2. SDO reads back to back
+    cpu0, t0 = slave.cpu_s(), time.monotonic()
+    for _ in range(args.requests):
+        rtt = client.sdo_read()
+        if rtt is None:
+            result.sdo_lost += 1
+            client.drain()
+        else:
+            result.sdo.append(rtt)
+    wall = time.monotonic() - t0
+    busy = slave.cpu_s() - cpu0 - result.idle_cpu * wall
+    result.sdo_cpu_us = 1e6 * busy / max(1, len(result.sdo))
+    print(
+        f"  SDO: {len(result.sdo)} reads, p50 {1e6 * pct(result.sdo, 0.5):.0f} us, "
+        f"p99 {1e6 * pct(result.sdo, 0.99):.0f} us, {result.sdo_cpu_us:.0f} us CPU each",
+        flush=True,
+    )
+    # 3. flood with SDO reads
+    cpu0, t0 = slave.cpu_s(), time.monotonic()
+    flood = start_flood(slave.channel, args.duration, args.flood_rate)
+    time.sleep(0.2)  # the sender is up
+    while flood.poll() is None:
+        started = time.monotonic()
+        rtt = client.sdo_read()
+        if rtt is None:
+            result.flood_lost += 1
+            client.drain()
+        else:
+            result.flood_sdo.append(rtt)
+        time.sleep(max(0.0, args.gap_ms / 1000 - (time.monotonic() - started)))
+    result.flood = flood_result(flood)
+    wall = time.monotonic() - t0
+    cpu = slave.cpu_s() - cpu0
+    result.flood_cpu = cpu / wall
+    foreign = cpu - result.idle_cpu * wall - result.sdo_cpu_us * 1e-6 * len(result.flood_sdo)
+    result.foreign_us = 1e6 * max(0.0, foreign) / max(1.0, result.flood["frames"])
+    print(
+        f"  flood: {result.flood['rate']:.0f} frames/s for {result.flood['seconds']:.0f} s; "
+        f"{len(result.flood_sdo)} SDO reads, lost {result.flood_lost}, "
+        f"p50 {1e6 * pct(result.flood_sdo, 0.5):.0f} us, p99 {1e6 * pct(result.flood_sdo, 0.99):.0f} us; "
+        f"slave {100 * result.flood_cpu:.1f} % CPU, {result.foreign_us:.2f} us per foreign frame",
+        flush=True,
+    )
+    client.drain()
+    return result
+
+
+def sync_phase(slave: Slave, channel: str, args: argparse.Namespace) -> dict[str, float]:
+    """Flood + SYNC at --sync-hz + one RPDO per SYNC; TPDO1 shows each applied output."""
+    io = Client(channel, (0x580 + NODE, 0x180 + NODE))
+    sdo = bytes([0x2F, 0x00, 0x14, 0x02, 0x01, 0, 0, 0])  # 0x1400:2 = 1: RPDO1 synchronous
+    io.send(0x600 + NODE, sdo)
+    got = io.recv(1.0)
+    while got is not None and got[0] != 0x580 + NODE:
+        got = io.recv(1.0)
+    assert got is not None and got[1][0] == 0x60, got
+    io.send(0x000, bytes([0x01, NODE]))  # Operational: TPDO1 goes out once
+    time.sleep(0.3)
+    io.drain()
+    period = 1.0 / args.sync_hz
+    sent: list[int] = []
+    seen: list[int] = []
+    cpu0, t0 = slave.cpu_s(), time.monotonic()
+    flood = start_flood(channel, args.duration, args.flood_rate)
+    time.sleep(0.2)
+    start = time.monotonic()
+    end = start + args.duration - 0.4
+    due = start
+    while True:
+        now = time.monotonic()
+        if now >= end:
+            break
+        if now >= due:
+            value = len(sent) % 255 + 1  # never the same twice in a row, never 0
+            io.send(0x080)  # SYNC: applies the RPDO sent after the previous one
+            io.send(0x200 + NODE, bytes([value]))
+            sent.append(value)
+            due += period
+            continue
+        got = io.recv(max(0.0, due - now))
+        if got is not None and got[0] == 0x180 + NODE:
+            seen.append(got[1][0])
+    io.send(0x080)  # applies the last RPDO
+    tail_end = time.monotonic() + 1.0
+    while time.monotonic() < tail_end:
+        got = io.recv(0.05)
+        if got is not None and got[0] == 0x180 + NODE:
+            seen.append(got[1][0])
+    flood_info = flood_result(flood)
+    wall = time.monotonic() - t0
+    cpu = slave.cpu_s() - cpu0
+    followed = 0  # sent values seen in TPDO1, in order
+    it = iter(seen)
+    for value in sent:
+        for observed in it:
+            if observed == value:
+                followed += 1
+                break
+    io.close()
+    result = {
+        "sync_rate": len(sent) / (end - start),
+        "rpdos": len(sent),
+        "followed": followed,
+        "lost": len(sent) - followed,
+        "tpdos": len(seen),
+        "flood_rate": flood_info["rate"],
+        "cpu": cpu / wall,
+    }
+    print(
+        f"  SYNC+RPDO: {result['sync_rate']:.0f} Hz reached, {len(sent)} RPDOs, "
+        f"{followed} outputs followed in order, lost {result['lost']}; flood "
+        f"{flood_info['rate']:.0f} frames/s; slave {100 * result['cpu']:.1f} % CPU",
+        flush=True,
+    )
+    return result
+
+
+def summary(results: list[Result], args: argparse.Namespace) -> None:
+    print("\n== summary (same boot; ratios are what to compare) ==")
+    print(
+        f"flood line: 1 Mbit/s carries {LINE_RATE[0]:,}-{LINE_RATE[1]:,} 8-byte frames/s; "
+        "the sender reached: "
+        + ", ".join(f"{r.label} {r.flood.get('rate', 0):,.0f}/s" for r in results)
+    )
+    head = (
+        f"{'slave':<18} {'idle CPU':>8} {'SDO p50':>8} {'SDO p99':>8} {'CPU/SDO':>8} "
+        f"{'flood p50':>9} {'flood p99':>9} {'lost':>5} {'us/foreign':>10} {'flood CPU':>9}"
+    )
+    print(head)
+    for r in results:
+        print(
+            f"{r.label:<18} {100 * r.idle_cpu:7.2f}% {1e6 * pct(r.sdo, 0.5):7.0f}u "
+            f"{1e6 * pct(r.sdo, 0.99):7.0f}u {r.sdo_cpu_us:7.0f}u "
+            f"{1e6 * pct(r.flood_sdo, 0.5):8.0f}u {1e6 * pct(r.flood_sdo, 0.99):8.0f}u "
+            f"{r.flood_lost:5d} {r.foreign_us:10.2f} {100 * r.flood_cpu:8.1f}%"
+        )
+    ours = results[0]
+    peer = next((r for r in results if r.label == "canopen LocalNode"), None)
+    checks = [
+        ("no SDO read lost during the flood", ours.flood_lost == 0 and ours.sdo_lost == 0),
+        (
+            f"flood SDO p99 <= 3x idle p99 ({pct(ours.flood_sdo, 0.99) / pct(ours.sdo, 0.99):.2f}x)",
+            pct(ours.flood_sdo, 0.99) <= 3 * pct(ours.sdo, 0.99),
+        ),
+        (f"<= 2 us CPU per foreign frame ({ours.foreign_us:.2f} us)", ours.foreign_us <= 2.0),
+    ]
+    if peer is not None:
+        ratio = ours.sdo_cpu_us / peer.sdo_cpu_us if peer.sdo_cpu_us else float("nan")
+        checks.append(
+            (f"CPU per SDO read <= LocalNode's (ratio ours/LocalNode {ratio:.2f})", ratio <= 1.0)
+        )
+    if ours.sync:
+        checks.append(
+            (
+                f"no RPDO lost at {ours.sync['sync_rate']:.0f} Hz SYNC during the flood "
+                f"({ours.sync['lost']:.0f} of {ours.sync['rpdos']:.0f})",
+                ours.sync["lost"] == 0,
+            )
+        )
+    for text, ok in checks:
+        print(f"  [{'met' if ok else 'NOT met'}] {text}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--duration", type=float, default=60.0, help="seconds per timed phase")
+    parser.add_argument("--requests", type=int, default=2000, help="SDO reads back to back")
+    parser.add_argument("--gap-ms", type=float, default=20.0, help="between SDO reads in the flood")
+    parser.add_argument("--flood-rate", type=float, default=0.0, help="frames/s, 0 = max")
+    parser.add_argument("--sync-hz", type=float, default=1000.0)
+    parser.add_argument(
+        "--slaves",
+        default="fieldgate,localnode,durand",
+        help="which slaves (durand only where installed)",
+    )
+    parser.add_argument("--channel", default="vcan0")
+    parser.add_argument("--serve", choices=("localnode", "durand"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.serve == "localnode":
+        return serve_localnode(args.channel)
+    if args.serve == "durand":
+        return serve_durand(args.channel)
+    if not Path(f"/sys/class/net/{args.channel}").exists():
+        raise SystemExit(
+            f"no {args.channel}: run inside User-Mode Linux: .ci/uml/run python bench/can_load.py"
+        )
+    kinds = [k.strip() for k in args.slaves.split(",") if k.strip()]
+    if "durand" in kinds:
+        try:
+            import durand  # noqa: F401
+        except ImportError:
+            print("durand not installed: skipped (pip install durand)")
+            kinds.remove("durand")
+    print(
+        f"can_load: {platform.python_implementation()} {platform.python_version()}, "
+        f"kernel {platform.release()}, {os.cpu_count()} CPU, {args.duration:g} s per phase, "
+        f"{args.requests} SDO reads, flood ids {FOREIGN}",
+        flush=True,
+    )
+    client = Client(args.channel)
+    results = []
+    for kind in kinds:
+        slave = Slave(kind, args.channel)
+        print(f"\n-- {slave.label}", flush=True)
+        slave.start(client)
+        try:
+            result = measure(slave, client, args)
+            if kind == "fieldgate":
+                result.sync = sync_phase(slave, args.channel, args)
+        finally:
+            slave.stop()
+        results.append(result)
+    client.close()
+    summary(results, args)
+    stats = {
+        r.label: {
+            "idle_cpu": r.idle_cpu,
+            "sdo_p50_us": 1e6 * pct(r.sdo, 0.5),
+            "sdo_p99_us": 1e6 * pct(r.sdo, 0.99),
+            "sdo_cpu_us": r.sdo_cpu_us,
+            "flood_rate": r.flood.get("rate"),
+            "flood_p50_us": 1e6 * pct(r.flood_sdo, 0.5),
+            "flood_p99_us": 1e6 * pct(r.flood_sdo, 0.99),
+            "flood_lost": r.flood_lost,
+            "foreign_us": r.foreign_us,
+            **({"sync": r.sync} if r.sync else {}),
+        }
+        for r in results
+    }
+    print(
+        "json: " + json.dumps(stats, default=lambda x: round(x, 2) if isinstance(x, float) else x)
+    )
+
+
+if __name__ == "__main__":
+    main()
