@@ -23,6 +23,10 @@
 * Receiving that has died (the receive thread ended on a driver exception, or the
   reader failed ``RX_ERRORS_FATAL`` times within one poll) sets :attr:`CanAdapter.failed`;
   the front's ``run()`` raises and the runtime restarts the front with back-off.
+* SocketCAN: python-can's bus is opened, filtered and closed as usual, but frames are read
+  from and written to its raw socket directly where :mod:`.socketcan_raw` allows (one
+  system call per frame instead of two, no ``can.Message``); elsewhere ``bus.recv`` and
+  ``bus.send``.
 * Remote frames keep their DLC; 29-bit frames are counted and dropped (the node uses
   11-bit identifiers only).
 * Acceptance filters: an engine with ``listen_ids()`` (the CAN-IDs it takes frames on, as
@@ -40,6 +44,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import struct
 import threading
 import time
 from collections import Counter
@@ -51,6 +56,7 @@ import can
 from fieldgate.plugin import PluginStartError
 
 from . import filters as acceptance
+from . import socketcan_raw as raw
 from .busrx import Receiver, start_receiver
 from .frame import Frame
 
@@ -119,6 +125,7 @@ def to_message(frame: Frame) -> can.Message:
 
 
 _new_frame = tuple.__new__  # Frame(...) without its Python-level __new__: two per SDO request
+_pack = raw.FRAME.pack
 
 
 def to_frame(msg: can.Message) -> Frame:
@@ -152,6 +159,8 @@ class CanAdapter:
         self.listen: frozenset[int] | None = None  # the engine's listen set; None: every frame
         self.filters: list[acceptance.Filter] | None = None  # as applied to the bus
         self.max_filters = acceptance.MAX_FILTERS
+        self._raw_send: Callable[[bytes], int] | None = None  # SocketCAN's socket.send, if usable
+        self._bind_bus()
         self._timer: asyncio.TimerHandle | None = None
         self._armed_at = 0.0
         self._state_timer: asyncio.TimerHandle | None = None
@@ -204,10 +213,42 @@ class CanAdapter:
     def now(self) -> float:
         return self.loop.time()
 
+    def _bind_bus(self) -> None:
+        """Use SocketCAN's raw socket for sending where :mod:`.socketcan_raw` allows."""
+        sock = raw.raw_socket(self.bus)
+        self._raw_send = None if sock is None else sock.send
+
     # -- receive -----------------------------------------------------------------------
     def _start_receiver(self):
         quick = self._quick if hasattr(self.node, "quick_answer") else None
-        return start_receiver(self.bus, self.loop, self._receive, quick)
+        return start_receiver(self.bus, self.loop, self._receive, quick, self._receive_raw)
+
+    def _receive_raw(self, word: int, dlc: int, data: bytes) -> None:
+        """One frame read from SocketCAN's raw socket (the fast path of :meth:`_receive`)."""
+        if word & raw.OTHER_FLAGS:
+            self._receive(raw.to_message(word, dlc, data))
+            return
+        if self.closed:
+            return
+        with self.engine_lock:
+            self.rx_frames += 1
+            can_id = word & raw.CAN_SFF_MASK
+            listen = self.listen
+            if listen is not None and can_id not in listen:
+                self.rx_ignored += 1
+                return
+            if word & raw.CAN_RTR_FLAG:
+                frame = Frame(can_id, b"", rtr=True, dlc=dlc)
+            else:
+                frame = _new_frame(Frame, (can_id, data[:dlc], False, None))
+            now = self.loop.time()
+            node = self.node
+            frames = node.receive(frame, now)
+            if self._listen_ids is not None and self._listen_ids() is not self._listen_source:
+                self._refresh_filters()
+            self._arm(node.deadline_after_call, known=True)
+            if frames:
+                self._send(frames, now)
 
     def _receive(self, msg: can.Message) -> None:
         """One received message: the node's answers go out before anything else happens."""
@@ -338,11 +379,21 @@ class CanAdapter:
         if self.transmit_allowed is not None and not self.transmit_allowed(now):
             self.counters["tx_suppressed"] += len(frames)
             return
+        raw_send = self._raw_send
         for frame in frames:
             try:
-                self.bus.send(to_message(frame))
+                if raw_send is not None:
+                    can_id, data, rtr, _ = frame
+                    if rtr:
+                        raw_send(_pack(can_id | raw.CAN_RTR_FLAG, frame.length, b""))
+                    elif len(data) <= 8:
+                        raw_send(_pack(can_id, len(data), data))
+                    else:
+                        raise ValueError(f"{len(data)} data bytes in a classic CAN frame")
+                else:
+                    self.bus.send(to_message(frame))
                 self.tx_frames += 1
-            except (can.CanError, OSError, ValueError) as exc:
+            except (can.CanError, OSError, ValueError, struct.error) as exc:
                 self.counters["tx_errors"] += 1
                 if self.counters["tx_errors"] == 1 or self.counters["tx_errors"] % 1000 == 0:
                     log.warning(
@@ -446,6 +497,7 @@ class CanAdapter:
         try:
             self.bus.shutdown()
             self.bus = self._reopen(bitrate)
+            self._bind_bus()
         except PluginStartError as exc:
             log.error("cannot reopen the CAN bus at %d bit/s: %s", bitrate, exc)
             self.counters["bit_timing_failures"] += 1

@@ -4,14 +4,16 @@
 event loop's thread for every message the bus receives, in order:
 
 * buses with a file descriptor (SocketCAN): ``loop.add_reader``, reading until the socket
-  is empty, without a thread;
+  is empty, without a thread; python-can's SocketCAN bus is read from its raw socket when
+  :func:`.socketcan_raw.raw_socket` allows (one ``recv`` per frame), else with ``bus.recv``;
 * every other interface (pcan, kvaser, ixxat, ... and python-can's ``virtual``): a
   receive thread blocked in ``bus.recv`` that hands messages to the loop in batches (one
   ``call_soon_threadsafe`` wakes the loop for everything queued until it runs); a driver
   exception ends it and is kept in :attr:`Receiver.exception` (the adapter fails the
   front, which restarts).
 
-Only python-can's public API is used (``recv``, ``fileno``), so python-can's filtering
+Apart from that feature-checked SocketCAN path only python-can's public API is used
+(``recv``, ``fileno``), so python-can's filtering
 (``set_filters``: in the kernel, the adapter's hardware or python-can's ``recv``) applies
 on every path. (Up to python-can 4.6 the ``virtual`` bus was read by replacing its private
 receive queue, which pinned python-can below 4.7 and bypassed its filtering.)
@@ -31,15 +33,20 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import threading
 from collections import deque
 from collections.abc import Callable
 
 import can
 
+from .socketcan_raw import FRAME, raw_socket
+
 log = logging.getLogger("fieldgate.can.busrx")
 
 OnMessage = Callable[[can.Message], None]
+OnRaw = Callable[[int, int, bytes], None]  # (can_id | CAN_*_FLAGs, dlc, 8 data bytes)
+RAW_BATCH = 256  # frames read per wake-up at most on the raw path
 Quick = Callable[[can.Message], bool]
 RECV_TIMEOUT_S = 0.1  # how often the receive thread looks at whether it should stop
 
@@ -169,6 +176,43 @@ class ReaderReceiver(Receiver):
         self.loop.remove_reader(self._fd)
 
 
+class RawSocketReceiver(ReaderReceiver):
+    """SocketCAN read from its raw socket on the loop (:mod:`.socketcan_raw`): one ``recv``
+    per frame, up to :data:`RAW_BATCH` frames per wake-up (the loop's timers run between)."""
+
+    mode = "socketcan-raw"
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        loop: asyncio.AbstractEventLoop,
+        on_raw: OnRaw,
+        sock: socket.socket,
+    ):
+        self.on_raw = on_raw
+        self._sock = sock
+        super().__init__(bus, loop, lambda msg: None, sock.fileno())
+
+    def _readable(self) -> None:
+        recv, unpack, on_raw = self._sock.recv, FRAME.unpack, self.on_raw
+        for _ in range(RAW_BATCH):
+            if not self.active:
+                return
+            try:
+                raw = recv(FRAME.size, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                self.errors += 1
+                if self.errors == 1 or self.errors % 1000 == 0:
+                    log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
+                self._watch_again()
+                return
+            if len(raw) == FRAME.size:
+                word, dlc, data = unpack(raw)
+                on_raw(word, dlc, data)
+
+
 def _fileno(bus: can.BusABC) -> int | None:
     try:
         fd = bus.fileno()
@@ -182,8 +226,14 @@ def start_receiver(
     loop: asyncio.AbstractEventLoop,
     on_message: OnMessage,
     quick: Quick | None = None,
+    on_raw: OnRaw | None = None,
 ) -> Receiver:
-    """Deliver the bus's messages to ``on_message`` on ``loop`` (call from the loop's thread)."""
+    """Deliver the bus's messages to ``on_message`` on ``loop`` (call from the loop's thread);
+    to ``on_raw(can_id_and_flags, dlc, data8)`` instead where the bus is SocketCAN's raw
+    socket and ``on_raw`` is given (:mod:`.socketcan_raw`)."""
+    sock = raw_socket(bus) if on_raw is not None else None
+    if sock is not None and on_raw is not None:
+        return RawSocketReceiver(bus, loop, on_raw, sock)
     fd = _fileno(bus)
     if fd is not None:
         return ReaderReceiver(bus, loop, on_message, fd)

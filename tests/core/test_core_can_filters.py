@@ -189,3 +189,37 @@ async def test_python_can_software_filtering_on_the_virtual_bus_keeps_foreign_fr
     finally:
         adapter.close()
         peer.shutdown()
+
+
+def test_the_raw_socketcan_path_is_only_taken_for_python_cans_classic_socketcan_bus():
+    import socket
+
+    from fieldgate.can import socketcan_raw
+
+    virtual = can.Bus(interface="virtual", channel=f"raw-{uuid.uuid4().hex[:8]}")
+    try:
+        assert socketcan_raw.raw_socket(virtual) is None  # no socket at all
+    finally:
+        virtual.shutdown()
+
+    class UdpBus(LoggingBus):  # a bus with a socket that is not AF_CAN
+        def __init__(self):
+            super().__init__([])
+            self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    bus = UdpBus()
+    try:
+        assert socketcan_raw.raw_socket(bus) is None
+    finally:
+        bus.socket.close()
+
+
+def test_raw_error_and_extended_frames_become_python_can_messages():
+    from fieldgate.can import socketcan_raw as raw
+
+    error = raw.to_message(raw.CAN_ERR_FLAG | 0x40, 8, bytes(8))
+    assert error.is_error_frame and error.arbitration_id == 0x40
+    extended = raw.to_message(raw.CAN_EFF_FLAG | 0x18FF0001, 2, b"\x01\x02" + bytes(6))
+    assert extended.is_extended_id and extended.arbitration_id == 0x18FF0001
+    assert bytes(extended.data) == b"\x01\x02"
+    assert raw.FRAME.size == 16  # struct can_frame

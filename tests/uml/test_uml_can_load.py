@@ -4,6 +4,8 @@ The gateway runs in this test process (its status counters are read directly); t
 traffic comes from another process (bench/can_flood.py: a raw AF_CAN socket as fast as it
 goes). Proves, over the kernel's CAN stack:
 
+* each CANopen test twice: reading SocketCAN's raw socket (fieldgate.can.socketcan_raw) and
+  through python-can's public recv/send (the fallback);
 * a foreign flood reaches the CANopen engine as zero frames (the kernel's CAN_RAW_FILTER from
   the node's listen set), while SDO reads sent during it are all answered;
 * a PDO COB-ID rewritten by SDO is received at once under its new ID, no longer under the old;
@@ -26,6 +28,7 @@ import can
 import pytest
 
 from fieldgate import Gateway, load_registry
+from fieldgate.can import socketcan_raw
 
 CHANNEL = "vcan0"
 REPO = Path(__file__).resolve().parents[2]
@@ -134,14 +137,21 @@ def canopen_topology(state_dir: Path) -> dict:
     }
 
 
-@pytest.fixture
-async def canopen(tmp_path):
+@pytest.fixture(params=["raw", "python-can"])
+async def canopen(request, tmp_path, monkeypatch):
+    """The gateway reading SocketCAN's raw socket (the fast path), or through python-can's
+    public recv/send (the fallback, forced by switching the fast path off)."""
+    if request.param == "python-can":
+        monkeypatch.setattr(socketcan_raw, "ENABLED", False)
     gw = Gateway.load(canopen_topology(tmp_path), registry=load_registry())
     client = SdoClient()
     await gw.start()
     try:
         assert await client.expect(0x700 + NODE, 3.0) == b"\x00"  # boot-up
-        yield gw, gw.component("can"), client
+        front = gw.component("can")
+        expected = "socketcan-raw" if request.param == "raw" else "add-reader"
+        assert front.adapter._receiver.mode == expected
+        yield gw, front, client
     finally:
         client.bus.shutdown()
         await gw.stop()
