@@ -4,7 +4,7 @@
     FIELDGATE_UML_TIMEOUT=2400 .ci/uml/run python bench/can_load.py            # 60 s per phase
     .ci/uml/run python bench/can_load.py --duration 5 --requests 500          # a quick run
 
-Each slave is its own process on vcan0, node-ID 5, serving 0x1000 (device type):
+Each slave is its own process on its own vcan interface, node-ID 5, serving 0x1000 (device type):
 ``fieldgate run`` with a canopen front and the in-memory ``loopback`` back (no serial
 polling: only the CAN front is billed), ``canopen.LocalNode`` on a ``canopen.Network``,
 ``durand.Node`` on its ``CANBusNetwork``. The bench process is the client: a raw
@@ -13,6 +13,9 @@ polling: only the CAN front is billed), ``canopen.LocalNode`` on a ``canopen.Net
 1. **idle**: the slave's CPU with no traffic (``/proc/<pid>/stat``, user + system).
 2. **SDO**: ``--requests`` expedited uploads of 0x1000:00 back to back: p50/p99 round
    trip, the slave's CPU per request (idle CPU over the same time subtracted).
+   Phases 1 and 2 run for all slaves at once, each on its own vcan interface (vcan0,
+   vcan0-1, ...; created here), the reads alternating between them (A B B A ...): the
+   machine's noise is shared, not handed to whichever slave ran in a bad minute.
 3. **paced SDO**: one read every ``--gap-ms`` for ``--duration`` s on the idle bus: the
    baseline p99 and CPU of the next phase.
 4. **flood**: ``bench/can_flood.py`` in its own process sends other nodes' PDOs
@@ -20,7 +23,9 @@ polling: only the CAN front is billed), ``canopen.LocalNode`` on a ``canopen.Net
    1 Mbit/s line rate; meanwhile the same paced reads: p50/p99, lost (no answer in 1 s),
    and the slave's CPU per foreign frame (its CPU above the paced phase's, per frame sent).
 5. **flood + SYNC + RPDO** (fieldgate): the same flood, and SYNC at ``--sync-hz`` with one
-   RPDO per SYNC (RPDO1 synchronous: each value is applied at the next SYNC); the loopback
+   RPDO per SYNC, both sent by the kernel's CAN broadcast manager (one frame every half
+   period: SYNC, RPDO, SYNC, ..., 128 values in turn; no client CPU); RPDO1 synchronous
+   (each value is applied at the next SYNC); the loopback
    back wires DO to DI, so each applied value comes back in TPDO1: RPDOs sent, outputs seen
    to follow (in order), lost; and from the front's own counts (printed when it stops):
    frames received, ignored after filtering, reaching the engine, RPDOs received.
@@ -120,6 +125,7 @@ def serve_fieldgate(channel: str) -> None:
                         "rpdo_received": pdo.get("rpdo_received"),
                         "tpdo_sent": pdo.get("tpdo_sent"),
                         "filters": front["bus"]["filters"],
+                        "rx_buffer_bytes": front["bus"].get("rx_buffer_bytes"),
                     }
                 ),
                 flush=True,
@@ -307,30 +313,40 @@ class Result:
     counts: dict[str, object] = field(default_factory=dict)  # fieldgate's front, at the end
 
 
-def measure(slave: Slave, client: Client, args: argparse.Namespace) -> Result:
-    result = Result(slave.label)
-    # 1. idle
-    cpu0, t0 = slave.cpu_s(), time.monotonic()
+def shared_phases(
+    slaves: list[Slave], clients: list[Client], args: argparse.Namespace
+) -> list[Result]:
+    """Idle and back-to-back SDO reads for every slave at once, each on its own bus: the
+    reads alternate between the slaves (A B B A ...), so they share the machine's noise."""
+    results = [Result(slave.label) for slave in slaves]
+    cpu0, t0 = [s.cpu_s() for s in slaves], time.monotonic()
     time.sleep(args.duration)
-    result.idle_cpu = (slave.cpu_s() - cpu0) / (time.monotonic() - t0)
-    print(f"  idle: {100 * result.idle_cpu:.2f} % CPU", flush=True)
-    # 2. SDO reads back to back
-    cpu0, t0 = slave.cpu_s(), time.monotonic()
-    for _ in range(args.requests):
-        rtt = client.sdo_read()
-        if rtt is None:
-            result.sdo_lost += 1
-            client.drain()
-        else:
-            result.sdo.append(rtt)
+    for r, s, c in zip(results, slaves, cpu0, strict=True):
+        r.idle_cpu = (s.cpu_s() - c) / (time.monotonic() - t0)
+    cpu0, t0 = [s.cpu_s() for s in slaves], time.monotonic()
+    order = list(range(len(slaves)))
+    for n in range(args.requests):
+        for i in order if n % 2 == 0 else order[::-1]:
+            rtt = clients[i].sdo_read()
+            if rtt is None:
+                results[i].sdo_lost += 1
+                clients[i].drain()
+            else:
+                results[i].sdo.append(rtt)
     wall = time.monotonic() - t0
-    busy = slave.cpu_s() - cpu0 - result.idle_cpu * wall
-    result.sdo_cpu_us = 1e6 * busy / max(1, len(result.sdo))
-    print(
-        f"  SDO: {len(result.sdo)} reads, p50 {1e6 * pct(result.sdo, 0.5):.0f} us, "
-        f"p99 {1e6 * pct(result.sdo, 0.99):.0f} us, {result.sdo_cpu_us:.0f} us CPU each",
-        flush=True,
-    )
+    for r, s, c in zip(results, slaves, cpu0, strict=True):
+        busy = s.cpu_s() - c - r.idle_cpu * wall
+        r.sdo_cpu_us = 1e6 * busy / max(1, len(r.sdo))
+        print(
+            f"  {r.label}: idle {100 * r.idle_cpu:.2f} % CPU; SDO {len(r.sdo)} reads "
+            f"(lost {r.sdo_lost}), p50 {1e6 * pct(r.sdo, 0.5):.0f} us, "
+            f"p99 {1e6 * pct(r.sdo, 0.99):.0f} us, {r.sdo_cpu_us:.0f} us CPU each",
+            flush=True,
+        )
+    return results
+
+
+def flood_phases(slave: Slave, client: Client, result: Result, args: argparse.Namespace) -> None:
     # 3. the same paced reads without, then with the flood
     base_cpu, result.paced_sdo, result.paced_lost = paced_reads(slave, client, args, flood=False)
     print(
@@ -353,7 +369,6 @@ def measure(slave: Slave, client: Client, args: argparse.Namespace) -> Result:
         flush=True,
     )
     client.drain()
-    return result
 
 
 def paced_reads(
@@ -389,8 +404,43 @@ def paced_reads(
     return cpu, rtts, lost
 
 
+BCM_HEAD = struct.Struct("@3I4l2I0q")  # struct bcm_msg_head (native: longs in the timevals)
+BCM_TX_SETUP, BCM_TX_DELETE, BCM_SETTIMER, BCM_STARTTIMER = 1, 2, 0x1, 0x2
+SYNC_VALUES = 128  # the broadcast manager cycles through 256 frames: 128 SYNC + RPDO pairs
+
+
+def bcm_sent(sock: socket.socket) -> int:
+    """Frames the broadcast manager sent for this socket's job (/proc/net/can-bcm)."""
+    inode = os.fstat(sock.fileno()).st_ino
+    text = Path(f"/proc/net/can-bcm/{inode}").read_text()
+    return int(text.rsplit("# sent", 1)[1].split()[0])
+
+
+def calibrate_bcm(channel: str, hz: float) -> int:
+    """The broadcast manager's interval (us) that gives ``hz`` SYNCs here: UML's timers run
+    late under load, so measure 1 s of SYNCs alone (to a CAN-ID nobody reads) and scale."""
+    interval = 1e6 / hz / 2
+    for _ in range(3):
+        bcm = socket.socket(socket.AF_CAN, socket.SOCK_DGRAM, socket.CAN_BCM)
+        bcm.connect((channel,))
+        probe = FRAME.pack(0x7F0, 0, b"")
+        head = BCM_HEAD.pack(
+            BCM_TX_SETUP, BCM_SETTIMER | BCM_STARTTIMER, 0, 0, 0, 0, round(interval), 0x7F0, 1
+        )
+        started = time.monotonic()
+        bcm.send(head + probe)
+        time.sleep(1.0)
+        rate = bcm_sent(bcm) / (time.monotonic() - started) / 2
+        bcm.close()
+        if rate >= 0.97 * hz:
+            break
+        interval = max(20.0, interval * rate / hz)
+    return round(interval)
+
+
 def sync_phase(slave: Slave, channel: str, args: argparse.Namespace) -> dict[str, float]:
-    """Flood + SYNC at --sync-hz + one RPDO per SYNC; TPDO1 shows each applied output."""
+    """Flood + SYNC at --sync-hz + one RPDO per SYNC, sent by the kernel's CAN broadcast
+    manager (like a master's hardware timer: no client CPU); TPDO1 shows each output."""
     io = Client(channel, (0x580 + NODE, 0x180 + NODE))
     sdo = bytes([0x2F, 0x00, 0x14, 0x02, 0x01, 0, 0, 0])  # 0x1400:2 = 1: RPDO1 synchronous
     io.send(0x600 + NODE, sdo)
@@ -401,30 +451,33 @@ def sync_phase(slave: Slave, channel: str, args: argparse.Namespace) -> dict[str
     io.send(0x000, bytes([0x01, NODE]))  # Operational: TPDO1 goes out once
     time.sleep(0.3)
     io.drain()
-    period = 1.0 / args.sync_hz
-    sent: list[int] = []
+    frames = b"".join(
+        FRAME.pack(0x080, 0, b"") + FRAME.pack(0x200 + NODE, 1, bytes([k + 1]))
+        for k in range(SYNC_VALUES)
+    )
+    interval_us = calibrate_bcm(channel, args.sync_hz)
+    bcm = socket.socket(socket.AF_CAN, socket.SOCK_DGRAM, socket.CAN_BCM)
+    bcm.connect((channel,))
     seen: list[int] = []
     cpu0, t0 = slave.cpu_s(), time.monotonic()
     flood = start_flood(channel, args.duration, args.flood_rate)
     time.sleep(0.2)
     start = time.monotonic()
+    setup = BCM_HEAD.pack(
+        BCM_TX_SETUP, BCM_SETTIMER | BCM_STARTTIMER, 0, 0, 0, 0, interval_us, 0x080, 2 * SYNC_VALUES
+    )
+    bcm.send(setup + frames)
     end = start + args.duration - 0.4
-    due = start
-    while True:
-        now = time.monotonic()
-        if now >= end:
-            break
-        if now >= due:
-            value = len(sent) % 255 + 1  # never the same twice in a row, never 0
-            io.send(0x080)  # SYNC: applies the RPDO sent after the previous one
-            io.send(0x200 + NODE, bytes([value]))
-            sent.append(value)
-            due += period
-            continue
-        got = io.recv(max(0.0, due - now))
+    while time.monotonic() < end:
+        got = io.recv(0.1)
         if got is not None and got[0] == 0x180 + NODE:
             seen.append(got[1][0])
-    io.send(0x080)  # applies the last RPDO
+    sent_frames = bcm_sent(bcm)
+    bcm.send(BCM_HEAD.pack(BCM_TX_DELETE, 0, 0, 0, 0, 0, 0, 0x080, 0))
+    stopped = time.monotonic()
+    rpdos = sent_frames // 2
+    if sent_frames % 2 == 0:
+        io.send(0x080)  # the last RPDO is applied at the next SYNC
     quiet_until, give_up = time.monotonic() + 1.0, time.monotonic() + 15.0
     while time.monotonic() < min(quiet_until, give_up):  # late TPDOs count, lost ones not
         got = io.recv(0.05)
@@ -434,9 +487,11 @@ def sync_phase(slave: Slave, channel: str, args: argparse.Namespace) -> dict[str
     flood_info = flood_result(flood)
     wall = time.monotonic() - t0
     cpu = slave.cpu_s() - cpu0
-    followed = 0  # sent values seen in TPDO1, in order
+    bcm.close()
+    followed = 0  # RPDO values seen in TPDO1, in order
     it = iter(seen)
-    for value in sent:
+    for k in range(rpdos):
+        value = k % SYNC_VALUES + 1
         for observed in it:
             if observed == value:
                 followed += 1
@@ -444,19 +499,19 @@ def sync_phase(slave: Slave, channel: str, args: argparse.Namespace) -> dict[str
     io.close()
     result = {
         "flood_frames": flood_info["frames"],
-        "sent_to_slave": io.sent,
-        "sync_rate": len(sent) / (end - start),
-        "rpdos": len(sent),
+        "sent_to_slave": io.sent + sent_frames,
+        "sync_rate": (sent_frames - sent_frames // 2) / (stopped - start),
+        "rpdos": rpdos,
         "followed": followed,
-        "lost": len(sent) - followed,
+        "lost": rpdos - followed,
         "tpdos": len(seen),
         "flood_rate": flood_info["rate"],
         "cpu": cpu / wall,
     }
     print(
-        f"  SYNC+RPDO: {result['sync_rate']:.0f} Hz reached, {len(sent)} RPDOs, "
-        f"{followed} outputs followed in order, lost {result['lost']}; flood "
-        f"{flood_info['rate']:.0f} frames/s; slave {100 * result['cpu']:.1f} % CPU",
+        f"  SYNC+RPDO (kernel broadcast manager): {result['sync_rate']:.0f} Hz reached, "
+        f"{rpdos} RPDOs, {followed} outputs followed in order (TPDO1), {result['lost']} not; "
+        f"flood {flood_info['rate']:.0f} frames/s; slave {100 * result['cpu']:.1f} % CPU",
         flush=True,
     )
     return result
@@ -558,32 +613,41 @@ def main() -> None:
         f"{args.requests} SDO reads, flood ids {FOREIGN}",
         flush=True,
     )
-    results = []
-    for kind in kinds:
-        client = Client(args.channel)
-        slave = Slave(kind, args.channel)
-        print(f"\n-- {slave.label}", flush=True)
-        slave.start(client)
-        try:
-            result = measure(slave, client, args)
-            if kind == "fieldgate":
-                result.sync = sync_phase(slave, args.channel, args)
+    channels = [args.channel] + [f"{args.channel}-{n}" for n in range(1, len(kinds))]
+    for name in channels[1:]:  # one bus per slave: none hears another's traffic
+        if not Path(f"/sys/class/net/{name}").exists():
+            subprocess.run(["ip", "link", "add", name, "type", "vcan"], check=True)
+            subprocess.run(["ip", "link", "set", name, "up"], check=True)
+    slaves = [Slave(kind, channel) for kind, channel in zip(kinds, channels, strict=True)]
+    clients = [Client(channel) for channel in channels]
+    try:
+        for slave, client in zip(slaves, clients, strict=True):
+            slave.start(client)
+        print("\n-- idle and SDO reads, all slaves at once (reads alternate)", flush=True)
+        results = shared_phases(slaves, clients, args)
+        for slave, client, result in zip(slaves, clients, results, strict=True):
+            print(f"\n-- {slave.label} on {slave.channel}: the flood", flush=True)
+            flood_phases(slave, client, result, args)
+            if slave.kind == "fieldgate":
+                result.sync = sync_phase(slave, slave.channel, args)
                 result.floods.append(result.sync["flood_frames"])
-        finally:
-            counts = slave.stop()
-        client.close()
-        if counts:
-            result.counts = counts
+    finally:
+        counts = [slave.stop() for slave in slaves]
+        for client in clients:
+            client.close()
+    for result, client, count in zip(results, clients, counts, strict=True):
+        if count:
+            result.counts = count
             own = client.sent + int(result.sync.get("sent_to_slave", 0))
             print(
-                f"  the front's counts: {counts['rx']} frames received in all phases, "
-                f"{counts['rx_ignored']} ignored after filtering, {counts['engine_rx']} reached the "
+                f"\n{result.label}'s front counted {count['rx']} frames received in all phases, "
+                f"{count['rx_ignored']} ignored after filtering, {count['engine_rx']} reached the "
                 f"engine; the client sent it {own}, the floods {sum(result.floods):.0f} foreign; "
-                f"RPDOs {counts['rpdo_received']}, TPDOs {counts['tpdo_sent']}, "
-                f"send errors {counts['tx_errors']}; filters {' '.join(counts['filters'] or [])}",
+                f"RPDOs {count['rpdo_received']}, TPDOs {count['tpdo_sent']}, "
+                f"send errors {count['tx_errors']}; filters {' '.join(count['filters'] or [])}; "
+                f"receive buffer {count.get('rx_buffer_bytes')} bytes",
                 flush=True,
             )
-        results.append(result)
     summary(results, args)
     stats = {
         r.label: {

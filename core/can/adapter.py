@@ -25,7 +25,9 @@
   the front's ``run()`` raises and the runtime restarts the front with back-off.
 * SocketCAN: python-can's bus is opened, filtered and closed as usual, but frames are read
   from and written to its raw socket directly where :mod:`.socketcan_raw` allows (one
-  system call per frame instead of two, no ``can.Message``); elsewhere ``bus.recv`` and
+  system call per frame instead of two, no ``can.Message``), with a receive buffer for
+  about 2,500 frames (``rx_buffer_bytes`` in the status) so a burst that arrives while the
+  process is not scheduled waits instead of being dropped; elsewhere ``bus.recv`` and
   ``bus.send``.
 * Remote frames keep their DLC; 29-bit frames are counted and dropped (the node uses
   11-bit identifiers only).
@@ -217,6 +219,11 @@ class CanAdapter:
         """Use SocketCAN's raw socket for sending where :mod:`.socketcan_raw` allows."""
         sock = raw.raw_socket(self.bus)
         self._raw_send = None if sock is None else sock.send
+        if sock is not None:
+            try:
+                self.counters["rx_buffer_bytes"] = raw.enlarge_receive_buffer(sock)
+            except OSError as exc:
+                log.warning("CAN receive buffer left as it is: %s", _one_line(exc))
 
     # -- receive -----------------------------------------------------------------------
     def _start_receiver(self):
