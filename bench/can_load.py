@@ -99,13 +99,16 @@ def serve_durand(channel: str) -> None:
     bus.shutdown()
 
 
-def serve_fieldgate(channel: str) -> None:
+def serve_fieldgate(channel: str, raw_path: bool = True) -> None:
     """What ``fieldgate run`` does (Gateway.load, the same event loop), and on stdin EOF one
     JSON line with the front's status (its engine's frame counts) before stopping."""
     import asyncio
 
     from fieldgate import Gateway, load_registry
+    from fieldgate.can import socketcan_raw
     from fieldgate.cli import loop_factory
+
+    socketcan_raw.ENABLED = raw_path
 
     async def run() -> None:
         with tempfile.TemporaryDirectory() as state:
@@ -172,9 +175,12 @@ class Slave:
 
     @property
     def label(self) -> str:
-        return {"fieldgate": "fieldgate", "localnode": "canopen LocalNode", "durand": "durand"}[
-            self.kind
-        ]
+        return {
+            "fieldgate": "fieldgate",
+            "fieldgate-python-can": "fieldgate (python-can path)",
+            "localnode": "canopen LocalNode",
+            "durand": "durand",
+        }[self.kind]
 
     def start(self, client: Client) -> None:
         args = [sys.executable, __file__, "--serve", self.kind, "--channel", self.channel]
@@ -587,15 +593,18 @@ def main() -> None:
     parser.add_argument(
         "--slaves",
         default="fieldgate,localnode,durand",
-        help="which slaves (durand only where installed)",
+        help="which slaves (durand only where installed; fieldgate-python-can: fieldgate "
+        "without the raw SocketCAN path, for an A/B run)",
     )
     parser.add_argument("--channel", default="vcan0")
     parser.add_argument(
-        "--serve", choices=("fieldgate", "localnode", "durand"), help=argparse.SUPPRESS
+        "--serve",
+        choices=("fieldgate", "fieldgate-python-can", "localnode", "durand"),
+        help=argparse.SUPPRESS,
     )
     args = parser.parse_args()
-    if args.serve == "fieldgate":
-        return serve_fieldgate(args.channel)
+    if args.serve in ("fieldgate", "fieldgate-python-can"):
+        return serve_fieldgate(args.channel, raw_path=args.serve == "fieldgate")
     if args.serve == "localnode":
         return serve_localnode(args.channel)
     if args.serve == "durand":
@@ -632,7 +641,7 @@ def main() -> None:
         for slave, client, result in zip(slaves, clients, results, strict=True):
             print(f"\n-- {slave.label} on {slave.channel}: the flood", flush=True)
             flood_phases(slave, client, result, args)
-            if slave.kind == "fieldgate":
+            if slave.kind.startswith("fieldgate"):
                 result.sync = sync_phase(slave, slave.channel, args)
                 result.floods.append(result.sync["flood_frames"])
     finally:
