@@ -53,6 +53,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -73,7 +74,7 @@ def serve_localnode(channel: str) -> None:
     from canopen.objectdictionary import ObjectDictionary, ODVariable
     from canopen.objectdictionary import datatypes as dt
 
-    od = ObjectDictionary()
+    od = ObjectDictionary()  # type: ignore[no-untyped-call]  # canopen has no annotations
     var = ODVariable("Device type", 0x1000)
     var.data_type, var.access_type, var.default = dt.UNSIGNED32, "ro", DEVICE_TYPE
     od.add_object(var)
@@ -87,7 +88,7 @@ def serve_localnode(channel: str) -> None:
 
 def serve_durand(channel: str) -> None:
     import can
-    from durand import CANBusNetwork, Node
+    from durand import CANBusNetwork, Node  # type: ignore[import-untyped]
 
     bus = can.Bus(interface="socketcan", channel=channel)
     network = CANBusNetwork(bus)
@@ -144,7 +145,7 @@ def _wait_for_stdin_eof() -> None:
         pass
 
 
-def fieldgate_topology(state_dir: str, channel: str) -> dict:
+def fieldgate_topology(state_dir: str, channel: str) -> dict[str, Any]:
     return {
         "gateway": {"name": "can-load", "state_dir": state_dir},
         "fronts": [
@@ -294,7 +295,8 @@ def start_flood(channel: str, seconds: float, rate: float) -> subprocess.Popen[s
 
 def flood_result(proc: subprocess.Popen[str]) -> dict[str, float]:
     out, _ = proc.communicate(timeout=600)
-    return json.loads(out.strip().splitlines()[-1])
+    result: dict[str, float] = json.loads(out.strip().splitlines()[-1])
+    return result
 
 
 def pct(values: list[float], q: float) -> float:
@@ -652,12 +654,14 @@ def main() -> None:
         if count:
             result.counts = count
             own = client.sent + int(result.sync.get("sent_to_slave", 0))
+            filters = count.get("filters") or []
+            assert isinstance(filters, list)
             print(
                 f"\n{result.label}'s front counted {count['rx']} frames received in all phases, "
                 f"{count['rx_ignored']} ignored after filtering, {count['engine_rx']} reached the "
                 f"engine; the client sent it {own}, the floods {sum(result.floods):.0f} foreign; "
                 f"RPDOs {count['rpdo_received']}, TPDOs {count['tpdo_sent']}, "
-                f"send errors {count['tx_errors']}; filters {' '.join(count['filters'] or [])}; "
+                f"send errors {count['tx_errors']}; filters {' '.join(map(str, filters))}; "
                 f"receive buffer {count.get('rx_buffer_bytes')} bytes",
                 flush=True,
             )
