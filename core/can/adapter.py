@@ -23,14 +23,30 @@
 * Receiving that has died (the receive thread ended on a driver exception, or the
   reader failed ``RX_ERRORS_FATAL`` times within one poll) sets :attr:`CanAdapter.failed`;
   the front's ``run()`` raises and the runtime restarts the front with back-off.
+* SocketCAN: python-can's bus is opened, filtered and closed as usual, but frames are read
+  from and written to its raw socket directly where :mod:`.socketcan_raw` allows (one
+  system call per frame instead of two, no ``can.Message``), with a receive buffer for
+  about 2,500 frames (``rx_buffer_bytes`` in the status) so a burst that arrives while the
+  process is not scheduled waits instead of being dropped; elsewhere ``bus.recv`` and
+  ``bus.send``.
 * Remote frames keep their DLC; 29-bit frames are counted and dropped (the node uses
   11-bit identifiers only).
+* Acceptance filters: an engine with ``listen_ids()`` (the CAN-IDs it takes frames on, as
+  configured now, or None for every frame; the same object while unchanged) gets them as
+  the bus's filters (:mod:`.filters`: merged into a few ``(id, mask)`` pairs, then
+  ``bus.set_filters``: ``CAN_RAW_FILTER`` on SocketCAN, hardware or python-can's own
+  filtering elsewhere). They are checked after every call into the engine and re-applied
+  before that call's frames are sent, so a new COB-ID is heard before the answer that
+  confirms it leaves. A frame that still arrives outside the set (a widened filter, a frame
+  queued before the change) is counted in ``rx_ignored`` and never reaches the engine.
+  SocketCAN error frames have their own subscription (``CAN_RAW_ERR_FILTER``) and stay on.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import struct
 import threading
 import time
 from collections import Counter
@@ -41,6 +57,8 @@ import can
 
 from fieldgate.plugin import PluginStartError
 
+from . import filters as acceptance
+from . import socketcan_raw as raw
 from .busrx import Receiver, start_receiver
 from .frame import Frame
 
@@ -116,6 +134,7 @@ def to_message(frame: Frame) -> can.Message:
 
 
 _new_frame = tuple.__new__  # Frame(...) without its Python-level __new__: two per SDO request
+_pack = raw.FRAME.pack
 
 
 def to_frame(msg: can.Message) -> Frame:
@@ -143,6 +162,14 @@ class CanAdapter:
         self._reopen = reopen
         self.counters: Counter[str] = Counter()
         self.rx_frames = self.tx_frames = 0  # the two per-frame counts, kept as plain integers
+        self.rx_ignored = 0  # received, but not on an identifier the engine listens to
+        self._listen_ids: Callable[[], Any] | None = getattr(node, "listen_ids", None)
+        self._listen_source: object = None  # what listen_ids() returned last
+        self.listen: frozenset[int] | None = None  # the engine's listen set; None: every frame
+        self.filters: list[acceptance.Filter] | None = None  # as applied to the bus
+        self.max_filters = acceptance.MAX_FILTERS
+        self._raw_send: Callable[[bytes], int] | None = None  # SocketCAN's socket.send, if usable
+        self._bind_bus()
         self._timer: asyncio.TimerHandle | None = None
         self._armed_at = 0.0
         self._state_timer: asyncio.TimerHandle | None = None
@@ -163,10 +190,14 @@ class CanAdapter:
 
     # -- life cycle ------------------------------------------------------------------
     def start(self, boot: bool = True) -> None:
+        with self.engine_lock:
+            self._refresh_filters()
         self._receiver = self._start_receiver()
         with self.engine_lock:
             if boot:
-                self._send(self.node.boot(self.now))
+                frames = self.node.boot(self.now)
+                self._refresh_filters()
+                self._send(frames)
             self._arm()
         self._state_timer = self.loop.call_later(STATE_POLL_S, self._poll_bus_state)
         self.node.on_bit_timing(self._bit_timing)
@@ -191,10 +222,47 @@ class CanAdapter:
     def now(self) -> float:
         return self.loop.time()
 
+    def _bind_bus(self) -> None:
+        """Use SocketCAN's raw socket for sending where :mod:`.socketcan_raw` allows."""
+        sock = raw.raw_socket(self.bus)
+        self._raw_send = None if sock is None else sock.send
+        if sock is not None:
+            try:
+                self.counters["rx_buffer_bytes"] = raw.enlarge_receive_buffer(sock)
+            except OSError as exc:
+                log.warning("CAN receive buffer left as it is: %s", _one_line(exc))
+
     # -- receive -----------------------------------------------------------------------
     def _start_receiver(self) -> Receiver:
         quick = self._quick if hasattr(self.node, "quick_answer") else None
-        return start_receiver(self.bus, self.loop, self._receive, quick)
+        return start_receiver(self.bus, self.loop, self._receive, quick, self._receive_raw)
+
+    def _receive_raw(self, word: int, dlc: int, data: bytes) -> None:
+        """One frame read from SocketCAN's raw socket (the fast path of :meth:`_receive`)."""
+        if word & raw.OTHER_FLAGS:
+            self._receive(raw.to_message(word, dlc, data))
+            return
+        if self.closed:
+            return
+        with self.engine_lock:
+            self.rx_frames += 1
+            can_id = word & raw.CAN_SFF_MASK
+            listen = self.listen
+            if listen is not None and can_id not in listen:
+                self.rx_ignored += 1
+                return
+            if word & raw.CAN_RTR_FLAG:
+                frame = Frame(can_id, b"", rtr=True, dlc=dlc)
+            else:
+                frame = _new_frame(Frame, (can_id, data[:dlc], False, None))
+            now = self.loop.time()
+            node = self.node
+            frames = node.receive(frame, now)
+            if self._listen_ids is not None and self._listen_ids() is not self._listen_source:
+                self._refresh_filters()
+            self._arm(node.deadline_after_call, known=True)
+            if frames:
+                self._send(frames, now)
 
     def _receive(self, msg: can.Message) -> None:
         """One received message: the node's answers go out before anything else happens."""
@@ -205,9 +273,15 @@ class CanAdapter:
                 self._receive_other(msg)
                 return
             self.rx_frames += 1
+            listen = self.listen
+            if listen is not None and msg.arbitration_id not in listen:
+                self.rx_ignored += 1
+                return
             now = self.loop.time()
             node = self.node
             frames = node.receive(to_frame(msg), now)
+            if self._listen_ids is not None and self._listen_ids() is not self._listen_source:
+                self._refresh_filters()
             self._arm(node.deadline_after_call, known=True)
             if frames:  # last: only returns follow the answer, so the waiting peer runs at once
                 self._send(frames, now)
@@ -321,11 +395,21 @@ class CanAdapter:
         if self.transmit_allowed is not None and not self.transmit_allowed(now):
             self.counters["tx_suppressed"] += len(frames)
             return
+        raw_send = self._raw_send
         for frame in frames:
             try:
-                self.bus.send(to_message(frame))
+                if raw_send is not None:
+                    can_id, data, rtr, _ = frame
+                    if rtr:
+                        raw_send(_pack(can_id | raw.CAN_RTR_FLAG, frame.length, b""))
+                    elif len(data) <= 8:
+                        raw_send(_pack(can_id, len(data), data))
+                    else:
+                        raise ValueError(f"{len(data)} data bytes in a classic CAN frame")
+                else:
+                    self.bus.send(to_message(frame))
                 self.tx_frames += 1
-            except (can.CanError, OSError, ValueError) as exc:
+            except (can.CanError, OSError, ValueError, struct.error) as exc:
                 self.counters["tx_errors"] += 1
                 if self.counters["tx_errors"] == 1 or self.counters["tx_errors"] % 1000 == 0:
                     log.warning(
@@ -340,14 +424,18 @@ class CanAdapter:
         with self.engine_lock:
             if action is not None:
                 action()
-            self._send(self.node.flush())
+            frames = self.node.flush()
+            self._refresh_filters()
+            self._send(frames)
             self._arm()
 
     def run_engine(self) -> None:
         """Let the engine act now (a process-image event changed its inputs): tick, send, re-arm."""
         with self.engine_lock:
-            self._send(self.node.tick(self.now))
-            self._send(self.node.flush())
+            frames = self.node.tick(self.now)
+            frames += self.node.flush()
+            self._refresh_filters()
+            self._send(frames)
             self._arm()
 
     def _arm(self, deadline: float | None = None, known: bool = False) -> None:
@@ -374,8 +462,38 @@ class CanAdapter:
         if self.closed:
             return
         with self.engine_lock:
-            self._send(self.node.tick(self.now))
+            frames = self.node.tick(self.now)
+            if self._listen_ids is not None and self._listen_ids() is not self._listen_source:
+                self._refresh_filters()
+            self._send(frames)
             self._arm(self.node.deadline_after_call, known=True)
+
+    # -- acceptance filters -----------------------------------------------------------------
+    def _refresh_filters(self) -> None:
+        """Give the bus the engine's listen set if it changed (the caller holds the lock)."""
+        get = self._listen_ids
+        if get is None or self.closed:
+            return
+        source = get()
+        if source is self._listen_source:
+            return
+        self._listen_source = source
+        listen = None if source is None else frozenset(source)
+        if listen == self.listen and self.filters is not None:
+            return
+        self.listen = listen
+        self._apply_filters()
+
+    def _apply_filters(self) -> None:
+        listen = self.listen
+        merged = None if listen is None else acceptance.merge(listen, self.max_filters)
+        try:
+            self.bus.set_filters(None if merged is None else acceptance.to_python_can(merged))
+        except (can.CanError, OSError, ValueError, NotImplementedError) as exc:
+            self.counters["filter_errors"] += 1
+            log.warning("CAN acceptance filters not set (every frame is read): %s", _one_line(exc))
+        self.filters = merged
+        self.counters["filter_updates"] += 1
 
     # -- LSS bit timing ---------------------------------------------------------------------
     def _bit_timing(self, bitrate: int, delay_s: float) -> None:
@@ -396,10 +514,13 @@ class CanAdapter:
         try:
             self.bus.shutdown()
             self.bus = reopen(bitrate)
+            self._bind_bus()
         except PluginStartError as exc:
             log.error("cannot reopen the CAN bus at %d bit/s: %s", bitrate, exc)
             self.counters["bit_timing_failures"] += 1
             return
+        with self.engine_lock:
+            self._apply_filters()
         self._receiver = self._start_receiver()
         self._switching = False
         self.counters["bit_timing_switches"] += 1
@@ -407,8 +528,10 @@ class CanAdapter:
     def status(self) -> dict[str, Any]:
         return {
             "rx": self.rx_frames,
+            "rx_ignored": self.rx_ignored,
             "tx": self.tx_frames,
             "quick_answers": self.quick_answers,
             **self.counters,
+            "filters": None if self.filters is None else acceptance.describe(self.filters),
             "bus_off": self._bus_off,
         }

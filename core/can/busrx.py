@@ -4,16 +4,19 @@
 event loop's thread for every message the bus receives, in order:
 
 * buses with a file descriptor (SocketCAN): ``loop.add_reader``, reading until the socket
-  is empty, without a thread;
-* every other interface (pcan, kvaser, ixxat, ... and python-can's ``virtual`` when a
-  ``quick`` answerer is given): a receive thread blocked in ``bus.recv`` that hops to
-  the loop (``call_soon_threadsafe``); a driver exception ends it and is kept in
-  :attr:`Receiver.exception` (the adapter fails the front, which restarts);
-* python-can's in-process ``virtual`` bus without ``quick``: the sender's thread hands
-  each message straight to the loop (``call_soon_threadsafe``) through a stand-in for the
-  bus's receive queue, so no receive thread sits in between (python-can 4.6 keeps one
-  ``queue.Queue`` per bus in the channel's list and ``send`` calls ``put`` on each; the
-  stand-in has ``put``).
+  is empty, without a thread; python-can's SocketCAN bus is read from its raw socket when
+  :func:`.socketcan_raw.raw_socket` allows (one ``recv`` per frame), else with ``bus.recv``;
+* every other interface (pcan, kvaser, ixxat, ... and python-can's ``virtual``): a
+  receive thread blocked in ``bus.recv`` that hands messages to the loop in batches (one
+  ``call_soon_threadsafe`` wakes the loop for everything queued until it runs); a driver
+  exception ends it and is kept in :attr:`Receiver.exception` (the adapter fails the
+  front, which restarts).
+
+Apart from that feature-checked SocketCAN path only python-can's public API is used
+(``recv``, ``fileno``), so python-can's filtering
+(``set_filters``: in the kernel, the adapter's hardware or python-can's ``recv``) applies
+on every path. (Up to python-can 4.6 the ``virtual`` bus was read by replacing its private
+receive queue, which pinned python-can below 4.7 and bypassed its filtering.)
 
 ``quick(msg) -> bool``, given, runs on the receive thread first and returns True when it
 has handled the message completely (the CANopen front answers SDO reads there, see
@@ -21,23 +24,29 @@ has handled the message completely (the CANopen front answers SDO reads there, s
 message handed to the loop before has been handled (:attr:`Receiver.idle`), so the
 answers keep the order of the requests; anything it declines goes to the loop.
 
-A receive thread costs one extra thread wake-up per frame that goes to the loop; an SDO
-read answered on it costs none, like canopen's LocalNode (bench/canopen_sdo.py).
+A receive thread costs one extra thread wake-up per batch of frames that goes to the
+loop; an SDO read answered on it costs none, like canopen's LocalNode
+(bench/canopen_sdo.py).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import threading
+from collections import deque
 from collections.abc import Callable
 
 import can
-from can.interfaces import virtual
+
+from .socketcan_raw import FRAME, raw_socket
 
 log = logging.getLogger("fieldgate.can.busrx")
 
 OnMessage = Callable[[can.Message], None]
+OnRaw = Callable[[int, int, bytes], None]  # (can_id | CAN_*_FLAGs, dlc, 8 data bytes)
+RAW_BATCH = 256  # frames read per wake-up at most on the raw path
 Quick = Callable[[can.Message], bool]
 RECV_TIMEOUT_S = 0.1  # how often the receive thread looks at whether it should stop
 
@@ -58,6 +67,8 @@ class Receiver:
     ):
         self.bus, self.loop, self.on_message, self.quick = bus, loop, on_message, quick
         self.active = True
+        self._queue: deque[can.Message] = deque()  # handed over, not yet handled
+        self._scheduled = False  # a _deliver_queued is on its way to the loop
         self.exception: BaseException | None = (
             None  # what ended the receive thread, if anything did
         )
@@ -92,66 +103,34 @@ class Receiver:
         if quick is not None and self.idle and quick(msg):
             return
         self.handed_over += 1
-        try:
-            self.loop.call_soon_threadsafe(self._deliver, msg)
-        except RuntimeError:  # loop closed during shutdown
-            pass
+        self._queue.append(msg)  # before the flag is read: the loop clears it before draining
+        if not self._scheduled:
+            self._scheduled = True
+            try:
+                self.loop.call_soon_threadsafe(self._deliver_queued)
+            except RuntimeError:  # loop closed during shutdown
+                pass
 
-    def _deliver(self, msg: can.Message) -> None:
-        try:
-            if self.active:
-                self.on_message(msg)
-        finally:
-            self.handled += 1
+    def _deliver_queued(self) -> None:
+        """On the loop: everything the thread queued so far, in order."""
+        self._scheduled = False
+        queue = self._queue
+        while queue:
+            msg = queue.popleft()
+            try:
+                if self.active:
+                    self.on_message(msg)
+            except Exception as exc:  # reported as the loop reports a failing callback
+                self.loop.call_exception_handler(
+                    {"message": f"CAN message {msg} not handled", "exception": exc}
+                )
+            finally:
+                self.handled += 1
 
     def stop(self) -> None:
         self.active = False
         if self._thread is not threading.current_thread():
             self._thread.join(5 * RECV_TIMEOUT_S)
-
-
-class _LoopQueue:
-    """Stands in for a virtual bus's receive queue: ``put`` delivers on the loop."""
-
-    def __init__(self, receiver: VirtualReceiver):
-        self.receiver = receiver
-
-    def put(self, msg: can.Message, block: bool = True, timeout: float | None = None) -> None:
-        receiver = self.receiver
-        if receiver.active:
-            try:
-                receiver.loop.call_soon_threadsafe(receiver._deliver, msg)
-            except RuntimeError:  # loop closed during shutdown
-                pass
-
-    def get(self, block: bool = True, timeout: float | None = None):
-        raise can.CanOperationError(
-            "this virtual bus delivers to the event loop; recv() is not available"
-        )
-
-
-class VirtualReceiver(Receiver):
-    mode = "virtual-push"
-
-    def __init__(
-        self, bus: virtual.VirtualBus, loop: asyncio.AbstractEventLoop, on_message: OnMessage
-    ):
-        self.bus, self.loop, self.on_message = bus, loop, on_message
-        self.active = True
-        stand_in = _LoopQueue(self)
-        with virtual.channels_lock:
-            queues = bus.channel
-            position = next(i for i, q in enumerate(queues) if q is bus.queue)
-            pending = []
-            while not bus.queue.empty():  # anything received before we took over
-                pending.append(bus.queue.get_nowait())
-            queues[position] = stand_in
-            bus.queue = stand_in  # VirtualBus.shutdown() removes bus.queue from the channel
-        for msg in pending:
-            loop.call_soon_threadsafe(self._deliver, msg)
-
-    def stop(self) -> None:
-        self.active = False
 
 
 class ReaderReceiver(Receiver):
@@ -197,12 +176,41 @@ class ReaderReceiver(Receiver):
         self.loop.remove_reader(self._fd)
 
 
-def _usable_virtual(bus: can.BusABC) -> bool:
-    return (
-        isinstance(bus, virtual.VirtualBus)
-        and isinstance(getattr(bus, "channel", None), list)
-        and any(q is getattr(bus, "queue", None) for q in bus.channel)
-    )
+class RawSocketReceiver(ReaderReceiver):
+    """SocketCAN read from its raw socket on the loop (:mod:`.socketcan_raw`): one ``recv``
+    per frame, up to :data:`RAW_BATCH` frames per wake-up (the loop's timers run between)."""
+
+    mode = "socketcan-raw"
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        loop: asyncio.AbstractEventLoop,
+        on_raw: OnRaw,
+        sock: socket.socket,
+    ):
+        self.on_raw = on_raw
+        self._sock = sock
+        super().__init__(bus, loop, lambda msg: None, sock.fileno())
+
+    def _readable(self) -> None:
+        recv, unpack, on_raw = self._sock.recv, FRAME.unpack, self.on_raw
+        for _ in range(RAW_BATCH):
+            if not self.active:
+                return
+            try:
+                raw = recv(FRAME.size, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                return
+            except OSError as exc:
+                self.errors += 1
+                if self.errors == 1 or self.errors % 1000 == 0:
+                    log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
+                self._watch_again()
+                return
+            if len(raw) == FRAME.size:
+                word, dlc, data = unpack(raw)
+                on_raw(word, dlc, data)
 
 
 def _fileno(bus: can.BusABC) -> int | None:
@@ -218,11 +226,15 @@ def start_receiver(
     loop: asyncio.AbstractEventLoop,
     on_message: OnMessage,
     quick: Quick | None = None,
+    on_raw: OnRaw | None = None,
 ) -> Receiver:
-    """Deliver the bus's messages to ``on_message`` on ``loop`` (call from the loop's thread)."""
+    """Deliver the bus's messages to ``on_message`` on ``loop`` (call from the loop's thread);
+    to ``on_raw(can_id_and_flags, dlc, data8)`` instead where the bus is SocketCAN's raw
+    socket and ``on_raw`` is given (:mod:`.socketcan_raw`)."""
+    sock = raw_socket(bus) if on_raw is not None else None
+    if sock is not None and on_raw is not None:
+        return RawSocketReceiver(bus, loop, on_raw, sock)
     fd = _fileno(bus)
     if fd is not None:
         return ReaderReceiver(bus, loop, on_message, fd)
-    if quick is None and _usable_virtual(bus):
-        return VirtualReceiver(bus, loop, on_message)
     return Receiver(bus, loop, on_message, quick)

@@ -207,6 +207,12 @@ class ErrorControl(Service):
         return 0x700 + self.node.node_id
 
     # -- frames -------------------------------------------------------------------------
+    def listen_ids(self) -> set[int]:
+        """Guarding RTRs on 0x700 + node-ID, the heartbeats of the 0x1016 producers."""
+        if not self.node.configured:
+            return set()
+        return {self.cob_id, *(0x700 + p for p in self.watched if 1 <= p <= 127)}
+
     def on_frame(self, frame: Frame, now: float) -> bool:
         if not self.node.configured:
             return False

@@ -246,9 +246,12 @@ class IoDevice(Service):
         self.profile.detach()
         self.manufacturer.detach()
 
+    def listen_ids(self) -> set[int]:
+        return self.engine.listen_ids() if self.engine is not None else set()
+
     def on_frame(self, frame: Frame, now: float) -> bool:
         engine = self.engine
-        if engine is None or frame.can_id not in engine.listen_ids():
+        if engine is None or not engine.listens_to(frame.can_id):
             return False
         self._send(engine.on_frame(frame.can_id, frame.data, now, rtr=frame.rtr))
         return True

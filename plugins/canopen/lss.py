@@ -512,6 +512,9 @@ class LssService(Service):
         if self._slave.pending_node_id != self.node.pending_node_id:
             self.node.set_node_id(self._slave.pending_node_id)
 
+    def listen_ids(self) -> tuple[int, ...]:
+        return (REQUEST_ID,)
+
     def on_frame(self, frame: CanFrame, now: float) -> bool:
         if frame.can_id != REQUEST_ID:
             return False

@@ -9,6 +9,7 @@ returns the frames to send::
     out = node.receive(frame, now)         # answers to one received frame
     out = node.tick(now)                   # timers (heartbeat, life guarding, SDO timeout...)
     out = node.quick_answer(can_id, data, now)  # a read answered from a receive thread, or None
+    ids = node.listen_ids()                # the CAN-IDs to receive (acceptance filters), or None
     when = node.next_deadline()            # call tick() again at this time (or None)
 
 Public hooks for other services and the front:
@@ -81,6 +82,8 @@ class Node:
         self._deadline_hint: float | None = None
         self._routes: dict[tuple[int, bool], Service] = {}
         self._routes_generation = -1
+        self._listen: frozenset[int] | None = frozenset()
+        self._listen_key: tuple[int, int, int] | None = None
         self.reset_emcy = False  # send EMCY 00 FF 80 0A before an NMT reset (ICP DAS gateways do)
         self._outbox: list[Frame] = []
         self._nmt_listeners: list[Callable[[NmtState, NmtState], None]] = []
@@ -186,6 +189,32 @@ class Node:
         if answer is not None:
             self.frames_received += 1
         return answer
+
+    def listen_ids(self) -> frozenset[int] | None:
+        """The CAN-IDs the node takes frames on, as configured now; None: every frame.
+
+        NMT (0x000) and what each service lists (:meth:`.service.Service.listen_ids`),
+        whatever the NMT state. Recomputed after a dictionary change, reset or node-ID
+        change; the same object while nothing changed (the adapter compares identity).
+        """
+        key = (self.od.generation, self.node_id, len(self.services))
+        if key != self._listen_key:
+            ids: set[int] | None = {0x000}
+            for service in self.services:
+                try:
+                    listed = service.listen_ids()
+                except Exception:
+                    self._internal_error(service, "listen_ids")
+                    listed = None
+                if listed is None:
+                    ids = None
+                    break
+                ids.update(listed)
+            listen = None if ids is None else frozenset(ids)
+            if listen != self._listen:
+                self._listen = listen
+            self._listen_key = key
+        return self._listen
 
     def _dispatch(self, frame: Frame, now: float) -> object:
         """Offer the frame to the services in add order until one takes it.

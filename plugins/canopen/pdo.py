@@ -364,6 +364,10 @@ class PdoEngine:
         """CAN identifiers the engine wants: valid RPDOs and RTR-enabled valid TPDOs."""
         return set(self._rx) | set(self._rtr)
 
+    def listens_to(self, can_id: int) -> bool:
+        """``can_id in listen_ids()`` without building the set (once per received frame)."""
+        return can_id in self._rx or can_id in self._rtr
+
     # -- behaviour ------------------------------------------------------------------
     class _CallGuard:
         def __init__(self, engine: PdoEngine):

@@ -148,6 +148,9 @@ class SdoServer(Service):
         self._load_cob_ids()
 
     # -- frames ---------------------------------------------------------------------------
+    def listen_ids(self) -> tuple[int, ...]:
+        return () if self.rx_cob is None else (self.rx_cob,)
+
     def on_frame(self, frame: Frame, now: float) -> Taken:
         if frame.can_id != self.rx_cob:
             return False

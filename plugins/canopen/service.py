@@ -17,6 +17,9 @@ How a service plugs in (PDO engine, CiA 401 objects, LSS, ... are written this w
             self.node.send(Frame(...))           # answers go to the node's outbox
             return True                          # (or QUIET: see below)
 
+        def listen_ids(self):                    # the CAN-IDs on_frame takes, as configured now
+            return (self.cob_id,)
+
         def on_nmt_state(self, old, new, now): ...   # NMT state changed
         def on_sync(self, counter, now): ...         # a SYNC was consumed (counter or None)
         def on_reset_communication(self, now): ...   # communication area reloaded, node-ID may be new
@@ -47,6 +50,13 @@ Rules:
   before. It returns the answer or None (then the frame goes the normal way); it changes
   nothing but its own counters, never raises, and reads the dictionary only with
   ``od.read_quick`` (plain values and getters bound ``thread_safe``).
+* ``listen_ids``: the CAN-IDs (data or remote) ``on_frame`` may take, from the current
+  configuration and independent of the NMT state (a frame may follow the NMT command at
+  once). The node joins them into its listen set, which the adapter turns into the bus's
+  acceptance filters; frames on other IDs never reach the node. The set is asked for again
+  after any dictionary change, reset or node-ID change, so keep what it depends on in the
+  dictionary. The default: none for a service without ``on_frame``, every frame (None, no
+  filtering) for one that has ``on_frame`` but does not say.
 * ``active_states``: the NMT states in which the node passes frames to ``on_frame``.
   The default is pre-operational and operational (SDO, SYNC, EMCY per CiA 301); a PDO
   service sets ``{NmtState.OPERATIONAL}``, error control and LSS set all states.
@@ -55,7 +65,7 @@ Rules:
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from typing import Any, ClassVar, Protocol, TypeVar
 
 from .frame import Frame, NmtState
@@ -171,6 +181,9 @@ class Service:
 
     def answer_read(self, data: bytes | bytearray) -> Frame | None:
         return None
+
+    def listen_ids(self) -> Collection[int] | None:
+        return () if type(self).on_frame is Service.on_frame else None
 
     def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
         pass

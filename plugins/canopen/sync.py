@@ -121,6 +121,9 @@ class SyncService(Service):
                 self.node.emcy.clear_errors([SYNC_LOSS_ERROR], now)
 
     # -- consumer --------------------------------------------------------------------------
+    def listen_ids(self) -> tuple[int, ...]:
+        return (self.cob_id,)
+
     def on_frame(self, frame: Frame, now: float) -> bool:
         if frame.can_id != self.cob_id or frame.rtr:
             return False

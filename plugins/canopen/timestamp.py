@@ -101,6 +101,9 @@ class TimeConsumer(Service):
         return self.last + timedelta(seconds=max(0.0, elapsed))
 
     # -- frames ------------------------------------------------------------------------------
+    def listen_ids(self) -> tuple[int, ...]:
+        return () if self.cob_id is None else (self.cob_id,)
+
     def on_frame(self, frame: Frame, now: float) -> bool:
         if frame.can_id != self.cob_id:
             return False

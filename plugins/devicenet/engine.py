@@ -118,6 +118,8 @@ class DeviceNetSlave:
         self.deadline_after_call: float | None = None
         self._now = 0.0
         self._new_mac: int | None = None
+        self._listen: frozenset[int] = frozenset()
+        self._listen_key: tuple[int, int] | None = None
 
     # -- listeners ------------------------------------------------------------------------
     def on_master(self, listener: Callable[[bool, str], None]) -> None:
@@ -190,6 +192,22 @@ class DeviceNetSlave:
 
     def flush(self) -> list[Frame]:
         return self._done()
+
+    def listen_ids(self) -> frozenset[int]:
+        """The CAN-IDs this slave takes frames on (the adapter's acceptance filters).
+
+        Group 2 for its MAC ID (all eight message IDs: requests, poll, duplicate MAC ID
+        check, ...), the allocated master's bit-strobe, and the Group 4 Offline Connection
+        Set (0x7EC-0x7EF). The same object while the MAC ID and the master are unchanged.
+        """
+        key = (self.mac_id, self.master_mac)
+        if key != self._listen_key:
+            wanted = {ids.group2_id(self.mac_id, message) for message in range(8)}
+            if self.master_mac != UNALLOCATED:
+                wanted.add(ids.group2_id(self.master_mac, ids.G2_STROBE))
+            wanted.update(ids.group4_id(message) for message in range(0x2C, 0x30))
+            self._listen, self._listen_key = frozenset(wanted), key
+        return self._listen
 
     def next_deadline(self) -> float | None:
         times = [self._dup_at, self._heartbeat_at, self._produce_at]

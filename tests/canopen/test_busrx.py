@@ -1,4 +1,4 @@
-"""Receive paths onto the event loop: virtual push, add_reader on a descriptor, a receive thread (with quick answers)."""
+"""Receive paths onto the event loop: a receive thread on the virtual bus, add_reader on a descriptor, a receive thread (with quick answers)."""
 
 from __future__ import annotations
 
@@ -42,43 +42,51 @@ async def collect(receiver_bus, send, count, timeout=5.0):
     return receiver, got, threads
 
 
-async def test_virtual_bus_pushes_messages_to_the_loop_in_order_without_a_thread():
+async def test_virtual_bus_is_read_by_a_thread_in_order_and_batched_onto_the_loop():
     ch = channel()
     rx = can.Bus(interface="virtual", channel=ch)
     tx = can.Bus(interface="virtual", channel=ch)
-    threads_before = threading.active_count()
-    tx.send(message(0))  # received before the receiver takes over: still delivered first
+    tx.send(message(0))  # received before the receiver starts: still delivered first
 
     def send():
         for n in range(1, 500):
             tx.send(message(n))
 
     receiver, got, threads = await collect(rx, send, 500)
-    assert receiver.mode == "virtual-push"
+    assert receiver.mode == "thread"
     assert got == list(range(500))
-    assert threads == {threading.get_ident()}
-    assert threading.active_count() == threads_before  # no receive thread was started
+    assert threads == {threading.get_ident()}  # handled on the loop's thread
+    assert receiver.idle
     receiver.stop()
-    tx.send(message(999))
-    await asyncio.sleep(0.05)
-    assert got[-1] == 499  # nothing after stop
     rx.shutdown()
-    tx.send(message(1000))  # the channel no longer holds the stand-in
     tx.shutdown()
 
 
-async def test_virtual_bus_still_sends_and_other_receivers_still_receive():
+async def test_virtual_bus_keeps_python_cans_filtering_and_its_own_sending():
+    """Only public API: set_filters applies (python-can filters in recv), send still works."""
     ch = channel()
     rx = can.Bus(interface="virtual", channel=ch)
-    peer = can.Bus(interface="virtual", channel=ch)
-    receiver = start_receiver(rx, asyncio.get_running_loop(), lambda msg: None)
+    tx = can.Bus(interface="virtual", channel=ch)
+    rx.set_filters([{"can_id": 0x605, "can_mask": 0x7FF, "extended": False}])
+    loop = asyncio.get_running_loop()
+    got, done = [], asyncio.Event()
+
+    def on_message(msg):
+        got.append(msg.arbitration_id)
+        if msg.data == b"end":
+            done.set()
+
+    receiver = start_receiver(rx, loop, on_message)
+    for can_id in (0x181, 0x605, 0x7E5, 0x605):
+        tx.send(can.Message(arbitration_id=can_id, data=b"x", is_extended_id=False))
+    tx.send(can.Message(arbitration_id=0x605, data=b"end", is_extended_id=False))
+    await asyncio.wait_for(done.wait(), 5)
+    assert got == [0x605, 0x605, 0x605]
     rx.send(message(7))
-    assert int.from_bytes(peer.recv(1.0).data, "little") == 7
-    with pytest.raises(can.CanOperationError):
-        rx.recv(0)  # this bus now delivers to the loop only
+    assert int.from_bytes(tx.recv(1.0).data, "little") == 7
     receiver.stop()
     rx.shutdown()
-    peer.shutdown()
+    tx.shutdown()
 
 
 class SocketBus(can.BusABC):
