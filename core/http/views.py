@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, assert_never
 
 from ..health import ModuleHealth
 from ..image import Channel, Quality
@@ -120,7 +120,7 @@ def cause(gateway: Gateway, channel: Channel) -> str:
         return "the module does not match its declaration" + (
             f": {last_error}" if last_error else ""
         )
-    return quality.value
+    assert_never(quality)  # every quality has its sentence (mypy checks this)
 
 
 def locations(components: list[Component]) -> dict[str, list[dict[str, str]]]:

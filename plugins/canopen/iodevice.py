@@ -182,7 +182,7 @@ class IoDevice(Service):
         fnbus = self.fnbus.objects() if self.fnbus is not None else []
         return Directory(self.profile.objects() + self.manufacturer.objects() + fnbus)
 
-    def _new_engine(self, node) -> PdoEngine:
+    def _new_engine(self, node: NodeHost) -> PdoEngine:
         return PdoEngine(
             self.directory,
             self.defaults.tpdo,

@@ -24,6 +24,7 @@ from typing import Any, Protocol
 
 from .abort import SdoAbort
 from .entries import Directory
+from .fnbus import FnBusRegister
 from .layouts import IoLayout
 from .pdo import PdoEngine
 from .service import NodeHost
@@ -69,6 +70,8 @@ class StoredIo(Protocol):
     def engine(self) -> PdoEngine | None: ...
     @property
     def directory(self) -> Directory: ...
+    @property
+    def fnbus(self) -> FnBusRegister | None: ...
 
 
 class IoStore:

@@ -199,7 +199,8 @@ class Node:
         """
         key = (self.od.generation, self.node_id, len(self.services))
         if key != self._listen_key:
-            ids: set[int] | None = {0x000}
+            ids: set[int] = {0x000}
+            everything = False  # a service that cannot list its CAN-IDs takes every frame
             for service in self.services:
                 try:
                     listed = service.listen_ids()
@@ -207,10 +208,10 @@ class Node:
                     self._internal_error(service, "listen_ids")
                     listed = None
                 if listed is None:
-                    ids = None
+                    everything = True
                     break
                 ids.update(listed)
-            listen = None if ids is None else frozenset(ids)
+            listen = None if everything else frozenset(ids)
             if listen != self._listen:
                 self._listen = listen
             self._listen_key = key

@@ -35,7 +35,7 @@ trigger fires ``(0x6401, channel)``; a special input byte fires ``(0x3000, byte)
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from functools import partial
 
 from fieldgate.image import Change, Channel, DataType, ErrorMode, ProcessImage, Subscription
@@ -249,6 +249,10 @@ class Profile401:
             self.image.write_output(ch.id, bool(value), self.origin)
 
     # -- special bytes ----------------------------------------------------------------
+    @staticmethod
+    def _special_byte(channels: Sequence[Channel], n: int) -> int:
+        return int(channels[n].value)
+
     def write_so(self, n: int, value: int) -> None:
         self.image.write_output(self.layout.so[n].id, value, self.origin)
 
@@ -608,12 +612,10 @@ class Profile401:
                                 f"{verb} bit {n + 1}",
                                 BOOLEAN,
                                 access,
-                                (lambda n=n: self.read_di_bit(n))
+                                partial(self.read_di_bit, n)
                                 if access == "ro"
-                                else (lambda n=n: self.read_do_bit(n)),
-                                (lambda v, n=n: self.write_do_bit(n, v))
-                                if access == "rw"
-                                else None,
+                                else partial(self.read_do_bit, n),
+                                partial(self.write_do_bit, n) if access == "rw" else None,
                                 default=0 if access == "ro" else self.read_do_bit(n),
                                 mappable=True,
                             )
@@ -637,7 +639,7 @@ class Profile401:
                             f"Special input byte {n}",
                             UNSIGNED8,
                             "ro",
-                            lambda n=n: int(lay.si[n].value),
+                            partial(self._special_byte, lay.si, n),
                             default=0,
                             mappable=True,
                         )
@@ -656,8 +658,8 @@ class Profile401:
                             f"Special output byte {n}",
                             UNSIGNED8,
                             "rw",
-                            lambda n=n: int(lay.so[n].value),
-                            lambda v, n=n: self.write_so(n, v),
+                            partial(self._special_byte, lay.so, n),
+                            partial(self.write_so, n),
                             default=int(lay.so[n].value),
                             mappable=True,
                         )

@@ -93,6 +93,8 @@ COMMUNICATING = frozenset({NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL})
 class EmcyProducer(Protocol):
     """What services use of the node's EMCY producer (:class:`.emcy.Emcy`)."""
 
+    on_sent: Callable[[Frame], None] | None  # the front publishes an event per EMCY sent
+
     def raise_error(
         self,
         code: int,
