@@ -19,7 +19,6 @@ from .model import (
     BDSEQ,
     BOOLEAN,
     DOUBLE,
-    GOOD,
     INT64,
     NEXT_SERVER,
     QUALITY_CODE,
