@@ -86,6 +86,8 @@ class SqliteJournal:
     def __init__(self, path: Path, max_samples: int = 1_000_000, sync: str = "normal"):
         self.path = path
         self.max_samples = max_samples
+        self._closed = False
+        self._oldest_at_close: int | None = None
         path.parent.mkdir(parents=True, exist_ok=True)
         try:
             self._db = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
@@ -146,11 +148,17 @@ class SqliteJournal:
         return int(self._count)
 
     def oldest_ts_ms(self) -> int | None:
+        if self._closed:
+            return self._oldest_at_close
         row = self._db.execute("SELECT ts_ms FROM samples ORDER BY id LIMIT 1").fetchone()
         return None if row is None else int(row[0])
 
     def close(self) -> None:
-        self._db.close()
+        """Close the file; count and oldest age stay readable (a stopped front's status)."""
+        if not self._closed:
+            self._oldest_at_close = self.oldest_ts_ms()
+            self._closed = True
+            self._db.close()
 
     def _transaction(self) -> _Tx:
         return _Tx(self._db)
