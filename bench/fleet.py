@@ -232,7 +232,10 @@ def analyse(
             hist = [v for _, v, hist, _ in samples if hist]
             by_time = [v for _, v, _, _ in sorted(samples, key=lambda s: (s[0], s[1]))]
             disorder += sum(
-                1 for seq in (live, hist, by_time) for a, b in zip(seq, seq[1:]) if b <= a
+                1
+                for seq in (live, hist, by_time)
+                for a, b in zip(seq, seq[1:], strict=False)
+                if b <= a
             )
             for ts, value, historical, arrived in samples:
                 if historical or window[0] <= arrived <= window[1]:
@@ -341,7 +344,7 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
         },
         rss_mb_per_gateway={
             "mean": statistics.mean(r["rss_mb"] for r in loaded.values()),
-            "max": max(r["max_rss_mb"] for r in loaded.values()),
+            "max": max(max(r["max_rss_mb"], r["rss_mb"]) for r in loaded.values()),
         },
         journal_dropped=sum(r["dropped"] or 0 for r in loaded.values()),
         backlog_left=sum(r["backlog"] or 0 for r in loaded.values()),
