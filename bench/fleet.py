@@ -69,6 +69,10 @@ def gateway_topology(index: int, port: int, points: int, state_dir: str) -> dict
                 "port": "/dev/null",  # replaced by a pseudo-terminal (simulate)
                 "baudrate": 115200,
                 "poll_ms": 100,
+                # generous for a host running 50 of these: a starved process must not mark
+                # its simulated module offline (that would be a test of the CPU, not of Sparkplug)
+                "timeout_ms": 1000,
+                "fail_threshold": 10,
                 "modules": [
                     {
                         "address": 1,
@@ -89,19 +93,26 @@ def gateway_topology(index: int, port: int, points: int, state_dir: str) -> dict
 
 
 async def run_gateway(args: argparse.Namespace) -> None:
+    from fieldgate.image import Quality
     from fieldgate.runtime import Gateway
 
     gw = Gateway.load(
         gateway_topology(args.index, args.port, args.points, args.state_dir), simulate=True
     )
-    seen: dict[str, list[int]] = {}
+    seen: dict[str, list[int]] = {}  # good values each channel took in the process image
     set_times: list[float] = []
     stop = asyncio.Event()
     asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, stop.set)
     cpu0 = resource.getrusage(resource.RUSAGE_SELF)
     wall0 = time.monotonic()
     async with gw:
-        gw.image.subscribe(lambda ch: seen.setdefault(ch.channel.id, []).append(ch.value))
+        gw.image.subscribe(
+            lambda ch: (
+                ch.quality is Quality.GOOD
+                and ch.value_changed
+                and seen.setdefault(ch.channel.id, []).append(ch.value)
+            )
+        )
         sim = gw.bench.simulator("rs485")
         ids = [f"rs485/m1/ai{i}" for i in range(args.points)]
         print("running", flush=True)
@@ -133,6 +144,7 @@ async def run_gateway(args: argparse.Namespace) -> None:
         "rss_mb": rss_kb / 1024,
         "max_rss_mb": cpu1.ru_maxrss / 1024,
         "dropped": status.get("dropped_messages"),
+        "poll_errors": sum(sum(m.errors.values()) for m in gw.health.modules()),
         "backlog": status.get("backlog_messages"),
     }
     Path(args.report).write_text(json.dumps(report))
@@ -181,6 +193,11 @@ class Checker:
         self.client.loop_stop()
 
 
+def int16(raw: int) -> int:
+    raw &= 0xFFFF
+    return raw - 0x10000 if raw & 0x8000 else raw
+
+
 def percentile(values: list[float], p: float) -> float:
     if not values:
         return float("nan")
@@ -196,9 +213,18 @@ def analyse(
     from fieldgate.plugins.sparkplug import sparkplug_b_pb2 as pb
 
     names: dict[tuple[str, str, int], str] = {}
-    got: dict[tuple[str, str], list[tuple[int, int, bool, float]]] = {}
+    # (edge, channel) -> DDATA samples (timestamp, value, good, historical, arrival)
+    got: dict[tuple[str, str], list[tuple[int, int, bool, bool, float]]] = {}
+    births: dict[tuple[str, str], set[int]] = {}  # good values a DBIRTH delivered
     ddata = 0
     first = last = None
+
+    def good(m: Any) -> bool:
+        for key, value in zip(m.properties.keys, m.properties.values, strict=True):
+            if key == "Quality":
+                return bool(value.int_value == 192)
+        return True  # DATA without the property: GOOD
+
     for topic, payload, received in raw:
         parts = topic.split("/")
         if len(parts) < 5:
@@ -208,15 +234,16 @@ def analyse(
         if kind == "DBIRTH":
             for m in msg.metrics:
                 names[(edge, device, m.alias)] = m.name
+                if good(m) and not m.is_null:
+                    births.setdefault((edge, f"rs485/m1/{m.name}"), set()).add(int16(m.int_value))
         elif kind == "DDATA":
             ddata += 1
             first = received if first is None else first
             last = received
             for m in msg.metrics:
                 cid = f"rs485/m1/{names[(edge, device, m.alias)]}"
-                value = m.int_value - 65536 if m.int_value >= 32768 else m.int_value
                 got.setdefault((edge, cid), []).append(
-                    (m.timestamp, value, m.is_historical, received)
+                    (m.timestamp, int16(m.int_value), good(m), m.is_historical, received)
                 )
     lost = dup = disorder = 0
     acq_latency: list[float] = []
@@ -225,20 +252,20 @@ def analyse(
         set_times = report["set_times"]
         for cid, values in report["seen"].items():
             samples = got.get((edge, cid), [])
-            received = [v for _, v, _, _ in samples]
-            lost += len(set(values) - set(received))
-            dup += len(received) - len(set(received))
-            live = [v for _, v, hist, _ in samples if not hist]
-            hist = [v for _, v, hist, _ in samples if hist]
-            by_time = [v for _, v, _, _ in sorted(samples, key=lambda s: (s[0], s[1]))]
+            delivered = {v for _, v, ok, _, _ in samples if ok} | births.get((edge, cid), set())
+            lost += len(set(values) - delivered)
+            keys = [(ts, v, ok) for ts, v, ok, _, _ in samples]
+            dup += len(keys) - len(set(keys))
+            # arrival order of live samples, of historical ones, and the values along time
+            live = [ts for ts, _, _, hist, _ in samples if not hist]
+            hist = [ts for ts, _, _, hist, _ in samples if hist]
+            along = [v for _, v, ok, _, _ in sorted(samples) if ok]
             disorder += sum(
-                1
-                for seq in (live, hist, by_time)
-                for a, b in zip(seq, seq[1:], strict=False)
-                if b <= a
+                1 for seq in (live, hist) for a, b in zip(seq, seq[1:], strict=False) if b < a
             )
-            for ts, value, historical, arrived in samples:
-                if historical or window[0] <= arrived <= window[1]:
+            disorder += sum(1 for a, b in zip(along, along[1:], strict=False) if b < a)
+            for ts, value, ok, historical, arrived in samples:
+                if historical or not ok or window[0] <= arrived <= window[1]:
                     continue
                 acq_latency.append(arrived - ts / 1000)
                 if 1 <= value <= len(set_times):
@@ -300,6 +327,7 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
                     str(reports[edge]),
                 ],
                 stdout=subprocess.PIPE,
+                stderr=(work / f"{edge}.log").open("w"),
                 text=True,
             )
         for edge, proc in procs.items():
@@ -347,6 +375,7 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
             "max": max(max(r["max_rss_mb"], r["rss_mb"]) for r in loaded.values()),
         },
         journal_dropped=sum(r["dropped"] or 0 for r in loaded.values()),
+        poll_errors=sum(r["poll_errors"] for r in loaded.values()),
         backlog_left=sum(r["backlog"] or 0 for r in loaded.values()),
     )
     return result
