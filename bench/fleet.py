@@ -245,7 +245,9 @@ def analyse(
                 got.setdefault((edge, cid), []).append(
                     (m.timestamp, int16(m.int_value), good(m), m.is_historical, received)
                 )
-    lost = dup = disorder = 0
+    lost = dup = 0
+    disorder = {"live": 0, "historical": 0, "values": 0}
+    examples: list[str] = []
     acq_latency: list[float] = []
     change_latency: list[float] = []
     for edge, report in reports.items():
@@ -260,10 +262,11 @@ def analyse(
             live = [ts for ts, _, _, hist, _ in samples if not hist]
             hist = [ts for ts, _, _, hist, _ in samples if hist]
             along = [v for _, v, ok, _, _ in sorted(samples) if ok]
-            disorder += sum(
-                1 for seq in (live, hist) for a, b in zip(seq, seq[1:], strict=False) if b < a
-            )
-            disorder += sum(1 for a, b in zip(along, along[1:], strict=False) if b < a)
+            for name, seq in (("live", live), ("historical", hist), ("values", along)):
+                bad = [(a, b) for a, b in zip(seq, seq[1:], strict=False) if b < a]
+                disorder[name] += len(bad)
+                if bad and len(examples) < 10:
+                    examples.append(f"{edge} {cid} {name}: {bad[:3]}")
             for ts, value, ok, historical, arrived in samples:
                 if historical or not ok or window[0] <= arrived <= window[1]:
                     continue
@@ -286,7 +289,9 @@ def analyse(
         },
         "lost": lost,
         "duplicated": dup,
-        "out_of_order": disorder,
+        "out_of_order": sum(disorder.values()),
+        "out_of_order_by_check": disorder,
+        "out_of_order_examples": examples,
     }
 
 

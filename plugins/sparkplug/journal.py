@@ -98,7 +98,7 @@ class SqliteJournal:
                 " channel TEXT NOT NULL, value TEXT NOT NULL, quality TEXT NOT NULL,"
                 " ts_ms INTEGER NOT NULL)"
             )
-            (self._count,) = self._db.execute("SELECT COUNT(*) FROM samples").fetchone()
+            self._count: int = int(self._db.execute("SELECT COUNT(*) FROM samples").fetchone()[0])
         except sqlite3.Error as exc:
             raise JournalError(f"journal {path}: {exc}") from None
 

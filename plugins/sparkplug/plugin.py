@@ -58,6 +58,7 @@ class SparkplugFront(Front):
         self._health_subscribed = False
         self._writes = 0
         self._write_errors = 0
+        self._wall_offset = 0.0  # wall clock minus the image's clock, in seconds
 
     # -- paths and clock --------------------------------------------------------------------
     @property
@@ -86,6 +87,7 @@ class SparkplugFront(Front):
     async def start(self) -> None:
         cfg = self.config
         self._loop = asyncio.get_running_loop()
+        self._wall_offset = time.time() - self.context.image.clock()
         self._passwords = []
         base_dir = self.context.topology.base_dir
         for broker in cfg.brokers:
@@ -182,9 +184,13 @@ class SparkplugFront(Front):
 
     # -- inputs ----------------------------------------------------------------------------
     def _sample(self, channel: Any, now: Instant) -> Sample:
-        ts = now.wall_ms
+        """A channel's value at its acquisition time: the image's clock plus a fixed offset
+        taken at start, so that two samples are never swapped by a pause between reading
+        two clocks (a busy host). A quality change is stamped when it happened."""
         if channel.quality is Quality.GOOD and channel.timestamp is not None:
-            ts -= int((self.context.image.clock() - channel.timestamp) * 1000)
+            ts = int((channel.timestamp + self._wall_offset) * 1000)
+        else:
+            ts = int((self.context.image.clock() + self._wall_offset) * 1000)
         return Sample(channel.id, channel.value, channel.quality, ts)
 
     def _on_change(self, change: Change) -> None:
