@@ -6,6 +6,7 @@ Without it the broker tests fail under ``CI=true`` and are skipped elsewhere, wi
 
 from __future__ import annotations
 
+import getpass
 import json
 import os
 import shutil
@@ -60,14 +61,19 @@ def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -
 
 
 class Mosquitto:
-    def __init__(self, binary: str, workdir: Path, port: int | None = None):
+    def __init__(self, binary: str, workdir: Path, port: int | None = None, listener: str = ""):
+        """``listener``: extra lines for the listener (TLS files, password_file, ...); without
+        it, anonymous clients are allowed (loopback only)."""
         self.binary = binary
         self.port = port or free_port()
         self.workdir = workdir
         self.conf = workdir / "mosquitto.conf"
         self.conf.write_text(
-            f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
-            "log_dest none\nmax_queued_messages 100000\nmax_inflight_messages 0\n"
+            # run as whoever runs the tests (as root, mosquitto would switch to its own user,
+            # which cannot read the test's key files)
+            f"user {getpass.getuser()}\nper_listener_settings false\nlistener {self.port} 127.0.0.1\n"
+            + (listener or "allow_anonymous true\n")
+            + "persistence false\nlog_dest none\nmax_queued_messages 100000\nmax_inflight_messages 0\n"
         )
         self.proc: subprocess.Popen[bytes] | None = None
 
