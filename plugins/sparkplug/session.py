@@ -203,6 +203,7 @@ class Session:
     ) -> None:
         if next_broker:
             self.broker = (self.broker + 1) % self.settings.brokers
+            self._host_ts = None  # STATE timestamps are compared per broker
         if immediate:
             delay = 0.0
         else:

@@ -375,3 +375,38 @@ def test_kill_9_during_an_outage_loses_nothing_and_continues_bdseq(broker, tmp_p
     assert sorted(before_kill) == list(range(1, last + 1)) and len(before_kill) == last
     hist = [v for _, v, h, _ in log.samples[("io-m1", "ai0")] if h and v <= last]
     assert hist and hist == sorted(hist)
+
+
+async def test_an_offline_primary_host_moves_the_node_to_the_next_broker(tmp_path):
+    binary = require_mosquitto()
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    first, second = Mosquitto(binary, tmp_path / "a"), Mosquitto(binary, tmp_path / "b")
+    first.start()
+    second.start()
+    host_a = Subscriber(first.port, host_id="scada", client_id="scada-a")
+    host_b = Subscriber(second.port, host_id="scada", client_id="scada-b")
+    host_a.start()
+    host_b.start()
+    topo = topology(first.port, tmp_path / "state", primary_host_id="scada")
+    topo["fronts"][0]["brokers"].append({"host": "127.0.0.1", "port": second.port})
+    try:
+        async with Gateway.load(topo) as gw:
+            await until(
+                lambda: len(host_a.of("DBIRTH")) == 2, what="the births on the first broker"
+            )
+            assert host_b.of("NBIRTH") == []
+            host_a.set_state(False)  # the host leaves this broker
+            await until(lambda: len(host_b.of("DBIRTH")) == 2, what="the births on the next broker")
+            status = gw.component("spb").status()
+    finally:
+        for client in (host_a, host_b):
+            client.stop()
+        first.stop()
+        second.stop()
+    (ndeath,) = host_a.of("NDEATH")
+    bdseq_a = {m.name: m.value for m in host_a.of("NBIRTH")[0].decode().metrics}["bdSeq"]
+    assert ndeath.decode().metrics[0].value == bdseq_a
+    bdseq_b = {m.name: m.value for m in host_b.of("NBIRTH")[0].decode().metrics}["bdSeq"]
+    assert bdseq_b == bdseq_a + 1
+    assert status["broker_url"] == f"mqtt://127.0.0.1:{second.port}"

@@ -427,6 +427,9 @@ def test_primary_host_gates_the_birth_and_its_offline_state_moves_to_the_next_br
     assert kinds(actions) == ["NDEATH"] and isinstance(actions[-1], Disconnect)
     (c,) = session.tick(clock())
     assert c.broker == 1
+    session.on_connack(clock(), True)
+    # on the next broker, the host's STATE carries that connection's own (older) timestamp
+    assert kinds(state(True, 25))[:1] == ["NBIRTH"]
 
 
 def test_deadband_suppresses_small_changes_but_never_quality_changes():
