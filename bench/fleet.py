@@ -130,8 +130,12 @@ async def run_gateway(args: argparse.Namespace) -> None:
             except TimeoutError:
                 pass
         front = gw.component("north")
+        await asyncio.sleep(0.5)  # the last values set reach the image (next poll) and go out
         end = time.monotonic() + 30
-        while front.status().get("backlog_messages") and time.monotonic() < end:
+        while time.monotonic() < end:
+            status = front.status()
+            if not status.get("backlog_messages") and not status.get("inflight"):
+                break
             await asyncio.sleep(0.1)
         status = front.status()
         cpu1 = resource.getrusage(resource.RUSAGE_SELF)
@@ -255,7 +259,10 @@ def analyse(
         for cid, values in report["seen"].items():
             samples = got.get((edge, cid), [])
             delivered = {v for _, v, ok, _, _ in samples if ok} | births.get((edge, cid), set())
-            lost += len(set(values) - delivered)
+            missing = set(values) - delivered
+            lost += len(missing)
+            if missing and len(examples) < 10:
+                examples.append(f"{edge} {cid} lost values {sorted(missing)[:5]} of {len(values)}")
             keys = [(ts, v, ok) for ts, v, ok, _, _ in samples]
             dup += len(keys) - len(set(keys))
             # arrival order of live samples, of historical ones, and the values along time
@@ -291,7 +298,7 @@ def analyse(
         "duplicated": dup,
         "out_of_order": sum(disorder.values()),
         "out_of_order_by_check": disorder,
-        "out_of_order_examples": examples,
+        "examples": examples,
     }
 
 
