@@ -197,6 +197,12 @@ class Checker:
         self.client.loop_stop()
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process so far (from /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def int16(raw: int) -> int:
     raw &= 0xFFFF
     return raw - 0x10000 if raw & 0x8000 else raw
@@ -249,6 +255,7 @@ def analyse(
                 got.setdefault((edge, cid), []).append(
                     (m.timestamp, int16(m.int_value), good(m), m.is_historical, received)
                 )
+    payload_bytes = sum(len(payload) for _, payload, _ in raw)
     lost = dup = 0
     disorder = {"live": 0, "historical": 0, "values": 0}
     examples: list[str] = []
@@ -285,6 +292,7 @@ def analyse(
     return {
         "ddata_messages": ddata,
         "messages_per_s": ddata / duration if duration else float("nan"),
+        "payload_bytes_per_s": payload_bytes / duration if duration else float("nan"),
         "samples_per_s": samples_total / duration if duration else float("nan"),
         "acquisition_latency_ms": {
             "p50": 1000 * percentile(acq_latency, 50),
@@ -349,6 +357,8 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
         print(f"{args.gateways} gateways running; {args.duration:.0f} s", file=sys.stderr)
         run_start = time.time()
         time.sleep(args.duration / 2)
+        broker_cpu = cpu_seconds(broker.proc.pid) if broker.proc else 0.0
+        broker_cpu_span = time.time() - run_start
         kill_at = time.time()
         broker.kill()
         time.sleep(args.outage)
@@ -372,6 +382,7 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
     # the restart window: samples acquired or arriving in it are not counted for latency
     result = analyse(checker.raw, loaded, (kill_at - 0.2, restart_at + 3.0))
     result.update(
+        broker_cpu=broker_cpu / broker_cpu_span,  # share of one core, first half of the run
         gateways=args.gateways,
         gateways_reporting=len(loaded),
         points=args.points,

@@ -59,6 +59,7 @@ class SparkplugFront(Front):
         self._writes = 0
         self._write_errors = 0
         self._wall_offset = 0.0  # wall clock minus the image's clock, in seconds
+        self._logged_state: State | None = None
 
     # -- paths and clock --------------------------------------------------------------------
     @property
@@ -276,7 +277,28 @@ class SparkplugFront(Front):
             elif isinstance(action, Disconnect):
                 self.log.info("disconnecting: %s", action.reason)
                 self._drop_link()
+        self._log_state()
         self._wake.set()
+
+    def _log_state(self) -> None:
+        if self.session is None or self.session.state is self._logged_state:
+            return
+        state, self._logged_state = self.session.state, self.session.state
+        broker = self.config.brokers[self.session.broker].label
+        if state is State.ONLINE:
+            backlog = self.session.journal.count()
+            self.log.info(
+                "online on %s, bdSeq %d%s",
+                broker,
+                self.session.bdseq,
+                f", replaying {backlog} journaled sample(s)" if backlog else "",
+            )
+        elif state is State.WAITING_HOST:
+            self.log.info(
+                "connected to %s, waiting for primary host %s to be online",
+                broker,
+                self.config.primary_host_id,
+            )
 
     def _drop_link(self) -> None:
         link, self._link = self._link, None
