@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import subprocess
 import sys
 from pathlib import Path
@@ -139,3 +140,33 @@ def test_the_committed_schema_module_is_what_protoc_makes_of_the_proto(tmp_path)
     assert (tmp_path / "sparkplug_b_pb2.py").read_text() == (
         PACKAGE / "sparkplug_b_pb2.py"
     ).read_text()
+
+
+async def test_status_and_metric_rows_follow_the_metrics_contract(tmp_path):
+    from fieldgate.runtime import Gateway
+
+    data = topology(brokers=[{"host": "127.0.0.1", "port": 1}])  # nothing listens: disconnected
+    data["gateway"]["state_dir"] = str(tmp_path)
+    async with Gateway.load(data) as gw:
+        gw.write("io/m1/do0", True)  # changes while disconnected go to the journal
+        front = gw.component("spb")
+        for _ in range(100):
+            await asyncio.sleep(0.01)
+            if front.status()["backlog_messages"] >= 2:
+                break
+        status = gw.status()["fronts"]["spb"]
+        rows = front.metrics()
+    assert status["state"] in ("disconnected", "connecting")
+    assert status["backlog_messages"] >= 2 and status["backlog_oldest_age_s"] >= 0
+    assert status["dropped_messages"] == 0
+    by_name = {}
+    for name, kind, help_text, value, labels in rows:
+        assert not name.startswith("fieldgate_") and help_text and isinstance(value, float)
+        assert kind in ("counter", "gauge")
+        assert name.endswith("_total") == (kind == "counter"), name
+        assert labels["front"] == "spb"
+        by_name[name] = value
+    assert by_name["sparkplug_backlog_messages"] == status["backlog_messages"]
+    assert by_name["sparkplug_dropped_messages_total"] == 0
+    assert by_name["sparkplug_connected"] == 0
+    assert "sparkplug_backlog_oldest_age_seconds" in by_name
