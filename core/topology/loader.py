@@ -465,6 +465,14 @@ def _one_writer_checks(topology: Topology, issue) -> None:
     writer: dict[str, int] = {}
     for f_index, front in enumerate(topology.fronts):
         patterns = front.written_outputs()
+        field = "writable" if "writable" in type(front).model_fields else "expose"
+        if patterns is not None and patterns is not front.expose:
+            for p_index, pattern in enumerate(patterns):
+                if not fnmatch.filter(outputs, pattern):
+                    issue(
+                        ("fronts", f_index, field, p_index),
+                        f"'{pattern}' matches no output channel (outputs: {', '.join(outputs[:3]) or 'none'}{', ...' if len(outputs) > 3 else ''})",
+                    )
         mine = (
             outputs
             if patterns is None
@@ -477,7 +485,6 @@ def _one_writer_checks(topology: Topology, issue) -> None:
             else:
                 writer[cid] = f_index
         for other, ids in clashes.items():
-            field = "writable" if "writable" in type(front).model_fields else "expose"
             more = f" and {len(ids) - 1} more" if len(ids) > 1 else ""
             issue(
                 ("fronts", f_index, field)

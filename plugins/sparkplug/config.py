@@ -170,4 +170,4 @@ class SparkplugFrontConfig(FrontConfig):
 
     def written_outputs(self) -> list[str]:
         """Only the outputs listed as writable: a DCMD can write nothing else."""
-        return list(self.writable)
+        return self.writable

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import fnmatch
 import time
 from typing import Any
 
@@ -106,6 +107,15 @@ class SparkplugFront(Front):
         self.model = NodeModel.from_channels(
             cfg.group_id, edge, channels, cfg.writable, cfg.deadband
         )
+        for pattern in cfg.writable:
+            if not any(
+                m.writable and fnmatch.fnmatchcase(m.channel_id, pattern)
+                for m in self.model.by_channel.values()
+            ):
+                self.log.warning(
+                    "writable %r: no output this front serves (expose) matches it; DCMD cannot write it",
+                    pattern,
+                )
         try:
             self.journal = SqliteJournal(
                 self.journal_path, cfg.journal_max_samples, cfg.journal_sync

@@ -112,6 +112,11 @@ def test_a_second_writer_of_an_output_is_an_error_naming_both_fronts():
     assert load_topology(data, REGISTRY).fronts[0].writable == ["io/m1/do0"]
 
 
+def test_a_writable_pattern_must_match_an_output():
+    (message,) = errors(topology(writable=["io/m1/di0"]))
+    assert message.startswith("fronts[0].writable[0]: 'io/m1/di0' matches no output channel")
+
+
 def test_a_front_that_writes_nothing_shares_every_output():
     data = topology()  # sparkplug without writable: it only reads
     data["fronts"].append({"name": "plc", "type": "memory"})
