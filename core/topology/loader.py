@@ -485,4 +485,42 @@ def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]
                     ("fronts", f_index, "expose", e_index),
                     f"'{pattern}' matches no channel{close or ''} (channel ids look like <back>/m<address>/<kind><index>, e.g. {next(iter(sorted(ids)), 'rs485/m1/di0')})",
                 )
+    _one_writer_checks(topology, issue)
     return issues
+
+
+def _one_writer_checks(topology: Topology, issue) -> None:
+    """One output channel has one writing front: a second writer is an error naming both."""
+    outputs = [s.id for s in topology.channel_specs if s.kind.is_output]
+    writer: dict[str, int] = {}
+    for f_index, front in enumerate(topology.fronts):
+        patterns = front.written_outputs()
+        field = "writable" if "writable" in type(front).model_fields else "expose"
+        if patterns is not None and patterns is not front.expose:
+            for p_index, pattern in enumerate(patterns):
+                if not fnmatch.filter(outputs, pattern):
+                    issue(
+                        ("fronts", f_index, field, p_index),
+                        f"'{pattern}' matches no output channel (outputs: {', '.join(outputs[:3]) or 'none'}{', ...' if len(outputs) > 3 else ''})",
+                    )
+        mine = (
+            outputs
+            if patterns is None
+            else [o for o in outputs if any(fnmatch.fnmatchcase(o, p) for p in patterns)]
+        )
+        clashes: dict[int, list[str]] = {}
+        for cid in mine:
+            if cid in writer:
+                clashes.setdefault(writer[cid], []).append(cid)
+            else:
+                writer[cid] = f_index
+        for other, ids in clashes.items():
+            more = f" and {len(ids) - 1} more" if len(ids) > 1 else ""
+            issue(
+                ("fronts", f_index, field)
+                if getattr(front, field, None) is not None
+                else ("fronts", f_index),
+                f"output {ids[0]}{more} would be written by front '{front.name}' and by front "
+                f"'{topology.fronts[other].name}'; one output has one writing front (narrow one "
+                f"front's expose, or the Sparkplug front's writable list)",
+            )

@@ -183,6 +183,15 @@ class FrontConfig(ComponentConfig):
         description="channel ids or glob patterns this front serves, in order; default: every channel in the seeds' order",
     )
 
+    def written_outputs(self) -> list[str] | None:
+        """Output channels (globs) this front writes; None: every output it serves.
+
+        One output channel has one writing front (checked when the topology loads). A front
+        that writes only some of the outputs it serves (the Sparkplug front's ``writable``)
+        says which here.
+        """
+        return self.expose
+
 
 class ModuleConfig(StrictModel):
     """One RS-485 module. Plugins subclass it to add model presets and channel declarations."""

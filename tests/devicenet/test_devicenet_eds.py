@@ -351,6 +351,7 @@ def test_bad_front_is_one_line_and_exit_code_1(tmp_path, capsys, args, message):
         "interface": "virtual",
         "channel": "unused",
         "node_id": 5,
+        "expose": ["io/m1/di*"],  # one output has one writing front: the dnet front here
     }
     topology = write_topology(tmp_path, [canopen, dnet_front()])
     out = tmp_path / "x.eds"

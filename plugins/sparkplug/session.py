@@ -1,0 +1,658 @@
+"""The Sparkplug B edge-node session, sans-I/O.
+
+Inputs: connection results (:meth:`Session.on_connack`, :meth:`on_connection_lost`),
+acknowledgements (:meth:`on_puback`), incoming messages (:meth:`on_message`: NCMD, DCMD,
+STATE), process-image changes (:meth:`on_change`, published at the next :meth:`flush`),
+module health (:meth:`on_device_health`) and time (:meth:`tick`). Outputs: lists of
+actions (:class:`Connect`, :class:`Subscribe`, :class:`Publish`, :class:`Disconnect`,
+:class:`Write`, :class:`SaveBdSeq`) for the adapter, and :meth:`next_deadline`. Every
+input takes an :class:`Instant` (monotonic seconds for timers, wall-clock milliseconds for
+payload timestamps); tests drive it with a fake clock.
+
+Session rules (Sparkplug B 3.0):
+
+* Every CONNECT carries the NDEATH will (QoS 1, not retained) with an INT64 ``bdSeq``; the
+  NBIRTH of that connection carries the same ``bdSeq``. ``bdSeq`` goes up by one (mod 256)
+  per accepted connection; the adapter persists it on :class:`SaveBdSeq` before the
+  NBIRTH is published, so a restarted gateway continues from it. A refused or failed
+  CONNECT reuses the same value (no will of it was ever registered).
+* ``seq`` is 0 in NBIRTH, then +1 mod 256 on every DBIRTH/DDATA/DDEATH.
+* With ``primary_host_id``, nothing is published until ``spBv1.0/STATE/<id>`` says online;
+  an offline STATE (timestamp not older than the last online one) publishes NDEATH,
+  disconnects and moves to the next broker.
+* NCMD ``Node Control/Rebirth``: NBIRTH and every DBIRTH at once, same ``bdSeq``, no DATA
+  in between. ``Node Control/Next Server``: disconnect and move to the next broker.
+
+Store-and-forward: while the session is not publishing, samples go to the journal; a
+live DDATA sent at QoS 1 that was not acknowledged when the connection dropped goes there
+too. After the births, the journal is replayed in order as DDATA with ``is_historical``,
+at most ``replay_messages_per_s`` messages per second and ``replay_window`` unacknowledged
+at once, beside live data; a row leaves the journal only on the PUBACK of its message.
+Rows of a device that is offline wait for its DBIRTH.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from fieldgate.image import Quality
+
+from . import payload as codec
+from .journal import Journal
+from .model import NEXT_SERVER, REBIRTH, MetricDef, NodeModel, Sample, Value
+
+CONNECT_TIMEOUT_S = 10.0
+SEQ_MODULO = 256
+BDSEQ_MODULO = 256
+
+
+@dataclass(frozen=True)
+class Instant:
+    mono: float  # monotonic seconds: timers
+    wall_ms: int  # milliseconds since the epoch: payload timestamps
+
+
+class State(StrEnum):
+    DISCONNECTED = "disconnected"
+    CONNECTING = "connecting"
+    WAITING_HOST = "waiting-for-primary-host"
+    ONLINE = "online"
+    STOPPED = "stopped"
+
+
+# -- actions --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Connect:
+    broker: int  # index into the configured broker list
+    client_id: str
+    will_topic: str
+    will_payload: bytes
+    bdseq: int
+
+
+@dataclass(frozen=True)
+class Subscribe:
+    topics: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Publish:
+    topic: str
+    payload: bytes
+    qos: int = 0
+    retain: bool = False
+    token: int | None = None  # QoS 1: reported back by on_puback(token)
+
+
+@dataclass(frozen=True)
+class Disconnect:
+    reason: str
+
+
+@dataclass(frozen=True)
+class Write:
+    channel_id: str
+    value: Value
+
+
+@dataclass(frozen=True)
+class SaveBdSeq:
+    bdseq: int
+
+
+Action = Connect | Subscribe | Publish | Disconnect | Write | SaveBdSeq
+
+
+@dataclass
+class SessionSettings:
+    brokers: int = 1
+    client_id: str = "fieldgate"
+    primary_host_id: str | None = None
+    data_qos: int = 1
+    replay_messages_per_s: float = 20.0
+    replay_batch: int = 500
+    replay_window: int = 8
+    reconnect_min_s: float = 0.5
+    reconnect_max_s: float = 8.0
+    max_command_bytes: int = 65536
+
+
+@dataclass
+class _InFlight:
+    historical: bool
+    samples: list[Sample] = field(default_factory=list)  # live: re-journaled when lost
+    ids: list[int] = field(default_factory=list)  # historical: journal rows to delete
+
+
+class Session:
+    def __init__(
+        self,
+        model: NodeModel,
+        settings: SessionSettings,
+        journal: Journal,
+        *,
+        last_bdseq: int | None = None,
+        current: Iterable[Sample] = (),
+        online_devices: Iterable[str] | None = None,
+        rng: random.Random | None = None,
+    ):
+        self.model = model
+        self.settings = settings
+        self.journal = journal
+        self.rng = rng or random.Random(0)
+        self.state = State.DISCONNECTED
+        self.broker = 0
+        self.last_bdseq = last_bdseq  # of the last accepted connection (persisted)
+        self.bdseq = self._next_bdseq()  # of the connection being made or held
+        self.seq = 0
+        self.current: dict[str, Sample] = {s.channel_id: s for s in current}
+        self.published: dict[str, Sample] = {}  # last value sent live, for deadbands
+        online = set(model.devices) if online_devices is None else set(online_devices)
+        self.device_online: dict[str, bool] = {d: d in online for d in model.devices}
+        self.birthed: set[str] = set()
+        self._birth_pending: set[str] = set()
+        self._pending: dict[str, list[Sample]] = {}
+        self._inflight: dict[int, _InFlight] = {}
+        self._token = 0
+        self._attempt = 0
+        self._reconnect_at: float | None = 0.0
+        self._connect_deadline: float | None = None
+        self._replay_cursor = 0
+        self._replay_next_at = 0.0
+        self._replay_ids: set[int] = set()
+        self._replay_blocked = False  # every waiting row belongs to an offline device
+        self._host_ts: int | None = None  # timestamp of the last accepted STATE
+        # counters
+        self.sent: Counter[str] = Counter()
+        self.ignored: Counter[str] = Counter()
+        self.rebirths: Counter[str] = Counter()
+        self.dropped = 0
+        self.replayed = 0
+        self.journaled = 0
+        self.connects = 0
+
+    # -- helpers ----------------------------------------------------------------------------
+    def _next_bdseq(self) -> int:
+        return 0 if self.last_bdseq is None else (self.last_bdseq + 1) % BDSEQ_MODULO
+
+    def _next_seq(self) -> int:
+        self.seq = (self.seq + 1) % SEQ_MODULO
+        return self.seq
+
+    def _new_token(self) -> int:
+        self._token += 1
+        return self._token
+
+    @property
+    def publishing(self) -> bool:
+        return self.state is State.ONLINE
+
+    def _journal(self, samples: list[Sample]) -> None:
+        if not samples:
+            return
+        self.dropped += self.journal.append(samples)
+        self.journaled += len(samples)
+
+    def _schedule_reconnect(
+        self, t: Instant, *, next_broker: bool, immediate: bool = False
+    ) -> None:
+        if next_broker:
+            self.broker = (self.broker + 1) % self.settings.brokers
+            self._host_ts = None  # STATE timestamps are compared per broker
+        if immediate:
+            delay = 0.0
+        else:
+            base = min(
+                self.settings.reconnect_max_s, self.settings.reconnect_min_s * (2**self._attempt)
+            )
+            delay = base * (0.75 + 0.25 * self.rng.random())  # a fleet does not reconnect in step
+            self._attempt = min(self._attempt + 1, 30)
+        self._reconnect_at = t.mono + delay
+        self._connect_deadline = None
+
+    # -- connection -------------------------------------------------------------------------
+    def _connect(self, t: Instant) -> list[Action]:
+        self.state = State.CONNECTING
+        self._reconnect_at = None
+        self._connect_deadline = t.mono + CONNECT_TIMEOUT_S
+        return [
+            Connect(
+                self.broker,
+                self.settings.client_id,
+                self.model.node_topic("NDEATH"),
+                codec.node_death(t.wall_ms, self.bdseq),
+                self.bdseq,
+            )
+        ]
+
+    def on_connack(self, t: Instant, ok: bool, reason: str = "") -> list[Action]:
+        if self.state is not State.CONNECTING:
+            return []
+        if not ok:
+            self.state = State.DISCONNECTED
+            self._schedule_reconnect(t, next_broker=True)
+            return []
+        self.connects += 1
+        self._attempt = 0
+        self._connect_deadline = None
+        self.last_bdseq = self.bdseq
+        actions: list[Action] = [SaveBdSeq(self.bdseq)]
+        topics = [self.model.node_topic("NCMD"), self.model.device_topic("DCMD", "+")]
+        if self.settings.primary_host_id is not None:
+            topics.append(f"spBv1.0/STATE/{self.settings.primary_host_id}")
+        actions.append(Subscribe(tuple(topics)))
+        if self.settings.primary_host_id is not None:
+            self.state = State.WAITING_HOST
+            return actions
+        self.rebirths["connect"] += 1
+        return actions + self._birth(t)
+
+    def on_connection_lost(self, t: Instant, reason: str = "") -> list[Action]:
+        """The connection dropped, or an attempt failed before CONNACK."""
+        if self.state in (State.DISCONNECTED, State.STOPPED):
+            return []
+        failed_attempt = self.state is State.CONNECTING
+        self._drop_connection()
+        self.state = State.DISCONNECTED
+        self._schedule_reconnect(t, next_broker=failed_attempt)
+        return []
+
+    def _drop_connection(self) -> None:
+        """Unacknowledged live samples back to the journal; historical ones are still there."""
+        lost: list[Sample] = []
+        for token in sorted(self._inflight):
+            flight = self._inflight[token]
+            if not flight.historical:
+                lost.extend(flight.samples)
+        self._inflight.clear()
+        self._replay_ids.clear()
+        self._replay_cursor = 0
+        self._replay_blocked = False
+        self.birthed.clear()
+        self._birth_pending.clear()
+        self._journal(lost)
+        if self.last_bdseq is not None:
+            self.bdseq = self._next_bdseq()
+
+    def _leave(self, t: Instant, reason: str) -> list[Action]:
+        """Intentional disconnect: NDEATH first, then disconnect, then the next broker."""
+        actions: list[Action] = [
+            Publish(self.model.node_topic("NDEATH"), codec.node_death(t.wall_ms, self.bdseq), 1)
+        ]
+        self.sent["ndeath"] += 1
+        self._drop_connection()
+        self.state = State.DISCONNECTED
+        self._schedule_reconnect(t, next_broker=True, immediate=True)
+        actions.append(Disconnect(reason))
+        return actions
+
+    def stop(self, t: Instant) -> list[Action]:
+        """Gateway shutdown: NDEATH if connected, keep unacknowledged samples in the journal."""
+        actions: list[Action] = []
+        if self.state in (State.ONLINE, State.WAITING_HOST):
+            actions.append(
+                Publish(self.model.node_topic("NDEATH"), codec.node_death(t.wall_ms, self.bdseq), 1)
+            )
+            self.sent["ndeath"] += 1
+        pending = [s for samples in self._pending.values() for s in samples]
+        self._pending.clear()
+        self._drop_connection()  # unacknowledged samples first: they are the older ones
+        self._journal(pending)
+        self.state = State.STOPPED
+        self._reconnect_at = None
+        actions.append(Disconnect("gateway stopping"))
+        return actions
+
+    # -- births -----------------------------------------------------------------------------
+    def _birth(self, t: Instant) -> list[Action]:
+        """NBIRTH and a DBIRTH per online device, nothing else in between."""
+        self.state = State.ONLINE
+        self.seq = 0
+        actions: list[Action] = [
+            Publish(self.model.node_topic("NBIRTH"), codec.node_birth(t.wall_ms, self.bdseq))
+        ]
+        self.sent["nbirth"] += 1
+        self.birthed.clear()
+        for dev in self.model.devices:
+            if self.device_online[dev]:
+                actions.append(self._device_birth(t, dev))
+        self._birth_pending.clear()
+        self._replay_cursor = 0
+        self._replay_blocked = False
+        actions.extend(self._replay(t))  # historical data goes beside live data from now on
+        return actions
+
+    def _device_birth(self, t: Instant, dev: str) -> Publish:
+        metrics = [(m, self._current(m, t)) for m in self.model.devices[dev].metrics]
+        for m, sample in metrics:
+            self.published[m.channel_id] = sample
+        self.birthed.add(dev)
+        self.sent["dbirth"] += 1
+        self._replay_cursor = 0  # its waiting journal rows can go now
+        self._replay_blocked = False
+        return Publish(
+            self.model.device_topic("DBIRTH", dev),
+            codec.device_birth(t.wall_ms, self._next_seq(), metrics),
+        )
+
+    def _current(self, m: MetricDef, t: Instant) -> Sample:
+        sample = self.current.get(m.channel_id)
+        if sample is None:
+            sample = Sample(m.channel_id, m.dtype.check(0), Quality.NOT_READ, t.wall_ms)
+        return sample
+
+    # -- data -------------------------------------------------------------------------------
+    def on_change(self, sample: Sample) -> None:
+        """A channel changed; published (or journaled) at the next :meth:`flush`."""
+        m = self.model.by_channel.get(sample.channel_id)
+        if m is None:
+            return
+        self.current[m.channel_id] = sample
+        if m.deadband > 0 and self.publishing:
+            last = self.published.get(m.channel_id)
+            if (
+                last is not None
+                and last.quality is sample.quality
+                and not isinstance(sample.value, bool)
+                and abs(float(sample.value) - float(last.value)) < m.deadband
+            ):
+                return
+        self._pending.setdefault(m.device, []).append(sample)
+
+    def on_device_health(self, dev: str, online: bool) -> None:
+        """A back module went offline or came back (DDEATH / DBIRTH at the next flush)."""
+        if dev not in self.device_online or self.device_online[dev] == online:
+            return
+        self.device_online[dev] = online
+        if online:
+            self._birth_pending.add(dev)
+        else:
+            self._birth_pending.discard(dev)
+
+    def flush(self, t: Instant) -> list[Action]:
+        actions: list[Action] = []
+        if not self.publishing:
+            if self.state is not State.STOPPED:
+                self._journal([s for samples in self._pending.values() for s in samples])
+            self._pending.clear()
+            return actions
+        for dev in self.model.devices:
+            if dev in self.birthed and not self.device_online[dev]:
+                self.birthed.discard(dev)
+                self._pending.pop(dev, None)
+                self.sent["ddeath"] += 1
+                actions.append(
+                    Publish(
+                        self.model.device_topic("DDEATH", dev),
+                        codec.device_death(t.wall_ms, self._next_seq()),
+                    )
+                )
+            elif dev in self._birth_pending and self.device_online[dev]:
+                actions.append(self._device_birth(t, dev))
+        self._birth_pending.clear()
+        for dev, samples in self._pending.items():
+            if dev not in self.birthed:
+                continue  # offline device: its DBIRTH will carry the current values
+            actions.append(self._data(t, dev, samples))
+        self._pending.clear()
+        actions.extend(self._replay(t))
+        return actions
+
+    def _data(self, t: Instant, dev: str, samples: list[Sample]) -> Publish:
+        metrics = [(self.model.by_channel[s.channel_id], s) for s in samples]
+        for _, s in metrics:
+            self.published[s.channel_id] = s
+        token = None
+        if self.settings.data_qos == 1:
+            token = self._new_token()
+            self._inflight[token] = _InFlight(False, samples=list(samples))
+        self.sent["ddata"] += 1
+        return Publish(
+            self.model.device_topic("DDATA", dev),
+            codec.device_data(t.wall_ms, self._next_seq(), metrics),
+            self.settings.data_qos,
+            token=token,
+        )
+
+    # -- replay -----------------------------------------------------------------------------
+    def _replay_inflight(self) -> int:
+        return sum(1 for f in self._inflight.values() if f.historical)
+
+    def _replay(self, t: Instant) -> list[Action]:
+        actions: list[Action] = []
+        s = self.settings
+        while (
+            self.publishing
+            and not self._replay_blocked
+            and self.journal.count() > len(self._replay_ids)
+            and self._replay_inflight() < s.replay_window
+            and t.mono + 1e-9 >= self._replay_next_at
+        ):
+            batch = self._next_replay_batch()
+            if batch is None:
+                self._replay_blocked = True
+                break
+            dev, rows = batch
+            token = self._new_token()
+            ids = [row_id for row_id, _ in rows]
+            self._inflight[token] = _InFlight(True, ids=ids)
+            self._replay_ids.update(ids)
+            metrics = [(self.model.by_channel[smp.channel_id], smp) for _, smp in rows]
+            self.sent["ddata_historical"] += 1
+            self.replayed += len(rows)
+            actions.append(
+                Publish(
+                    self.model.device_topic("DDATA", dev),
+                    codec.device_data(t.wall_ms, self._next_seq(), metrics, historical=True),
+                    1,
+                    token=token,
+                )
+            )
+            step = 1.0 / s.replay_messages_per_s  # a burst of at most one second's worth
+            self._replay_next_at = max(self._replay_next_at, t.mono - 1.0 + step) + step
+        return actions
+
+    def _next_replay_batch(self) -> tuple[str, list[tuple[int, Sample]]] | None:
+        """The next rows of one birthed device, in journal order; rows of unknown channels are dropped."""
+        limit = self.settings.replay_batch
+        while True:
+            rows = self.journal.read(self._replay_cursor, limit * 4)
+            if not rows:
+                return None
+            unknown = []
+            dev: str | None = None
+            batch: list[tuple[int, Sample]] = []
+            for row_id, sample in rows:
+                if row_id in self._replay_ids:
+                    continue
+                m = self.model.by_channel.get(sample.channel_id)
+                if m is None:
+                    unknown.append(row_id)  # the topology no longer has this channel
+                    continue
+                if m.device not in self.birthed:
+                    continue  # waits for the device's DBIRTH
+                if dev is None:
+                    dev = m.device
+                if m.device != dev:
+                    break
+                batch.append((row_id, sample))
+                if len(batch) >= limit:
+                    break
+            if unknown:
+                self.journal.delete(unknown)
+                self.dropped += len(unknown)
+                self.ignored["journal_unknown_channel"] += len(unknown)
+            if batch:
+                # next search starts after the rows skipped before this batch's first
+                self._replay_cursor = max(self._replay_cursor, batch[0][0] - 1)
+                return dev or "", batch
+            last = rows[-1][0]
+            if last <= self._replay_cursor:
+                return None
+            self._replay_cursor = last
+
+    def on_puback(self, t: Instant, token: int) -> list[Action]:
+        flight = self._inflight.pop(token, None)
+        if flight is None:
+            return []
+        if flight.historical:
+            self.journal.delete(flight.ids)
+            self._replay_ids.difference_update(flight.ids)
+            return self._replay(t)
+        return []
+
+    # -- incoming ---------------------------------------------------------------------------
+    def on_message(self, t: Instant, topic: str, data: bytes) -> list[Action]:
+        parts = topic.split("/")
+        if len(parts) == 3 and parts[:2] == ["spBv1.0", "STATE"]:
+            return self._state(t, parts[2], data)
+        if len(data) > self.settings.max_command_bytes:
+            self.ignored["oversized"] += 1
+            return []
+        if len(parts) == 4 and parts[2] == "NCMD" and parts[3] == self.model.edge_node_id:
+            return self._ncmd(t, data)
+        if len(parts) == 5 and parts[2] == "DCMD" and parts[3] == self.model.edge_node_id:
+            return self._dcmd(t, parts[4], data)
+        self.ignored["unexpected_topic"] += 1
+        return []
+
+    def _decode(self, data: bytes) -> list[codec.CommandMetric] | None:
+        try:
+            return codec.decode_command(data)
+        except codec.PayloadError:
+            self.ignored["malformed"] += 1
+            return None
+
+    def _ncmd(self, t: Instant, data: bytes) -> list[Action]:
+        metrics = self._decode(data)
+        if metrics is None:
+            return []
+        actions: list[Action] = []
+        for cmd in metrics:
+            if cmd.name == REBIRTH:
+                if cmd.field != "boolean_value":
+                    self.ignored["bad_value"] += 1
+                elif cmd.raw and self.publishing:
+                    self.rebirths["ncmd"] += 1
+                    actions.extend(self._birth(t))
+            elif cmd.name == NEXT_SERVER:
+                if cmd.field != "boolean_value":
+                    self.ignored["bad_value"] += 1
+                elif cmd.raw and self.state in (State.ONLINE, State.WAITING_HOST):
+                    return actions + self._leave(t, "NCMD Next Server")
+            else:
+                self.ignored["unknown_metric"] += 1
+        return actions
+
+    def _dcmd(self, t: Instant, dev: str, data: bytes) -> list[Action]:
+        if dev not in self.model.devices:
+            self.ignored["unknown_device"] += 1
+            return []
+        metrics = self._decode(data)
+        if metrics is None:
+            return []
+        actions: list[Action] = []
+        for cmd in metrics:
+            m = None
+            if cmd.alias is not None:
+                m = self.model.by_alias.get(cmd.alias)
+            elif cmd.name is not None:
+                m = self.model.by_device_name.get((dev, cmd.name))
+            if m is None or m.device != dev:
+                self.ignored["unknown_metric"] += 1
+                continue
+            if not m.writable:
+                self.ignored["not_writable"] += 1
+                continue
+            try:
+                value = codec.command_value(cmd, m.dtype)
+                m.dtype.check(value)
+            except ValueError:
+                self.ignored["bad_value"] += 1
+                continue
+            actions.append(Write(m.channel_id, value))
+        return actions
+
+    def _state(self, t: Instant, host: str, data: bytes) -> list[Action]:
+        if host != self.settings.primary_host_id:
+            self.ignored["unexpected_topic"] += 1
+            return []
+        try:
+            doc = json.loads(data)
+            online, ts = doc["online"], doc["timestamp"]
+            if not isinstance(online, bool) or not isinstance(ts, int) or isinstance(ts, bool):
+                raise ValueError
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+            self.ignored["bad_state"] += 1
+            return []
+        if self._host_ts is not None and ts < self._host_ts:
+            self.ignored["stale_state"] += 1  # an old will of a previous host session
+            return []
+        self._host_ts = ts
+        if online and self.state is State.WAITING_HOST:
+            self.rebirths["primary_host"] += 1
+            return self._birth(t)
+        if not online and self.state is State.ONLINE:
+            return self._leave(t, f"primary host {host} offline")
+        return []
+
+    # -- time -------------------------------------------------------------------------------
+    def start(self, t: Instant) -> list[Action]:
+        return self.tick(t)
+
+    def tick(self, t: Instant) -> list[Action]:
+        if self.state is State.DISCONNECTED and self._reconnect_at is not None:
+            if t.mono >= self._reconnect_at:
+                return self._connect(t)
+            return []
+        if (
+            self.state is State.CONNECTING
+            and self._connect_deadline is not None
+            and t.mono >= self._connect_deadline
+        ):
+            self.state = State.DISCONNECTED
+            self._schedule_reconnect(t, next_broker=True)
+            return [Disconnect("no CONNACK in time")]
+        if self.publishing:
+            return self._replay(t)
+        return []
+
+    def next_deadline(self) -> float | None:
+        if self.state is State.DISCONNECTED:
+            return self._reconnect_at
+        if self.state is State.CONNECTING:
+            return self._connect_deadline
+        if (
+            self.publishing
+            and not self._replay_blocked
+            and self.journal.count() > len(self._replay_ids)
+            and self._replay_inflight() < self.settings.replay_window
+        ):
+            return self._replay_next_at
+        return None
+
+    # -- status -----------------------------------------------------------------------------
+    def status(self, wall_ms: int) -> dict[str, object]:
+        oldest = self.journal.oldest_ts_ms()
+        return {
+            "state": self.state.value,
+            "broker": self.broker,
+            "bdseq": self.bdseq,
+            "seq": self.seq,
+            "connects": self.connects,
+            "devices_online": sorted(self.birthed),
+            "sent": dict(self.sent),
+            "rebirths": dict(self.rebirths),
+            "commands_ignored": dict(self.ignored),
+            "backlog_messages": self.journal.count(),
+            "backlog_oldest_age_s": None if oldest is None else max(0.0, (wall_ms - oldest) / 1000),
+            "dropped_messages": self.dropped,
+            "replayed_samples": self.replayed,
+            "journaled_samples": self.journaled,
+            "inflight": len(self._inflight),
+        }

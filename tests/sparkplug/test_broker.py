@@ -1,0 +1,412 @@
+"""The sparkplug front against a real Mosquitto, checked by an independent subscriber.
+
+Every wait here polls for a state a real process reaches (a message arrived, a backlog
+emptied); the only time bounds asserted are the issue's own (rebirth within 500 ms, live
+data within 1 s of the reconnect), measured on the subscriber's clock.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from fieldgate.health import ErrorKind, ModuleHealth
+from fieldgate.runtime import Gateway
+
+from . import spb
+from .broker import Mosquitto, SampleLog, Subscriber, require_mosquitto, wait_until
+
+# The issue's outage is 30 s; CI runs a shorter one (the property is the same: every sample
+# taken while the broker is away arrives once, in order, historical). Full length:
+# FIELDGATE_SPARKPLUG_OUTAGE_S=30 scripts/test tests/sparkplug
+OUTAGE_S = float(os.environ.get("FIELDGATE_SPARKPLUG_OUTAGE_S", "8"))
+HERE = Path(__file__).parent
+
+
+@pytest.fixture
+def broker(tmp_path: Path):
+    mosq = Mosquitto(require_mosquitto(), tmp_path)
+    mosq.start()
+    yield mosq
+    mosq.stop()
+
+
+@pytest.fixture
+def subscriber(broker: Mosquitto):
+    sub = Subscriber(broker.port)
+    sub.start()
+    yield sub
+    sub.stop()
+
+
+def topology(port: int, state_dir: Path, **front: Any) -> dict[str, Any]:
+    return {
+        "gateway": {"name": "gw1", "state_dir": str(state_dir)},
+        "fronts": [
+            {
+                "name": "spb",
+                "type": "sparkplug",
+                "brokers": [{"host": "127.0.0.1", "port": port}],
+                "group_id": "plant",
+                "writable": ["io/m1/ao0"],
+                "reconnect_min_s": 0.2,
+                "reconnect_max_s": 0.5,
+                **front,
+            }
+        ],
+        "backs": [
+            {
+                "name": "io",
+                "type": "loopback",
+                "modules": [
+                    {"address": 1, "digital": 2, "analog": 2},
+                    {"address": 2, "digital": 1, "analog": 1},
+                ],
+            }
+        ],
+    }
+
+
+async def until(predicate: Any, timeout: float = 15.0, what: str = "condition") -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        await asyncio.sleep(0.01)
+
+
+def from_gateway(sub: Subscriber) -> list[Any]:
+    return [m for m in sub.snapshot() if m.type != "STATE" and "/gw1" in m.topic]
+
+
+async def test_will_matches_the_birth_and_seq_wraps_over_650_messages(broker, subscriber, tmp_path):
+    gw = Gateway.load(topology(broker.port, tmp_path / "state", data_qos=0))
+    async with gw:
+        await until(lambda: len(subscriber.of("DBIRTH")) == 2, what="the births")
+        for value in range(1, 651):
+            gw.write("io/m1/ao1", value)
+            await asyncio.sleep(0)
+        await until(lambda: len(subscriber.of("DDATA")) >= 650, what="650 DDATA")
+        front = gw.component("spb")
+        front._link.client.socket().shutdown(
+            socket.SHUT_RDWR
+        )  # an abrupt loss: the broker sends the will
+        await until(lambda: subscriber.of("NDEATH"), what="the will")
+        await until(lambda: len(subscriber.of("NBIRTH")) == 2, what="the next session")
+    msgs = from_gateway(subscriber)
+    first_session = msgs[: msgs.index(subscriber.of("NDEATH")[0])]
+    seqs = [m.decode().seq for m in first_session]
+    assert len(seqs) >= 653 and seqs[0] == 0
+    assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:], strict=False)), seqs
+    assert seqs.count(0) >= 3  # NBIRTH and two wraps
+    will = subscriber.of("NDEATH")[0]
+    assert will.topic == "spBv1.0/plant/NDEATH/gw1" and will.qos == 1 and not will.retain
+    births = subscriber.of("NBIRTH")
+    bdseq = {m.name: m.value for m in births[0].decode().metrics}["bdSeq"]
+    (death_metric,) = will.decode().metrics
+    assert (death_metric.name, death_metric.datatype, death_metric.value) == (
+        "bdSeq",
+        spb.INT64,
+        bdseq,
+    )
+    assert {m.name: m.value for m in births[1].decode().metrics}["bdSeq"] == (bdseq + 1) % 256
+    assert json.loads((tmp_path / "state" / "spb.sparkplug.json").read_text())["bdseq"] == bdseq + 1
+
+
+async def test_rebirth_sends_every_birth_within_500_ms_with_no_data_in_between(
+    broker, subscriber, tmp_path
+):
+    gw = Gateway.load(topology(broker.port, tmp_path / "state"))
+    async with gw:
+        await until(lambda: len(subscriber.of("DBIRTH")) == 2, what="the births")
+        cmd = spb.command(
+            spb.command_metric(name="Node Control/Rebirth", datatype=spb.BOOLEAN, value=True)
+        )
+        sent_at = None
+        for value in range(1, 200):
+            gw.write("io/m1/ao1", value)
+            if value == 50:
+                sent_at = time.time()
+                subscriber.publish("spBv1.0/plant/NCMD/gw1", cmd)
+            await asyncio.sleep(0.005)
+        await until(lambda: len(subscriber.of("DBIRTH")) == 4, what="the rebirth")
+    msgs = from_gateway(subscriber)
+    second = [i for i, m in enumerate(msgs) if m.type == "NBIRTH"][1]
+    assert [m.type for m in msgs[second : second + 3]] == ["NBIRTH", "DBIRTH", "DBIRTH"]
+    assert msgs[second + 2].received - sent_at <= 0.5
+    nb1, nb2 = (m.decode() for m in subscriber.of("NBIRTH"))
+    assert nb2.seq == 0
+    bdseq = {m.name: m.value for m in nb1.metrics}["bdSeq"]
+    assert {m.name: m.value for m in nb2.metrics}["bdSeq"] == bdseq  # same connection
+    rebirth = {m.name: m for m in nb2.metrics}["Node Control/Rebirth"]
+    assert rebirth.alias is None
+    after = [m.decode().seq for m in msgs[second:] if m.type != "NDEATH"]
+    assert all(b == (a + 1) % 256 for a, b in zip(after, after[1:], strict=False))
+
+
+async def test_module_offline_gives_ddeath_and_back_online_a_dbirth_with_current_values(
+    broker, subscriber, tmp_path
+):
+    gw = Gateway.load(topology(broker.port, tmp_path / "state"))
+    health = gw.health.add(ModuleHealth("io", 2))
+    async with gw:
+        await until(lambda: len(subscriber.of("DBIRTH")) == 2, what="the births")
+        for _ in range(4):
+            health.record_failure(ErrorKind.TIMEOUT, "no answer")
+        await until(lambda: subscriber.of("DDEATH"), what="DDEATH")
+        gw.write("io/m2/ao0", 1234)  # changes while the device is dead publish nothing
+        await asyncio.sleep(0.2)
+        health.record_success()
+        await until(lambda: len(subscriber.of("DBIRTH")) == 3, what="the new DBIRTH")
+        status = gw.status()["fronts"]["spb"]
+    (ddeath,) = subscriber.of("DDEATH")
+    assert ddeath.topic == "spBv1.0/plant/DDEATH/gw1/io-m2"
+    dbirth = subscriber.of("DBIRTH")[2]
+    assert dbirth.device == "io-m2"
+    metrics = {m.name: m for m in dbirth.decode().metrics}
+    assert spb.value_of(metrics["ai0"], metrics["ai0"].datatype) == 1234
+    assert metrics["ai0"].quality == 192
+    between = from_gateway(subscriber)
+    i = between.index(ddeath)
+    assert not [
+        m
+        for m in between[i:]
+        if m.type == "DDATA" and m.device == "io-m2" and m.received < dbirth.received
+    ]
+    assert status["sent"]["ddeath"] == 1
+
+
+async def test_bad_commands_are_counted_and_never_stop_the_front(broker, subscriber, tmp_path):
+    gw = Gateway.load(topology(broker.port, tmp_path / "state", max_command_bytes=1024))
+    async with gw:
+        await until(lambda: len(subscriber.of("DBIRTH")) == 2, what="the births")
+        births = {
+            m.device: {x.name: x for x in m.decode().metrics} for m in subscriber.of("DBIRTH")
+        }
+        ao0 = births["io-m1"]["ao0"].alias
+        bad = [
+            ("spBv1.0/plant/NCMD/gw1", b"\x0a\xff\xff\xff\xff"),  # truncated
+            ("spBv1.0/plant/NCMD/gw1", os.urandom(4096)),  # oversized
+            ("spBv1.0/plant/DCMD/gw1/io-m1", b"\x12\x80"),
+            (
+                "spBv1.0/plant/DCMD/gw1/io-m1",
+                spb.command(spb.command_metric(name="nosuch", datatype=spb.INT16, value=1)),
+            ),
+            (
+                "spBv1.0/plant/DCMD/gw1/io-m2",
+                spb.command(spb.command_metric(name="ao0", datatype=spb.INT16, value=9)),
+            ),
+            (
+                "spBv1.0/plant/DCMD/gw1/io-m1",
+                spb.command(spb.command_metric(alias=ao0, datatype=spb.STRING, value="x")),
+            ),
+            (
+                "spBv1.0/plant/DCMD/gw1/ghost",
+                spb.command(spb.command_metric(name="ao0", datatype=spb.INT16, value=9)),
+            ),
+        ]
+        for topic, payload in bad:
+            subscriber.publish(topic, payload)
+        good = spb.command(spb.command_metric(alias=ao0, datatype=spb.INT16, value=-321))
+        subscriber.publish("spBv1.0/plant/DCMD/gw1/io-m1", good)
+        await until(lambda: gw.read("io/m1/ao0") == -321, what="the DCMD write")
+        ignored = gw.status()["fronts"]["spb"]["commands_ignored"]
+        assert gw.read("io/m2/ao0") == 0  # not writable for this front
+        cmd = spb.command(
+            spb.command_metric(name="Node Control/Rebirth", datatype=spb.BOOLEAN, value=True)
+        )
+        subscriber.publish("spBv1.0/plant/NCMD/gw1", cmd)
+        await until(lambda: len(subscriber.of("NBIRTH")) == 2, what="a rebirth after the bad input")
+        assert gw.status()["fronts"]["spb"]["state"] == "online"
+    assert ignored == {
+        "malformed": 2,
+        "oversized": 1,
+        "unknown_metric": 1,
+        "not_writable": 1,
+        "bad_value": 1,
+        "unknown_device": 1,
+    }
+    log = SampleLog(subscriber.snapshot())
+    assert -321 in log.values("io-m1", "ai0")  # the loopback module echoed the written output
+    metrics = {
+        name: value
+        for name, _, _, value, labels in gw.component("spb").metrics()
+        if not labels.get("reason") and not labels.get("type")
+    }
+    assert metrics["sparkplug_backlog_messages"] == 0
+
+
+def assert_every_sample_once_in_order(
+    log: SampleLog, expected: list[int]
+) -> list[tuple[int, Any, bool, float]]:
+    samples = log.samples[("io-m1", "ai0")]
+    values = [v for _, v, _, _ in samples]
+    duplicates = len(values) - len(set(values))
+    missing = sorted(set(expected) - set(values))
+    assert missing == [] and duplicates == 0, f"missing {missing[:20]}, {duplicates} duplicates"
+    historical = [v for _, v, hist, _ in samples if hist]
+    assert historical == sorted(historical), "historical samples out of order"
+    by_time = [v for _, v, _, _ in sorted(samples, key=lambda s: s[0]) if v in set(expected)]
+    assert by_time == [v for v in by_time if v in set(expected)] and by_time == sorted(by_time)
+    return samples
+
+
+async def test_broker_outage_every_sample_arrives_once_in_order_historical(broker, tmp_path):
+    sub = Subscriber(broker.port, host_id="scada")
+    sub.start()
+    gw = Gateway.load(topology(broker.port, tmp_path / "state", primary_host_id="scada"))
+    written: list[int] = []
+    try:
+        async with gw:
+            await until(lambda: len(sub.of("DBIRTH")) == 2, what="the births")
+
+            async def drive(seconds: float) -> None:
+                end = time.monotonic() + seconds
+                while time.monotonic() < end:
+                    value = len(written) + 1
+                    gw.write("io/m1/ao0", value)
+                    written.append(value)
+                    await asyncio.sleep(0.1)
+
+            await drive(1.0)
+            broker.kill()
+            await drive(OUTAGE_S)
+            front = gw.component("spb")
+            backlog = front.status()["backlog_messages"]
+            assert backlog >= 2 * OUTAGE_S * 5  # ao0 and ai0 at ~10 Hz, held on disk
+            broker.start()
+            reconnected = time.monotonic()
+            await drive(2.0)
+            await until(
+                lambda: front.status()["backlog_messages"] == 0, what="the backlog to drain"
+            )
+            await until(
+                lambda: len(SampleLog(sub.snapshot()).values("io-m1", "ai0")) >= len(written),
+                what="every sample",
+            )
+            status = front.status()
+            metrics = {
+                name: value
+                for name, _, _, value, labels in front.metrics()
+                if "reason" not in labels and "type" not in labels
+            }
+    finally:
+        sub.stop()
+    assert time.monotonic() - reconnected > 0
+    samples = assert_every_sample_once_in_order(SampleLog(sub.snapshot()), written)
+    historical = [s for s in samples if s[2]]
+    assert len(historical) >= OUTAGE_S * 5
+    # live data resumes within 1 s of the new session's NBIRTH, while the replay goes on
+    nbirth = sub.of("NBIRTH")[1]
+    first_live = min(s[3] for s in samples if not s[2] and s[3] > nbirth.received)
+    assert first_live - nbirth.received <= 1.0
+    assert status["dropped_messages"] == 0 and metrics["sparkplug_dropped_messages_total"] == 0
+    assert metrics["sparkplug_backlog_messages"] == 0
+
+
+def start_gateway(topology_file: Path, start: int) -> subprocess.Popen[str]:
+    proc = subprocess.Popen(
+        [sys.executable, str(HERE / "gateway_proc.py"), str(topology_file), str(start)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None
+    assert proc.stdout.readline().strip() == "running", proc.stderr.read() if proc.stderr else ""
+    return proc
+
+
+def test_kill_9_during_an_outage_loses_nothing_and_continues_bdseq(broker, tmp_path):
+    topo = topology(broker.port, tmp_path / "state", primary_host_id="scada")
+    topo_file = tmp_path / "topology.json"
+    topo_file.write_text(json.dumps(topo))
+    sub = Subscriber(broker.port, host_id="scada")
+    sub.start()
+    first = second = None
+    try:
+        first = start_gateway(topo_file, 1)
+        wait_until(lambda: len(sub.of("DBIRTH")) == 2, 15, "the births")
+        wait_until(
+            lambda: len(SampleLog(sub.snapshot()).values("io-m1", "ai0")) >= 5, 15, "live data"
+        )
+        bdseq = {m.name: m.value for m in sub.of("NBIRTH")[0].decode().metrics}["bdSeq"]
+        broker.kill()
+        outage_end = time.monotonic() + min(OUTAGE_S, 5.0)
+        last = 0
+        assert first.stdout is not None
+        while time.monotonic() < outage_end:
+            line = first.stdout.readline()
+            if line.startswith("wrote "):
+                last = int(line.split()[1])
+        first.send_signal(signal.SIGKILL)  # a power cut, as far as the process can tell
+        first.wait()
+        broker.start()
+        second = start_gateway(topo_file, 10_000)
+        wait_until(lambda: len(sub.of("NBIRTH")) == 2, 20, "the new session")
+        wait_until(
+            lambda: (
+                set(range(1, last + 1)) <= set(SampleLog(sub.snapshot()).values("io-m1", "ai0"))
+            ),
+            30,
+            "the samples from before the kill",
+        )
+    finally:
+        for proc in (first, second):
+            if proc is not None and proc.poll() is None:
+                proc.terminate()
+                proc.wait(10)
+            if proc is not None and proc.stderr is not None:
+                print(proc.stderr.read()[-3000:])
+        sub.stop()
+    new_bdseq = {m.name: m.value for m in sub.of("NBIRTH")[1].decode().metrics}["bdSeq"]
+    assert new_bdseq == (bdseq + 1) % 256
+    log = SampleLog(sub.snapshot())
+    before_kill = [v for v in log.values("io-m1", "ai0") if v <= last]
+    assert sorted(before_kill) == list(range(1, last + 1)) and len(before_kill) == last
+    hist = [v for _, v, h, _ in log.samples[("io-m1", "ai0")] if h and v <= last]
+    assert hist and hist == sorted(hist)
+
+
+async def test_an_offline_primary_host_moves_the_node_to_the_next_broker(tmp_path):
+    binary = require_mosquitto()
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    first, second = Mosquitto(binary, tmp_path / "a"), Mosquitto(binary, tmp_path / "b")
+    first.start()
+    second.start()
+    host_a = Subscriber(first.port, host_id="scada", client_id="scada-a")
+    host_b = Subscriber(second.port, host_id="scada", client_id="scada-b")
+    host_a.start()
+    host_b.start()
+    topo = topology(first.port, tmp_path / "state", primary_host_id="scada")
+    topo["fronts"][0]["brokers"].append({"host": "127.0.0.1", "port": second.port})
+    try:
+        async with Gateway.load(topo) as gw:
+            await until(
+                lambda: len(host_a.of("DBIRTH")) == 2, what="the births on the first broker"
+            )
+            assert host_b.of("NBIRTH") == []
+            host_a.set_state(False)  # the host leaves this broker
+            await until(lambda: len(host_b.of("DBIRTH")) == 2, what="the births on the next broker")
+            status = gw.component("spb").status()
+    finally:
+        for client in (host_a, host_b):
+            client.stop()
+        first.stop()
+        second.stop()
+    (ndeath,) = host_a.of("NDEATH")
+    bdseq_a = {m.name: m.value for m in host_a.of("NBIRTH")[0].decode().metrics}["bdSeq"]
+    assert ndeath.decode().metrics[0].value == bdseq_a
+    bdseq_b = {m.name: m.value for m in host_b.of("NBIRTH")[0].decode().metrics}["bdSeq"]
+    assert bdseq_b == bdseq_a + 1
+    assert status["broker_url"] == f"mqtt://127.0.0.1:{second.port}"
