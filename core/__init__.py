@@ -5,8 +5,6 @@ Public API for embedding and for plugins::
     from fieldgate import Gateway, ProcessImage, Kind, Quality, ErrorMode
 """
 
-__version__ = "0.1.0"
-
 from .health import ErrorKind, HealthEvent, HealthRegistry, ModuleHealth
 from .image import (
     Change,
@@ -24,6 +22,7 @@ from .image import (
 from .masters import MasterMonitor
 from .plugin import Back, Front, GatewayContext, PluginStartError, Registry, hookimpl, load_registry
 from .runtime import Gateway, GatewayStartError
+from .version import __version__
 
 __all__ = [
     "Back",

@@ -13,11 +13,11 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from . import __version__
 from .plugin import Registry, load_registry
 from .runtime import Gateway, GatewayStartError
 from .stopping import stopped_by_signals, wait_until
 from .topology import TopologyError, load_topology
+from .version import __version__
 
 if TYPE_CHECKING:  # ruamel.yaml is imported when --set is used, not at every start
     from ruamel.yaml import YAML

@@ -36,10 +36,10 @@ from prometheus_client.core import (
     Metric,
 )
 
-from .. import __version__
 from ..health import RTT_BUCKETS, ErrorKind
 from ..image import Quality
 from ..polling import LineScheduler
+from ..version import __version__
 from .views import readiness
 
 if TYPE_CHECKING:

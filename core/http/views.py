@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, assert_never
 
 from ..health import ModuleHealth
 from ..image import Channel, Quality
+from ..version import __version__
 
 if TYPE_CHECKING:
     from ..plugin import Component
@@ -60,8 +61,6 @@ def readiness(gateway: Gateway) -> tuple[bool, list[str]]:
 
 def status(gateway: Gateway, started_at: float) -> dict[str, Any]:
     ready, reasons = readiness(gateway)
-    from .. import __version__
-
     body = gateway.status()
     body.update(
         version=__version__,

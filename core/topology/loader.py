@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import fnmatch
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
@@ -489,7 +490,7 @@ def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]
     return issues
 
 
-def _one_writer_checks(topology: Topology, issue) -> None:
+def _one_writer_checks(topology: Topology, issue: Callable[[tuple[Any, ...], str], None]) -> None:
     """One output channel has one writing front: a second writer is an error naming both."""
     outputs = [s.id for s in topology.channel_specs if s.kind.is_output]
     writer: dict[str, int] = {}
