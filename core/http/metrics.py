@@ -43,7 +43,7 @@ from ..version import __version__
 from .views import readiness
 
 if TYPE_CHECKING:
-    from ..runtime import Gateway
+    from .view import GatewayView
 
 log = logging.getLogger("fieldgate.http.metrics")
 
@@ -98,7 +98,7 @@ def check_sample(sample: Any) -> ComponentSample:
 class GatewayCollector:
     """Reads a :class:`~fieldgate.runtime.Gateway` at scrape time."""
 
-    def __init__(self, gateway: Gateway, *, point_metrics: bool = False, extra: Any = None):
+    def __init__(self, gateway: GatewayView, *, point_metrics: bool = False, extra: Any = None):
         self.gateway = gateway
         self.point_metrics = point_metrics
         self.extra = extra  # the HTTP service: its own counters
@@ -125,7 +125,7 @@ class GatewayCollector:
         yield from self._components(gw)
 
     # -- core -------------------------------------------------------------------------
-    def _gateway(self, gw: Gateway) -> Iterator[Metric]:
+    def _gateway(self, gw: GatewayView) -> Iterator[Metric]:
         info = InfoMetricFamily("fieldgate_build", "fieldgate version and gateway identity")
         info.add_metric(
             [],
@@ -169,7 +169,7 @@ class GatewayCollector:
             master.add_metric([comp.name], float(gw.masters.is_ok(comp.name)))
         yield from (up, restarts, master)
 
-    def _modules(self, gw: Gateway) -> Iterator[Metric]:
+    def _modules(self, gw: GatewayView) -> Iterator[Metric]:
         labels = ["back", "module"]
         module_up = GaugeMetricFamily(
             "fieldgate_module_up",
@@ -206,7 +206,7 @@ class GatewayCollector:
             latency.add_metric(key, buckets, m.rtt_sum)
         yield from (module_up, failures, transactions, latency)
 
-    def _lines(self, gw: Gateway) -> Iterator[Metric]:
+    def _lines(self, gw: GatewayView) -> Iterator[Metric]:
         cycles = CounterMetricFamily(
             "fieldgate_line_cycles",
             "poll cycles completed (every online module polled once)",
@@ -235,7 +235,7 @@ class GatewayCollector:
             pending.add_metric([comp.name], float(scheduler.pending_writes))
         yield from (cycles, cycle_time, writes, pending)
 
-    def _points(self, gw: Gateway) -> Iterator[Metric]:
+    def _points(self, gw: GatewayView) -> Iterator[Metric]:
         counts: dict[tuple[str, str], int] = {}
         backs = [b.name for b in gw.topology.backs]
         for back in backs:
@@ -265,7 +265,7 @@ class GatewayCollector:
             good.add_metric([ch.id], float(ch.quality is Quality.GOOD))
         yield from (value, good)
 
-    def _events(self, gw: Gateway) -> Iterator[Metric]:
+    def _events(self, gw: GatewayView) -> Iterator[Metric]:
         family = CounterMetricFamily(
             "fieldgate_events", "gateway events published, by kind", labels=["kind"]
         )
@@ -274,7 +274,7 @@ class GatewayCollector:
         yield family
 
     # -- components' own --------------------------------------------------------------
-    def _components(self, gw: Gateway) -> Iterator[Metric]:
+    def _components(self, gw: GatewayView) -> Iterator[Metric]:
         families: dict[str, tuple[str, str, list[tuple[dict[str, str], float]]]] = {}
         for comp in gw.backs + gw.fronts:
             method = getattr(comp, "metrics", None)
@@ -331,7 +331,7 @@ class _Families:
 class GatewayMetrics:
     """The private registry and its text output."""
 
-    def __init__(self, gateway: Gateway, *, point_metrics: bool = False, extra: Any = None):
+    def __init__(self, gateway: GatewayView, *, point_metrics: bool = False, extra: Any = None):
         self.registry = CollectorRegistry(auto_describe=False)
         self.collector = GatewayCollector(gateway, point_metrics=point_metrics, extra=extra)
         self.registry.register(self.collector)

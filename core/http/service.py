@@ -44,7 +44,7 @@ from .trends import TrendRecorder
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
-    from ..runtime import Gateway
+    from .view import GatewayView
 
 log = logging.getLogger("fieldgate.http")
 
@@ -130,7 +130,7 @@ class LoopMonitor:
 
 
 class HttpService:
-    def __init__(self, gateway: Gateway, settings: HttpSettings):
+    def __init__(self, gateway: GatewayView, settings: HttpSettings):
         self.gateway = gateway
         self.settings = settings
         self.token = resolve_token(settings, gateway.topology.base_dir)

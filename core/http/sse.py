@@ -28,7 +28,7 @@ from .server import WRITE_TIMEOUT, Stream
 from .views import compact
 
 if TYPE_CHECKING:
-    from ..runtime import Gateway
+    from .view import GatewayView
 
 log = logging.getLogger("fieldgate.http.sse")
 
@@ -71,7 +71,12 @@ class EventStreams:
     """Every open event stream of one gateway."""
 
     def __init__(
-        self, gateway: Gateway, *, max_clients: int, rate_hz: float, queue_size: int = QUEUE_SIZE
+        self,
+        gateway: GatewayView,
+        *,
+        max_clients: int,
+        rate_hz: float,
+        queue_size: int = QUEUE_SIZE,
     ):
         self.gateway = gateway
         self.max_clients = max_clients

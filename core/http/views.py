@@ -22,7 +22,7 @@ from ..version import __version__
 
 if TYPE_CHECKING:
     from ..plugin import Component
-    from ..runtime import Gateway
+    from .view import GatewayView
 
 log = logging.getLogger("fieldgate.http")
 
@@ -42,7 +42,7 @@ def json_safe(value: Any) -> Any:
     return str(value)
 
 
-def readiness(gateway: Gateway) -> tuple[bool, list[str]]:
+def readiness(gateway: GatewayView) -> tuple[bool, list[str]]:
     """(ready, reasons): ready when the gateway runs and every front and back is started."""
     reasons: list[str] = []
     if not gateway.running:
@@ -59,7 +59,7 @@ def readiness(gateway: Gateway) -> tuple[bool, list[str]]:
     return not reasons, reasons
 
 
-def status(gateway: Gateway, started_at: float) -> dict[str, Any]:
+def status(gateway: GatewayView, started_at: float) -> dict[str, Any]:
     ready, reasons = readiness(gateway)
     body = gateway.status()
     body.update(
@@ -75,21 +75,21 @@ def status(gateway: Gateway, started_at: float) -> dict[str, Any]:
     return json_safe(body)  # type: ignore[no-any-return]
 
 
-def quality_counts(gateway: Gateway) -> dict[str, int]:
+def quality_counts(gateway: GatewayView) -> dict[str, int]:
     counts = {q.value: 0 for q in Quality}
     for ch in gateway.image:
         counts[ch.quality.value] += 1
     return counts
 
 
-def _module_health(gateway: Gateway, channel: Channel) -> ModuleHealth | None:
+def _module_health(gateway: GatewayView, channel: Channel) -> ModuleHealth | None:
     try:
         return gateway.health.get(channel.source.back, channel.source.module)
     except KeyError:
         return None
 
 
-def cause(gateway: Gateway, channel: Channel) -> str:
+def cause(gateway: GatewayView, channel: Channel) -> str:
     """Why a point is not good, in one line ("" when it is good)."""
     quality = channel.quality
     if quality is Quality.GOOD:
@@ -143,7 +143,7 @@ def locations(components: list[Component]) -> dict[str, list[dict[str, str]]]:
 
 
 def point(
-    gateway: Gateway,
+    gateway: GatewayView,
     channel: Channel,
     places: dict[str, list[dict[str, str]]] | None = None,
     now: float | None = None,
