@@ -30,6 +30,8 @@ from types import FrameType
 from typing import Any
 
 from fuzz_targets import FULL_INPUTS, TARGETS, InvariantBroken, Target
+
+__all__ = ["InvariantBroken", "Report", "fuzz"]
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -84,7 +86,7 @@ def fuzz(
         target.check()
         slowest = max(slowest, time.perf_counter() - started)
 
-    fuzz_one = prop.hypothesis.fuzz_one_input
+    fuzz_one = prop.hypothesis.fuzz_one_input  # type: ignore[attr-defined]
     previous = signal.signal(signal.SIGALRM, _alarm)
     logging.disable(logging.CRITICAL)  # a counted internal error logs its traceback
     started = time.monotonic()

@@ -143,7 +143,8 @@ class CanopenTarget(Target):
 
     def send(self, can_id: int, data: bytes = b"", rtr: bool = False) -> list[Frame]:
         frame = Frame(can_id, b"" if rtr else data, rtr=rtr, dlc=len(data) if rtr else None)
-        return self.node.receive(frame, self.now)
+        out: list[Frame] = self.node.receive(frame, self.now)
+        return out
 
     def advance(self, seconds: float) -> None:
         end = self.now + seconds
@@ -420,10 +421,12 @@ class DeviceNetTarget(Target):
         self.settle()
 
     def send(self, can_id: int, data: bytes) -> list[Frame]:
-        return self.slave.receive(Frame(can_id, data), self.now)
+        out: list[Frame] = self.slave.receive(Frame(can_id, data), self.now)
+        return out
 
     def g2(self, message: int) -> int:
-        return 0x400 | self.slave.mac_id << 3 | message
+        mac: int = self.slave.mac_id
+        return 0x400 | mac << 3 | message
 
     def settle(self) -> None:
         for _ in range(200):
@@ -632,7 +635,7 @@ class ModbusTarget(Target):
         }
         self.sim = self.sim_modules
         self.link = ModbusLink("fuzz", inter_frame=0)
-        self.link._client = FakeModbusClient(self)  # type: ignore[assignment]
+        self.link._client = FakeModbusClient(self)
         self.modules = [
             ModbusModule(
                 m,

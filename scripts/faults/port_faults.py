@@ -61,7 +61,9 @@ BACKS: dict[str, dict[str, Any]] = {
 }
 
 
-def topology(back: str, port: str, state_dir: Path, co_channel: str, dn_channel: str) -> dict:
+def topology(
+    back: str, port: str, state_dir: Path, co_channel: str, dn_channel: str
+) -> dict[str, Any]:
     return {
         "gateway": {"name": f"port-faults-{back}", "state_dir": str(state_dir)},
         "fronts": [
@@ -168,7 +170,8 @@ def _inject(rig: Rig, fault: str, rng: random.Random) -> Callable[[], None]:
     """Start ``fault``; returns what ends it."""
     if fault == "unplug":
         rig.pty.unplug()
-        return rig.pty.plug
+        plug: Callable[[], None] = rig.pty.plug
+        return plug
     if fault == "garbage":
         rig.pty.fault = lambda data: bytes(rng.randrange(256) for _ in data)
 

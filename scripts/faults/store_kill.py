@@ -148,14 +148,19 @@ class Driver:
         (answer,) = out
         if answer.data[0] != 0x60:
             raise RuntimeError(f"SDO {data}: {answer.data.hex()}")
-        return answer.data
+        answered: bytes = answer.data
+        return answered
 
     def _lss(self, data: str) -> list[Frame]:
-        return self.node.receive(Frame(0x7E5, bytes.fromhex(data).ljust(8, b"\0")), self.now)
+        out: list[Frame] = self.node.receive(
+            Frame(0x7E5, bytes.fromhex(data).ljust(8, b"\0")), self.now
+        )
+        return out
 
     def _dn(self, message: int, data: bytes) -> list[Frame]:
         can_id = 0x400 | self.dn_mac << 3 | message
-        return self.slave.receive(Frame(can_id, data), self.now)
+        out: list[Frame] = self.slave.receive(Frame(can_id, data), self.now)
+        return out
 
     def _settle_devicenet(self) -> None:
         """Run the slave's clock until its duplicate MAC check is over."""
