@@ -292,7 +292,6 @@ class NmtLssTarget(CanopenTarget):
         if not self.node.configured:
             self.send(0x7E5, bytes([0x11, NODE]).ljust(8, b"\0"))
         self.send(0x7E5, bytes([0x04, 0x00]).ljust(8, b"\0"))  # waiting: an unconfigured one boots
-        self.node.take_actions() if hasattr(self.node, "take_actions") else None
         self.send(0x000, b"\x80\x00")
 
     def check(self) -> None:
@@ -338,9 +337,6 @@ class PdoTarget(CanopenTarget):
             self.send(0x000, bytes([b.pick((0x01, 0x80, 0x02)), 0]))
         else:
             self.advance(b.u8() / 500)
-
-    def restore(self) -> None:
-        super().restore()
 
     def check(self) -> None:
         super().check()
