@@ -108,6 +108,15 @@ CO_TOPOLOGY_BACK = {
 }
 
 
+def one_front(work_dir: Path, front: dict[str, Any]) -> dict[str, Any]:
+    """A topology of one front (on the virtual bus) over the never-started DCON back."""
+    return {
+        "gateway": {"name": "fuzz", "state_dir": str(work_dir)},
+        "fronts": [{"interface": "virtual", **front}],
+        "backs": [CO_TOPOLOGY_BACK],
+    }
+
+
 class CanopenTarget(Target):
     """The CANopen front's node (CiA 301/401, LSS) as ``fieldgate run`` builds it."""
 
@@ -116,20 +125,16 @@ class CanopenTarget(Target):
     def setup(self) -> None:
         from fieldgate.plugins.canopen.plugin import CanopenFront
 
-        topo = {
-            "gateway": {"name": "fuzz", "state_dir": str(self.work_dir)},
-            "fronts": [
-                {
-                    "name": "plc",
-                    "type": "canopen",
-                    "interface": "virtual",
-                    "node_id": NODE,
-                    "heartbeat_consumers": 2,
-                    "identity": {"vendor_id": 0x1234, "product_code": 0x7232, "serial": 42},
-                }
-            ],
-            "backs": [CO_TOPOLOGY_BACK],
-        }
+        topo = one_front(
+            self.work_dir,
+            {
+                "name": "plc",
+                "type": "canopen",
+                "node_id": NODE,
+                "heartbeat_consumers": 2,
+                "identity": {"vendor_id": 0x1234, "product_code": 0x7232, "serial": 42},
+            },
+        )
         gateway = Gateway.load(topo, registry=self.registry)
         self.node = CanopenFront(gateway.topology.fronts[0], gateway.context).build()
         self.identity = [self.node.od.get(0x1018, s) for s in (1, 2, 3, 4)]
@@ -395,19 +400,10 @@ class DeviceNetTarget(Target):
     def setup(self) -> None:
         from fieldgate.plugins.devicenet.plugin import DeviceNetFront
 
-        topo = {
-            "gateway": {"name": "fuzz", "state_dir": str(self.work_dir)},
-            "fronts": [
-                {
-                    "name": "dnet",
-                    "type": "devicenet",
-                    "interface": "virtual",
-                    "mac_id": 9,
-                    "dup_mac_timeout_ms": 50,
-                }
-            ],
-            "backs": [CO_TOPOLOGY_BACK],
-        }
+        topo = one_front(
+            self.work_dir,
+            {"name": "dnet", "type": "devicenet", "mac_id": 9, "dup_mac_timeout_ms": 50},
+        )
         gateway = Gateway.load(topo, registry=self.registry)
         self.front = DeviceNetFront(gateway.topology.fronts[0], gateway.context)
         self.slave = self.front.build()
