@@ -15,7 +15,7 @@ from fuzz_targets import TARGETS, Bytes, Target
 
 from fieldgate import load_registry
 
-CI_INPUTS = {name: 1500 for name in TARGETS} | {"yaml": 150}
+CI_INPUTS = {name: 5000 for name in TARGETS} | {"yaml": 300}
 
 
 @pytest.fixture(scope="module")
