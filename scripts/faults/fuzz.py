@@ -5,8 +5,8 @@ through Hypothesis and checked by the target's invariant.
 Each target is a Hypothesis property (``@given(st.binary())``: run the input, then check the
 engine still answers a valid request). The campaign drives it through Hypothesis's fuzzing
 entry point, ``fuzz_one_input``, with buffers from a seeded generator: the same property a
-developer runs (and shrinks) with plain ``@given``, at ~10x the rate of Hypothesis's own
-search loop. An input that takes longer than --hang-s is a hang (SIGALRM). Every failure
+developer runs (and shrinks) with plain ``@given``, at several times the rate of
+Hypothesis's own search loop (about 8x for the binary strategy on the build machine). An input that takes longer than --hang-s is a hang (SIGALRM). Every failure
 prints its input (hex); the target's state depends on the inputs before it, so the way to
 reproduce one is the same seed and count.
 
