@@ -78,3 +78,63 @@ async def test_a_job_that_finds_the_port_gone_stops_the_line_too():
     with pytest.raises(LineLost):
         await drain(line)
     assert not health[1].online
+
+
+async def test_the_back_reopens_the_same_path_with_back_off_capped_at_the_probe_period():
+    from fieldgate import GatewayContext, ProcessImage, load_registry
+    from fieldgate.plugin import PluginStartError
+    from fieldgate.polling import LineScheduler, SerialBack
+    from fieldgate.topology import load_topology
+
+    registry = load_registry()
+    if registry.lookup("back", "dcon") is None:
+        pytest.skip("the dcon back plugin is not installed")
+    topology = load_topology(
+        {
+            "gateway": {"name": "t"},
+            "fronts": [{"name": "plc", "type": "memory"}],
+            "backs": [
+                {
+                    "name": "rs485",
+                    "type": "dcon",
+                    "port": "/dev/ttyUSB0",
+                    "offline_probe_ms": 1000,
+                    "modules": [{"address": 1, "model": "I-7055"}],
+                }
+            ],
+        },
+        registry,
+    )
+
+    class Back(SerialBack):
+        missing_for = 5  # the adapter is back at the sixth try
+
+        async def open_link(self):
+            self.opened = getattr(self, "opened", 0) + 1
+            if self.opened <= self.missing_for:
+                raise PluginStartError("cannot open serial port /dev/ttyUSB0: no such device")
+            return f"link {self.opened}"
+
+        async def close_link(self):
+            self.closed = getattr(self, "closed", 0) + 1
+
+        def make_module(self, config, specs):
+            raise AssertionError("not used")
+
+    context = GatewayContext.build(topology)
+    back = Back(topology.backs[0], context)
+    back.scheduler = LineScheduler("rs485", [], ProcessImage(), {})
+    waits = []
+
+    async def sleep(seconds):
+        waits.append(seconds)
+
+    back.sleep = sleep
+    await back._recover_line("read failed: [Errno 5] Input/output error")
+    assert waits == [0.1, 0.2, 0.4, 0.8, 1.0, 1.0]  # doubling, capped at offline_probe_ms
+    assert back.link == "link 6" and back.closed == 1
+    assert {k: v for k, v in back.port.items() if k != "last_outage_s"} == {
+        "lost": False,
+        "losses": 1,
+        "reopen_attempts": 6,
+    }
