@@ -5,10 +5,10 @@ through Hypothesis and checked by the target's invariant.
 Each target is a Hypothesis property (``@given(st.binary())``: run the input, then check the
 engine still answers a valid request). The campaign drives it through Hypothesis's fuzzing
 entry point, ``fuzz_one_input``, with buffers from a seeded generator: the same property a
-developer runs (and shrinks) with plain ``@given``, at several times the rate of
-Hypothesis's own search loop (about 8x for the binary strategy on the build machine). An input that takes longer than --hang-s is a hang (SIGALRM). Every failure
-prints its input (hex); the target's state depends on the inputs before it, so the way to
-reproduce one is the same seed and count.
+developer runs with plain ``@given``, at several times the rate of Hypothesis's own search
+loop (about 8x for the binary strategy on the build machine). An input that takes longer
+than --hang-s is a hang (SIGALRM). Every failure prints its input (hex); the target's state
+depends on the inputs before it, so the way to reproduce one is the same seed and count.
 
     .venv/bin/python scripts/faults/fuzz.py                      # the full campaign
     .venv/bin/python scripts/faults/fuzz.py --target sdo,pdo --inputs 100000 --seed 3
