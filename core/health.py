@@ -112,6 +112,22 @@ class ModuleHealth:
             return True
         return False
 
+    def record_line_loss(self, text: str) -> bool:
+        """The module's port is gone: one failure, and offline at once whatever the count.
+        Returns True when this took the module offline."""
+        self.requests += 1
+        self.errors[ErrorKind.IO] += 1
+        self.error_counter = (self.error_counter + 1) % COUNTER_WRAP
+        self.consecutive_failures = max(self.consecutive_failures + 1, self.fail_threshold + 1)
+        self.last_error, self.last_error_kind = text, ErrorKind.IO
+        self._emit(HealthEvent.FAILURE)
+        if not self.online:
+            return False
+        self.online = False
+        log.warning("module %s/%d offline: port lost: %s", self.back, self.address, text)
+        self._emit(HealthEvent.OFFLINE)
+        return True
+
     def clear_error_counter(self) -> None:
         self.error_counter = 0
         self._emit(HealthEvent.COUNTER_CLEARED)
@@ -182,6 +198,7 @@ class LineStats:
     requests: int = 0
     errors: Counter[str] = field(default_factory=Counter)
     writes: int = 0
+    port_losses: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -192,5 +209,6 @@ class LineStats:
             else round(self.last_cycle_time * 1000, 3),
             "requests": self.requests,
             "writes": self.writes,
+            "port_losses": self.port_losses,
             "errors": {str(k): v for k, v in self.errors.items()},
         }

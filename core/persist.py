@@ -1,9 +1,25 @@
 """Atomic persistence of settings (CANopen 0x1010 store, LSS store, scan results...) and of
 files written for other tools (EDS).
 
-``write_atomic`` writes a temporary file in the same directory, fsyncs it, renames it
-over the target and fsyncs the directory: a crash at any point leaves either the old
-complete copy or the new complete copy, never a torn file.
+``write_atomic`` is the one write protocol of every persisted file, in this order:
+
+1. create a temporary file ``.<name>.<8 hex>.tmp`` in the target's own directory
+   (``O_CREAT | O_EXCL``; the same file system, so step 3 is a rename, not a copy);
+2. write the whole content, ``flush`` and ``fsync`` the temporary file: its data are on
+   the disk before any name points to them;
+3. ``os.replace`` it over the target: the rename is atomic, a reader (or the next start)
+   sees either the old complete file or the new complete file;
+4. ``fsync`` the directory, so the rename itself survives a power cut (without it, the
+   directory entry may still name the old inode after the reboot; ext4 and XFS need it).
+
+A crash at any point leaves the old or the new complete copy, never a torn file. A kill
+between steps 1 and 3 leaves the temporary file behind: the next write of the same target
+removes such leftovers first (step 0), so 1,000 kills do not leave 1,000 files in the
+state folder. One writer per file is assumed (the gateway owns its state folder).
+``scripts/faults/store_kill.py`` kills a process that stores in a loop with SIGKILL at
+random moments and checks every restart loads the old or the new settings
+(docs/reliability.md). What a SIGKILL cannot show is step 2 and 4 at work: the kernel
+keeps the written pages of a killed process; only a power cut tests them.
 
 File mode: the result has the mode an ordinary ``open(path, "w")`` would give it. A new
 file gets ``0o666 & ~umask`` (0644 under the usual umask 022), so an EDS is readable by the
@@ -23,6 +39,7 @@ error (FileNotFoundError), not a new directory tree.
 from __future__ import annotations
 
 import errno
+import glob
 import json
 import os
 import secrets
@@ -42,8 +59,9 @@ def write_atomic(path: str | os.PathLike[str], data: bytes, *, make_parents: boo
     behind), PermissionError...
     """
     target = Path(path)
-    if make_parents:
+    if make_parents and not target.parent.is_dir():
         target.parent.mkdir(parents=True, exist_ok=True)
+        _fsync_dir(target.parent.parent)  # the new folder's own entry survives a power cut too
     try:
         current = os.stat(target)
     except FileNotFoundError:
@@ -52,26 +70,49 @@ def write_atomic(path: str | os.PathLike[str], data: bytes, *, make_parents: boo
         if stat.S_ISDIR(current.st_mode):
             raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(target))
         keep_mode = stat.S_IMODE(current.st_mode) if stat.S_ISREG(current.st_mode) else None
-    fd, tmp = _create_temp(target)
+    _remove_stale_temps(target)  # step 0: what a killed earlier write left behind
+    fd, tmp = _create_temp(target)  # step 1
     try:
         if keep_mode is not None and hasattr(os, "fchmod"):
             os.fchmod(fd, keep_mode)
-        with os.fdopen(fd, "wb") as f:
+        with os.fdopen(fd, "wb") as f:  # step 2: all data on the disk before any name
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, target)
+        os.replace(tmp, target)  # step 3: atomic switch from the old copy to the new
     except BaseException:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
         raise
-    dir_fd = os.open(target.parent, os.O_RDONLY)
+    _fsync_dir(target.parent)  # step 4: the rename itself is durable
+
+
+def _fsync_dir(folder: Path) -> None:
+    dir_fd = os.open(folder, os.O_RDONLY)
     try:
         os.fsync(dir_fd)
     finally:
         os.close(dir_fd)
+
+
+def temp_files(target: str | os.PathLike) -> list[Path]:
+    """Temporary files of ``target`` left by writes that never reached their rename."""
+    target = Path(target)
+    return sorted(
+        p
+        for p in target.parent.glob(f".{glob.escape(target.name)}.*.tmp")
+        if len(p.name) == len(target.name) + 14  # "." + name + "." + 8 hex + ".tmp"
+    )
+
+
+def _remove_stale_temps(target: Path) -> None:
+    for stale in temp_files(target):
+        try:
+            stale.unlink()
+        except FileNotFoundError:
+            pass
 
 
 def _create_temp(target: Path) -> tuple[int, Path]:

@@ -13,6 +13,15 @@ write-on-change with optional cyclic rewrite, periodic line jobs such as a host
 watchdog), the module health model (error counters, offline after consecutive
 failures, slow re-probe of offline modules, recovery), input quality (stale after a
 failed read, comm fault while offline) and per-line statistics.
+
+Port loss: a link raises :class:`LineLost` when the port itself is gone (a USB-RS485
+adapter pulled out, a pseudo-terminal hung up: reads fail with EIO, writes fail). The
+scheduler then marks every module of the line offline at once (COMM_FAULT, the health
+OFFLINE event fronts turn into EMCY / DeviceNet status) instead of letting each module
+time out ``fail_threshold`` times, and :class:`SerialBack` closes the port and re-opens
+the same path with back-off (:data:`REOPEN_FIRST_S` doubling up to the back's
+``offline_probe_ms``); once open, every module is probed at once and comes back online
+with its first good answer. No gateway restart, no component restart.
 """
 
 from __future__ import annotations
@@ -46,6 +55,18 @@ class CommError(Exception):
     def __init__(self, kind: ErrorKind, text: str):
         super().__init__(text)
         self.kind = kind
+
+
+class LineLost(CommError):
+    """The serial port itself is gone (device node removed, hang-up, EIO): no module on the
+    line can answer until the port is re-opened."""
+
+    def __init__(self, text: str):
+        super().__init__(ErrorKind.IO, text)
+
+
+REOPEN_FIRST_S = 0.1
+"""First delay before re-opening a lost port; doubles up to the back's offline_probe_ms."""
 
 
 class PolledModule(ABC):
@@ -244,6 +265,9 @@ class LineScheduler:
             self.stats.requests += 1
             try:
                 result = await action()
+            except LineLost as exc:
+                self.line_lost(str(exc))
+                raise
             except CommError as exc:
                 self._failed(st, exc.kind, str(exc))
             except asyncio.CancelledError:
@@ -275,6 +299,9 @@ class LineScheduler:
     async def _on_online(self, st: _ModuleState) -> None:
         try:
             await st.module.on_online()
+        except LineLost as exc:
+            self.line_lost(str(exc))
+            raise
         except CommError as exc:
             self._failed(st, exc.kind, f"on_online: {exc}")
         except Exception as exc:
@@ -285,6 +312,27 @@ class LineScheduler:
                 for cid in st.module.outputs
                 if self.image[cid].written_by or self.image[cid].spec.initial is not None
             )
+
+    def line_lost(self, text: str) -> None:
+        """The port is gone: every module of the line is offline now, whatever its count."""
+        self.stats.errors[ErrorKind.IO] += 1
+        self.stats.port_losses += 1
+        log.warning("line %s: port lost (%s): all modules COMM_FAULT", self.name, text)
+        for st in self._states:
+            st.contacted = False
+            st.burst_logged = True  # one line for the whole line, not one per module
+            if st.health.record_line_loss(text):
+                self.image.set_quality(st.module.inputs, Quality.COMM_FAULT)
+                self.image.set_quality(st.module.outputs, Quality.COMM_FAULT)
+
+    def line_reopened(self) -> None:
+        """The port is open again: probe every module and run every job now."""
+        now = self.clock()
+        for st in self._states:
+            st.due = now
+        for job in self.jobs:
+            job.due = now
+        self._wake.set()
 
     def _failed(self, st: _ModuleState, kind: ErrorKind, text: str) -> None:
         self.stats.errors[kind] += 1
@@ -329,7 +377,11 @@ class LineScheduler:
     async def _write(self, st: _ModuleState) -> None:
         ids, st.dirty = st.dirty, set()
         values = {cid: self.image.value(cid) for cid in st.module.outputs if cid in ids}
-        ok, _ = await self._attempt(st, lambda: st.module.write_outputs(values))
+        try:
+            ok, _ = await self._attempt(st, lambda: st.module.write_outputs(values))
+        except LineLost:
+            st.dirty |= ids  # written once the port is back
+            raise
         self.stats.writes += 1
         if not ok:
             st.dirty |= ids  # keep them for the next chance
@@ -342,6 +394,9 @@ class LineScheduler:
         try:
             await job.action()
         except asyncio.CancelledError:
+            raise
+        except LineLost as exc:
+            self.line_lost(str(exc))
             raise
         except Exception as exc:
             self.stats.errors[ErrorKind.IO] += 1
@@ -378,6 +433,12 @@ class SerialBack(Back):
         super().__init__(config, context)
         self.link: Any = None
         self.scheduler: LineScheduler | None = None
+        self.port: dict[str, Any] = {
+            "lost": False,
+            "losses": 0,
+            "reopen_attempts": 0,
+            "last_outage_s": None,
+        }
         self.health: dict[int, ModuleHealth] = {}
         for module in config.modules:
             self.health[module.address] = context.health.add(
@@ -421,9 +482,56 @@ class SerialBack(Back):
             self.scheduler.add_job(job)
         self.scheduler.attach()  # outputs written by fronts from now on are queued
 
+    async def reopen_link(self) -> None:
+        """Open the port again after a loss (the link was closed). Default: a new
+        :meth:`open_link`; a back whose modules keep a reference to the link re-opens it
+        in place instead."""
+        self.link = await self.open_link()
+
     async def run(self) -> None:
         assert self.scheduler is not None
-        await self.scheduler.run()
+        while True:
+            try:
+                await self.scheduler.run()
+            except LineLost as exc:
+                await self._recover_line(str(exc))
+
+    async def _recover_line(self, cause: str) -> None:
+        """Close the lost port, re-open the same path with back-off, then probe every module."""
+        assert self.scheduler is not None
+        lost_at = self.context.clock()
+        self.port["losses"] += 1
+        self.port["lost"] = True
+        try:
+            await self.close_link()
+        except Exception as exc:  # a port that is gone may fail to close: it is closed anyway
+            log.debug("line %s: closing the lost port: %s", self.name, exc)
+        delay, cap = REOPEN_FIRST_S, max(REOPEN_FIRST_S, self.config.offline_probe_ms / 1000)
+        while True:
+            await self.sleep(delay)
+            self.port["reopen_attempts"] += 1
+            try:
+                await self.reopen_link()
+                break
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                log.debug("line %s: re-open failed: %s; next try in %.1f s", self.name, exc, delay)
+                delay = min(delay * 2, cap)
+        self.port["lost"] = False
+        self.port["last_outage_s"] = round(self.context.clock() - lost_at, 3)
+        log.warning(
+            "line %s: port %s re-opened after %.1f s (%s)",
+            self.name,
+            self.config.port,
+            self.port["last_outage_s"],
+            cause,
+        )
+        self.scheduler.line_reopened()
+
+    async def sleep(self, seconds: float) -> None:
+        """The re-open back-off's wait (tests replace it)."""
+        await asyncio.sleep(seconds)
 
     async def flush_outputs(self, timeout: float = 2.0) -> None:
         """Write pending outputs (shutdown values) before the line closes."""
@@ -443,4 +551,6 @@ class SerialBack(Back):
                 self.link = None
 
     def status(self) -> dict[str, Any]:
-        return self.scheduler.status() if self.scheduler else {"line": self.name, "running": False}
+        if self.scheduler is None:
+            return {"line": self.name, "running": False}
+        return {**self.scheduler.status(), "port": dict(self.port)}

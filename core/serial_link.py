@@ -3,7 +3,9 @@
 :class:`AsyncSerial` wraps a pyserial port (a device path or a pyserial URL such as
 ``socket://host:port``) for asyncio: reads are woken by ``loop.add_reader`` on the
 port's file descriptor, so a poller never blocks the event loop (and so never delays
-a CAN answer).
+a CAN answer). A port that fails (read EIO or "readable but no data": the device is gone)
+raises :class:`~fieldgate.polling.LineLost` from every later read and write, so the line
+scheduler takes all its modules offline at once and the back re-opens the path.
 
 :class:`PtyPair` gives two tty paths joined by a relay thread, the way a null-modem
 cable joins two real ports: a back end opens one end, a simulator the other, and both
@@ -24,6 +26,7 @@ from typing import Any
 import serial
 
 from .plugin import PluginStartError
+from .polling import LineLost
 
 _PARITY = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
 
@@ -37,6 +40,7 @@ class AsyncSerial:
         self._fd = port.fileno()
         self._loop.add_reader(self._fd, self._readable)
         self.closed = False
+        self.lost: str | None = None  # why the port failed; it stays failed until re-opened
 
     @classmethod
     async def open(
@@ -62,8 +66,9 @@ class AsyncSerial:
     def _readable(self) -> None:
         try:
             chunk = self.port.read(4096)
-        except (serial.SerialException, OSError):
+        except (serial.SerialException, OSError) as exc:
             chunk = b""
+            self.lost = f"read failed: {exc}"
             self._loop.remove_reader(self._fd)
         if chunk:
             self._buffer += chunk
@@ -79,7 +84,16 @@ class AsyncSerial:
         self._buffer.clear()
 
     async def write(self, data: bytes) -> None:
-        self.port.write(data)
+        self._check_lost()
+        try:
+            self.port.write(data)
+        except (serial.SerialException, OSError) as exc:
+            self.lost = f"write failed: {exc}"
+            self._check_lost()
+
+    def _check_lost(self) -> None:
+        if self.lost is not None:
+            raise LineLost(f"port {self.port.name}: {self.lost}")
 
     async def read_until(self, terminator: bytes, timeout: float) -> bytes:
         """Bytes up to and including ``terminator``; TimeoutError when it does not come."""
@@ -108,6 +122,7 @@ class AsyncSerial:
                     return frame
 
     async def _wait(self, deadline: float) -> None:
+        self._check_lost()
         remaining = deadline - self._loop.time()
         if remaining <= 0:
             raise TimeoutError
@@ -116,6 +131,7 @@ class AsyncSerial:
         # that arrives together with the data, and the poller then never stops
         async with asyncio.timeout(remaining):
             await self._data.wait()
+        self._check_lost()
 
     async def close(self) -> None:
         if not self.closed:
@@ -210,6 +226,110 @@ class PtyPair:
                     pass
 
     def __enter__(self) -> PtyPair:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _raw_pty() -> tuple[int, int]:
+    master, slave = os.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    return master, slave
+
+
+class PluggablePty:
+    """A pty pair whose end ``a`` is a path that can be unplugged and plugged back, the way
+    a USB-RS485 adapter's ``/dev/serial/by-id/...`` link comes and goes (fault tests).
+
+    ``a`` is ``link``, a symlink to the current pseudo-terminal; ``b`` is the other end (a
+    simulator's). :meth:`unplug` removes the link and hangs up the pseudo-terminal (a port
+    open on it reads EIO, as a pulled adapter does); :meth:`plug` makes a new one and points
+    the link at it. ``fault`` transforms the bytes going b → a (garbage); ``echo`` sends
+    what a writes back to a as well (a 2-wire RS-485 adapter that hears itself).
+    """
+
+    def __init__(self, link: str | os.PathLike):
+        self.link = os.fspath(link)
+        self.a = self.link
+        self._b = _raw_pty()
+        self.b = os.ttyname(self._b[1])
+        self._a: tuple[int, int] | None = None
+        self.fault: Callable[[bytes], bytes] | None = None
+        self.echo = False
+        self.plugged_in = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.plug()
+        self._thread = threading.Thread(target=self._relay, daemon=True)
+        self._thread.start()
+
+    def plug(self) -> None:
+        """A new pseudo-terminal under the same path (the adapter is back)."""
+        with self._lock:
+            if self._a is not None:
+                return
+            self._a = _raw_pty()
+            tmp = f"{self.link}.new"
+            os.symlink(os.ttyname(self._a[1]), tmp)
+            os.replace(tmp, self.link)
+            self.plugged_in += 1
+
+    def unplug(self) -> None:
+        """The path disappears and the open port hangs up."""
+        with self._lock:
+            if self._a is None:
+                return
+            try:
+                os.unlink(self.link)
+            except FileNotFoundError:
+                pass
+            for fd in self._a:
+                os.close(fd)
+            self._a = None
+
+    def _relay(self) -> None:
+        b_master = self._b[0]
+        while not self._stop.is_set():
+            a = self._a
+            fds = [b_master] + ([a[0]] if a else [])
+            try:
+                ready, _, _ = select.select(fds, [], [], 0.02)
+            except (OSError, ValueError):
+                continue  # end a was unplugged while we waited
+            with self._lock:
+                a_master = self._a[0] if self._a else None
+                for fd in ready:
+                    if fd != b_master and fd != a_master:
+                        continue
+                    try:
+                        data = os.read(fd, 4096)
+                    except OSError:
+                        continue
+                    try:
+                        if fd == b_master:
+                            if a_master is not None:
+                                data = self.fault(data) if self.fault else data
+                                os.write(a_master, data)
+                        else:
+                            os.write(b_master, data)
+                            if self.echo:
+                                os.write(a_master, data)
+                    except OSError:
+                        pass
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1)
+        self.unplug()
+        for fd in self._b:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self) -> PluggablePty:
         return self
 
     def __exit__(self, *exc: object) -> None:

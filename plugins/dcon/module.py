@@ -168,11 +168,17 @@ class DconModule(PolledModule):
             return {cid: (self.image.value(cid), Quality.CONFIG_ERROR) for cid in ids}
         assert self.range is not None and self.data_format is not None
         data = codec.data(await self.link.transact(codec.command("#", self.address)), self.address)
-        values = split_values(data, self.data_format, len(ids))
-        return {
-            cid: text_to_raw(text, self.data_format, self.range)
-            for cid, text in zip(ids, values, strict=True)
-        }
+        try:
+            values = split_values(data, self.data_format, len(ids))
+            return {
+                cid: text_to_raw(text, self.data_format, self.range)
+                for cid, text in zip(ids, values, strict=False)
+            }
+        except CommError:
+            # data that do not fit the format learnt from $AA2: that reply may have been a
+            # distorted one (no checksum); the next poll reads $AA2 again before the data
+            self.data_format = None
+            raise
 
     async def probe(self) -> None:
         await self.read_config()

@@ -301,8 +301,11 @@ class DeviceNetSlave:
             self.counters["rx_rtr_ignored"] += 1
             return
         group, message, mac = ids.decode(frame.can_id)
-        if group == 4 and message == ids.G4_FAULTED_REQUEST and self.state == "comm-fault":
-            self._offline_request(frame.data, now)
+        if group == 4 and message == ids.G4_FAULTED_REQUEST:
+            if self.state == "comm-fault":
+                self._offline_request(frame.data, now)
+            else:  # for faulted nodes only: counted, so a busy offline set shows in the status
+                self.counters["rx_offline_not_faulted"] += 1
             return
         if group != 2:
             return  # group 1/3 traffic and other group 4 messages are for other nodes

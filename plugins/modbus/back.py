@@ -288,6 +288,9 @@ class ModbusBack(SerialBack):
                 out[p.channel] = [f"{where} ({codes})"]
         return out
 
+    async def reopen_link(self) -> None:
+        await self.link.open()  # the same ModbusLink (the modules hold it), a new pymodbus client
+
     def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> ModbusModule:
         points = module_points(self.name, config)
         module = ModbusModule(

@@ -32,7 +32,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException
 
 from fieldgate.health import ErrorKind
 from fieldgate.plugin import PluginStartError
-from fieldgate.polling import CommError
+from fieldgate.polling import CommError, LineLost
 from fieldgate.serial_link import char_time
 
 from .codec import Function, diagnose
@@ -194,6 +194,8 @@ class ModbusLink:
         """Run one pymodbus request with t3.5 silence before it; classify failures."""
         if self._client is None:
             raise CommError(ErrorKind.IO, "the port is not open")
+        if not self._client.connected:  # pymodbus saw the port fail (read EIO, hang-up)
+            raise self._lost("the port failed")
         wait = self._quiet_since + self.gap - time.monotonic()
         if wait > 0:
             await asyncio.sleep(wait)
@@ -204,16 +206,20 @@ class ModbusLink:
         try:
             reply = await request()
         except ConnectionException as exc:
-            raise self._fail(ErrorKind.IO, f"port failed: {exc}") from None
+            raise self._lost(f"port failed: {exc}") from None
         except ModbusException:
+            if not self._client.connected:  # the port failed while we waited
+                raise self._lost("the port failed during the request") from None
             kind = diagnose(unit, function, bytes(self._rx))
             raise self._fail(kind, _describe(kind, bytes(self._rx))) from None
         except (OSError, serial.SerialException) as exc:
-            raise self._fail(ErrorKind.IO, f"port failed: {exc}") from None
+            raise self._lost(f"port failed: {exc}") from None
         finally:
             self._quiet_since = time.monotonic()
         self.stats.last_rtt = self._quiet_since - started
         if reply is None:
+            if not self._client.connected:
+                raise self._lost("the port failed during the request")
             raise self._fail(ErrorKind.TIMEOUT, "no reply")
         if reply.isError():
             code = getattr(reply, "exception_code", 0)
@@ -227,6 +233,10 @@ class ModbusLink:
     def _fail(self, kind: ErrorKind, text: str) -> CommError:
         self.stats.errors[kind] += 1
         return CommError(kind, text)
+
+    def _lost(self, text: str) -> LineLost:
+        self.stats.errors[ErrorKind.IO] += 1
+        return LineLost(f"{self.port}: {text}")
 
     def _bad(self, function: int, text: str) -> CommError:
         return self._fail(ErrorKind.GARBAGE, f"FC{function}: {text}")

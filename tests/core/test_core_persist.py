@@ -86,3 +86,19 @@ def test_a_directory_target_is_refused_and_leaves_nothing_behind(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["outdir"] and not any(
         (tmp_path / "outdir").iterdir()
     )
+
+
+def test_a_temporary_file_left_by_a_killed_write_is_removed_by_the_next_write(tmp_path):
+    """A SIGKILL between creating the temporary file and the rename leaves it behind; without
+    step 0 every such kill would leave one more file in the state folder."""
+    path = tmp_path / "plc.canopen.json"
+    persist.write_json_atomic(path, {"v": 1})
+    leftover = tmp_path / ".plc.canopen.json.0badf00d.tmp"
+    leftover.write_bytes(b'{"v": 2')  # torn: the process died while writing it
+    other = tmp_path / ".other.json.0badf00d.tmp"  # another file's temporary is not ours
+    other.write_bytes(b"x")
+    assert persist.temp_files(path) == [leftover]
+    assert persist.read_json(path) == {"v": 1}  # the leftover is never read
+    persist.write_json_atomic(path, {"v": 3})
+    assert persist.temp_files(path) == [] and not leftover.exists()
+    assert other.exists() and persist.read_json(path) == {"v": 3}

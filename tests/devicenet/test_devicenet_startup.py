@@ -61,3 +61,19 @@ def test_seed_offline_connection_set_identifies_and_moves_a_faulted_node():
 def test_online_node_ignores_the_offline_connection_set():
     rig = Rig(serial=1, vendor_id=803)
     assert rig.send("7ED 07 4D 23 03 01 00 00 00") == [] and rig.slave.mac_id == 9
+    assert rig.send("7ED 3F 4B 02") == []
+
+
+def test_offline_connection_set_frames_not_for_us_are_counted():
+    """0x7ED while we are not faulted, or naming another device: counted, never silently dropped."""
+    rig = Rig(serial=1, vendor_id=803)
+    rig.send("7ED 07 4D 23 03 01 00 00 00")
+    rig.send("7ED 3F 4B 02")
+    assert rig.slave.counters["rx_offline_not_faulted"] == 2
+    assert rig.slave.status()["rx_offline_not_faulted"] == 2  # in the front's status
+    rig = Rig(online=False, vendor_id=803, serial=1)
+    rig.send("44F 80 23 03 02 00 00 00")
+    assert rig.slave.state == "comm-fault"
+    rig.send("7ED 07 4D 23 03 02 00 00 00")  # another device's serial
+    assert rig.slave.counters["rx_offline_ignored"] == 1
+    assert rig.slave.counters["rx_offline_not_faulted"] == 0

@@ -1,0 +1,310 @@
+"""Fuzz targets of the serial wires: Modbus RTU and DCON replies into the backs' real link
+and module code, the simulators' valid replies distorted the way a line distorts them."""
+
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+from fuzz_base import Bytes, InvariantBroken, Target, run_sync
+
+from fieldgate.polling import CommError
+
+
+def mutate(b: Bytes, valid: bytes) -> bytes:
+    """A reply the way a line distorts one: flipped, cut, extended, spliced or random bytes."""
+    kind = b.u8() % 6
+    out = bytearray(valid)
+    if kind == 0 and out:
+        for _ in range(1 + b.u8() % 3):
+            out[b.u8() % len(out)] ^= 1 << (b.u8() % 8)
+    elif kind == 1:
+        del out[b.u8() % (len(out) + 1) :]
+    elif kind == 2:
+        out += b.take(b.u8() % 12)
+    elif kind == 3 and out:
+        at = b.u8() % len(out)
+        out[at : at + 1 + b.u8() % 4] = b.take(b.u8() % 6)
+    elif kind == 4:
+        out = bytearray(b.take(b.u8() % 24))
+    return bytes(out)
+
+
+def output_values(image: Any, outputs: list[str], b: Bytes) -> dict[str, Any]:
+    """Output values as a front sets them: through the image, which refuses what a channel's
+    type cannot hold (such a value never reaches a back)."""
+    for cid in outputs:
+        value = bool(b.u8() & 1) if image[cid].spec.kind.is_digital else b.u16() - b.u8() * 128
+        try:
+            image.write_output(cid, value, origin="fuzz")
+        except ValueError:
+            pass
+    return {cid: image.value(cid) for cid in outputs}
+
+
+class FakeModbusClient:
+    """pymodbus's client calls as ModbusLink makes them, answered from the fuzz buffer.
+
+    The request goes through our codec to the simulator's module (the valid reply), the
+    wire bytes (mutated, usually with a fixed CRC so the mutation reaches the decoders) go
+    through ModbusLink's trace hook and pymodbus's own RTU framer and PDU decoder, exactly
+    the way pymodbus hands a received frame to its caller.
+    """
+
+    connected = True
+
+    def __init__(self, target: ModbusTarget):
+        from pymodbus.framer import FramerRTU
+        from pymodbus.pdu import DecodePDU
+
+        self.target = target
+        self.framer = FramerRTU(DecodePDU(False))
+
+    async def _ask(self, unit: int, pdu: bytes) -> Any:
+        from pymodbus.exceptions import ModbusIOException
+
+        from fieldgate.plugins.modbus import codec
+
+        request = codec.frame(unit, pdu)
+        module = self.target.sim.get(unit)
+        valid = module.handle(codec.parse_request(request)) if module else b""
+        wire = self.target.reply(valid)
+        self.target.link._trace(False, wire)
+        _, reply = self.framer.handleFrame(wire, unit, 0)
+        if reply is None or reply.dev_id != unit:
+            raise ModbusIOException("no valid reply")  # what pymodbus raises at its timeout
+        return reply
+
+    def _req(self, fc: int, address: int, value: int, device_id: int) -> Any:
+        return self._ask(device_id, struct.pack(">BHH", fc, address, value))
+
+    def read_coils(self, address: int, count: int, device_id: int) -> Any:
+        return self._req(1, address, count, device_id)
+
+    def read_discrete_inputs(self, address: int, count: int, device_id: int) -> Any:
+        return self._req(2, address, count, device_id)
+
+    def read_holding_registers(self, address: int, count: int, device_id: int) -> Any:
+        return self._req(3, address, count, device_id)
+
+    def read_input_registers(self, address: int, count: int, device_id: int) -> Any:
+        return self._req(4, address, count, device_id)
+
+    def write_coil(self, address: int, value: bool, device_id: int) -> Any:
+        return self._req(5, address, 0xFF00 if value else 0, device_id)
+
+    def write_register(self, address: int, value: int, device_id: int) -> Any:
+        return self._req(6, address, value, device_id)
+
+    def write_coils(self, address: int, values: list[bool], device_id: int) -> Any:
+        from fieldgate.plugins.modbus.codec import pack_bits
+
+        data = pack_bits(values)
+        pdu = struct.pack(">BHHB", 15, address, len(values), len(data)) + data
+        return self._ask(device_id, pdu)
+
+    def write_registers(self, address: int, values: list[int], device_id: int) -> Any:
+        pdu = struct.pack(
+            f">BHHB{len(values)}H", 16, address, len(values), 2 * len(values), *values
+        )
+        return self._ask(device_id, pdu)
+
+
+class ModbusTarget(Target):
+    """Modbus RTU replies into the back's real link and module code (DI, DO, AI, AO models)."""
+
+    name = "modbus"
+    MODULES = [
+        {"address": 1, "model": "M-7052D"},
+        {"address": 3, "model": "M-7055D"},
+        {"address": 4, "model": "M-7024"},
+        {"address": 5, "model": "M-7017R"},
+    ]
+
+    def setup(self) -> None:
+        from fieldgate import ProcessImage
+        from fieldgate.plugins.modbus import codec
+        from fieldgate.plugins.modbus.back import ModbusModule
+        from fieldgate.plugins.modbus.client import ModbusLink
+        from fieldgate.plugins.modbus.config import ModbusBackConfig
+        from fieldgate.plugins.modbus.simulator import SimModule
+
+        self.codec = codec
+        config = ModbusBackConfig(name="rs485", port="unused", modules=self.MODULES)
+        self.image = ProcessImage(lambda: 0.0)
+        for spec in config.channel_specs():
+            self.image.add(spec)
+        points = config.points()
+        self.sim_modules = {
+            m.address: SimModule(m.address, points[m.address]) for m in config.modules
+        }
+        self.sim = self.sim_modules
+        self.link = ModbusLink("fuzz", inter_frame=0)
+        self.link._client = FakeModbusClient(self)
+        self.modules = [
+            ModbusModule(
+                m,
+                [c.spec for c in self.image.channels(module=m.address)],
+                self.link,
+                points[m.address],
+                retry_period=0.0,
+                clock=lambda: 0.0,
+            )
+            for m in config.modules
+        ]
+        self.b = Bytes(b"")
+        self.valid_only = False
+
+    def reply(self, valid: bytes) -> bytes:
+        if self.valid_only:
+            return valid
+        b = self.b
+        if b.chance(4):
+            return valid
+        out = mutate(b, valid)
+        if len(out) > 2 and not b.chance(4):  # fix the CRC: the mutation reaches the decoders
+            out = self.codec.frame(out[0], out[1:-2])
+        return out
+
+    def transactions(self, b: Bytes) -> None:
+        module = b.pick(self.modules)
+        action = b.u8() % 4
+        try:
+            if action == 0:
+                run_sync(module.probe())
+            elif action == 3 and module.outputs:
+                run_sync(module.write_outputs(output_values(self.image, module.outputs, b)))
+            else:
+                run_sync(module.read_inputs())
+        except CommError:
+            pass  # the wire's own error: counted by the scheduler
+
+    def run(self, data: bytes) -> None:
+        self.b = Bytes(data)
+        while self.b.more():
+            self.transactions(self.b)
+
+    def check(self) -> None:
+        self.valid_only = True
+        try:
+            for module in self.modules:
+                readings = run_sync(module.read_inputs())
+                if module.inputs and not isinstance(readings, dict):
+                    raise InvariantBroken(f"module {module.unit}: {readings!r}")
+        except CommError as exc:
+            raise InvariantBroken(f"a valid reply refused: {exc}") from exc
+        finally:
+            self.valid_only = False
+
+
+class FakeDconSerial:
+    """AsyncSerial's surface for DconLink: the command goes to the DCON simulator, its
+    reply comes back mutated from the fuzz buffer."""
+
+    def __init__(self, target: DconTarget):
+        self.target = target
+        self.reply = b""
+        self.pending = 0
+
+    def reset_input(self) -> None:
+        self.pending = 0
+
+    async def write(self, data: bytes) -> None:
+        answers = self.target.bus.feed(data, 0.0)
+        valid = answers[0][0] if answers else b""
+        self.reply = self.target.wire(valid)
+
+    async def read_until(self, terminator: bytes, timeout: float) -> bytes:
+        end = self.reply.find(terminator)
+        if end < 0:
+            self.pending = len(self.reply)
+            raise TimeoutError
+        return self.reply[: end + 1]
+
+
+class DconTarget(Target):
+    """DCON replies into the back's real link and module code (DIO, AI, AO, counters)."""
+
+    name = "dcon"
+    MODULES = [
+        {"address": 1, "model": "I-7055"},
+        {"address": 2, "model": "I-7017", "data_format": "engineering"},
+        {"address": 3, "model": "I-7024"},
+        {"address": 4, "model": "I-7012"},
+        {"address": 5, "model": "I-7060", "watchdog": {"enabled": True, "timeout_ms": 500}},
+    ]
+
+    def setup(self) -> None:
+        from fieldgate import ProcessImage
+        from fieldgate.plugins.dcon.config import DconBackConfig
+        from fieldgate.plugins.dcon.link import DconLink
+        from fieldgate.plugins.dcon.module import DconModule
+        from fieldgate.plugins.dcon.simulated import SimBus, SimModule
+
+        config = DconBackConfig(name="rs485", port="unused", modules=self.MODULES)
+        self.image = ProcessImage(lambda: 0.0)
+        for spec in config.channel_specs():
+            self.image.add(spec)
+        self.bus = SimBus(checksum=False)
+        for m in config.modules:
+            self.bus.add(SimModule(m.profile, m.address))
+        self.serial = FakeDconSerial(self)
+        self.link = DconLink(self.serial, False, 0.1, settle_after_timeout=False)
+        self.modules = [
+            DconModule(
+                m, [c.spec for c in self.image.channels(module=m.address)], self.image, self.link
+            )
+            for m in config.modules
+        ]
+        self.b = Bytes(b"")
+        self.valid_only = False
+        for module in self.modules:  # learn the modules as the back does when they come online
+            self.valid_only = True
+            run_sync(module.on_online())
+        self.valid_only = False
+
+    def wire(self, valid: bytes) -> bytes:
+        if self.valid_only:
+            return valid
+        b = self.b
+        if b.chance(4):
+            return valid
+        out = mutate(b, valid)
+        if b.chance(2) and out and out[-1:] != b"\r":
+            out += b"\r"  # mostly a complete line: the mutation reaches the parsers
+        return out
+
+    def run(self, data: bytes) -> None:
+        self.b = b = Bytes(data)
+        while b.more():
+            module = b.pick(self.modules)
+            action = b.u8() % 6
+            try:
+                if action == 0:
+                    run_sync(module.probe())
+                elif action == 1:
+                    run_sync(module.on_online())
+                elif action == 2 and module.outputs:
+                    run_sync(module.write_outputs(output_values(self.image, module.outputs, b)))
+                elif action == 3:
+                    run_sync(module.read_status())
+                else:
+                    run_sync(module.read_inputs())
+            except CommError:
+                pass
+
+    def check(self) -> None:
+        """Every module reads good data within two polls of a clean line: without a checksum
+        a distorted $AA2 reply can set a wrong data format; the read that does not fit it
+        makes the next poll read $AA2 again (tests/faults/test_fuzz_findings.py)."""
+        self.valid_only = True
+        try:
+            for module in self.modules:
+                try:
+                    run_sync(module.read_inputs())
+                except CommError:
+                    run_sync(module.read_inputs())
+        except CommError as exc:
+            raise InvariantBroken(f"a valid reply refused twice: {exc}") from exc
+        finally:
+            self.valid_only = False
