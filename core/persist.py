@@ -97,7 +97,7 @@ def _fsync_dir(folder: Path) -> None:
         os.close(dir_fd)
 
 
-def temp_files(target: str | os.PathLike) -> list[Path]:
+def temp_files(target: str | os.PathLike[str]) -> list[Path]:
     """Temporary files of ``target`` left by writes that never reached their rename."""
     target = Path(target)
     return sorted(

@@ -250,7 +250,7 @@ class PluggablePty:
     what a writes back to a as well (a 2-wire RS-485 adapter that hears itself).
     """
 
-    def __init__(self, link: str | os.PathLike):
+    def __init__(self, link: str | os.PathLike[str]) -> None:
         self.link = os.fspath(link)
         self.a = self.link
         self._b = _raw_pty()
@@ -314,7 +314,7 @@ class PluggablePty:
                                 os.write(a_master, data)
                         else:
                             os.write(b_master, data)
-                            if self.echo:
+                            if self.echo and a_master is not None:
                                 os.write(a_master, data)
                     except OSError:
                         pass
