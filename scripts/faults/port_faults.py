@@ -80,6 +80,8 @@ def topology(
                 "interface": "virtual",
                 "channel": dn_channel,
                 "mac_id": 9,
+                # inputs only: the CANopen front writes the outputs (one writing front each)
+                "expose": ["rs485/*/di*", "rs485/*/ai*"],
             },
         ],
         "backs": [

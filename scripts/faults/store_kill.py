@@ -65,6 +65,7 @@ def topology(state_dir: Path) -> dict[str, Any]:
                 "interface": "virtual",
                 "mac_id": DN_MAC,
                 "dup_mac_timeout_ms": 50,
+                "expose": ["rs485/*/di*"],  # inputs only: the CANopen front writes the outputs
             },
         ],
         # never started: the fronts need channels, the stores do not need a running back
