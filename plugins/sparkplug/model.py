@@ -16,10 +16,12 @@ from dataclasses import dataclass, field
 from fieldgate.image import Channel, DataType, Quality, Scaling
 
 # Sparkplug B data type numbers (sparkplug_b.proto's table)
-INT16, INT32, INT64, UINT16, UINT32, FLOAT, BOOLEAN, STRING, DOUBLE = 2, 3, 4, 6, 7, 9, 11, 12, 10
+INT16, INT32, INT64, UINT8, UINT16, UINT32 = 2, 3, 4, 5, 6, 7
+FLOAT, DOUBLE, BOOLEAN, STRING = 9, 10, 11, 12
 
 SPARKPLUG_TYPE: dict[DataType, int] = {
     DataType.BOOL: BOOLEAN,
+    DataType.UINT8: UINT8,  # the bytes of special blocks (SI/SO, NA-9161 0x3000/0x3200)
     DataType.INT16: INT16,
     DataType.UINT16: UINT16,
     DataType.INT32: INT32,

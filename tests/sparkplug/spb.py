@@ -12,7 +12,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 # Sparkplug data types used in the tests
-INT16, INT32, INT64, UINT16, UINT32, FLOAT, DOUBLE, BOOLEAN, STRING = 2, 3, 4, 6, 7, 9, 10, 11, 12
+INT16, INT32, INT64, UINT8, UINT16, UINT32, FLOAT, DOUBLE, BOOLEAN, STRING = (
+    2,
+    3,
+    4,
+    5,
+    6,
+    7,
+    9,
+    10,
+    11,
+    12,
+)
 
 
 def _varint(data: bytes, pos: int) -> tuple[int, int]:

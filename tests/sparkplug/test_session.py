@@ -546,3 +546,40 @@ def test_random_and_mutated_commands_never_raise_and_are_all_accounted_for():
         "malformed", "oversized", "unknown_metric", "not_writable", "bad_value",
         "unknown_device", "unexpected_topic", "bad_state", "stale_state",
     }  # fmt: skip
+
+
+def test_every_data_type_of_the_image_has_a_sparkplug_type():
+    from fieldgate.plugins.sparkplug.model import SPARKPLUG_TYPE
+
+    assert set(SPARKPLUG_TYPE) == set(DataType)  # a new image type must get one here
+
+
+def test_special_bytes_are_uint8_metrics_and_a_dcmd_writes_one_byte():
+    img = ProcessImage(clock=lambda: 0.0)
+    for n in range(2):
+        img.add(ChannelSpec(f"io/m4/si{n}", Kind.SI, Source("io", 4, n), dtype=DataType.UINT8))
+    img.add(ChannelSpec("io/m4/so0", Kind.SO, Source("io", 4, 0), dtype=DataType.UINT8))
+    channels = list(img)
+    model = NodeModel.from_channels("plant", "gw1", channels, ("io/m4/so0",), None)
+    session = Session(
+        model,
+        SessionSettings(brokers=1),
+        MemoryJournal(),
+        last_bdseq=None,
+        current=[Sample(c.id, 200, Quality.GOOD, 1_600_000_000_000) for c in channels],
+        rng=random.Random(1),
+    )
+    clock = Clock()
+    actions = online(session, clock)
+    (birth,) = [spb.decode(p.payload) for p in publishes(actions) if "/DBIRTH/" in p.topic]
+    metrics = {m.name: m for m in birth.metrics}
+    assert {m.datatype for m in metrics.values()} == {spb.UINT8}
+    assert metrics["si1"].value == 200
+    alias = session.model.by_channel["io/m4/so0"].alias
+    write = spb.command(spb.command_metric(alias=alias, datatype=spb.UINT8, value=0x5A))
+    assert session.on_message(clock(), "spBv1.0/plant/DCMD/gw1/io-m4", write) == [
+        Write("io/m4/so0", 0x5A)
+    ]
+    too_big = spb.command(spb.command_metric(alias=alias, datatype=spb.UINT8, value=256))
+    assert session.on_message(clock(), "spBv1.0/plant/DCMD/gw1/io-m4", too_big) == []
+    assert session.ignored["bad_value"] == 1
