@@ -17,6 +17,8 @@ from typing import Any
 
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.image import Change, Quality
+from fieldgate.metric_samples import Sample as MetricSample
+from fieldgate.metric_samples import counter, gauge
 from fieldgate.persist import CorruptStore, read_json, write_json_atomic
 from fieldgate.plugin import Front, GatewayContext, PluginStartError, hookimpl
 
@@ -37,8 +39,6 @@ from .session import (
     Subscribe,
     Write,
 )
-
-MetricRow = tuple[str, str, str, float, dict[str, str]]
 
 
 class SparkplugFront(Front):
@@ -359,95 +359,70 @@ class SparkplugFront(Front):
         )
         return out
 
-    def metrics(self) -> list[MetricRow]:
+    def metrics(self) -> list[MetricSample]:
         """Metric rows for the gateway's Prometheus endpoint (name without ``fieldgate_``)."""
         if self.session is None:
             return []
         s = self.session
-        front = {"front": self.name}
+        front = self.name
         oldest = s.journal.oldest_ts_ms()
         age = 0.0 if oldest is None else max(0.0, (time.time() * 1000 - oldest) / 1000)
-        rows: list[MetricRow] = [
-            (
+        rows: list[MetricSample] = [
+            gauge(
                 "sparkplug_connected",
-                "gauge",
                 "1 while the edge node session is publishing (NBIRTH sent)",
-                float(s.state is State.ONLINE),
-                front,
+                s.state is State.ONLINE,
+                front=front,
             ),
-            (
+            gauge(
                 "sparkplug_bdseq",
-                "gauge",
                 "bdSeq of the current or next MQTT connection",
-                float(s.bdseq),
-                front,
+                s.bdseq,
+                front=front,
             ),
-            (
+            gauge(
                 "sparkplug_backlog_messages",
-                "gauge",
                 "samples waiting in the store-and-forward journal",
-                float(s.journal.count()),
-                front,
+                s.journal.count(),
+                front=front,
             ),
-            (
+            gauge(
                 "sparkplug_backlog_oldest_age_seconds",
-                "gauge",
                 "age of the oldest sample in the journal",
                 age,
-                front,
+                front=front,
             ),
-            (
+            counter(
                 "sparkplug_dropped_messages_total",
-                "counter",
                 "samples dropped from the journal (full, or channel gone)",
-                float(s.dropped),
-                front,
+                s.dropped,
+                front=front,
             ),
-            (
+            counter(
                 "sparkplug_replayed_messages_total",
-                "counter",
                 "journaled samples sent as historical DDATA",
-                float(s.replayed),
-                front,
+                s.replayed,
+                front=front,
             ),
-            (
-                "sparkplug_connects_total",
-                "counter",
-                "accepted MQTT connections",
-                float(s.connects),
-                front,
+            counter(
+                "sparkplug_connects_total", "accepted MQTT connections", s.connects, front=front
             ),
         ]
-        for kind, count in sorted(s.sent.items()):
-            rows.append(
-                (
-                    "sparkplug_messages_total",
-                    "counter",
-                    "Sparkplug messages published, by type",
-                    float(count),
-                    {**front, "type": kind},
-                )
-            )
-        for reason, count in sorted(s.rebirths.items()):
-            rows.append(
-                (
-                    "sparkplug_rebirths_total",
-                    "counter",
-                    "NBIRTH sequences, by reason",
-                    float(count),
-                    {**front, "reason": reason},
-                )
-            )
-        for reason, count in sorted(s.ignored.items()):
-            rows.append(
-                (
-                    "sparkplug_ignored_commands_total",
-                    "counter",
-                    "incoming messages ignored, by reason",
-                    float(count),
-                    {**front, "reason": reason},
-                )
-            )
+        by_label = (
+            ("sparkplug_messages_total", "Sparkplug messages published, by type", "type", s.sent),
+            ("sparkplug_rebirths_total", "NBIRTH sequences, by reason", "reason", s.rebirths),
+            (
+                "sparkplug_ignored_commands_total",
+                "incoming messages ignored, by reason",
+                "reason",
+                s.ignored,
+            ),
+        )
+        for name, help_text, label, counts in by_label:
+            rows += [
+                counter(name, help_text, count, front=front, **{label: key})
+                for key, count in sorted(counts.items())
+            ]
         return rows
 
 
