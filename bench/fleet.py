@@ -5,12 +5,12 @@ Run:  .venv/bin/python bench/fleet.py                       (50 gateways, 60 s: 
 
 Each gateway is its own process (``fieldgate.runtime.Gateway``, as ``fieldgate run
 --simulate`` builds it): a Modbus RTU back polling one simulated module with --points input
-registers every 100 ms over a pseudo-terminal at 115200 baud, and the Sparkplug front.
+registers every --poll-ms (100) over a pseudo-terminal at 115200 baud, and the Sparkplug front.
 A driver in the process sets every simulated input to a new value --rate times a second
 (the "module change"). The checker is the primary host application: it publishes its STATE
 (the gateways publish only while it is online) and records every message with its arrival
-time. In the middle of the run the broker is killed (SIGKILL) and started again on the same
-port after --outage seconds.
+time. In the middle of the run the broker is restarted on the same port after --outage
+seconds (--restart: SIGTERM with persistence, or SIGKILL).
 
 Reported: messages and samples per second, latency from the module change (the driver set
 the input) and from the acquisition (the metric's timestamp: the poll that read it) to
@@ -47,7 +47,9 @@ HOST_ID = "checker"
 
 
 # -- one gateway (child process) ------------------------------------------------------------
-def gateway_topology(index: int, port: int, points: int, state_dir: str) -> dict[str, Any]:
+def gateway_topology(
+    index: int, port: int, points: int, state_dir: str, poll_ms: int = 100
+) -> dict[str, Any]:
     return {
         "gateway": {"name": f"gw{index:03d}", "state_dir": state_dir},
         "fronts": [
@@ -68,7 +70,7 @@ def gateway_topology(index: int, port: int, points: int, state_dir: str) -> dict
                 "type": "modbus",
                 "port": "/dev/null",  # replaced by a pseudo-terminal (simulate)
                 "baudrate": 115200,
-                "poll_ms": 100,
+                "poll_ms": poll_ms,
                 # generous for a host running 50 of these: a starved process must not mark
                 # its simulated module offline (that would be a test of the CPU, not of Sparkplug)
                 "timeout_ms": 1000,
@@ -97,7 +99,8 @@ async def run_gateway(args: argparse.Namespace) -> None:
     from fieldgate.runtime import Gateway
 
     gw = Gateway.load(
-        gateway_topology(args.index, args.port, args.points, args.state_dir), simulate=True
+        gateway_topology(args.index, args.port, args.points, args.state_dir, args.poll_ms),
+        simulate=True,
     )
     seen: dict[str, list[int]] = {}  # good values each channel took in the process image
     set_times: list[float] = []
@@ -162,7 +165,11 @@ class Checker:
 
         self.raw: list[tuple[str, bytes, float]] = []
         self.lock = threading.Lock()
-        self.client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=HOST_ID)
+        # a persistent session: what the broker queued for the checker survives a broker
+        # restart that saves it (--restart term with persistence)
+        self.client = mqtt.Client(
+            CallbackAPIVersion.VERSION2, client_id=HOST_ID, clean_session=False
+        )
         self.client.reconnect_delay_set(0.05, 0.2)
         self.client.will_set(
             f"spBv1.0/STATE/{HOST_ID}",
@@ -317,7 +324,7 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
     if binary is None:
         raise SystemExit("mosquitto is not installed (.ci/mosquitto/install)")
     work = Path(tempfile.mkdtemp(prefix="fieldgate-fleet-"))
-    broker = Mosquitto(binary, work)
+    broker = Mosquitto(binary, work, persistence=True)
     broker.start()
     checker = Checker(broker.port)
     checker.start()
@@ -341,6 +348,8 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
                     str(args.points),
                     "--rate",
                     str(args.rate),
+                    "--poll-ms",
+                    str(args.poll_ms),
                     "--state-dir",
                     str(work / edge),
                     "--report",
@@ -360,7 +369,10 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
         broker_cpu = cpu_seconds(broker.proc.pid) if broker.proc else 0.0
         broker_cpu_span = time.time() - run_start
         kill_at = time.time()
-        broker.kill()
+        if args.restart == "kill":
+            broker.kill()
+        else:
+            broker.stop()
         time.sleep(args.outage)
         broker.start()
         restart_at = time.time()
@@ -410,6 +422,20 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=60.0, help="seconds")
     parser.add_argument("--points", type=int, default=100, help="inputs per gateway")
     parser.add_argument("--rate", type=float, default=10.0, help="changes per second of each input")
+    parser.add_argument(
+        "--poll-ms",
+        type=int,
+        default=100,
+        help="poll period of each gateway's module: a change waits up to one period to be read",
+    )
+    parser.add_argument(
+        "--restart",
+        choices=("term", "kill"),
+        default="term",
+        help="how the broker goes down in the middle: term (SIGTERM: it saves its sessions and "
+        "queued messages and loads them again) or kill (SIGKILL: what it had acknowledged but "
+        "not yet delivered to the checker dies with it)",
+    )
     parser.add_argument("--outage", type=float, default=1.0, help="seconds the broker stays down")
     parser.add_argument("--json", help="also write the results to this file")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)

@@ -61,9 +61,18 @@ def wait_until(predicate: Any, timeout: float = 10.0, what: str = "condition") -
 
 
 class Mosquitto:
-    def __init__(self, binary: str, workdir: Path, port: int | None = None, listener: str = ""):
+    def __init__(
+        self,
+        binary: str,
+        workdir: Path,
+        port: int | None = None,
+        listener: str = "",
+        persistence: bool = False,
+    ):
         """``listener``: extra lines for the listener (TLS files, password_file, ...); without
-        it, anonymous clients are allowed (loopback only)."""
+        it, anonymous clients are allowed (loopback only). ``persistence``: the broker saves
+        its sessions and their queued messages in ``workdir`` when it stops (SIGTERM) and
+        loads them when it starts again; a SIGKILL still loses what it held in memory."""
         self.binary = binary
         self.port = port or free_port()
         self.workdir = workdir
@@ -73,7 +82,12 @@ class Mosquitto:
             # which cannot read the test's key files)
             f"user {getpass.getuser()}\nper_listener_settings false\nlistener {self.port} 127.0.0.1\n"
             + (listener or "allow_anonymous true\n")
-            + "persistence false\nlog_dest none\nmax_queued_messages 100000\nmax_inflight_messages 0\n"
+            + (
+                f"persistence true\npersistence_location {workdir}/\n"
+                if persistence
+                else "persistence false\n"
+            )
+            + "log_dest none\nmax_queued_messages 100000\nmax_inflight_messages 0\n"
         )
         self.proc: subprocess.Popen[bytes] | None = None
 
