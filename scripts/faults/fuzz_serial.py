@@ -4,6 +4,7 @@ and module code, the simulators' valid replies distorted the way a line distorts
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from typing import Any
 
 from fuzz_base import Bytes, InvariantBroken, Target, run_sync
@@ -40,6 +41,22 @@ def output_values(image: Any, outputs: list[str], b: Bytes) -> dict[str, Any]:
         except ValueError:
             pass
     return {cid: image.value(cid) for cid in outputs}
+
+
+def distorted(
+    b: Bytes, valid: bytes, repair: Callable[[Bytes, bytes], bytes], valid_only: bool
+) -> bytes:
+    """The reply a fuzzed line gives: the valid one (always while ``valid_only``, else one
+    time in four) or a mutation of it that ``repair`` makes plausible enough to be parsed."""
+    if valid_only or b.chance(4):
+        return valid
+    return repair(b, mutate(b, valid))
+
+
+def _end_line(b: Bytes, out: bytes) -> bytes:
+    if b.chance(2) and out and out[-1:] != b"\r":
+        out += b"\r"  # mostly a complete line: the mutation reaches the parsers
+    return out
 
 
 class FakeModbusClient:
@@ -156,12 +173,9 @@ class ModbusTarget(Target):
         self.valid_only = False
 
     def reply(self, valid: bytes) -> bytes:
-        if self.valid_only:
-            return valid
-        b = self.b
-        if b.chance(4):
-            return valid
-        out = mutate(b, valid)
+        return distorted(self.b, valid, self._fix_crc, self.valid_only)
+
+    def _fix_crc(self, b: Bytes, out: bytes) -> bytes:
         if len(out) > 2 and not b.chance(4):  # fix the CRC: the mutation reaches the decoders
             out = self.codec.frame(out[0], out[1:-2])
         return out
@@ -264,15 +278,7 @@ class DconTarget(Target):
         self.valid_only = False
 
     def wire(self, valid: bytes) -> bytes:
-        if self.valid_only:
-            return valid
-        b = self.b
-        if b.chance(4):
-            return valid
-        out = mutate(b, valid)
-        if b.chance(2) and out and out[-1:] != b"\r":
-            out += b"\r"  # mostly a complete line: the mutation reaches the parsers
-        return out
+        return distorted(self.b, valid, _end_line, self.valid_only)
 
     def run(self, data: bytes) -> None:
         self.b = b = Bytes(data)
