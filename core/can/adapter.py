@@ -255,14 +255,7 @@ class CanAdapter:
                 frame = Frame(can_id, b"", rtr=True, dlc=dlc)
             else:
                 frame = _new_frame(Frame, (can_id, data[:dlc], False, None))
-            now = self.loop.time()
-            node = self.node
-            frames = node.receive(frame, now)
-            if self._listen_ids is not None and self._listen_ids() is not self._listen_source:
-                self._refresh_filters()
-            self._arm(node.deadline_after_call, known=True)
-            if frames:
-                self._send(frames, now)
+            self._engine_receive(frame)
 
     def _receive(self, msg: can.Message) -> None:
         """One received message: the node's answers go out before anything else happens."""
@@ -277,14 +270,19 @@ class CanAdapter:
             if listen is not None and msg.arbitration_id not in listen:
                 self.rx_ignored += 1
                 return
-            now = self.loop.time()
-            node = self.node
-            frames = node.receive(to_frame(msg), now)
-            if self._listen_ids is not None and self._listen_ids() is not self._listen_source:
-                self._refresh_filters()
-            self._arm(node.deadline_after_call, known=True)
-            if frames:  # last: only returns follow the answer, so the waiting peer runs at once
-                self._send(frames, now)
+            self._engine_receive(to_frame(msg))
+
+    def _engine_receive(self, frame: Frame) -> None:
+        """Under the engine lock, a frame of ours (both receive paths): the node takes it, a
+        listen set it changed becomes the bus's filters, its answers go out."""
+        now = self.loop.time()
+        node = self.node
+        frames = node.receive(frame, now)
+        if self._listen_ids is not None and self._listen_ids() is not self._listen_source:
+            self._refresh_filters()
+        self._arm(node.deadline_after_call, known=True)
+        if frames:  # last: only returns follow the answer, so the waiting peer runs at once
+            self._send(frames, now)
 
     def _quick(self, msg: can.Message) -> bool:
         """On the receive thread: answer ``msg`` at once if the engine can (True), else False.

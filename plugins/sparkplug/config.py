@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import ipaddress
 import os
 from pathlib import Path
 from typing import Literal
@@ -10,7 +9,7 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 
 from fieldgate.topology import FrontConfig
-from fieldgate.topology.model import StrictModel
+from fieldgate.topology.model import StrictModel, is_loopback
 
 # Sparkplug topic elements: UTF-8 without the MQTT separators and wildcards.
 TOPIC_ELEMENT = r"^[^/+#]+$"
@@ -54,12 +53,7 @@ class BrokerSettings(StrictModel):
 
     @property
     def is_loopback(self) -> bool:
-        if self.host == "localhost":
-            return True
-        try:
-            return ipaddress.ip_address(self.host).is_loopback
-        except ValueError:
-            return False
+        return is_loopback(self.host)
 
     @model_validator(mode="after")
     def _one_password_source(self) -> BrokerSettings:
