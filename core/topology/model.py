@@ -192,6 +192,18 @@ class FrontConfig(ComponentConfig):
         """
         return self.expose
 
+    def check(self, topology: Any) -> list[tuple[tuple[Any, ...], str]]:
+        """What this front can only check with the whole topology (its channels known), as
+        ``(path below this front, message)`` pairs: the limits ``run`` would refuse at start
+        (a CANopen head's image size, its default PDOs). Called by the loader for ``validate``,
+        ``run`` and every other command alike. Default: nothing."""
+        return []
+
+    def notes(self) -> list[str]:
+        """Lines ``fieldgate validate`` prints under a valid topology: a default this front
+        chose that the user should know of (a profile overriding another). Default: none."""
+        return []
+
 
 class ModuleConfig(StrictModel):
     """One RS-485 module. Plugins subclass it to add model presets and channel declarations."""

@@ -29,9 +29,11 @@ from typing import Any, Literal
 from pydantic import Field
 
 from fieldgate.host_watchdog import HostWatchdogs
+from fieldgate.image import ErrorMode
 from fieldgate.topology.model import StrictModel
 
-from .iodevice import IoDevice, IoSettings
+from .iodevice import IoDevice, IoSettings, build_io
+from .layouts import LayoutError
 
 
 class IoFrontOptions(StrictModel):
@@ -65,7 +67,10 @@ class IoFrontOptions(StrictModel):
 
 
 def io_settings(options: Any) -> IoSettings:
-    return IoSettings(
+    """The I/O device's settings from a front configuration (its resolved device and master
+    profile, :mod:`.profiles`, when it has one)."""
+    profile = getattr(options, "profile", None)
+    settings = IoSettings(
         style=options.style,
         pdo_count=options.pdo_count,
         mapping_closed=options.mapping_closed,
@@ -74,6 +79,47 @@ def io_settings(options: Any) -> IoSettings:
         error_on_stopped=options.error_on_stopped,
         bit_mapping=options.bit_mapping,
     )
+    if profile is not None:
+        settings.analog_events = profile.analog_events
+        settings.short_ao_error_writes = profile.style.short_ao_error_writes
+        settings.empty_pdos_invalid = profile.empty_pdos_invalid
+    return settings
+
+
+def check_io(cfg: Any, context: Any) -> list[tuple[tuple[Any, ...], str]]:
+    """What :func:`install` would refuse for this front configuration, as validation issues."""
+    models = {(b.name, m.address): m.model or "" for b in context.topology.backs for m in b.modules}
+    try:
+        build_io(
+            io_settings(cfg), context.image, context.front_channels(cfg), cfg.name, models=models
+        )
+    except LayoutError as exc:
+        return [((), str(exc))]
+    return []
+
+
+def default_error_modes(front: Any) -> list[str]:
+    """With ``error_mode_default: zero`` (the NA-9161: 0x6206 = 0xFF, 0x6207 = 0x00, 0x6443 = 1,
+    0x6444 = 0), every digital and analog output this front serves whose module sets no
+    error mode of its own (``error_mode`` / ``error_modes``) goes to 0 on an error event.
+    Returns the channel ids given that default."""
+    cfg, ctx = front.config, front.context
+    if not cfg.profile.outputs_to_zero:
+        return []
+    modules = {(b.name, m.address): m for b in ctx.topology.backs for m in b.modules}
+    changed = []
+    for ch in ctx.front_channels(cfg):
+        if not ch.kind.is_output or ch.kind.is_special:
+            continue
+        module = modules.get((ch.source.back, ch.source.module))
+        local = f"{ch.kind.value}{ch.source.index}"
+        if module is not None and (
+            "error_mode" in module.model_fields_set or local in module.error_modes
+        ):
+            continue
+        ctx.image.set_error_mode(ch.id, ErrorMode.to(False if ch.kind.is_digital else 0))
+        changed.append(ch.id)
+    return changed
 
 
 def io_device(front: Any) -> IoDevice:
@@ -100,6 +146,7 @@ def install(front: Any, node: Any) -> None:
     previous = getattr(front, "io", None)
     if previous is not None:
         previous.detach()
+    default_error_modes(front)
     io = io_device(front)
     scheduled = False
 

@@ -47,12 +47,20 @@ from .entries import BOOLEAN, Directory, Entry, ObjectDef
 from .fnbus import FnBusRegister
 from .frame import Frame, NmtState
 from .iostore import IoStore
-from .layouts import STYLE_PDO_COUNT, IoLayout, Style, build_layout, default_pdos
+from .layouts import (
+    STYLE_PDO_COUNT,
+    IoLayout,
+    PdoDefaults,
+    Style,
+    build_layout,
+    default_pdos,
+)
 from .manufacturer import ManufacturerObjects
 from .master_state import MasterState
 from .od import Dictionary
 from .pdo import PdoEngine
-from .profile401 import Profile401
+from .profile401 import SHORT_WRITES, Profile401
+from .profiles import STYLES
 from .service import NodeHost, Service
 
 LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES = 0x8210, 0x10, b"\x09"
@@ -72,6 +80,20 @@ class IoSettings:
         None  # (0x6206, 0x6207) for outputs without a configured mode
     )
     bit_mapping: bool = False  # 0x6020-/0x6220- bit objects, 1-bit mapping, dummy 0x0001
+    analog_events: Literal["change", "interrupt"] | None = None  # default: the style's
+    short_ao_error_writes: tuple[int, ...] | None = None  # 2-byte writes taken (0x6443/0x6444)
+    empty_pdos_invalid: bool = False  # default PDOs without data start invalid (master profile)
+
+    @property
+    def analog(self) -> Literal["change", "interrupt"]:
+        """AI changes: every one a TPDO event (na9161) or only through 0x6423/0x6421."""
+        return self.analog_events or STYLES[self.style].analog_events
+
+    @property
+    def short_writes(self) -> tuple[int, ...]:
+        if self.short_ao_error_writes is not None:
+            return self.short_ao_error_writes
+        return STYLES[self.style].short_ao_error_writes
 
     @property
     def granularity(self) -> int:
@@ -93,6 +115,9 @@ class IoSettings:
 class IoDevice(Service):
     name = "io"
     active_states = frozenset({NmtState.OPERATIONAL})
+    layout: IoLayout
+    defaults: PdoDefaults
+    profile: Profile401
 
     def __init__(
         self,
@@ -160,22 +185,14 @@ class IoDevice(Service):
 
     def _build_layout(self, compressed: bool, inactive: frozenset[int]) -> None:
         """The layout-dependent parts: layout, default PDOs, CiA 401 objects."""
-        settings = self.settings
-        self.layout: IoLayout = build_layout(
+        self.layout, self.defaults, self.profile = build_io(
+            self.settings,
+            self.image,
             self.channels,
-            settings.style,
-            compressed=compressed,
+            self.origin,
             models=self.models,
+            compressed=compressed,
             inactive=inactive,
-        )
-        self.defaults = default_pdos(
-            self.layout,
-            settings.style,
-            count=settings.count,
-            mapping_closed=settings.mapping_closed,
-        )
-        self.profile = Profile401(
-            self.image, self.layout, self.origin, bit_objects=settings.bit_mapping
         )
 
     def _directory(self) -> Directory:
@@ -231,6 +248,8 @@ class IoDevice(Service):
         self.engine = self._new_engine(node)
         for obj in self.objects():
             bind_object(node.od, obj)
+        for index in self.settings.short_writes:
+            node.od.accept_short_writes(index, 2, SHORT_WRITES[index])
         self.store.attach(node)
         self.profile.attach(self.engine.object_changed)
         emcy = node.emcy
@@ -317,6 +336,43 @@ class IoDevice(Service):
             emcy.raise_error(LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES)
         else:
             emcy.clear_error(LENGTH_ERROR_CODE)
+
+
+def build_io(
+    settings: IoSettings,
+    image: ProcessImage,
+    channels: Sequence[Channel],
+    origin: str,
+    *,
+    models: dict[tuple[str, int], str] | None = None,
+    compressed: bool | None = None,
+    inactive: frozenset[int] = frozenset(),
+) -> tuple[IoLayout, PdoDefaults, Profile401]:
+    """The layout, the default PDOs and the CiA 401 objects of a front's channels: what a
+    running front builds, and what ``fieldgate validate`` checks (:class:`LayoutError` when
+    the channels do not fit the style: 32 slots and 64 bytes of the NA-9161, the PDOs)."""
+    layout = build_layout(
+        channels,
+        settings.style,
+        compressed=settings.compressed if compressed is None else compressed,
+        models=models or {},
+        inactive=inactive,
+    )
+    defaults = default_pdos(
+        layout,
+        settings.style,
+        count=settings.count,
+        mapping_closed=settings.mapping_closed,
+        empty_invalid=settings.empty_pdos_invalid,
+    )
+    profile = Profile401(
+        image,
+        layout,
+        origin,
+        bit_objects=settings.bit_mapping,
+        analog_events=settings.analog,
+    )
+    return layout, defaults, profile
 
 
 def bind_object(od: Dictionary, obj: ObjectDef) -> None:

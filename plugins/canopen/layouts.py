@@ -265,7 +265,10 @@ def default_pdos(
     *,
     count: int | None = None,
     mapping_closed: bool = False,
+    empty_invalid: bool = False,
 ) -> PdoDefaults:
+    """``empty_invalid`` (a master that waits for every valid PDO, the Delta AS300): a PDO
+    with nothing mapped starts invalid whatever the style says."""
     count = count or STYLE_PDO_COUNT[style]
     result = PdoDefaults([], [])
     for direction, bases, digital, analog, d_obj, a_obj in (
@@ -282,7 +285,8 @@ def default_pdos(
             ]
             base = bases[n] if n < len(bases) else None
             if style == "icpdas":
-                pdo = PdoDefault(base, base is not None, 255, entries=entries)
+                valid = base is not None and (bool(entries) or not empty_invalid)
+                pdo = PdoDefault(base, valid, 255, entries=entries)
             else:
                 pdo = PdoDefault(
                     base if n < 2 else None,

@@ -78,6 +78,22 @@ TRIGGER_UPPER, TRIGGER_LOWER, TRIGGER_DELTA = 0x01, 0x02, 0x04
 DI_BIT_OBJECT, DO_BIT_OBJECT, BITS_PER_OBJECT, BIT_OBJECTS = 0x6020, 0x6220, 128, 8
 
 
+def _u16_to_u8(data: bytes) -> bytes:
+    """A 2-byte write to 0x6443 (the ICP DAS manuals print it UNSIGNED16; CiA 401: UNSIGNED8)."""
+    if data[1]:
+        raise Abort(VALUE_RANGE, "0x6443: 0 = keep the value, 1 = go to the error value")
+    return data[:1]
+
+
+def _i16_to_i32(data: bytes) -> bytes:
+    """A 2-byte write to 0x6444 (printed U16 by the ICP DAS and NA-9161 manuals; CiA 401:
+    INTEGER32): the 16-bit raw value, sign-extended as 0x6411's INTEGER16 is."""
+    return int.from_bytes(data, "little", signed=True).to_bytes(4, "little", signed=True)
+
+
+SHORT_WRITES = {0x6443: _u16_to_u8, 0x6444: _i16_to_i32}  # 2-byte downloads a style may take
+
+
 def bit_position(n: int) -> tuple[int, int, int]:
     """Digital channel n (0-based) -> (bit object offset, its sub-index, 8-bit byte index)."""
     return n // BITS_PER_OBJECT, n % BITS_PER_OBJECT + 1, n // 8
@@ -136,11 +152,16 @@ class Profile401:
         filter_default: int = 0xFF,
         trigger_default: int = 0x07,
         bit_objects: bool = False,
+        analog_events: str = "interrupt",
     ):
         self.image = image
         self.layout = layout
         self.origin = origin
         self.bit_objects = bit_objects
+        # "change": every AI change is an event, no 0x6421-0x6426 (the NA-9161 has none);
+        # "interrupt": only through 0x6423 and 0x6421 (CiA 401; default FALSE, the I-7232D's
+        # "analog changes do not trigger a TPDO")
+        self.analog_events = analog_events
         if bit_objects and 8 * max(len(layout.di_bytes), len(layout.do_bytes)) > (
             BITS_PER_OBJECT * BIT_OBJECTS
         ):

@@ -14,7 +14,7 @@ from canopen_dut import InProcessDut, write_eds
 from ruamel.yaml import YAML
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "na9161-style.yaml"
-NODE = 1
+NODE = 5  # the example's node-ID
 
 
 def until(predicate, timeout: float = 5.0) -> bool:
