@@ -55,6 +55,9 @@ from .slave import Identity, NodeSettings, build_node
 
 MODULE_FAILURE_CODE = 0xFF00
 MODULE_FAILURE_REGISTER = 0x81
+# seed-000 §2.5: "COM port access error" (the I-7232D's RS-485 port); both styles, as the
+# NA-9161's table is missing from its manual
+COM_PORT_ERROR = (0x5000, 0x81, b"\x03")
 
 NodeExtension = Callable[["CanopenFront", Node], None]
 _node_extensions: list[NodeExtension] = []
@@ -290,6 +293,7 @@ class CanopenFront(Front):
         self.master: MasterState | None = None
         self._modules: set[tuple[str, int]] = set()
         self._health_subscribed = False
+        self._ports_subscribed = False
         self._failed: asyncio.Future[None] | None = None
 
     # -- assembling ---------------------------------------------------------------------
@@ -431,6 +435,14 @@ class CanopenFront(Front):
         if cfg.module_emcy and not self._health_subscribed:
             self._health_subscribed = True
             self.context.health.subscribe(self._module_health)
+        if cfg.module_emcy:  # modules offline before this node booted (a port missing at start)
+            for health in self.context.health.modules():
+                if health.key in self._modules and not health.online:
+                    self._module_health(health, HealthEvent.OFFLINE)
+        if not self._ports_subscribed:
+            self._ports_subscribed = True
+            self.context.health.subscribe_ports(lambda *_: self._ports_changed())
+        self._ports_changed()  # a port already missing (the front restarted meanwhile)
         self.log.info(
             "CANopen node %s on %s/%s at %s bit/s",
             self.node.node_id if self.node.configured else "unconfigured",
@@ -468,6 +480,25 @@ class CanopenFront(Front):
             action = partial(emcy.clear_error, MODULE_FAILURE_CODE, manufacturer)
         else:
             return
+        if self.adapter is not None:
+            self.adapter.pump(action)
+        else:
+            action()
+
+    # -- serial ports of the backs behind this front ------------------------------------------
+    def _ports_changed(self) -> None:
+        """EMCY "COM port access error" (00 50 81 03) while a port of a back whose modules
+        this front serves is missing; its error reset when every such port is open again."""
+        if self.node is None or self.node.emcy is None:
+            return
+        emcy = self.node.emcy
+        backs = {back for back, _ in self._modules}
+        missing = sorted(b for b in backs if b in self.context.health.ports_lost)
+        code, register, manufacturer = COM_PORT_ERROR
+        if missing:
+            action = partial(emcy.raise_error, code, register, manufacturer)
+        else:
+            action = partial(emcy.clear_error, code, manufacturer)
         if self.adapter is not None:
             self.adapter.pump(action)
         else:

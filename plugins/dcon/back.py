@@ -97,7 +97,7 @@ class DconBack(SerialBack):
         return out
 
     def make_module(self, config: DconModuleConfig, specs: list[ChannelSpec]) -> DconModule:
-        assert self.dcon is not None
+        # self.dcon is None while the port is missing at start: open_link sets module.link
         module = DconModule(
             config, specs, self.context.image, self.dcon, watch_status=not self._host_ok_allowed()
         )

@@ -268,6 +268,11 @@ class ModbusBack(SerialBack):
         await link.open()
         return link
 
+    def unopened_link(self) -> ModbusLink:
+        return ModbusLink.from_config(
+            self.config
+        )  # the modules hold it; opened when the port is there
+
     async def close_link(self) -> None:
         self.link.close()
 

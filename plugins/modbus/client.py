@@ -31,7 +31,7 @@ from pymodbus.client import AsyncModbusSerialClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
 from fieldgate.health import ErrorKind
-from fieldgate.plugin import PluginStartError
+from fieldgate.plugin import PluginStartError, PortUnavailable
 from fieldgate.polling import CommError, LineLost
 from fieldgate.serial_link import char_time
 
@@ -127,7 +127,7 @@ class ModbusLink:
             **self._settings,
         )
         if not await self._client.connect():
-            raise PluginStartError(f"cannot open serial port {self.port}")
+            raise PortUnavailable(f"cannot open serial port {self.port}")
 
     def close(self) -> None:
         if self._client is not None:
@@ -261,6 +261,6 @@ def _check_port(port: str, settings: dict) -> None:
             if exc.errno == 13
             else text
         )
-        raise PluginStartError(f"cannot open serial port {port}: {cause}") from None
+        raise PortUnavailable(f"cannot open serial port {port}: {cause}") from None
     except ValueError as exc:
         raise PluginStartError(f"invalid serial settings for {port}: {exc}") from None
