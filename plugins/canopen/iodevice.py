@@ -43,7 +43,7 @@ from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
 
-from .entries import BOOLEAN, Directory, Entry, ObjectDef
+from .entries import BOOLEAN, Directory, Entry, ObjectDef, Value
 from .fnbus import FnBusRegister
 from .frame import Frame, NmtState
 from .iostore import IoStore
@@ -62,6 +62,7 @@ from .pdo import PdoEngine
 from .profile401 import SHORT_WRITES, Profile401
 from .profiles import STYLES
 from .service import NodeHost, Service
+from .slots import SlotObjects
 
 LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES = 0x8210, 0x10, b"\x09"
 
@@ -159,6 +160,13 @@ class IoDevice(Service):
             if settings.style == "na9161"
             else None
         )
+        # the NA-9161's per-slot objects (0x2000/0x2200 memory, 0x4501, 0x4502, 0x4504): every
+        # slot keeps its number, deactivated or not, so they are built once
+        self.slots = (
+            SlotObjects(image, self.layout.modules, self.channels, origin)
+            if settings.style == "na9161"
+            else None
+        )
         self.manufacturer = ManufacturerObjects(
             self.layout,
             health,
@@ -197,7 +205,8 @@ class IoDevice(Service):
 
     def _directory(self) -> Directory:
         fnbus = self.fnbus.objects() if self.fnbus is not None else []
-        return Directory(self.profile.objects() + self.manufacturer.objects() + fnbus)
+        slots = self.slots.objects() if self.slots is not None else []
+        return Directory(self.profile.objects() + self.manufacturer.objects() + fnbus + slots)
 
     def _new_engine(self, node: NodeHost) -> PdoEngine:
         return PdoEngine(
@@ -416,10 +425,10 @@ def bind_object(od: Dictionary, obj: ObjectDef) -> None:
     for e in obj.entries:
         if e.sub == 0 and obj.kind != "var" and not e.writable:
             continue  # the dictionary's own "highest sub-index" entry
-        od.bind(obj.index, e.sub, getter=e.get, setter=e.write if e.writable else None)
+        od.bind(obj.index, e.sub, getter=e.get, setter=e.store if e.writable else None)
 
 
-def _model_default(e: Entry) -> int | str:
+def _model_default(e: Entry) -> Value:
     """The EDS default: relative COB-IDs keep their base (the dictionary adds the node-ID)."""
     if e.default_expr is not None:
         return int(e.default_expr.split("+", 1)[1], 0)

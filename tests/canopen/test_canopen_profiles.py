@@ -39,8 +39,10 @@ def topo(front: dict, modules: list | None = None) -> dict:
 class Dut:
     """The front's node on a fake clock, with SDO helpers for its node-ID."""
 
-    def __init__(self, front: dict, modules: list | None = None, tmp_path=None):
+    def __init__(self, front: dict, modules: list | None = None, tmp_path=None, backs=None):
         t = topo(front, modules)
+        if backs is not None:
+            t["backs"] = backs
         if tmp_path is not None:
             t["gateway"]["state_dir"] = str(tmp_path)
         self.front, self.node = front_node(t, registry=REGISTRY)
