@@ -100,6 +100,7 @@ class OpcUaFront(Front):
         self._listening = False
         self._wall_offset = 0.0
         self._cancel_events: Any = None
+        self._trust: TrustDirectory | None = None
         self.counters: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
 
@@ -179,6 +180,8 @@ class OpcUaFront(Front):
                 f"cannot listen on {cfg.listen}: {exc.strerror or exc}"
             ) from None
         self._listening = True
+        if self._trust is not None:
+            self._trust.guard(server._policies)  # asyncua keeps its channel policies there
         channels = [c for c in ctx.front_channels(cfg)]
         self._subscription = ctx.image.subscribe(self._on_change, ids=[c.id for c in channels])
         ctx.health.subscribe(self._on_health)
@@ -218,7 +221,8 @@ class OpcUaFront(Front):
             else state / f"{self.name}.opcua-pki" / "trusted"
         )
         trusted.mkdir(parents=True, exist_ok=True)
-        server.set_certificate_validator(TrustDirectory(trusted, self._reject))
+        self._trust = TrustDirectory(trusted, self._reject)
+        server.set_certificate_validator(self._trust)
 
     async def _build(self, server: Server) -> None:
         ctx = self.context
@@ -321,6 +325,8 @@ class OpcUaFront(Front):
             self._health_values(health)
         for name in others:
             self._set_other(f"fronts/{name}/master_present", ctx.masters.is_ok(name), "Boolean")
+        for event in ctx.events.recent():  # what the fronts started before this one reported
+            self._on_event(event)
         self._schedule()
 
     async def run(self) -> None:
@@ -368,16 +374,13 @@ class OpcUaFront(Front):
         self._schedule()
 
     def _on_event(self, event: Event) -> None:
-        if event.kind == NMT_STATE:
-            self._set_other(
-                f"fronts/{event.source}/state", str(event.data.get("new", event.text)), "String"
-            )
-        elif (
-            event.kind not in (MASTER_LOST, MASTER_BACK)
-            and f"fronts/{event.source}/state" in self._other
-            and event.data.get("state")
-        ):
-            self._set_other(f"fronts/{event.source}/state", str(event.data["state"]), "String")
+        """A front's protocol state: its NMT state, or the last thing it reported (fault,
+        bus-off); master lost/back have their own variable."""
+        node = f"fronts/{event.source}/state"
+        if node not in self._other or event.kind in (MASTER_LOST, MASTER_BACK):
+            return
+        state = event.data.get("new") if event.kind == NMT_STATE else event.text
+        self._set_other(node, str(state or event.text), "String")
         self._schedule()
 
     def _set_other(self, node: str, value: Any, dtype: str) -> None:

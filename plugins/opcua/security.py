@@ -85,12 +85,13 @@ def certificate_der(path: Path) -> bytes:
 
 
 class TrustDirectory:
-    """asyncua's certificate validator: trusted when the same certificate is in ``trusted``."""
+    """Client certificates: trusted when the same certificate is in ``trusted``."""
 
     def __init__(self, trusted: Path, on_reject: Callable[[str], None]):
         self.trusted = trusted
         self.rejected = trusted.parent / "rejected"
         self._on_reject = on_reject
+        self._secured: dict[bytes, None] = {}  # certificates of secure channels, oldest first
 
     def trusted_certificates(self) -> set[bytes]:
         out: set[bytes] = set()
@@ -104,8 +105,10 @@ class TrustDirectory:
                     log.warning("trusted certificate %s unreadable: %s", path, exc)
         return out
 
-    async def __call__(self, cert: x509.Certificate, app: ua.ApplicationDescription) -> None:
-        der = cert.public_bytes(serialization.Encoding.DER)
+    def check(self, der: bytes) -> None:
+        """Raise Bad_CertificateUntrusted (or Bad_CertificateTimeInvalid) unless the client
+        certificate ``der`` is valid now and in the trusted directory."""
+        cert = x509.load_der_x509_certificate(der)
         now = datetime.datetime.now(datetime.UTC)
         if not cert.not_valid_before_utc <= now <= cert.not_valid_after_utc:
             self._on_reject("certificate_expired")
@@ -118,14 +121,38 @@ class TrustDirectory:
         except OSError as exc:
             log.warning("cannot keep the rejected certificate in %s: %s", self.rejected, exc)
         log.warning(
-            "client certificate of %s (SHA-1 %s) is not trusted; to trust it move %s into %s",
-            app.ApplicationUri,
+            "client certificate %s (SHA-1 %s) is not trusted; to trust it move %s into %s",
+            cert.subject.rfc4514_string(),
             thumb,
             self.rejected / f"{thumb}.der",
             self.trusted,
         )
         self._on_reject("certificate_untrusted")
         raise ua.uaerrors.BadCertificateUntrusted()  # type: ignore[no-untyped-call]  # generated, unannotated
+
+    def guard(self, factories: list[Any]) -> None:
+        """Note the client certificate of every Sign / SignAndEncrypt secure channel as it
+        opens; :meth:`__call__` (at CreateSession) checks only those. A session on a None
+        channel is not checked: a client certificate means nothing there (Part 4 §5.6.2)."""
+        for factory in factories:
+            if factory.mode == ua.MessageSecurityMode.None_:
+                continue
+            create = factory.create
+
+            def noted(peer_certificate: bytes | None, create: Any = create) -> Any:
+                if peer_certificate:
+                    self._secured[peer_certificate] = None
+                    while len(self._secured) > 256:
+                        del self._secured[next(iter(self._secured))]
+                return create(peer_certificate)
+
+            factory.create = noted
+
+    async def __call__(self, cert: x509.Certificate, app: ua.ApplicationDescription) -> None:
+        """asyncua's certificate validator, called at CreateSession with the client certificate."""
+        der = cert.public_bytes(serialization.Encoding.DER)
+        if der in self._secured:
+            self.check(der)
 
 
 class Users(UserManager):

@@ -12,6 +12,7 @@ import socket
 from typing import Any
 
 import pytest
+import pytest_asyncio
 
 from fieldgate import Gateway, Quality, load_registry
 from fieldgate.plugins.modbus.simulator import Fault
@@ -20,6 +21,7 @@ from .uaclient import UaClient, require_node_opcua
 
 REGISTRY = load_registry()
 NS = "urn:fieldgate:cell"
+pytestmark = pytest.mark.asyncio(loop_scope="module")  # one gateway for the module
 
 
 def free_port() -> int:
@@ -69,11 +71,12 @@ async def wait_until(condition: Any, timeout: float = 5.0) -> None:
         await asyncio.sleep(0.02)
 
 
-@pytest.fixture
-async def gateway(tmp_path):
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def gateway(tmp_path_factory):
     require_node_opcua()
     port = free_port()
-    gw = Gateway.load(topology(port, str(tmp_path / "state")), registry=REGISTRY, simulate=True)
+    state = tmp_path_factory.mktemp("state")
+    gw = Gateway.load(topology(port, str(state)), registry=REGISTRY, simulate=True)
     gw.port = port  # type: ignore[attr-defined]
     await gw.start()
     await wait_until(lambda: gw.image["rs485/m5/ai1"].quality is Quality.GOOD)
@@ -83,7 +86,7 @@ async def gateway(tmp_path):
         await gw.stop()
 
 
-@pytest.fixture
+@pytest_asyncio.fixture(loop_scope="module")
 async def client(gateway):
     ua = await UaClient.start()
     await ua.ok("connect", url=f"opc.tcp://127.0.0.1:{gateway.port}/")
@@ -206,6 +209,8 @@ async def test_absolute_deadband_compares_with_the_last_reported_value(gateway, 
     idx = await ns(client)
     node = f"ns={idx};s=rs485/m5/ai0"
     sim = gateway.bench.simulator("rs485")
+    sim.set_input("rs485/m5/ai0", 0)
+    await wait_until(lambda: gateway.read("rs485/m5/ai0") == 0)
     await client.ok("subscribe", publishingInterval=50)
     item = (
         await client.ok("monitor", nodeIds=[node], deadband={"type": "Absolute", "value": 100})

@@ -22,8 +22,8 @@ const {
   UserTokenType,
   BrowseDirection,
   NodeClass,
-  OPCUACertificateManager,
 } = require("node-opcua-client");
+const { OPCUACertificateManager } = require("node-opcua-certificate-manager");
 
 let client = null;
 let session = null;
