@@ -176,3 +176,42 @@ def test_an_output_written_by_two_northbound_fronts_is_refused_naming_both():
     found = errors(data)
     assert len(found) == 1
     assert "output rs485/m4/ao0 would be written by front 'mb' and by front 'ua'" in found[0]
+
+
+# -- deadband (the filter's arithmetic; node-opcua drives it end to end in test_opcua_client) ----
+def test_percent_deadband_uses_the_eu_range_and_the_last_reported_value():
+    from asyncua import ua
+
+    from fieldgate.plugins.opcua import deadband
+
+    class Space:  # stands for an address space (weak-referenced by the range table)
+        pass
+
+    class Item:
+        def __init__(self, flt: object) -> None:
+            self.filter = flt
+            self.read_value_id = ua.ReadValueId(NodeId=ua.NodeId("rs485/m2/ai0", 2))
+
+    space = Space()
+    deadband.set_ranges(space, {ua.NodeId("rs485/m2/ai0", 2): (0.0, 32767.0)})
+    service = deadband.DeadbandMonitoredItems.__new__(deadband.DeadbandMonitoredItems)
+    service.aspace = space
+    service._reported = {}
+
+    def dv(value: int, status: int = 0) -> ua.DataValue:
+        return ua.DataValue(
+            ua.Variant(value, ua.VariantType.Int16), ua.StatusCode(ua.UInt32(status))
+        )
+
+    percent = Item(
+        ua.DataChangeFilter(
+            Trigger=ua.DataChangeTrigger.StatusValue, DeadbandType=2, DeadbandValue=1.0
+        )
+    )
+    assert service._passes(1, percent, dv(0))  # nothing reported yet
+    service._reported[1] = dv(0)
+    assert not service._passes(1, percent, dv(327))  # 1 % of 32767 is 327.67
+    assert service._passes(1, percent, dv(328))
+    assert service._passes(1, percent, dv(0, 0x40900000))  # a status change always
+    status_only = Item(ua.DataChangeFilter(Trigger=ua.DataChangeTrigger.Status))
+    assert not service._passes(1, status_only, dv(30000))
