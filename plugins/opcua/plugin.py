@@ -412,9 +412,13 @@ class OpcUaFront(Front):
                 self._local.add(id(dv))
                 try:
                     await server.write_attribute_value(nid, dv)
+                    self.counters["value_updates"] += 1
+                except Exception:  # one bad node must not stop the others' updates
+                    self.counters["update_errors"] += 1
+                    if self.counters["update_errors"] == 1:
+                        self.log.exception("writing %s into the address space failed", nid)
                 finally:
                     self._local.discard(id(dv))
-                self.counters["value_updates"] += 1
 
     # -- client writes ------------------------------------------------------------------------
     def _client_write(self, channel_id: str) -> Any:
