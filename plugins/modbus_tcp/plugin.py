@@ -159,14 +159,20 @@ def _handler_class(front: ModbusTcpFront) -> type[ServerRequestHandler]:
                 front.log.warning(
                     "Modbus TCP connection from %s refused: not in allowed_peers", host
                 )
-                transport.close()
+                self._refuse(transport)
                 return
             if len(front.connections()) > front.config.max_clients:
                 front.counters["refused_busy"] += 1
-                transport.close()
+                self._refuse(transport)
                 return
             front.counters["connections"] += 1
             super().connection_made(transport)
+
+        def _refuse(self, transport: Any) -> None:
+            transport.close()  # (pymodbus never saw it open: forget it here)
+            listener = getattr(self, "listener", None)
+            if listener is not None:
+                listener.active_connections.pop(self.unique_id, None)
 
         def callback_data(self, data: bytes, addr: tuple[str, int] | None = None) -> int:
             """An unknown function code gets exception 01 with that code (pymodbus 3.16.1

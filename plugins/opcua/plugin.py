@@ -101,6 +101,7 @@ class OpcUaFront(Front):
         self._wall_offset = 0.0
         self._cancel_events: Any = None
         self._trust: TrustDirectory | None = None
+        self._listeners_added = False
         self.counters: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
 
@@ -173,19 +174,28 @@ class OpcUaFront(Front):
         self._ns = await server.register_namespace(self.namespace_uri)
         self.server = server
         await self._build(server)
+        quiet = logging.getLogger(
+            "asyncua.server.server"
+        )  # it logs a bind failure with a traceback
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
         try:
             await server.start()
         except OSError as exc:
             raise PluginStartError(
                 f"cannot listen on {cfg.listen}: {exc.strerror or exc}"
             ) from None
+        finally:
+            quiet.setLevel(level)
         self._listening = True
         if self._trust is not None:
             self._trust.guard(server._policies)  # asyncua keeps its channel policies there
         channels = [c for c in ctx.front_channels(cfg)]
         self._subscription = ctx.image.subscribe(self._on_change, ids=[c.id for c in channels])
-        ctx.health.subscribe(self._on_health)
-        ctx.masters.subscribe(self._on_master)
+        if not self._listeners_added:  # health and masters keep listeners for good: add them once
+            self._listeners_added = True
+            ctx.health.subscribe(self._on_health)
+            ctx.masters.subscribe(self._on_master)
         self._cancel_events = ctx.events.subscribe(self._on_event)
         self.log.info(
             "OPC UA server on %s (security %s%s): %d variables, namespace %s",

@@ -272,6 +272,8 @@ async def test_allowed_peers_refuses_other_addresses(tmp_path):
         assert await asyncio.wait_for(reader.read(100), 3) == b""  # closed without an answer
         writer.close()
         assert gw.status()["fronts"]["mb"]["counters"]["refused_peer"] == 1
+        await asyncio.sleep(0.05)
+        assert gw.component("mb").connections() == []  # a refused connection is forgotten
     finally:
         await gw.stop()
 

@@ -215,3 +215,23 @@ def test_percent_deadband_uses_the_eu_range_and_the_last_reported_value():
     assert service._passes(1, percent, dv(0, 0x40900000))  # a status change always
     status_only = Item(ua.DataChangeFilter(Trigger=ua.DataChangeTrigger.Status))
     assert not service._passes(1, status_only, dv(30000))
+
+
+async def test_a_port_in_use_is_one_line_at_start(tmp_path):
+    import socket
+
+    from fieldgate import Gateway
+    from fieldgate.runtime import GatewayStartError
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        data = topology(listen=f"127.0.0.1:{port}")
+        data["gateway"]["state_dir"] = str(tmp_path)  # type: ignore[index]
+        gw = Gateway.load(data, registry=REGISTRY, simulate=True)
+        with pytest.raises(GatewayStartError) as info:
+            await gw.start()
+        await gw.stop()
+    assert f"front ua (opcua): cannot listen on 127.0.0.1:{port}" in str(info.value)
+    assert "\n" not in str(info.value)
