@@ -42,7 +42,8 @@ function plain(v) {
   if (typeof v === "bigint") return Number(v);
   if (v instanceof Date) return v.toISOString();
   if (typeof v === "object" && "text" in v) return v.text; // LocalizedText
-  if (typeof v === "object" && v.low !== undefined && v.high !== undefined) return v.low; // Range
+  if (typeof v === "object" && v.low !== undefined && v.high !== undefined) return { low: v.low, high: v.high }; // Range
+  if (typeof v === "object" && v.unitId !== undefined) return { unitId: v.unitId, displayName: v.displayName && v.displayName.text }; // EUInformation
   return v;
 }
 
