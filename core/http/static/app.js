@@ -92,7 +92,7 @@ function frontFacts(name, f) {
   } else {
     facts.push(["master", f.master_ok ? "present" : "lost" + (f.master && f.master.reason ? `: ${f.master.reason}` : "")]);
   }
-  if (f.counters) {
+  if (Array.isArray(f.clients) && f.counters) {
     const shown = Object.entries(f.counters).map(([k, v]) => `${k.replace(/_/g, " ")} ${v}`);
     if (shown.length) facts.push(["counters", shown.join(" · ")]);
   }
