@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import datetime
 import logging
+import socket
 import time
 from collections import Counter
 from pathlib import Path
@@ -158,6 +159,9 @@ class OpcUaFront(Front):
         await server.init()
         host_text = f"[{host}]" if ":" in host else host
         self.url = f"opc.tcp://{host_text}:{port}/"
+        if host in ("0.0.0.0", "::"):  # every interface: advertise the host's name, bind to all
+            self.url = f"opc.tcp://{socket.gethostname()}:{port}/"
+            server.socket_address = (host, port)
         server.set_endpoint(self.url)
         server.set_server_name(f"fieldgate {gateway} ({self.name})")
         await server.set_application_uri(app_uri)
