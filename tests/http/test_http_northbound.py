@@ -5,22 +5,16 @@ page: their endpoint, their clients and their counters, through the existing sta
 from __future__ import annotations
 
 import asyncio
-import socket
 from typing import Any
 
 import pytest
 from httpkit import EXAMPLES, Running, start, wait_for
+from netkit import free_port
 from prometheus_client.parser import text_string_to_metric_families
 from pymodbus.client import AsyncModbusTcpClient
 from test_http_browser import driver, wait_js  # noqa: F401  # the headless Chromium fixture
 
 from fieldgate import Gateway
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def plant(tmp_path: Any) -> tuple[Gateway, int, int]:

@@ -15,6 +15,7 @@ import sys
 from typing import Any
 
 import pytest
+from netkit import free_port, wait_until
 from pymodbus.client import AsyncModbusTcpClient
 
 from fieldgate import Gateway, Quality, load_registry
@@ -26,12 +27,6 @@ from fieldgate.plugins.modbus_tcp.map import (
 )
 
 REGISTRY = load_registry()
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def topology(port: int, **front: Any) -> dict[str, Any]:
@@ -64,14 +59,6 @@ def topology(port: int, **front: Any) -> dict[str, Any]:
             }
         ],
     }
-
-
-async def wait_until(condition: Any, timeout: float = 5.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not condition():
-        assert loop.time() < deadline, "condition not met in time"
-        await asyncio.sleep(0.01)
 
 
 @pytest.fixture

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import asyncio
 import datetime
-import socket
 from typing import Any
 
 import pytest
 import pytest_asyncio
+from netkit import free_port, wait_until
 
 from fieldgate import Gateway, Quality, load_registry
 from fieldgate.plugins.modbus.simulator import Fault
@@ -22,12 +22,6 @@ from .uaclient import UaClient, require_node_opcua
 REGISTRY = load_registry()
 NS = "urn:fieldgate:cell"
 pytestmark = pytest.mark.asyncio(loop_scope="module")  # one gateway for the module
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def topology(port: int, state_dir: str, **opcua: Any) -> dict[str, Any]:
@@ -61,14 +55,6 @@ def topology(port: int, state_dir: str, **opcua: Any) -> dict[str, Any]:
             }
         ],
     }
-
-
-async def wait_until(condition: Any, timeout: float = 5.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not condition():
-        assert loop.time() < deadline, "condition not met in time"
-        await asyncio.sleep(0.02)
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")

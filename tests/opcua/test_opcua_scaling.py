@@ -5,17 +5,12 @@ on the raw value, and a description naming the DCON command that reads it."""
 from __future__ import annotations
 
 import asyncio
-import socket
+
+from netkit import free_port
 
 from fieldgate import Gateway, Quality, load_registry
 
 from .uaclient import UaClient, require_node_opcua
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 async def test_engineering_units_range_and_percent_deadband(tmp_path):

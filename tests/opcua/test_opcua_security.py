@@ -4,7 +4,6 @@ with node-opcua as the client; the server certificate generated into the state d
 from __future__ import annotations
 
 import asyncio
-import socket
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +13,7 @@ from asyncua.crypto import cert_gen  # only makes the test client's certificate 
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 from cryptography.x509.oid import ExtendedKeyUsageOID
+from netkit import free_port
 
 from fieldgate import Gateway, load_registry
 from fieldgate.plugins.opcua.security import ensure_certificate
@@ -23,12 +23,6 @@ from .uaclient import UaClient, require_node_opcua
 REGISTRY = load_registry()
 PASSWORD = "s3cret-line4"
 pytestmark = pytest.mark.asyncio(loop_scope="module")  # one gateway for the module
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def client_certificate(folder: Path, name: str, app_uri: str) -> tuple[str, str]:

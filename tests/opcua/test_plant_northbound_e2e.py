@@ -10,7 +10,6 @@ server's library) and pymodbus's Modbus TCP client.
 from __future__ import annotations
 
 import asyncio
-import socket
 import time
 import uuid
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any
 
 import can
 import pytest
+from netkit import free_port, wait_until
 from pymodbus.client import AsyncModbusTcpClient
 
 from fieldgate import Gateway, Quality, load_registry
@@ -33,20 +33,6 @@ from .uaclient import UaClient, require_node_opcua
 
 EXAMPLE = Path(__file__).parents[2] / "examples" / "plant-northbound.yaml"
 POLL_MS, TIMEOUT_MS, PUBLISH_MS = 50, 50, 100
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-async def wait_until(condition: Any, timeout: float = 5.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not condition():
-        assert loop.time() < deadline, "condition not met in time"
-        await asyncio.sleep(0.01)
 
 
 @pytest.fixture
