@@ -81,7 +81,17 @@ class Topology:
         for b in self.backs:
             n = sum(1 for s in self.channel_specs if s.source.back == b.name)
             lines.append(f"  back  {b.name} ({b.type}): {len(b.modules)} module(s), {n} channel(s)")
+        lines += [f"warning: {text}" for text in self.warnings()]
         return "\n".join(lines)
+
+    def warnings(self) -> list[str]:
+        """What is valid but will not work as configured (a line booked beyond its poll_ms)."""
+        out: list[str] = []
+        for back in self.backs:
+            check = getattr(back, "timing_warnings", None)
+            if check is not None:
+                out += check()
+        return out
 
 
 class _ComponentType(Protocol):

@@ -64,7 +64,9 @@ class DconBack(SerialBack):
         serial = await AsyncSerial.open(
             cfg.port, cfg.baudrate, cfg.bytesize, cfg.parity, cfg.stopbits
         )
-        self.dcon = DconLink(serial, cfg.checksum, cfg.timeout_ms / 1000)
+        self.dcon = DconLink(
+            serial, cfg.checksum, cfg.timeout_ms / 1000, timing=cfg.timing(), echo=cfg.echo
+        )
         for module in self.modules.values():
             module.link = self.dcon
         return serial
@@ -275,6 +277,8 @@ class DconBack(SerialBack):
             "sending": self._host_ok_running,
             "sent": self.host_ok_sent,
         }
+        if self.dcon is not None:
+            status["echo"] = self.dcon.echo.describe()
         status["dcon_modules"] = [
             m.status() for m in sorted(self.modules.values(), key=lambda m: m.address)
         ]
