@@ -123,6 +123,14 @@ class HttpSettings(StrictModel):
         description="also export one series per point on /metrics (value, good); off: counts by quality only",
     )
     sse_max_clients: int = Field(16, ge=1, le=256, description="concurrent event-stream clients")
+    tls_cert_file: str | None = Field(
+        None,
+        description="serve HTTPS: the certificate chain (PEM), relative to the topology file; "
+        "with tls_key_file",
+    )
+    tls_key_file: str | None = Field(
+        None, description="the certificate's private key (PEM), relative to the topology file"
+    )
     sse_point_rate_hz: float = Field(
         4.0,
         gt=0,
@@ -141,6 +149,8 @@ class HttpSettings(StrictModel):
         sources = [self.auth_token, self.token_file, self.token_env]
         if sum(s is not None for s in sources) > 1:
             raise ValueError("give one of auth_token, token_file or token_env, not several")
+        if (self.tls_cert_file is None) != (self.tls_key_file is None):
+            raise ValueError("give tls_cert_file and tls_key_file together (HTTPS), or neither")
         host, _ = split_listen(self.listen)
         if not is_loopback(host) and all(s is None for s in sources):
             raise ValueError(

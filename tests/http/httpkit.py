@@ -38,7 +38,7 @@ def parse_reply(raw: bytes, head_only: bool = False) -> Reply:
     head, _, body = raw.partition(b"\r\n\r\n")
     lines = head.decode("latin-1").split("\r\n")
     version, status, *_ = lines[0].split(" ")
-    assert version == "HTTP/1.1", lines[0]
+    assert version.startswith("HTTP/"), lines[0]  # errors to HTTP/1.0 (or worse) requests echo it
     headers = {}
     for line in lines[1:]:
         name, _, value = line.partition(":")
