@@ -196,6 +196,9 @@ class _Protocol(RequestHandler):
             )
         else:
             text = _reason(exc, message)
+        owner = getattr(self._manager, "_owner", None)  # our _Server's HttpServer
+        if owner is not None:
+            owner.responses[status] += 1
         return _to_aiohttp(text_response(status, text), close=True)
 
 

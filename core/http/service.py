@@ -52,7 +52,7 @@ log = logging.getLogger("fieldgate.http")
 COOKIE = "fieldgate_token"
 LAG_PERIOD_S = 0.25
 LAG_UNHEALTHY_S = 1.0
-SLICE_S = 0.0005  # longest stretch of work for one request before the loop serves others
+SLICE_S = 0.0002  # longest stretch of work for one request before the loop serves others
 PLACES_TTL_S = 2.0
 STATIC = {
     "index.html": "text/html; charset=utf-8",
@@ -170,6 +170,8 @@ class HttpService:
         self.unauthorized = 0
         self._static: dict[str, bytes] = {}
         self._places_cache: tuple[float, dict[str, list[dict[str, str]]]] | None = None
+        self._metrics_cache: tuple[float, bytes] | None = None
+        self._metrics_render: asyncio.Future[bytes] | None = None
         self._routes: dict[str, Handler] = {
             "/healthz": self._healthz,
             "/readyz": self._readyz,
@@ -359,8 +361,26 @@ class HttpService:
         return self._json(self.trends.as_dict())
 
     async def _metrics(self, request: Request) -> Response:
-        body = await self.metrics.render_async()
-        return Response(200, body, CONTENT_TYPE, list(JSON_HEADERS))
+        return Response(200, await self._metrics_text(), CONTENT_TYPE, list(JSON_HEADERS))
+
+    async def _metrics_text(self) -> bytes:
+        """The exposition, rendered at most once per ``metrics_max_age_ms`` (scrapes in between,
+        and scrapes arriving while one renders, share it): a render costs the loop
+        milliseconds in slices, and ten scrapers a second need not pay it ten times."""
+        now = time.monotonic()
+        cached = self._metrics_cache
+        if cached is not None and now - cached[0] < self.settings.metrics_max_age_ms / 1000:
+            return cached[1]
+        if self._metrics_render is None:
+            self._metrics_render = asyncio.ensure_future(self.metrics.render_async(SLICE_S))
+        render = self._metrics_render
+        try:
+            body = await asyncio.shield(render)
+        finally:
+            if render.done() and self._metrics_render is render:
+                self._metrics_render = None
+        self._metrics_cache = (time.monotonic(), body)
+        return body
 
     async def _page(self, request: Request) -> Response:
         return Response(200, self._static["index.html"], STATIC["index.html"], list(PAGE_HEADERS))

@@ -123,6 +123,13 @@ class HttpSettings(StrictModel):
         description="also export one series per point on /metrics (value, good); off: counts by quality only",
     )
     sse_max_clients: int = Field(16, ge=1, le=256, description="concurrent event-stream clients")
+    metrics_max_age_ms: int = Field(
+        1000,
+        ge=0,
+        le=60_000,
+        description="/metrics is rendered at most this often; scrapes in between share the text "
+        "(0: every scrape renders)",
+    )
     tls_cert_file: str | None = Field(
         None,
         description="serve HTTPS: the certificate chain (PEM), relative to the topology file; "

@@ -9,16 +9,15 @@ reply is read whole and no module goes offline (before: both modules of the line
 from __future__ import annotations
 
 import asyncio
+import contextlib
 
 import pytest
-from paced_wire import PacedWire
+from paced_wire import PacedWire, SimulatorProcess
 
 from fieldgate import Gateway, Quality
 from fieldgate.health import ErrorKind
 from fieldgate.plugins.modbus.client import ModbusLink
 from fieldgate.plugins.modbus.codec import read_registers_response
-from fieldgate.plugins.modbus.config import ModbusBackConfig
-from fieldgate.plugins.modbus.simulator import Fault, ModbusSimulator
 from fieldgate.polling import CommError
 
 BIG = {
@@ -36,7 +35,7 @@ async def wait_for(condition, timeout=15.0):
         await asyncio.sleep(0.02)
 
 
-def topology(port: str, **back) -> dict:
+def topology(port: str, modules: list[dict] | None = None, **back) -> dict:
     return {
         "gateway": {"name": "timing"},
         "fronts": [{"name": "plc", "type": "memory"}],
@@ -48,21 +47,21 @@ def topology(port: str, **back) -> dict:
                 "baudrate": 9600,
                 "timeout_ms": 200,  # the default: shorter than the 266 ms reply
                 "poll_ms": 0,
-                "modules": [BIG, SMALL],
+                "modules": modules or [BIG, SMALL],
                 **back,
             }
         ],
     }
 
 
-async def test_a_266_ms_reply_with_timeout_200_keeps_every_module_online(registry):
+async def test_a_266_ms_reply_with_timeout_200_keeps_every_module_online(registry, tmp_path):
     assert len(read_registers_response(1, 4, [0] * 125)) == 255  # 255 x 10 bits at 9600: 266 ms
-    with PacedWire(9600) as wire:
+    sets = ("rs485/m1/ai124=4321", "rs485/m2/di5=1")
+    with (
+        PacedWire(9600) as wire,
+        SimulatorProcess.modbus(topology(wire.b), wire.b, str(tmp_path), sets),
+    ):
         gateway = Gateway.load(topology(wire.a), registry=registry)
-        sim = ModbusSimulator(gateway.topology.backs[0], wire.b)
-        await sim.start()
-        sim.set_input("rs485/m1/ai124", 4321)
-        sim.set_input("rs485/m2/di5", True)
         await gateway.start()
         try:
             big, small = gateway.health.get("rs485", 1), gateway.health.get("rs485", 2)
@@ -76,38 +75,33 @@ async def test_a_266_ms_reply_with_timeout_200_keeps_every_module_online(registr
             assert gateway.read("rs485/m2/di5") is True
         finally:
             await gateway.stop()
-            await sim.stop()
 
 
-async def _link_on(
-    wire: PacedWire, modules: list[dict], **link
-) -> tuple[ModbusLink, ModbusSimulator]:
-    config = ModbusBackConfig(name="rs485", port="unused", baudrate=9600, modules=modules)
-    sim = ModbusSimulator(config, wire.b)
-    await sim.start()
-    modbus = ModbusLink(wire.a, baudrate=9600, **link)
-    await modbus.open()
-    return modbus, sim
-
-
-async def test_a_reply_that_starts_before_the_response_timeout_is_read_whole():
-    with PacedWire(9600) as wire:
-        link, sim = await _link_on(wire, [BIG], timeout=0.2)
+@contextlib.asynccontextmanager
+async def link_on(wire: PacedWire, folder, modules: list[dict], **link):
+    """A ModbusLink on end a of the wire, the simulator in its own process on end b."""
+    with SimulatorProcess.modbus(topology(wire.b, modules=modules), wire.b, str(folder)) as sim:
+        modbus = ModbusLink(wire.a, baudrate=9600, **link)
+        await modbus.open()
         try:
-            sim.set_input("rs485/m1/ai124", -5)
-            sim.inject(1, Fault("delay", count=1, delay=0.05))  # starts ~80 ms, ends ~350 ms
+            yield modbus, sim
+        finally:
+            modbus.close()
+
+
+async def test_a_reply_that_starts_before_the_response_timeout_is_read_whole(tmp_path):
+    with PacedWire(9600) as wire:
+        async with link_on(wire, tmp_path, [BIG], timeout=0.2) as (link, sim):
+            sim.command("set rs485/m1/ai124 -5")
+            sim.command("fault 1 delay 1 delay=0.05")  # starts ~80 ms, ends ~350 ms
             registers = await link.read_registers(1, 4, 0, 125)
             assert registers[124] == 0xFFFB and link.stats.errors == {}
-        finally:
-            link.close()
-            await sim.stop()
 
 
-async def test_after_a_broken_frame_the_next_request_waits_for_line_silence():
+async def test_after_a_broken_frame_the_next_request_waits_for_line_silence(tmp_path):
     with PacedWire(9600) as wire:
-        link, sim = await _link_on(wire, [BIG, SMALL], timeout=0.2)
-        try:
-            sim.set_input("rs485/m2/di0", True)
+        async with link_on(wire, tmp_path, [BIG, SMALL], timeout=0.2) as (link, sim):
+            sim.command("set rs485/m2/di0 1")
             wire.corrupt(after=2, value=0x10)  # byte count 250 arrives as 16
             with pytest.raises(CommError) as info:
                 await link.read_registers(1, 4, 0, 125)
@@ -116,53 +110,43 @@ async def test_after_a_broken_frame_the_next_request_waits_for_line_silence():
             # waits until the line is quiet, so its reply is not mixed with that tail
             assert (await link.read_bits(2, 2, 32, 8))[0] is True
             assert link.stats.errors == {ErrorKind.CRC: 1}
-        finally:
-            link.close()
-            await sim.stop()
 
 
 @pytest.mark.parametrize("echo", [True, "auto"])
-async def test_an_echoing_adapter_the_echo_of_an_fc6_write_is_not_taken_for_the_reply(echo):
+async def test_an_echoing_adapter_the_echo_of_an_fc6_write_is_not_taken_for_the_reply(
+    echo, tmp_path
+):
     with PacedWire(9600, echo=True) as wire:
-        link, sim = await _link_on(wire, [SMALL, {"address": 4, "model": "M-7024"}], echo=echo)
-        try:
+        modules = [SMALL, {"address": 4, "model": "M-7024"}]
+        async with link_on(wire, tmp_path, modules, echo=echo) as (link, sim):
             assert (await link.read_bits(2, 2, 32, 8)) == [False] * 8  # auto decides here
             assert link.echo.detected is True
             await link.write(4, 6, 0, [1234])
-            assert sim.get("rs485/m4/ao0") == 1234
+            assert await link.read_registers(4, 3, 0, 1) == [1234]
             await link.write(4, 6, 0, [77])
-            assert sim.get("rs485/m4/ao0") == 77
+            assert await link.read_registers(4, 3, 0, 1) == [77]
             # a module that does not answer: its write's echo alone is no reply
             with pytest.raises(CommError) as info:
                 await link.write(9, 6, 0, [1])
             assert info.value.kind is ErrorKind.TIMEOUT
-        finally:
-            link.close()
-            await sim.stop()
 
 
-async def test_echo_false_on_an_echoing_line_fails_reads_it_never_reads_the_echo_as_data():
+async def test_echo_false_on_an_echoing_line_fails_reads_it_never_reads_the_echo_as_data(
+    tmp_path,
+):
     with PacedWire(9600, echo=True) as wire:
-        link, sim = await _link_on(wire, [SMALL], echo=False)
-        try:
+        async with link_on(wire, tmp_path, [SMALL], echo=False) as (link, _):
             with pytest.raises(CommError) as info:
                 await link.read_bits(2, 2, 32, 8)
             assert info.value.kind in (ErrorKind.CRC, ErrorKind.GARBAGE)
-        finally:
-            link.close()
-            await sim.stop()
 
 
-async def test_echo_true_without_an_echo_says_so():
+async def test_echo_true_without_an_echo_says_so(tmp_path):
     with PacedWire(9600) as wire:
-        link, sim = await _link_on(wire, [SMALL], echo=True, timeout=0.05)
-        try:
+        async with link_on(wire, tmp_path, [SMALL], echo=True, timeout=0.05) as (link, _):
             with pytest.raises(CommError) as info:
                 await link.read_bits(2, 2, 32, 8)
             assert info.value.kind is ErrorKind.GARBAGE and "echo" in str(info.value)
-        finally:
-            link.close()
-            await sim.stop()
 
 
 def test_validate_warns_when_a_line_cannot_poll_its_modules_within_poll_ms(tmp_path, capsys):
