@@ -117,6 +117,9 @@ def main() -> int:
         f"fieldgate {args.command} on hostile topology files (goal: one line, exit 1, < 2 s, < 200 MB)"
     )
     print(f"{'case':28} {'exit':>4} {'lines':>5} {'time':>7} {'peak RSS':>9}  message")
+    example = str(ROOT / "examples" / "i7232d-style.yaml")
+    code, _, seconds, peak = run_case("validate", example)
+    print(f"{'(a valid example: baseline)':28} {code:>4} {'':>5} {seconds:6.2f}s {peak:7.0f} MB")
     with tempfile.TemporaryDirectory() as tmp:
         for name, (make, expected) in CASES.items():
             folder = Path(tmp) / name.replace(" ", "_").replace("/", "_")
