@@ -97,6 +97,7 @@ def load_gateway(tmp_path: Path, example: str = "i7232d-style.yaml", **http: Any
     overrides: dict[str, Any] = {
         "gateway.state_dir": str(tmp_path / "state"),
         "gateway.http.listen": "127.0.0.1:0",
+        "gateway.http.metrics_max_age_ms": 0,  # the tests want every scrape fresh
         "fronts.0.interface": "virtual",
         "fronts.0.channel": channel,
     }
