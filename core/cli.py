@@ -87,9 +87,6 @@ def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
         return 1
     print(f"{args.file}: valid")
     print(topology.summary())
-    for front in topology.fronts:
-        for note in front.notes():
-            print(f"  note: front {front.name}: {note}")
     return 0
 
 

@@ -265,7 +265,7 @@ class CanopenFrontConfig(FrontConfig, IoFrontOptions):
         """The style's defaults, the master profile's requirements and this topology's keys."""
         return resolve(self)
 
-    def notes(self) -> list[str]:
+    def validation_warnings(self) -> list[str]:
         """What ``fieldgate validate`` says beside "valid": where the master profile overrode the style."""
         return list(self.profile.notes)
 

@@ -269,9 +269,8 @@ class ModbusBack(SerialBack):
         return link
 
     def unopened_link(self) -> ModbusLink:
-        return ModbusLink.from_config(
-            self.config
-        )  # the modules hold it; opened when the port is there
+        """The modules hold the link; it is opened when the port is there (:meth:`reopen_link`)."""
+        return ModbusLink.from_config(self.config)
 
     async def close_link(self) -> None:
         self.link.close()
@@ -322,6 +321,7 @@ class ModbusBack(SerialBack):
         if self.link is not None:
             status["modbus"] = {
                 **self.link.stats.as_dict(),
+                "echo": self.link.echo.describe(),
                 "refused_points": sorted(cid for m in self.modules.values() for cid in m.bad),
                 "single_writes_only": sorted(
                     a for a, m in self.modules.items() if not m.allow_multiple_writes

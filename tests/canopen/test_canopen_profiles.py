@@ -138,14 +138,14 @@ def test_validate_prints_one_line_where_the_master_profile_wins(tmp_path):
         [sys.executable, "-m", "fieldgate", "validate", str(path)], capture_output=True, text=True
     )
     assert done.returncode == 0, done.stderr
-    notes = [line for line in done.stdout.splitlines() if "note:" in line]
+    notes = [line for line in done.stdout.splitlines() if "warning:" in line]
     assert len(notes) == 1
     assert "delta-as300" in notes[0] and "icpdas" in notes[0] and "0x1016/0x1017" in notes[0]
     path.write_text(path.read_text().replace("master: delta-as300", "style: na9161"))
     done = subprocess.run(
         [sys.executable, "-m", "fieldgate", "validate", str(path)], capture_output=True, text=True
     )
-    assert "note:" not in done.stdout
+    assert "warning:" not in done.stdout
 
 
 # -- icpdas: the I-7232D -------------------------------------------------------------------
