@@ -39,10 +39,11 @@ def topology(state_dir: Path, channel: str) -> dict:
                 "channel": channel,
                 "node_id": NODE_ID,
                 "sdo_timeout_ms": 300,
-                # the icpdas style guards only (an I-7232D has no heartbeat): these two add
-                # 0x1017 and 0x1016, so the suite grades the whole of CiA 301 error control
+                # a Delta AS300 as the master (the delta-as300 cases): 0x1016 watches its
+                # heartbeat (node 1); the icpdas style guards only, so the profile adds 0x1017
+                # (here 0, as CiA 301's default) and the suite grades all of error control
+                "master": "delta-as300",
                 "heartbeat_ms": 0,
-                "heartbeat_consumers": 1,
                 "identity": {
                     "vendor_id": 0x0000ABCD,
                     "product_code": 0x7232,
