@@ -243,20 +243,26 @@ class Change:
     channel comes as a Change of its own. Subscribers must not modify it.
     """
 
-    __slots__ = ("channel", "value", "quality", "timestamp", "old_value", "old_quality", "origin")
+    __slots__ = (
+        "channel",
+        "id",
+        "value",
+        "quality",
+        "timestamp",
+        "old_value",
+        "old_quality",
+        "origin",
+    )
 
     def __init__(self, channel: Channel, old_value: Value, old_quality: Quality, origin: str):
         self.channel = channel
+        self.id = channel.spec.id
         self.value = channel.value
         self.quality = channel.quality
         self.timestamp = channel.timestamp
         self.old_value = old_value
         self.old_quality = old_quality
         self.origin = origin
-
-    @property
-    def id(self) -> str:
-        return self.channel.spec.id
 
     @property
     def value_changed(self) -> bool:
@@ -331,6 +337,7 @@ class ProcessImage:
         self._channels: dict[str, Channel] = {}
         self._subscriptions: list[Subscription] = []
         self._routes: dict[str, tuple[Subscription, ...]] = {}  # channel id -> who wants it
+        self._route_of: dict[tuple[Subscription, ...], tuple[Subscription, ...]] = {}
         self._seq = itertools.count()
         self.clock = clock
 
@@ -346,7 +353,7 @@ class ProcessImage:
         quality = Quality.GOOD if spec.kind.is_output else Quality.NOT_READ
         channel = Channel(spec, value, quality, error_mode=spec.error_mode)
         self._channels[spec.id] = channel
-        self._routes.clear()
+        self._forget_routes()
         return channel
 
     # -- reading --------------------------------------------------------------
@@ -411,7 +418,9 @@ class ProcessImage:
             channel = channels.get(cid)
             if channel is None or channel.is_output:
                 self._refuse(cid, "an output; backs write inputs only")
-            if isinstance(reading, tuple):
+            if reading.__class__ is bool and channel.dtype is _BOOL:  # the common case, inline
+                staged.append((channel, reading, quality))
+            elif isinstance(reading, tuple):
                 value, own = reading
                 staged.append((channel, _checked(channel, value), own))
             else:
@@ -443,10 +452,11 @@ class ProcessImage:
             channel = channels.get(cid)
             if channel is None or not channel.is_output:
                 self._refuse(cid, "an input; only outputs can be written")
-            staged.append((channel, _checked(channel, value), channel.quality))
-        for channel, _, _ in staged:
-            channel.written_by = origin
-        return self._commit(staged, origin, None)
+            if value.__class__ is bool and channel.dtype is _BOOL:  # the common case, inline
+                staged.append((channel, value, channel.quality))
+            else:
+                staged.append((channel, _checked(channel, value), channel.quality))
+        return self._commit(staged, origin, None, written=True)
 
     def write_output(self, channel_id: str, value: Value, origin: str = "front") -> bool:
         """A front (or an error mode) sets one output. Returns True when the value changed."""
@@ -465,11 +475,16 @@ class ProcessImage:
             raise KeyError(f"no channel {channel_id!r} in the process image")
         raise ValueError(f"{channel_id} is {what}")
 
-    def _commit(self, staged: list[_Staged], origin: str, timestamp: float | None) -> list[Change]:
+    def _commit(
+        self, staged: list[_Staged], origin: str, timestamp: float | None, written: bool = False
+    ) -> list[Change]:
+        """Write what was checked; ``written``: outputs, which remember their writer."""
         now = self.clock() if timestamp is None else timestamp
         changes: list[Change] = []
         good = Quality.GOOD
         for channel, value, quality in staged:
+            if written:
+                channel.written_by = origin
             if quality is good:
                 channel.timestamp = now
                 channel.last_good = value
@@ -484,9 +499,25 @@ class ProcessImage:
 
     def _notify(self, changes: list[Change]) -> None:
         routes = self._routes
+        route: tuple[Subscription, ...] | None = None
+        for change in changes:  # usually every change goes to the same subscribers
+            subs = routes.get(change.id)
+            if subs is None:
+                subs = self._route(change.channel)
+            if route is None:
+                route = subs
+            elif subs is not route:
+                self._deliver(self._grouped(changes))
+                return
+        if route:
+            self._deliver([(sub, changes) for sub in route])
+
+    def _grouped(self, changes: list[Change]) -> list[tuple[Subscription, list[Change]]]:
+        """Each subscriber's changes, in write order; subscribers in subscription order."""
         groups: dict[Subscription, list[Change]] = {}
+        routes = self._routes
         for change in changes:
-            subs = routes.get(change.channel.spec.id)
+            subs = routes.get(change.id)
             if subs is None:
                 subs = self._route(change.channel)
             for sub in subs:
@@ -495,13 +526,15 @@ class ProcessImage:
                     groups[sub] = [change]
                 else:
                     group.append(change)
-        items = sorted(groups.items(), key=_by_seq) if len(groups) > 1 else groups.items()
-        for sub, group in items:
+        return sorted(groups.items(), key=_by_seq)
+
+    def _deliver(self, deliveries: list[tuple[Subscription, list[Change]]]) -> None:
+        for sub, group in deliveries:
             if not sub.active:  # cancelled by a subscriber served before it
                 continue
             if sub.batch:
                 try:
-                    sub.callback(group)
+                    sub.callback(group[:])  # a list of its own
                 except Exception:  # a bad subscriber must never stop a writer
                     log.exception(
                         "subscriber %r failed on %s", sub.callback, ", ".join(c.id for c in group)
@@ -514,9 +547,15 @@ class ProcessImage:
                     log.exception("subscriber %r failed on %s", sub.callback, change.id)
 
     def _route(self, channel: Channel) -> tuple[Subscription, ...]:
+        """Who wants this channel; channels wanted by the same subscribers share one tuple."""
         subs = tuple(s for s in self._subscriptions if s.wants(channel))
+        subs = self._route_of.setdefault(subs, subs)
         self._routes[channel.spec.id] = subs
         return subs
+
+    def _forget_routes(self) -> None:
+        self._routes.clear()
+        self._route_of.clear()
 
     # -- subscriptions --------------------------------------------------------
     def subscribe(
@@ -569,12 +608,12 @@ class ProcessImage:
             batch,
         )
         self._subscriptions.append(sub)
-        self._routes.clear()
+        self._forget_routes()
         return sub
 
     def _remove(self, sub: Subscription) -> None:
         self._subscriptions = [s for s in self._subscriptions if s is not sub]
-        self._routes.clear()
+        self._forget_routes()
 
     def queue(
         self,

@@ -210,6 +210,12 @@ def test_subscribers_get_only_what_they_asked_for_in_subscription_order():
     order.clear()
     image.write_outputs({do(5): True})
     assert order == [("outputs", [do(5)]), ("all", [do(5)])]
+    order.clear()  # channels wanted by different subscribers, interleaved: write order kept
+    image.update_inputs({di(2): True, "rs485/m3/ai0": 5, di(1): False, "rs485/m3/ai1": 6})
+    assert order == [
+        ("di1", [di(1)]),
+        ("all", [di(2), "rs485/m3/ai0", di(1), "rs485/m3/ai1"]),
+    ]
 
 
 def test_a_batch_written_by_a_subscriber_is_delivered_before_the_next_subscriber():
