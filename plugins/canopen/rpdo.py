@@ -23,6 +23,10 @@ from .pdo_mapping import Pdo, PdoCounters, PdoMapping, sync_type
 log = logging.getLogger("fieldgate.canopen.pdo")
 
 
+def _number(pdo: Pdo) -> int:
+    return pdo.number
+
+
 class RpdoService:
     """The RPDOs of one node: reception, length check, latching, application."""
 
@@ -39,12 +43,14 @@ class RpdoService:
         self.length_error = length_error
         self.length_error_active = False
         self._rx: dict[int, Pdo] = {}
+        self._latched: list[Pdo] = []  # RPDOs that latched data since the last SYNC
 
     def reindex(self) -> None:
         self._rx = {p.can_id: p for p in self.pdos if p.valid}
 
     def reset(self) -> None:
         self.length_error_active = False
+        self._latched = []
 
     def listens_to(self, can_id: int) -> bool:
         return can_id in self._rx
@@ -61,15 +67,18 @@ class RpdoService:
         return True
 
     def on_sync(self) -> None:
-        """Apply what synchronous RPDOs latched since the last SYNC, as one batch."""
-        latched = [pdo for pdo in self.pdos if pdo.latched is not None]
+        """Apply what synchronous RPDOs latched since the last SYNC, in RPDO order, as one
+        batch."""
+        latched, self._latched = self._latched, []
         if not latched:
             return
+        if len(latched) > 1:
+            latched.sort(key=_number)
         with self.mapping.directory.batch():
             for pdo in latched:
                 data, pdo.latched = pdo.latched, None
-                assert data is not None
-                self._apply(pdo, data)
+                if data is not None:  # (None: dropped by a reset or an NMT state change since)
+                    self._apply(pdo, data)
 
     def _receive(self, pdo: Pdo, data: bytes) -> None:
         self.counters.rpdo_received += 1
@@ -86,6 +95,8 @@ class RpdoService:
                 self.length_error(False)
         payload = data[: pdo.length]
         if sync_type(pdo.trans_type):
+            if pdo.latched is None:
+                self._latched.append(pdo)
             pdo.latched = payload
         else:
             self._apply(pdo, payload)

@@ -36,6 +36,7 @@ class TpdoService:
         self.outbox: list[Frame] = []
         self._rtr: dict[int, Pdo] = {}
         self._timed: list[Pdo] = []
+        self._on_sync: list[Pdo] = []  # valid, types 0-252: sampled (and maybe sent) at SYNC
         self._events: dict[tuple[int, int], list[Pdo]] = {}
         self._queued: dict[int, Pdo] = {}
         self._queued_at: float | None = None
@@ -50,6 +51,7 @@ class TpdoService:
             if p.valid and async_type(p.trans_type) and (p.event_timer or p.inhibit)
         ]
         self._rtr = {p.can_id: p for p in self.pdos if p.valid and p.rtr_allowed}
+        self._on_sync = [p for p in self.pdos if p.valid and p.trans_type <= 252]
         self._events = {}
         for pdo in self.pdos:
             for slot in pdo.slots:
@@ -107,9 +109,8 @@ class TpdoService:
         return True
 
     def on_sync(self, now: float, counter: int | None) -> None:
-        for pdo in self.pdos:
-            if pdo.valid and pdo.trans_type <= 252:
-                self._sync_tpdo(pdo, now, counter)
+        for pdo in self._on_sync:
+            self._sync_tpdo(pdo, now, counter)
 
     def object_changed(self, index: int, sub: int, now: float) -> bool:
         """Queue the TPDOs that map (index, sub); True when one was queued."""

@@ -86,3 +86,27 @@ def test_master_lost_drives_the_error_values_in_one_batch():
     batches = batches_of(b, kinds=(Kind.DO,))
     b.masters.lost("can", "heartbeat", DO)
     assert batches == [[(DO[i], i in (4, 5), "can:master-lost") for i in range(6)]]
+
+
+def test_rpdos_latched_for_a_sync_apply_in_rpdo_order_and_an_nmt_change_drops_them():
+    """Two synchronous RPDOs mapping the same DO byte: at the SYNC they are applied in RPDO
+    order whatever order they came in (RPDO2's data is the last word), as one batch."""
+    b = demo_7232d()
+    b.start()
+    for index, sub, value, size in (
+        (0x1601, 0, 0, 1),
+        (0x1601, 1, 0x62000108, 4),
+        (0x1601, 0, 1, 1),
+        (0x1400, 2, 1, 1),
+        (0x1401, 2, 1, 1),
+    ):
+        assert b.write(index, sub, value, size) == ok(index, sub)
+    batches = batches_of(b)
+    assert b.rx(0x301, "AA") == [] and b.rx(0x201, "55") == []
+    assert b.sync() == ["181 [1] AA"]
+    assert len(batches) == 1
+    assert b.rx(0x201, "0F") == []
+    b.nmt(0x02)  # Stopped, then Operational again: what was latched is gone
+    b.start()
+    assert b.sync() == [] and len(batches) == 1
+    assert b.image.value(DO[0]) is False and b.image.value(DO[1]) is True  # still 0xAA
