@@ -175,9 +175,14 @@ class PdoEngine:
 
         Events are coalesced: inside an engine call they are handled when the call
         ends (one RPDO writing 8 DO bits that loop back gives one TPDO), outside they
-        wait for the next :meth:`on_timer` (their deadline is ``now``), so a back
-        updating several channels in one go also gives one TPDO.
+        wait for the next :meth:`on_timer`, so a back updating several channels in one go
+        also gives one TPDO. An event from outside is due at once on the engine's own
+        clock: ``now`` comes from the caller's (the process image's), which may be ahead
+        of the time the adapter runs the engine on (uvloop's loop time lags the monotonic
+        clock by up to a millisecond), and must not hold the TPDO back until then.
         """
+        if self._depth == 0:
+            now = min(now, self.clock())
         if (
             self.tpdo.object_changed(index, sub, now)
             and self._depth == 0

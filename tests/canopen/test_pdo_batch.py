@@ -110,3 +110,18 @@ def test_rpdos_latched_for_a_sync_apply_in_rpdo_order_and_an_nmt_change_drops_th
     b.start()
     assert b.sync() == [] and len(batches) == 1
     assert b.image.value(DO[0]) is False and b.image.value(DO[1]) is True  # still 0xAA
+
+
+def test_an_input_event_from_outside_is_due_on_the_engines_clock_not_the_images():
+    """The adapter runs the node on the event loop's time, which lags the image's monotonic
+    clock (uvloop: up to a millisecond); a back's event must still go out at the next
+    engine call, not wait until the loop's time catches up with the image's."""
+    image = make_image([(1, 8, 0, 0, 0), (3, 0, 8, 0, 0)])
+    b = Bench(image)
+    b.start()
+    b.clock.t = 10.0  # the node's time of its last call, and of the next one
+    b.flush()
+    image.clock = lambda: 10.0008  # the image's clock, ahead of the loop's
+    image.update_inputs({"bus/m1/di0": True, "bus/m1/di1": True})
+    assert b.node.next_deadline() <= 10.0
+    assert b.flush() == ["181 [1] 03"]
