@@ -481,7 +481,7 @@ class ProcessImage:
         """Write what was checked; ``written``: outputs, which remember their writer."""
         now = self.clock() if timestamp is None else timestamp
         changes: list[Change] = []
-        good = Quality.GOOD
+        append, good = changes.append, Quality.GOOD
         for channel, value, quality in staged:
             if written:
                 channel.written_by = origin
@@ -492,7 +492,7 @@ class ProcessImage:
             if old_value == value and old_quality is quality and type(old_value) is type(value):
                 continue
             channel.value, channel.quality = value, quality
-            changes.append(Change(channel, old_value, old_quality, origin))
+            append(Change(channel, old_value, old_quality, origin))
         if changes and self._subscriptions:
             self._notify(changes)
         return changes

@@ -431,8 +431,7 @@ class CanAdapter:
     def run_engine(self) -> None:
         """Let the engine act now (a process-image event changed its inputs): tick, send, re-arm."""
         with self.engine_lock:
-            frames = self.node.tick(self.now)
-            frames += self.node.flush()
+            frames = self.node.tick(self.now)  # (drains what was queued, notes the deadline)
             self._refresh_filters()
             self._send(frames)
             self._arm(self.node.deadline_after_call, known=True)

@@ -184,6 +184,14 @@ class Profile401:
             for bit, ch in enumerate(slots)
             if ch is not None
         }
+        # what a DI change fires: its byte of 0x6000, and its bit object's entry when served
+        self._di_events: dict[str, dict[tuple[int, int], None]] = {}
+        for cid, sub in self._di_sub.items():
+            events = {(DI_OBJECT, sub): None}
+            if bit_objects:
+                offset, bit_sub, _ = bit_position(self._di_bit[cid])
+                events[(DI_BIT_OBJECT + offset, bit_sub)] = None
+            self._di_events[cid] = events
         self._si_sub = {ch.id: n + 1 for n, ch in enumerate(layout.si)}
         self._ai_number = {ch.id: n + 1 for n, ch in enumerate(layout.ai)}
         self._do_bits = [
@@ -228,17 +236,14 @@ class Profile401:
         if event is None:
             return
         fired: dict[tuple[int, int], None] = {}
-        di_sub, bit_objects = self._di_sub, self.bit_objects
+        di_events = self._di_events
         for change in changes:
             if change.old_value == change.value:  # a quality change alone fires nothing
                 continue
             cid = change.id
-            sub = di_sub.get(cid)
-            if sub is not None:
-                fired[(DI_OBJECT, sub)] = None
-                if bit_objects:
-                    offset, bit_sub, _ = bit_position(self._di_bit[cid])
-                    fired[(DI_BIT_OBJECT + offset, bit_sub)] = None
+            objects = di_events.get(cid)
+            if objects is not None:
+                fired.update(objects)
             elif cid in self._si_sub:
                 fired[(SI_OBJECT, self._si_sub[cid])] = None
             elif self._ai_fires(change):

@@ -143,12 +143,13 @@ class TpdoService:
                 self._event(pdo, now)
 
     def next_deadline(self) -> float | None:
-        times = [p.next_allowed for p in self._timed if p.pending] + [
-            p.timer_due for p in self._timed if p.timer_due is not None
-        ]
-        if self._queued_at is not None:
-            times.append(self._queued_at)
-        return min(times) if times else None
+        earliest = self._queued_at
+        for p in self._timed:  # a plain loop: this runs several times per engine call
+            if p.pending and (earliest is None or p.next_allowed < earliest):
+                earliest = p.next_allowed
+            if p.timer_due is not None and (earliest is None or p.timer_due < earliest):
+                earliest = p.timer_due
+        return earliest
 
     def take_frames(self) -> list[Frame]:
         frames, self.outbox = self.outbox, []
