@@ -2,7 +2,7 @@
 
 Run:  .venv/bin/python bench/cycle_cost.py                  (about 2 min; --quick: about 15 s)
       .venv/bin/python bench/cycle_cost.py --loop asyncio   (asyncio's loop instead of uvloop)
-      .venv/bin/python bench/cycle_cost.py --profile sync|poll   (cProfile of this tree)
+      .venv/bin/python bench/cycle_cost.py --profile sync|poll [--profile-baseline]   (cProfile)
 
 Two scenarios, each a real gateway's components (``load_topology``, ``GatewayContext``,
 the registry's factories, ``start()``, as ``Gateway.start`` does without its supervision
@@ -455,12 +455,12 @@ def compare(args: argparse.Namespace) -> int:
     return 0 if met else 1
 
 
-def profile(scenario_name: str, cycles: int, loop: str) -> None:
-    """cProfile of one scenario in this tree, in process."""
+def profile(scenario_name: str, cycles: int, loop: str, root: Path) -> None:
+    """cProfile of one scenario in one tree, in process."""
     import cProfile
     import pstats
 
-    _use_tree(ROOT)
+    _use_tree(root)
     from fieldgate.cli import loop_factory
 
     async def run() -> None:
@@ -502,6 +502,9 @@ def main() -> int:
     )
     parser.add_argument("--profile", choices=SCENARIOS, help="cProfile this tree's scenario")
     parser.add_argument(
+        "--profile-baseline", action="store_true", help="--profile the baseline's code instead"
+    )
+    parser.add_argument(
         "--cpu",
         type=int,
         default=(os.cpu_count() or 1) - 1,
@@ -518,7 +521,12 @@ def main() -> int:
     if args.cpu < 0 or not hasattr(os, "sched_setaffinity"):
         args.cpu = None
     if args.profile:
-        profile(args.profile, args.cycles, args.loop)
+        if not args.profile_baseline:
+            profile(args.profile, args.cycles, args.loop, ROOT)
+            return 0
+        with tempfile.TemporaryDirectory(prefix="cycle-cost-baseline-") as tmp:
+            print(f"baseline {_extract(args.baseline, Path(tmp))[:12]} ({args.baseline})")
+            profile(args.profile, args.cycles, args.loop, Path(tmp))
         return 0
     if args.quick:
         args.cycles, args.repeats = 500, 5
