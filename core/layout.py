@@ -55,7 +55,11 @@ def pack_bits(
 
 def byte_value(slots: Sequence[Channel | None]) -> int:
     """The byte a group of 8 digital slots reads as (padding bits read 0)."""
-    return sum(1 << bit for bit, ch in enumerate(slots) if ch is not None and ch.value)
+    value = 0
+    for bit, ch in enumerate(slots):  # a plain loop: every TPDO and poll response packs bytes
+        if ch is not None and ch.value:
+            value |= 1 << bit
+    return value
 
 
 def bit_values(slots: Sequence[Channel | None], value: int) -> dict[str, bool]:
