@@ -331,6 +331,20 @@ class ProcessImage:
     a :meth:`subscribe_batch` callback gets one list with the changes it wants, a
     :meth:`subscribe` callback one call per change. A channel whose value and quality
     stay the same notifies nobody (a good value still refreshes its timestamp).
+
+    A back reporting one reply, and a front that sends one message per reply::
+
+        image.update_inputs(
+            {"rs485/m1/di0": True, "rs485/m1/ai0": (32767, Quality.OVER_RANGE)},
+            timestamp=reply_time,  # image.clock() when the reply came in
+        )
+
+        def changed(changes: list[Change]) -> None:
+            for c in changes:  # only what changed: c.id, c.value, c.quality, c.timestamp
+                ...
+            send_one_message()
+
+        image.subscribe_batch(changed, ids=my_input_ids)
     """
 
     def __init__(self, clock: Callable[[], float] = time.monotonic):
