@@ -206,7 +206,10 @@ class IoDevice(Service):
     def _directory(self) -> Directory:
         fnbus = self.fnbus.objects() if self.fnbus is not None else []
         slots = self.slots.objects() if self.slots is not None else []
-        return Directory(self.profile.objects() + self.manufacturer.objects() + fnbus + slots)
+        return Directory(
+            self.profile.objects() + self.manufacturer.objects() + fnbus + slots,
+            batch=self.profile.batch,
+        )
 
     def _new_engine(self, node: NodeHost) -> PdoEngine:
         return PdoEngine(
