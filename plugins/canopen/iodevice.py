@@ -35,7 +35,7 @@ Frames produced between node calls (a DI change from a back) are queued with
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from fieldgate.health import HealthRegistry
@@ -43,7 +43,8 @@ from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
 
-from .entries import BOOLEAN, Directory, Entry, ObjectDef, Value
+from .cobid import check_cob_id
+from .entries import BOOLEAN, Abort, Directory, Entry, ObjectDef, Value
 from .fnbus import FnBusRegister
 from .frame import Frame, NmtState
 from .iostore import IoStore
@@ -51,6 +52,7 @@ from .layouts import (
     STYLE_PDO_COUNT,
     IoLayout,
     PdoDefaults,
+    PdoSetting,
     Style,
     build_layout,
     default_pdos,
@@ -59,6 +61,7 @@ from .manufacturer import ManufacturerObjects
 from .master_state import MasterState
 from .od import Dictionary
 from .pdo import PdoEngine
+from .pdo_mapping import Pdo, PdoMapping
 from .profile401 import SHORT_WRITES, Profile401
 from .profiles import STYLES
 from .service import NodeHost, Service
@@ -84,6 +87,8 @@ class IoSettings:
     analog_events: Literal["change", "interrupt"] | None = None  # default: the style's
     short_ao_error_writes: tuple[int, ...] | None = None  # 2-byte writes taken (0x6443/0x6444)
     empty_pdos_invalid: bool = False  # default PDOs without data start invalid (master profile)
+    tpdo_settings: dict[int, PdoSetting] = field(default_factory=dict)  # the topology's tpdos:
+    rpdo_settings: dict[int, PdoSetting] = field(default_factory=dict)  # the topology's rpdos:
 
     @property
     def analog(self) -> Literal["change", "interrupt"]:
@@ -376,6 +381,8 @@ def build_io(
         count=settings.count,
         mapping_closed=settings.mapping_closed,
         empty_invalid=settings.empty_pdos_invalid,
+        tpdo_settings=settings.tpdo_settings,
+        rpdo_settings=settings.rpdo_settings,
     )
     profile = Profile401(
         image,
@@ -385,6 +392,70 @@ def build_io(
         analog_events=settings.analog,
     )
     return layout, defaults, profile
+
+
+def check_pdo_settings(io: IoDevice, node_id: int) -> list[tuple[str, int, str]]:
+    """What the PDO engine would refuse of the topology's ``tpdos:`` / ``rpdos:`` (the CiA 301
+    rules a master's SDO writes meet: mapping entries, COB-IDs, transmission types, the
+    RPDOs' sub 3/5), as ``(field, PDO number, message)``; the engine itself takes its
+    defaults unchecked."""
+    settings, defaults = io.settings, io.defaults
+    mapping = PdoMapping(io.directory, settings.granularity)
+    problems: list[tuple[str, int, str]] = []
+    valid_ids: dict[int, str] = {}
+    for field_name, transmit, given, pdos in (
+        ("tpdos", True, settings.tpdo_settings, defaults.tpdo),
+        ("rpdos", False, settings.rpdo_settings, defaults.rpdo),
+    ):
+        for number, default in enumerate(pdos, 1):
+            pdo = Pdo(number, transmit, default)
+            setting = given.get(number)
+            if setting is not None:
+                problem = _pdo_setting_problem(setting, pdo, mapping, settings.style)
+                if problem:
+                    problems.append((field_name, number, problem))
+                    continue
+            if default.valid and default.cob_base is not None and (node_id or default.absolute):
+                can_id = default.cob_id(node_id) & 0x7FF
+                if can_id in valid_ids and setting is not None:
+                    problems.append(
+                        (field_name, number, f"COB-ID 0x{can_id:03X} is {valid_ids[can_id]}'s too")
+                    )
+                valid_ids.setdefault(can_id, f"{'T' if transmit else 'R'}PDO{number}")
+    return problems
+
+
+def _pdo_setting_problem(
+    setting: PdoSetting, pdo: Pdo, mapping: PdoMapping, style: str
+) -> str | None:
+    if setting.trans_type is not None and 252 <= setting.trans_type <= 253 and not pdo.transmit:
+        return f"transmission type {setting.trans_type} is for TPDOs (RTR)"
+    if (
+        not pdo.transmit
+        and style != "na9161"
+        and (setting.inhibit is not None or setting.event_timer is not None)
+    ):
+        return "RPDOs of the icpdas style have no inhibit time or event timer (subs 1 and 2 only)"
+    if setting.cob_id is not None:
+        try:
+            check_cob_id(setting.cob_id, "PDO", in_use=setting.valid is not False)
+        except Abort as exc:
+            return f"cob_id 0x{setting.cob_id:03X}: {_reason(exc)}"
+    if pdo.default.valid and pdo.default.cob_base is None:
+        return (
+            f"{'T' if pdo.transmit else 'R'}PDO{pdo.number} has no predefined COB-ID: give cob_id"
+        )
+    if pdo.default.entries:
+        try:
+            mapping.compile(pdo, list(pdo.default.entries))
+        except Abort as exc:
+            return f"mapping: {_reason(exc)} (abort 0x{exc.code:08X})"
+    return None
+
+
+def _reason(exc: Abort) -> str:
+    """An abort's text without its "SDO abort 0x..." prefix (a topology has no SDO)."""
+    return str(exc).split(": ", 1)[-1]
 
 
 def bind_object(od: Dictionary, obj: ObjectDef) -> None:

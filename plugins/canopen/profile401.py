@@ -29,7 +29,9 @@ Bit sub-index n is bit (n-1) % 8 of 0x6000/0x6200 sub (n-1) // 8 + 1 (padding bi
 
 Events: a change of a DI value fires ``engine.object_changed(0x6000, byte)`` (and the bit
 object's entry when served); with 0x6423 TRUE an AI change that meets its 0x6421
-trigger fires ``(0x6401, channel)``; a special input byte fires ``(0x3000, byte)``. One
+trigger fires ``(0x6401, channel)`` (``analog_events="interrupt"``, the ICP DAS style); with
+``analog_events="change"`` (the NA-9161, which has no 0x6421-0x6426: they are not served)
+every AI change fires it; a special input byte fires ``(0x3000, byte)``. One
 process-image batch (a poll reply) fires each object once, however many of its channels
 changed.
 
@@ -275,7 +277,10 @@ class Profile401:
                 event(index, sub, now)
 
     def _ai_fires(self, change: Change) -> bool:
-        """0x6423 on and the new value meets the channel's 0x6421 trigger (then it is reported)."""
+        """``analog_events`` "change": every change; "interrupt": 0x6423 on and the new value
+        meets the channel's 0x6421 trigger (then it is reported)."""
+        if self.analog_events == "change":
+            return True
         if not self.interrupt_enable:
             return False
         n = self._ai_number[change.id]
@@ -509,6 +514,9 @@ class Profile401:
                         for n in ai
                     ),
                 ),
+            ]
+        if lay.ai and self.analog_events == "interrupt":
+            objs += [
                 array(
                     AI_TRIGGER,
                     "Analog input interrupt trigger selection",

@@ -229,6 +229,7 @@ def test_na9161_defaults_as_its_manual():
     assert dut.read(0x6207, 1) == "4F 07 62 01 00 00 00 00"
     assert dut.read(0x6443, 1) == "4F 43 64 01 01 00 00 00"
     assert dut.read(0x6444, 2) == "43 44 64 02 00 00 00 00"
+    assert dut.read(0x6423, 0) == "80 23 64 00 00 00 02 06"  # no AI interrupt objects
     # U32 written with 2 bytes, as its own examples do (TV-10)
     assert dut.sdo("2B 00 45 03 01 00 00 00") == "60 00 45 03 00 00 00 00"
 
@@ -342,3 +343,33 @@ def test_topology_keys_override_the_profiles():
     # an explicit null: no heartbeat producer even under the AS300
     dut = Dut({"node_id": 4, "master": "delta-as300", "heartbeat_ms": None})
     assert dut.read(0x1017, 0) == "80 17 10 00 00 00 02 06"
+
+
+# -- analog events ---------------------------------------------------------------------------
+def tpdo2(dut: Dut, frames: list[str]) -> list[str]:
+    return [f[4:] for f in frames if f.startswith(f"{0x280 + dut.id:03X} ")]
+
+
+def test_na9161_analog_change_sends_tpdo2_within_the_inhibit_time():
+    """seed-004 §3.4 / §4.7: a type-254 TPDO carrying analog data is sent on any change,
+    limited by the inhibit time (500 ms), without any SDO write (no 0x6423 to set)."""
+    dut = Dut({"node_id": 5, "style": "na9161"})
+    assert tpdo2(dut, dut.start()) == ["00 00 00 00"]  # every TPDO once on entering Operational
+    dut.rig.advance(0.6)  # past the inhibit time of that transmission
+    dut.image.update_input("io/m1/ai1", 0x1234)
+    assert tpdo2(dut, show(dut.node.flush()) + dut.rig.advance(0.0)) == ["00 00 34 12"]
+    dut.image.update_input("io/m1/ai0", -2)  # within the inhibit time: held back, then sent
+    assert tpdo2(dut, show(dut.node.flush()) + dut.rig.advance(0.49)) == []
+    assert tpdo2(dut, dut.rig.advance(0.02)) == ["FE FF 34 12"]
+
+
+def test_icpdas_analog_change_sends_no_tpdo():
+    """seed-000 §2.7, step 4: analog changes are no TPDO events (0x6423 default FALSE)."""
+    dut = Dut({"node_id": 2})
+    assert tpdo2(dut, dut.start()) == ["00 00 00 00"]  # async TPDOs once after Start
+    dut.image.update_input("io/m1/ai0", 0x1234)
+    assert tpdo2(dut, show(dut.node.flush()) + dut.rig.advance(2.0)) == []
+    assert dut.read(0x6423, 0) == "4F 23 64 00 00 00 00 00"  # served, FALSE
+    assert dut.sdo("2F 23 64 00 01 00 00 00") == "60 23 64 00 00 00 00 00"  # opt in: CiA 401
+    dut.image.update_input("io/m1/ai0", 0x1300)
+    assert tpdo2(dut, show(dut.node.flush()) + dut.rig.advance(0.0)) == ["00 13 00 00"]

@@ -100,7 +100,19 @@ def test_eds_imports_with_canopen_and_describes_the_layout(tmp_path, style):
 
 
 @pytest.mark.parametrize(
-    "options", [{"style": "icpdas", "pdo_count": 64}, {"style": "na9161", "compressed": False}]
+    "options",
+    [
+        {"style": "icpdas", "pdo_count": 64},
+        {"style": "na9161", "compressed": False},
+        # the profiles' defaults and the topology's PDO keys are EDS defaults too
+        {
+            "style": "icpdas",
+            "master": "delta-as300",
+            "tpdos": {2: {"transmission_type": 1}, 5: {"cob_id": 0x1A5, "mapping": ["0x6000:1/8"]}},
+            "rpdos": {1: {"transmission_type": 0}},
+        },
+        {"style": "na9161", "consumer_heartbeats": [{"node": 1, "time_ms": 300}]},
+    ],
 )
 def test_eds_passes_lely_dcfchk(tmp_path, options):
     assert Path(DCFCHK).exists(), "dcf-tools is in the test extra"

@@ -25,6 +25,20 @@ DOCUMENTED_SKIPS = {
     "na9161.bit_counts": "EDS lists neither 0x2020:1 nor 0x2220:1",
     "na9161.special_areas": "no special modules",  # the loopback module has none here
     "na9161.special_tpdo": "no special modules",
+    **{
+        f"na9161.{name}": "EDS lists no 0x4500"
+        for name in (
+            "defaults",
+            "heartbeat_loss_outputs",
+            "sync_loss_outputs",
+            "analog_change_tpdo",
+            "emcy_queue_overflow",
+            "short_expedited_write",
+        )
+    },
+    "na9161.slot_objects": "EDS lists no 0x4503",
+    # master delta-as300 adds heartbeat to the guarding-only icpdas style
+    "icpdas.guarding_only": "heartbeat added",
 }
 
 

@@ -19,7 +19,7 @@ from fieldgate.conformance.report import text_report
 FAULTS = {
     "wrong_abort_missing_sub": {"od.missing_subindex", "seed.tv06_abort"},
     "no_toggle_check": {"sdo.upload_toggle_error"},
-    "late_heartbeat": {"errctl.heartbeat_period"},
+    "late_heartbeat": {"errctl.heartbeat_period", "delta-as300.heartbeat_producer"},
     "stuck_guard_toggle": {"errctl.guarding_toggle"},
     "sdo_in_stopped": {"nmt.sdo_gated"},
 }
