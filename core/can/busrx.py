@@ -52,6 +52,10 @@ Quick = Callable[[can.Message], bool]
 RECV_TIMEOUT_S = 0.1  # how often the receive thread looks at whether it should stop
 HANDOVER_LIMIT = 10_000  # frames waiting for the loop; more are dropped (an rx overrun)
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: frames the socket buffer dropped
+# room for the drop counter (u32) beside the timestamp python-can asks for (SO_TIMESTAMPNS)
+ANCILLARY = (
+    socket.CMSG_SPACE(4) + socket.CMSG_SPACE(16) + 32 if hasattr(socket, "CMSG_SPACE") else 0
+)
 
 
 class Receiver:
@@ -213,11 +217,11 @@ class RawSocketReceiver(ReaderReceiver):
 
     def _drop_count(self) -> None:
         """The first frame of a wake-up read with ``recvmsg``: its ancillary data carries the
-        socket's drop counter (one ``recvmsg`` per wake-up, not per frame)."""
+        socket's drop counter as it was when the frame was queued (one ``recvmsg`` per wake-up,
+        not per frame; frames dropped while the loop was away show on the first frame queued
+        after them, at a later wake-up)."""
         try:
-            raw, ancillary, _, _ = self._sock.recvmsg(
-                FRAME.size, socket.CMSG_SPACE(4), socket.MSG_DONTWAIT
-            )
+            raw, ancillary, _, _ = self._sock.recvmsg(FRAME.size, ANCILLARY, socket.MSG_DONTWAIT)
         except BlockingIOError:
             return
         for level, kind, value in ancillary:

@@ -72,8 +72,12 @@ class InProcessDut:
         loop_factory=asyncio.new_event_loop,
         *,
         simulate: bool = False,
+        animate: bool = False,
     ):
         self.simulate = simulate  # serve the backs from their simulators (gateway.bench)
+        self.animate = (
+            animate  # ... moving inputs, outputs wired to inputs (fieldgate run --simulate)
+        )
         self.topo = {
             **topo,
             "fronts": [{**topo["fronts"][0], "interface": interface, "channel": channel}],
@@ -93,7 +97,10 @@ class InProcessDut:
             asyncio.set_event_loop(self._loop)
             try:
                 self.gateway = Gateway.load(
-                    self.topo, registry=load_registry(), simulate=self.simulate
+                    self.topo,
+                    registry=load_registry(),
+                    simulate=self.simulate,
+                    animate=self.animate,
                 )
                 self._loop.run_until_complete(self.gateway.start())
             except BaseException as exc:
@@ -131,10 +138,13 @@ class ProcessDut:
 
     gateway = None
 
-    def __init__(self, topo: dict, interface: str, channel: str, workdir: Path):
+    def __init__(
+        self, topo: dict, interface: str, channel: str, workdir: Path, *, simulate: bool = False
+    ):
         self.path = workdir / "topology.yaml"
         self.path.write_text(json.dumps(topo, indent=1))  # JSON is YAML
         self.interface, self.channel = interface, channel
+        self.simulate = simulate  # --simulate: animated simulated modules behind the front
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> None:
@@ -148,6 +158,7 @@ class ProcessDut:
             f"fronts.{FRONT}.interface={self.interface}",
             "--set",
             f"fronts.{FRONT}.channel={self.channel}",
+            *(["--simulate"] if self.simulate else []),
         ]
         self.proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
@@ -182,9 +193,19 @@ def write_eds(topo: dict, workdir: Path, name: str = "dut.eds") -> Path:
     return eds
 
 
-def make_dut(topo: dict, interface: str, channel: str, external: bool, workdir: Path):
+def make_dut(
+    topo: dict,
+    interface: str,
+    channel: str,
+    external: bool,
+    workdir: Path,
+    *,
+    simulate: bool = False,
+):
+    """The gateway under test; ``simulate``: its backs served by animated simulated modules,
+    as ``fieldgate run --simulate`` does."""
     return (
-        ProcessDut(topo, interface, channel, workdir)
+        ProcessDut(topo, interface, channel, workdir, simulate=simulate)
         if external
-        else InProcessDut(topo, interface, channel)
+        else InProcessDut(topo, interface, channel, simulate=simulate, animate=simulate)
     )
