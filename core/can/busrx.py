@@ -167,14 +167,18 @@ class ReaderReceiver(Receiver):
             try:
                 msg = self.bus.recv(0)
             except (can.CanError, OSError) as exc:
-                self.errors += 1
-                if self.errors == 1 or self.errors % 1000 == 0:
-                    log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
-                self._watch_again()
+                self._receive_failed(exc)
                 return
             if msg is None:
                 return
             self.on_message(msg)
+
+    def _receive_failed(self, exc: BaseException) -> None:
+        """Count and log (the first, then every 1000th) a failed read; watch the socket again."""
+        self.errors += 1
+        if self.errors == 1 or self.errors % 1000 == 0:
+            log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
+        self._watch_again()
 
     def _watch_again(self) -> None:
         """Register the socket again after a receive error (ENETDOWN: the interface went down).
@@ -236,10 +240,7 @@ class RawSocketReceiver(ReaderReceiver):
             try:
                 self._drop_count()
             except OSError as exc:
-                self.errors += 1
-                if self.errors == 1 or self.errors % 1000 == 0:
-                    log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
-                self._watch_again()
+                self._receive_failed(exc)
                 return
         for _ in range(RAW_BATCH):
             if not self.active:
@@ -249,10 +250,7 @@ class RawSocketReceiver(ReaderReceiver):
             except BlockingIOError:
                 return
             except OSError as exc:
-                self.errors += 1
-                if self.errors == 1 or self.errors % 1000 == 0:
-                    log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
-                self._watch_again()
+                self._receive_failed(exc)
                 return
             if len(raw) == FRAME.size:
                 word, dlc, data = unpack(raw)

@@ -137,6 +137,15 @@ def run(bus, tmp_path, style: str, **front):
     return master, dut
 
 
+def wait_outputs_zero(master: As300, until: float) -> list[int]:
+    """Poll every output over SDO until all are 0 or ``until`` (monotonic) passed; the last read."""
+    outputs = master.read_outputs()
+    while any(outputs) and time.monotonic() < until:
+        time.sleep(0.01)
+        outputs = master.read_outputs()
+    return outputs
+
+
 def write_ao(master: As300, value: int) -> float:
     """RPDO2 (AO 1.., type 255): AO 1 = ``value``, the others 0; returns when it went out."""
     rpdo = master.node.rpdo[2]
@@ -170,10 +179,8 @@ def test_na9161_under_an_as300(bus, tmp_path):
         assert emcy and emcy[1][4] == MASTER, "no EMCY for the master's heartbeat"
         assert emcy[0] - last <= scaled(CONSUMER_S + HEARTBEAT_S + 0.1), emcy[0] - last
         # every digital output 0, every analog output its error value 0 (NA-9161 defaults)
-        deadline = emcy[0] + scaled(POLL_S + 0.3)
-        while any(master.read_outputs()) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert not any(master.read_outputs()), master.read_outputs()
+        outputs = wait_outputs_zero(master, emcy[0] + scaled(POLL_S + 0.3))
+        assert not any(outputs), outputs
         # and the modules got them within a poll period (in-process: the simulator's registers)
         if dut.gateway is not None:
             sim = dut.gateway.bench.simulator("rs485")
@@ -204,10 +211,8 @@ def test_na9161_sync_loss_drives_the_outputs_to_0(bus, tmp_path):
         stopped = master.stop_sync()
         emcy = master.wait(0x80 + NODE, lambda d: d[:2] == b"\x00\x81", 2.0, since=stopped)
         assert emcy, "no EMCY for the SYNC loss"
-        deadline = time.monotonic() + scaled(0.5)
-        while any(master.read_outputs()) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert not any(master.read_outputs())
+        outputs = wait_outputs_zero(master, time.monotonic() + scaled(0.5))
+        assert not any(outputs), outputs
         beat = master.wait(0x700 + NODE, lambda d: d == b"\x7f", 2.5, since=emcy[0])
         assert beat, "the node did not go to pre-operational"
     finally:
@@ -226,10 +231,8 @@ def test_na9161_master_writes_0x1016_itself(bus, tmp_path):
         time.sleep(scaled(0.3))
         last = master.stop_heartbeat()
         assert master.wait(0x80 + NODE, lambda d: d[:4] == bytes.fromhex("30811107"), 3.0, last)
-        deadline = time.monotonic() + scaled(0.5)
-        while any(master.read_outputs()) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert not any(master.read_outputs())
+        outputs = wait_outputs_zero(master, time.monotonic() + scaled(0.5))
+        assert not any(outputs), outputs
     finally:
         master.close()
         dut.stop()

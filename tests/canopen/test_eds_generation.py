@@ -260,3 +260,23 @@ def test_cli_on_a_devicenet_topology_points_to_the_devicenet_command(capsys):
         "no canopen front in the topology (it has a devicenet front; for DeviceNet: fieldgate devicenet eds)"
         in err
     )
+
+
+@pytest.mark.parametrize(
+    "example",
+    ["i7232d-style.yaml", "i7231d-style.yaml", "na9161-style.yaml", "canopen-sparkplug.yaml"],
+)
+def test_every_canopen_examples_eds_passes_dcfchk(tmp_path, example):
+    """The EDS states each example's profile defaults (style, master, keys) and dcfchk is clean."""
+    source = Path(__file__).resolve().parents[2] / "examples" / example
+    out = tmp_path / "example.eds"
+    assert cli_main(["eds", str(source), "-o", str(out)]) == 0
+    result = dcfchk(out)
+    assert result.returncode == 0 and "Warning" not in result.stderr, result.stderr
+    od = canopen.import_od(str(out), node_id=5)
+    if example == "canopen-sparkplug.yaml":  # master: delta-as300
+        assert od[0x1016][1].default == 1 << 16 | 500 and od[0x1017].default == 1000
+    elif example == "na9161-style.yaml":
+        assert od[0x100C].default == 200 and od[0x6206][1].default == 0xFF
+    else:  # an I-7232D / I-7231D: guarding only
+        assert 0x1017 not in od and 0x1016 not in od

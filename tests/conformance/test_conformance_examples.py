@@ -21,6 +21,7 @@ from pathlib import Path
 
 import can
 import pytest
+from conformance_gateway import NA9161_PROFILE_CASES
 from socketcan_timing import SLOWDOWN, scaled
 
 REPO = Path(__file__).resolve().parents[2]
@@ -61,17 +62,7 @@ ICPDAS_SKIPS = {
     "na9161.bit_counts": "EDS lists neither 0x2020:1 nor 0x2220:1",
     "na9161.special_areas": "no special modules",
     "na9161.special_tpdo": "no special modules",
-    **{
-        f"na9161.{name}": "EDS lists no 0x4500"
-        for name in (
-            "defaults",
-            "heartbeat_loss_outputs",
-            "sync_loss_outputs",
-            "analog_change_tpdo",
-            "emcy_queue_overflow",
-            "short_expedited_write",
-        )
-    },
+    **{f"na9161.{name}": "EDS lists no 0x4500" for name in NA9161_PROFILE_CASES},
     "na9161.slot_objects": "EDS lists no 0x4503",
     "icpdas.analog_change_no_tpdo": "needs --loopback",
 }

@@ -16,6 +16,7 @@ from conformance_gateway import (
     NODE_ID,
     GatewayThread,
     front_unavailable,
+    patch_out,
     topology,
     write_eds,
 )
@@ -141,8 +142,6 @@ def refuse_short_writes(self, index, length, convert):
 def test_a_broken_front_fails_the_profile_case_that_checks_it(
     tmp_path, monkeypatch, target, attribute, broken, case_id
 ):
-    module_name, class_name = target.rsplit(".", 1)
-    module = __import__(module_name, fromlist=[class_name])
-    monkeypatch.setattr(getattr(module, class_name), attribute, broken)
+    patch_out(monkeypatch, target, attribute, broken)
     results = run_gateway(tmp_path, profiles=["all"], patterns=[case_id])
     assert {r.case.id: r.verdict for r in results} == {case_id: Verdict.FAIL}, text_report(results)

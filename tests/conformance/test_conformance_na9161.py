@@ -8,7 +8,14 @@ import uuid
 
 import can
 import pytest
-from conformance_gateway import NODE_ID, GatewayThread, front_unavailable, topology, write_eds
+from conformance_gateway import (
+    NODE_ID,
+    GatewayThread,
+    front_unavailable,
+    patch_out,
+    topology,
+    write_eds,
+)
 
 from fieldgate.conformance import Options, SuiteConfig, Timing, Verdict, run_suite
 from fieldgate.conformance.report import text_report
@@ -149,8 +156,6 @@ def test_with_byte_granularity_the_bit_case_skips_and_the_byte_case_runs(tmp_pat
 def test_a_broken_front_fails_the_case_that_checks_it(
     tmp_path, monkeypatch, target, attribute, broken, case_id
 ):
-    module_name, class_name = target.rsplit(".", 1)
-    module = __import__(module_name, fromlist=[class_name])
-    monkeypatch.setattr(getattr(module, class_name), attribute, broken)
+    patch_out(monkeypatch, target, attribute, broken)
     results = run(tmp_path, patterns=[case_id])
     assert verdicts(results) == {case_id: Verdict.FAIL}, text_report(results)
