@@ -23,7 +23,7 @@ import canopen
 import pytest
 from canopen_dut import FRONT, bus_under_test, make_dut, write_eds
 from ruamel.yaml import YAML
-from socketcan_timing import scaled
+from socketcan_guest import scaled
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 NODE = 5

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import can
 import pytest
-from socketcan_timing import scaled
+from socketcan_guest import in_guest, scaled
 from test_socketcan_can_load import CHANNEL, flood_result, start_flood
 
 from fieldgate import Gateway, load_registry
@@ -30,13 +30,7 @@ NODE = 5
 EMCY = 0x80 + NODE
 CAN_ERR_CRTL = 0x04
 
-pytestmark = [
-    pytest.mark.socketcan,
-    pytest.mark.skipif(
-        not Path(f"/sys/class/net/{CHANNEL}").exists(),
-        reason=f"no {CHANNEL}: real SocketCAN runs inside the guest of .ci/socketcan/run",
-    ),
-]
+pytestmark = in_guest(CHANNEL)
 
 
 def topology(state_dir: Path) -> dict:
