@@ -57,7 +57,9 @@ class SlaveHost(Protocol):
     allocation_choice: int
     bus_off_interrupt: int
     bus_off_count: int
-    heartbeat_s: int
+
+    @property
+    def heartbeat_s(self) -> int: ...
 
     @property
     def identity_status(self) -> int: ...

@@ -27,7 +27,8 @@ from fieldgate.plugins.devicenet import cip
 from fieldgate.plugins.devicenet.allocation import Allocation
 from fieldgate.plugins.devicenet.cip import CipError
 from fieldgate.plugins.devicenet.connection import Connection
-from fieldgate.plugins.devicenet.engine import DeviceNetSlave
+from fieldgate.plugins.devicenet.explicit import ExplicitServer
+from fieldgate.plugins.devicenet.netaccess import NetworkAccess
 
 MAC_ID = 5
 TIMING = Timing(response=0.3, silence=0.15, bootup=1.0, heartbeat_ms=100)
@@ -100,7 +101,7 @@ def test_every_case_passes_on_fieldgates_front(device):
 
 
 def test_wrong_cip_error_fails_only_its_case(device, monkeypatch):
-    original = DeviceNetSlave._error
+    original = ExplicitServer.error
 
     def wrong_code(self, header, err):  # answers "object does not exist" for an unknown attribute
         return original(
@@ -111,7 +112,7 @@ def test_wrong_cip_error_fails_only_its_case(device, monkeypatch):
             else err,
         )
 
-    monkeypatch.setattr(DeviceNetSlave, "_error", wrong_code)
+    monkeypatch.setattr(ExplicitServer, "error", wrong_code)
     results = run(device)
     assert failed(results) == ["devicenet.error_unknown_attribute"]
     bad = next(r for r in results if r.verdict is Verdict.FAIL)
@@ -162,13 +163,13 @@ def test_no_inactivity_timeout_fails(device, monkeypatch):
 
 
 def test_silent_on_duplicate_mac_requests_fails(device, monkeypatch):
-    original = DeviceNetSlave._dup_mac_frame
+    original = NetworkAccess.dup_mac_frame
 
     def ignore_requests_online(self, data):
-        if self.state != "online":
+        if self.slave.state != "online":
             original(self, data)
 
-    monkeypatch.setattr(DeviceNetSlave, "_dup_mac_frame", ignore_requests_online)
+    monkeypatch.setattr(NetworkAccess, "dup_mac_frame", ignore_requests_online)
     results = run(device, ["dup_mac"])
     assert {r.case.id: r.verdict for r in results} == {
         "devicenet.dup_mac_answer": Verdict.FAIL,
@@ -177,11 +178,11 @@ def test_silent_on_duplicate_mac_requests_fails(device, monkeypatch):
 
 
 def test_fragments_with_wrong_counts_fail(device, monkeypatch):
-    from fieldgate.plugins.devicenet import engine
+    from fieldgate.plugins.devicenet import explicit
 
-    real_split = engine.split
+    real_split = explicit.split
     monkeypatch.setattr(
-        engine,
+        explicit,
         "split",
         lambda payload, chunk: [(frag & 0xC0, data) for frag, data in real_split(payload, chunk)],
     )  # count stuck at 0
