@@ -69,7 +69,11 @@ class DeviceNetFrontConfig(FrontConfig):
     baudrate: Literal[125_000, 250_000, 500_000] = Field(
         125_000, description="DeviceNet bit rate in bit/s"
     )
-    mac_id: int = Field(63, ge=0, le=63, description="MAC ID 0..63")
+    mac_id: int = Field(
+        ge=0,
+        le=63,
+        description="MAC ID 0..63, required: the I-7241D ships at 1, ODVA's default is 63",
+    )
     bus_options: dict[str, Any] = Field(
         default_factory=dict, description="extra keyword arguments for can.Bus"
     )

@@ -154,6 +154,21 @@ async def test_mac_id_set_over_the_network_survives_a_restart_until_the_yaml_cha
         master.close()
 
 
+def test_mac_id_is_required_with_one_line_naming_the_two_defaults(tmp_path, registry):
+    """The I-7241D ships at MAC 1, ODVA's default is 63: no silent choice between them."""
+    from fieldgate.topology import TopologyError, load_topology
+
+    source = topology(tmp_path, "x")
+    del source["fronts"][0]["mac_id"]
+    with pytest.raises(TopologyError) as err:
+        load_topology(source, registry)
+    (issue,) = err.value.issues
+    assert issue.path == "fronts[0].mac_id"
+    assert issue.message.startswith("required field is missing") and "I-7241D ships at 1" in (
+        issue.message
+    )
+
+
 def test_store_ignores_corrupt_and_out_of_range_files(tmp_path):
     from fieldgate.plugins.devicenet.store import NetworkStore
 
