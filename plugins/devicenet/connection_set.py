@@ -15,7 +15,19 @@ from typing import Protocol
 
 from . import ids
 from .allocation import BIT_ACK_SUPPRESS, BIT_COS, CONNECTION_BITS, UNALLOCATED
-from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, Connection, State, TimeoutAction
+from .assembly import AnyAssembly
+from .connection import (
+    COS_CYCLIC,
+    COS_DATA_ROLE,
+    EXPLICIT,
+    POLL,
+    POLL_ROLE,
+    STROBE,
+    Connection,
+    State,
+    TimeoutAction,
+)
+from .paths import STROBE_MAX
 from .slave_state import SlaveState
 
 EXPLICIT_MIN_SIZE = 0x20
@@ -37,10 +49,7 @@ class ConnectionSet:
         self.slave = slave
         self.hooks: list[ConnectionHooks] = []
         self.connections = {i: Connection(i) for i in NAMES}
-        self.explicit_size = max(
-            EXPLICIT_MIN_SIZE,
-            max((a.size for a in slave.assemblies.instances.values()), default=0) + 4,
-        )
+        self.explicit_size = max(EXPLICIT_MIN_SIZE, slave.assemblies.largest + 4)
         self._master_ok = True
         self._master_listeners: list[Callable[[bool, str], None]] = []
 
@@ -54,65 +63,118 @@ class ConnectionSet:
         return [c.watchdog_at for c in self.connections.values()]
 
     # -- opening and closing -------------------------------------------------------------
+    def cos_kind(self) -> str:
+        """Which paths instance 4 uses: ``cos`` or ``cyclic`` (the allocation choice)."""
+        return "cos" if self.slave.allocation_choice & BIT_COS else "cyclic"
+
     def open(self, instance: int, now: float) -> None:
         slave = self.slave
         c = self.connections[instance]
         m, master = slave.mac_id, slave.master_mac
         c.open(now)
-        assemblies = slave.assemblies
-        produced, consumed = assemblies.produced_size, assemblies.consumed_size
+        c.role, c.produces, c.consumes = POLL_ROLE, None, None
         if instance == EXPLICIT:
             c.produced_id = ids.group2_id(m, ids.G2_EXPLICIT_RESPONSE)
             c.consumed_id = ids.group2_id(m, ids.G2_EXPLICIT_REQUEST)
             c.produced_size = c.consumed_size = self.explicit_size
             c.transport, c.comm_characteristics = 0x83, 0x21
         elif instance == POLL:
+            path = slave.paths["poll"]
             c.produced_id = ids.group1_id(ids.G1_POLL_RESPONSE, m)
             c.consumed_id = ids.group2_id(m, ids.G2_POLL)
-            c.produced_size, c.consumed_size = produced, consumed
             c.transport, c.comm_characteristics = 0x82, 0x01
+            self.select(c, path.produce, path.consume)
         elif instance == STROBE:
             c.produced_id = ids.group1_id(ids.G1_STROBE_RESPONSE, m)
             c.consumed_id = ids.group2_id(master, ids.G2_STROBE)
-            c.produced_size, c.consumed_size = min(produced, 8), 8
             c.transport, c.comm_characteristics = 0x82, 0x02
+            self.select(c, slave.paths["strobe"].produce, None)
         else:
             choice = slave.allocation_choice
             c.acked = not choice & BIT_ACK_SUPPRESS
             c.produced_id = ids.group1_id(ids.G1_COS_CYCLIC, m)
             c.consumed_id = ids.group2_id(m, ids.G2_COS_ACK) if c.acked else 0xFFFF
-            c.produced_size, c.consumed_size = produced, 0
             c.transport = (0x10 if choice & BIT_COS else 0x00) | (0x02 if c.acked else 0x00)
             c.comm_characteristics = 0x01 if c.acked else 0x0F
             c.inhibit_ms = 0
+            self.select(c, slave.paths[self.cos_kind()].produce, None)
         for hook in self.hooks:
             hook.opened(instance)
+
+    def open_cos_data(self, now: float) -> bool:
+        """Instance 2 for the master's change-of-state / cyclic data (COS or cyclic allocated
+        without poll, with a path that consumes): consumed on G2/5, acknowledged on G1/0xF
+        unless suppressed (transport class 2 or 0, as ODVA's predefined set). False (nothing
+        opened) when the path consumes nothing."""
+        slave = self.slave
+        if slave.paths[self.cos_kind()].consume is None:
+            return False
+        c = self.connections[POLL]
+        c.open(now)
+        acked = not slave.allocation_choice & BIT_ACK_SUPPRESS
+        c.role, c.acked = COS_DATA_ROLE, acked
+        c.consumed_id = ids.group2_id(slave.mac_id, ids.G2_POLL)
+        c.produced_id = ids.group1_id(ids.G1_POLL_RESPONSE, slave.mac_id) if acked else 0xFFFF
+        c.transport, c.comm_characteristics = (0x82, 0x01) if acked else (0x80, 0xF1)
+        self.select(c, None, slave.paths[self.cos_kind()].consume)
+        for hook in self.hooks:
+            hook.opened(POLL)
+        return True
+
+    def cos_data(self) -> Connection | None:
+        """Instance 2 while it carries the master's change-of-state / cyclic data."""
+        c = self.connections[POLL]
+        return c if c.exists and c.role == COS_DATA_ROLE else None
+
+    @staticmethod
+    def select(c: Connection, produces: AnyAssembly | None, consumes: AnyAssembly | None) -> None:
+        """The connection's paths, and its sizes from them (a strobe answers at most 8 bytes)."""
+        c.produces, c.consumes = produces, consumes
+        size = produces.size if produces is not None else 0
+        c.produced_size = min(size, STROBE_MAX) if c.instance == STROBE else size
+        c.consumed_size = 8 if c.instance == STROBE else consumes.size if consumes else 0
 
     def close(self, instance: int, reason: str) -> None:
         slave = self.slave
         c = self.connections[instance]
         was_running = c.is_io and c.state is State.ESTABLISHED
+        cos_data = instance == POLL and c.role == COS_DATA_ROLE
         c.close()
+        c.role = POLL_ROLE
         for hook in self.hooks:
             hook.stopped(instance)
-        slave.allocation_choice &= ~dict(CONNECTION_BITS)[instance]
+        if not cos_data:
+            slave.allocation_choice &= ~dict(CONNECTION_BITS)[instance]
         if instance == COS_CYCLIC:
             slave.allocation_choice &= ~BIT_ACK_SUPPRESS
         if not any(conn.exists for conn in self.connections.values()):
             slave.master_mac, slave.allocation_choice = UNALLOCATED, 0
         if was_running:
-            self.master_lost(f"{NAMES[instance]} {reason}")
+            self.master_lost(f"{'cos-cyclic-data' if cos_data else NAMES[instance]} {reason}")
 
     def close_all(self, reason: str) -> None:
         for instance in self.connections:
             self.close(instance, reason)
 
     def set_epr(self, connection: Connection, ms: int, now: float) -> int:
-        """Attribute 9: the granted rate (rounded up); establishes a Configuring connection."""
+        """Attribute 9: the granted rate (rounded up); establishes a Configuring connection.
+
+        The rate of instance 4 is also the rate of the master's change-of-state / cyclic data
+        on instance 2 while that is still Configuring (a master that sets only instance 4)."""
         granted = connection.set_epr(ms, now)
-        if connection.established:
-            for hook in self.hooks:
-                hook.rate_set(connection.instance, granted)
+        changed = [connection]
+        data = self.cos_data()
+        if (
+            connection.instance == COS_CYCLIC
+            and data is not None
+            and data.state is State.CONFIGURING
+        ):
+            data.set_epr(ms, now)
+            changed.append(data)
+        for c in changed:
+            if c.established:
+                for hook in self.hooks:
+                    hook.rate_set(c.instance, c.epr_ms)
         return granted
 
     # -- watchdogs and master loss ---------------------------------------------------------
@@ -120,14 +182,15 @@ class ConnectionSet:
         for c in self.connections.values():
             if not c.expired(now):
                 continue
-            self.slave.counters[f"{NAMES[c.instance]}_timeouts"] += 1
+            name = self.name(c)
+            self.slave.counters[f"{name}_timeouts"] += 1
             if c.action is TimeoutAction.AUTO_DELETE or not c.is_io:
                 self.close(c.instance, "timed out (deleted)")
             else:
                 c.state, c.watchdog_at = State.TIMED_OUT, None
                 for hook in self.hooks:
                     hook.stopped(c.instance)
-                self.master_lost(f"{NAMES[c.instance]} connection timed out ({c.epr_ms} ms x 4)")
+                self.master_lost(f"{name} connection timed out ({c.epr_ms} ms x 4)")
 
     def master_lost(self, reason: str) -> None:
         if not self._master_ok:
@@ -143,9 +206,23 @@ class ConnectionSet:
         for listener in list(self._master_listeners):
             listener(True, reason)
 
+    def name(self, c: Connection) -> str:
+        return (
+            "cos-cyclic-data"
+            if c.instance == POLL and c.role == COS_DATA_ROLE
+            else NAMES[c.instance]
+        )
+
     def status(self) -> dict[str, dict[str, object]]:
-        return {
-            NAMES[i]: {"state": c.state.name.lower(), "epr_ms": c.epr_ms}
-            for i, c in self.connections.items()
-            if c.exists
-        }
+        out: dict[str, dict[str, object]] = {}
+        for c in self.connections.values():
+            if c.exists:
+                out[self.name(c)] = {
+                    "state": c.state.name.lower(),
+                    "epr_ms": c.epr_ms,
+                    "produced": c.produces.instance if c.produces else None,
+                    "produced_size": c.produced_size,
+                    "consumed": c.consumes.instance if c.consumes else None,
+                    "consumed_size": c.consumed_size,
+                }
+        return out

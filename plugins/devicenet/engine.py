@@ -29,13 +29,19 @@ from fieldgate.host_watchdog import HostWatchdogs
 from . import ids
 from .allocation import UNALLOCATED, Allocation
 from .application import ApplicationObject, module_views
-from .assembly import Assemblies, Assembly
+from .assembly import AnyAssembly, Assemblies
 from .connection import Connection
 from .connection_set import ConnectionSet
 from .explicit import ExplicitServer
 from .io_messaging import IoMessaging
 from .netaccess import NetworkAccess
-from .objects import AssemblyObject, ConnectionObject, DeviceNetObject, IdentityObject
+from .objects import (
+    AcknowledgeHandlerObject,
+    AssemblyObject,
+    ConnectionObject,
+    DeviceNetObject,
+    IdentityObject,
+)
 from .settings import Settings
 from .slave_state import SlaveState
 
@@ -69,6 +75,7 @@ class DeviceNetSlave(SlaveState):
                 DeviceNetObject(self),
                 AssemblyObject(self),
                 ConnectionObject(self),
+                AcknowledgeHandlerObject(self),
                 application,
             )
         }
@@ -119,8 +126,7 @@ class DeviceNetSlave(SlaveState):
         if self.online:
             self.connection_set.check_watchdogs(now)
             self.explicit.tick(now)
-            if self.io.due(now):
-                self.io.produce(now)
+            self.io.tick(now)
         return self._done()
 
     def flush(self) -> list[Frame]:
@@ -143,7 +149,7 @@ class DeviceNetSlave(SlaveState):
         return self._listen
 
     def next_deadline(self) -> float | None:
-        times = [*self.network.deadlines(), self.io.produce_at]
+        times = [*self.network.deadlines(), *self.io.deadlines()]
         times += self.connection_set.deadlines() + self.explicit.deadlines()
         due = [t for t in times if t is not None]
         return min(due) if due else None
@@ -181,7 +187,7 @@ class DeviceNetSlave(SlaveState):
         elif message == ids.G2_EXPLICIT_REQUEST:
             self.explicit.request_frame(data, now)
         elif message == ids.G2_POLL:
-            self.io.poll(data, now)
+            self.io.master_data(data, now)
         elif message == ids.G2_COS_ACK:
             self.io.cos_ack(now)
         else:
@@ -212,14 +218,22 @@ class DeviceNetSlave(SlaveState):
     def settings_changed(self) -> None:
         self.network.settings_changed()
 
-    def write_assembly(self, assembly: Assembly, data: bytes) -> None:
-        assembly.write(self.assemblies.image, data, self.assemblies.origin)
+    def write_assembly(self, assembly: AnyAssembly, data: bytes) -> None:
+        self.assemblies.consume(assembly, data)
 
     def set_epr(self, connection: Connection, ms: int) -> int:
         return self.connection_set.set_epr(connection, ms, self.now)
 
     def open_connection(self, instance: int, now: float) -> None:
         self.connection_set.open(instance, now)
+
+    def select_path(
+        self, connection: Connection, produces: AnyAssembly | None, consumes: AnyAssembly | None
+    ) -> None:
+        self.connection_set.select(connection, produces, consumes)
+
+    def open_cos_data(self, now: float) -> bool:
+        return self.connection_set.open_cos_data(now)
 
     def close_connection(self, instance: int, reason: str) -> None:
         self.connection_set.close(instance, reason)
@@ -247,7 +261,14 @@ class DeviceNetSlave(SlaveState):
             "master_mac": None if self.master_mac == UNALLOCATED else self.master_mac,
             "allocation_choice": self.allocation_choice,
             "connections": self.connection_set.status(),
-            "produced_size": self.assemblies.produced_size,
-            "consumed_size": self.assemblies.consumed_size,
+            "io_paths": {
+                kind: {
+                    "produce": path.produce.instance if path.produce else None,
+                    "produced_size": path.produced_size,
+                    "consume": path.consume.instance if path.consume else None,
+                    "consumed_size": path.consumed_size,
+                }
+                for kind, path in self.paths.items()
+            },
             **self.counters,
         }

@@ -15,15 +15,20 @@ from fieldgate.can.frame import Frame
 from . import ids
 from .allocation import UNALLOCATED
 from .assembly import Assemblies
+from .paths import IoPath, resolve
 from .settings import BAUD_RATES, Settings
 
 DEVICE_STATES = ("offline", "dup-mac-check", "online", "comm-fault")
+ACK_TIMER_MS, ACK_RETRY_LIMIT = 16, 1  # Acknowledge Handler defaults (class 0x2B)
 
 
 class SlaveState:
     def __init__(self, settings: Settings, assemblies: Assemblies):
         self.settings = settings
         self.assemblies = assemblies
+        self.paths: dict[str, IoPath] = resolve(assemblies, settings.io_paths)  # ValueError
+        self.ack_timer_ms = ACK_TIMER_MS
+        self.ack_retry_limit = ACK_RETRY_LIMIT
         self.mac_id = settings.mac_id
         self.baud_code = settings.baud_code
         self.pending_baud_code: int | None = None

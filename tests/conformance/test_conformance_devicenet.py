@@ -135,7 +135,7 @@ def test_loopback_case_skips_without_the_bench_and_fails_on_a_broken_loop(device
     from fieldgate.plugins.devicenet.assembly import Assemblies
 
     monkeypatch.setattr(
-        Assemblies, "consume", lambda self, data: None
+        Assemblies, "consume", lambda self, assembly, data: []
     )  # polled outputs are dropped
     assert failed(run(device, ["loopback"])) == ["devicenet.loopback_poll"]
 

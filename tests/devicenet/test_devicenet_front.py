@@ -85,6 +85,10 @@ async def test_allocate_identity_poll_loopback_and_timeout(rig):
     assert gateway.component("dnet").status()["connections"]["poll"] == {
         "state": "timed_out",
         "epr_ms": 100,
+        "produced": 0x69,  # all inputs: DI 0x66 + AI 0x67
+        "produced_size": 5,
+        "consumed": 0x68,  # all outputs: DO 0x64 + AO 0x65
+        "consumed_size": 5,
     }
     assert await master.allocate(0x02) == bytes.fromhex("0A CB 00")  # re-allocation
     assert gateway.masters.is_ok("dnet")
