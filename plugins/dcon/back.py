@@ -28,17 +28,25 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from fieldgate.image import ChannelSpec, Kind
+from fieldgate.module_info import ModuleIdentity
 from fieldgate.plugin import GatewayContext, PluginStartError
 from fieldgate.polling import CommError, LineJob, SerialBack
 from fieldgate.serial_link import AsyncSerial
 
-from .codec import HOST_OK
+from .codec import BAUD_CODES, HOST_OK
 from .config import DconBackConfig, DconModuleConfig
 from .link import DconLink
 from .module import DconModule
 from .profiles import AIDIO, AO_SINGLE
 
 log = logging.getLogger("fieldgate.dcon")
+
+
+def configured_fields(
+    identity: ModuleIdentity,
+) -> tuple[int | None, bool | None, int | None, int | None]:
+    return identity.baudrate, identity.checksum, identity.type_code, identity.data_format
+
 
 Request = tuple[Callable[[], Awaitable[Any]], "asyncio.Future[Any]"]
 
@@ -56,6 +64,7 @@ class DconBack(SerialBack):
         )
         self._requests: list[Request] = []
         self._host_ok_running = False
+        self.reply_timeout_ms = config.timeout_ms  # the I-7241D's Application class attribute 3
         context.masters.subscribe(self._on_master)
 
     # -- SerialBack -------------------------------------------------------------------
@@ -64,7 +73,7 @@ class DconBack(SerialBack):
         serial = await AsyncSerial.open(
             cfg.port, cfg.baudrate, cfg.bytesize, cfg.parity, cfg.stopbits
         )
-        self.dcon = DconLink(serial, cfg.checksum, cfg.timeout_ms / 1000)
+        self.dcon = DconLink(serial, cfg.checksum, self.reply_timeout_ms / 1000)
         for module in self.modules.values():
             module.link = self.dcon
         return serial
@@ -256,6 +265,49 @@ class DconBack(SerialBack):
                 job.period = period
                 job.due = min(job.due, self.context.clock() + period)
 
+    # -- what fronts learn of a module and may ask of it (fieldgate.module_info) -------------
+    def module_identity(self, address: int) -> ModuleIdentity:
+        """What ``$AAM`` and ``$AA2`` said, else what the topology says. KeyError if unknown."""
+        module = self.module(address)
+        reply = module.config_reply
+        configured = self.config.module_identities()[address]
+        if reply is None:
+            return ModuleIdentity(configured.model, module.name, *configured_fields(configured))
+        return ModuleIdentity(
+            configured.model,
+            module.name,
+            BAUD_CODES.get(reply.baud_code, self.config.baudrate),
+            reply.checksum,
+            reply.type_code,
+            reply.data_format,
+        )
+
+    def set_reply_timeout_ms(self, ms: int) -> None:
+        """The reply timeout of every transaction from now on (the I-7241D's "DCON COM port
+        timeout value"); ValueError outside the topology's range, 1..60000 ms."""
+        if not 1 <= ms <= 60_000:
+            raise ValueError(f"reply timeout {ms} ms outside 1..60000")
+        if ms != self.reply_timeout_ms:
+            log.info(
+                "%s: reply timeout %d ms (was %d), set by a front",
+                self.name,
+                ms,
+                self.reply_timeout_ms,
+            )
+        self.reply_timeout_ms = ms
+        if self.dcon is not None:
+            self.dcon.timeout = ms / 1000
+
+    def can_latch_safe_value(self, address: int) -> bool:
+        return self.module(address).has_outputs
+
+    def request_latch_safe_value(self, address: int) -> asyncio.Future[Any]:
+        """Queue the latch of the module's current outputs as its safe values."""
+        module = self.module(address)
+        if not module.has_outputs:
+            raise ValueError(f"module {address} ({module.profile.model}) has no outputs")
+        return self._submit(module.latch_safe_value)
+
     def watchdog_settings(self, address: int) -> tuple[bool, int]:
         """The module's host watchdog now: (enabled, timeout ms; 0 = not set). KeyError if unknown."""
         module = self.module(address)
@@ -267,6 +319,7 @@ class DconBack(SerialBack):
 
     def status(self) -> dict:
         status = super().status()
+        status["reply_timeout_ms"] = self.reply_timeout_ms
         status["host_ok"] = {
             "enabled": self.host_ok_enabled,
             "period_ms": None

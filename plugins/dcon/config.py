@@ -7,12 +7,15 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 
 from fieldgate.image import ChannelSpec, DataType, Kind, Scaling, Source, channel_id
+from fieldgate.module_info import ModuleIdentity
 from fieldgate.topology import ModuleConfig, SerialBackConfig, StrictModel
 
+from .formats import FORMAT_NAMES
 from .profiles import Profile, find_profile, model_names
 from .tables import TABLES, TypeRange
 
 FormatName = Literal["auto", "hex", "engineering", "percent", "ohms"]
+DIGITAL_TYPE_CODE = 0x40  # what $AA2 reports for a digital I/O module
 
 
 class WatchdogConfig(StrictModel):
@@ -159,6 +162,26 @@ class DconBackConfig(SerialBackConfig):
             else (bool(m.watchdog.enabled), int(m.watchdog.timeout_ms))
             for m in self.modules
         }
+
+    def module_identities(self) -> dict[int, ModuleIdentity]:
+        """What the topology says of each module (``fieldgate.module_info``), before the back
+        has read ``$AAM`` / ``$AA2``: the line's baud rate and checksum, the configured type
+        code (digital modules: 0x40) and data format (None for ``auto``)."""
+        out = {}
+        for m in self.modules:
+            table = m.type_table
+            type_code = (
+                m.type_code
+                if m.type_code is not None
+                else table.default
+                if table is not None
+                else DIGITAL_TYPE_CODE
+            )
+            fmt = None if m.data_format == "auto" else int(FORMAT_NAMES[m.data_format])
+            out[m.address] = ModuleIdentity(
+                m.profile.model, "", self.baudrate, self.checksum, type_code, fmt
+            )
+        return out
 
     def channel_specs(self) -> list[ChannelSpec]:
         specs: list[ChannelSpec] = []

@@ -51,6 +51,7 @@ class SimModule:
         self.data_format = data_format
         self.checksum = checksum
         self.baud_code = baud_code
+        self.name = profile.model[2:]  # what $AAM answers: "7017" for an I-7017
         self.di_bits = 0
         self.do_bits = 0
         self.ai_raw = [0] * profile.ai
@@ -124,7 +125,7 @@ class SimModule:
             fmt = (self.data_format.value if (p.ai or p.ao) else 0) | (0x40 if self.checksum else 0)
             return self._ok(f"{self.type_code:02X}{self.baud_code:02X}{fmt:02X}")
         if body == "M":
-            return self._ok(p.model[2:])
+            return self._ok(self.name)
         if body == "F":
             return self._ok(FIRMWARE)
         if body == "5":

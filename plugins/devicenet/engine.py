@@ -25,6 +25,7 @@ from typing import Any
 
 from fieldgate.can.frame import Frame
 from fieldgate.host_watchdog import HostWatchdogs
+from fieldgate.module_info import ModuleInfo
 
 from . import ids
 from .allocation import UNALLOCATED, Allocation
@@ -58,6 +59,7 @@ class DeviceNetSlave(SlaveState):
         self.module_fault = False
         self.module_errors: Callable[[str, int], int] = lambda back, address: 0  # the front's
         self.host_watchdogs = HostWatchdogs()  # the front gives the gateway's
+        self.module_info = ModuleInfo()  # the front gives the gateway's
         self.connection_set = ConnectionSet(self)
         self.connections: dict[int, Connection] = self.connection_set.connections
         self.io = IoMessaging(self, self.connection_set)

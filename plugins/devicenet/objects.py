@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from fieldgate.host_watchdog import HostWatchdogs
+from fieldgate.module_info import ModuleInfo
 
 from . import cip
 from .allocation import Allocation
@@ -61,6 +62,7 @@ class SlaveHost(Protocol):
     allocation: Allocation
     connections: dict[int, Connection]
     host_watchdogs: HostWatchdogs
+    module_info: ModuleInfo
     mac_id: int
     baud_code: int
     pending_baud_code: int | None

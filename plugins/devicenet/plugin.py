@@ -24,6 +24,7 @@ from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Change, Subscription
 from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
+from fieldgate.module_info import ModuleInfo
 from fieldgate.plugin import Front, GatewayContext, PluginStartError, Registry, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
@@ -204,6 +205,7 @@ class DeviceNetFront(Front):
         self._modules = {(c.source.back, c.source.module) for c in channels}
         slave.module_errors = self._module_errors
         slave.host_watchdogs = HostWatchdogs.from_context(self.context)
+        slave.module_info = ModuleInfo.from_context(self.context)
         slave.on_master(self._master_state)
         slave.on_settings(store.save)
         slave.on_fault(self._fault)
