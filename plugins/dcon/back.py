@@ -33,13 +33,16 @@ from fieldgate.plugin import GatewayContext, PluginStartError
 from fieldgate.polling import CommError, LineJob, SerialBack
 from fieldgate.serial_link import AsyncSerial
 
+from .autoscan import StartScan, find_modules
 from .codec import BAUD_CODES, HOST_OK
-from .config import DconBackConfig, DconModuleConfig
+from .config import DconBackConfig, DconModuleConfig, parse_addresses
 from .link import DconLink
 from .module import DconModule
 from .profiles import AIDIO, AO_SINGLE
+from .scan import scan_line, scanned
 
 log = logging.getLogger("fieldgate.dcon")
+SURVEY_PERIOD_S = 1.0  # listed modules: one other address probed a second
 
 
 def configured_fields(
@@ -65,9 +68,31 @@ class DconBack(SerialBack):
         self._requests: list[Request] = []
         self._host_ok_running = False
         self.reply_timeout_ms = config.timeout_ms  # the I-7241D's Application class attribute 3
+        self.start_scan: StartScan | None = None  # modules: auto, once per process
+        # listed modules: the other addresses of scan.addresses, probed once after start
+        self.survey: list[str] = []
+        self._survey_left: list[int] | None = None
+        self.survey_done = False
         context.masters.subscribe(self._on_master)
 
     # -- SerialBack -------------------------------------------------------------------
+    async def start(self) -> None:
+        if self.config.auto and self.start_scan is None:
+            await self._find_modules()
+        await super().start()
+
+    async def _find_modules(self) -> None:
+        """``modules: auto``: the line's modules become the back's (a restart of the back
+        keeps them: the fronts built on them)."""
+        cfg = self.config
+        result = await find_modules(cfg, self.context.state_dir, self.reply_timeout_ms)
+        cfg.baudrate, cfg.checksum = result.baudrate, result.checksum
+        cfg.modules[:] = result.configs()
+        for module in cfg.modules:
+            self.register_health(module)
+        self.context.add_channels(self.name, cfg.channel_specs())
+        self.start_scan = result
+
     async def open_link(self) -> AsyncSerial:
         cfg = self.config
         serial = await AsyncSerial.open(
@@ -134,7 +159,45 @@ class DconBack(SerialBack):
         period = self.host_ok_period()
         jobs = [LineJob("requests", 0.0, self._run_request, lambda: bool(self._requests))]
         jobs.append(LineJob("host-ok", period or 1.0, self._host_ok, self._host_ok_wanted))
+        cfg = self.config
+        if self._survey_left is None:  # once per process, not at each restart of the back
+            listed = {m.address for m in cfg.modules}
+            wanted = not cfg.auto and cfg.scan.survey
+            self._survey_left = (
+                [a for a in parse_addresses(cfg.scan.addresses) if a not in listed]
+                if wanted
+                else []
+            )
+            self.survey_done = not self._survey_left
+        if self._survey_left:
+            start = self.context.clock() + SURVEY_PERIOD_S  # the listed modules' polls first
+            jobs.append(
+                LineJob(
+                    "survey",
+                    SURVEY_PERIOD_S,
+                    self._survey_one,
+                    lambda: bool(self._survey_left),
+                    start,
+                )
+            )
         return jobs
+
+    async def _survey_one(self) -> None:
+        """Probe one address the topology does not list; after the last, warn about what answered."""
+        assert self.dcon is not None and self._survey_left
+        address = self._survey_left.pop(0)
+        found = await scan_line(
+            self.dcon, [address], self.config.baudrate, report=lambda text: None
+        )
+        self.survey += [scanned(f, self.config.checksum).describe() for f in found]
+        if not self._survey_left:
+            self.survey_done = True
+            if self.survey:
+                log.warning(
+                    "%s: modules answer but are not in the topology: %s (list them, or use modules: auto)",
+                    self.name,
+                    ", ".join(self.survey),
+                )
 
     # -- host OK ---------------------------------------------------------------------
     def host_ok_period(self) -> float | None:
@@ -320,6 +383,10 @@ class DconBack(SerialBack):
     def status(self) -> dict:
         status = super().status()
         status["reply_timeout_ms"] = self.reply_timeout_ms
+        if self.start_scan is not None:
+            status["start_scan"] = self.start_scan.status()
+        if not self.config.auto and self.config.scan.survey:
+            status["survey"] = list(self.survey)
         status["host_ok"] = {
             "enabled": self.host_ok_enabled,
             "period_ms": None

@@ -361,10 +361,20 @@ class SimBus:
             self.dropped += 1
         return replies
 
+    def _checksum_of(self, raw: bytes) -> bool:
+        """The checksum setting of the module a frame addresses (each module has its own, as
+        on a real line; the bus's for a broadcast or an unknown address)."""
+        try:
+            module = self.modules.get(int(raw[1:3], 16))
+        except ValueError:
+            module = None
+        return self.checksum if module is None else module.checksum
+
     def command(self, raw: bytes, now: float) -> tuple[bytes, float] | None:
         self.tick(now)
+        checksum = self._checksum_of(raw)
         try:
-            text = codec.unframe(raw, self.checksum)
+            text = codec.unframe(raw, checksum)
         except codec.CommError:
             self.dropped += 1
             return None  # bad checksum or noise: silence
@@ -389,7 +399,7 @@ class SimBus:
         self.propagate()
         if reply is None:
             return None
-        return self._spoil(module.address, codec.frame(reply, self.checksum))
+        return self._spoil(module.address, codec.frame(reply, checksum))
 
     def _spoil(self, address: int, frame: bytes) -> tuple[bytes, float] | None:
         for fault in list(self.faults):

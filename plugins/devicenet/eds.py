@@ -518,7 +518,7 @@ def to_stderr(*lines: str, code: int = 1) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fieldgate.cli import parse_overrides
+    from fieldgate.cli import overrides_of
 
     try:
         text = write_eds(
@@ -526,7 +526,7 @@ def run(args: argparse.Namespace) -> int:
             args.front,
             args.output,
             vendor_name=args.vendor_name,
-            overrides=parse_overrides(args.set),
+            overrides=overrides_of(args, args.topology),
         )
     except TopologyError as exc:
         return to_stderr(*map(str, exc.issues))

@@ -305,17 +305,25 @@ class DeviceNetFront(Front):
         I/O messages whose path carries that assembly (poll response / request, ...)."""
         if self.slave is None:
             return {}
-        # (category assembly instance) -> ["poll response", offset] for every path through it
+        # category assembly instance -> [(message, offset)] for every path through it: the
+        # poll's, and another connection's where its path differs from the poll's
+        names = {
+            "poll": ("poll response", "poll request"),
+            "strobe": ("bit-strobe response", ""),
+            "cos": ("COS message", "COS data from the master"),
+            "cyclic": ("cyclic message", "cyclic data from the master"),
+        }
+        poll = self.slave.paths["poll"]
         carried: dict[int, list[tuple[str, int]]] = {}
         for kind, path in self.slave.paths.items():
-            for assembly, message in ((path.produce, "response"), (path.consume, "request")):
+            for assembly, polled, name in (
+                (path.produce, poll.produce, names[kind][0]),
+                (path.consume, poll.consume, names[kind][1]),
+            ):
+                if assembly is None or (kind != "poll" and assembly is polled):
+                    continue
                 offset = 0
-                for part in assembly.members if assembly is not None else ():
-                    name = (
-                        f"{kind} {message}"
-                        if kind == "poll"
-                        else f"{kind} {'in' if message == 'response' else 'out'}"
-                    )
+                for part in assembly.members:
                     carried.setdefault(part.instance, []).append((name, offset))
                     offset += part.size
         out: dict[str, list[str]] = {}

@@ -229,3 +229,47 @@ def test_a_front_without_analog_inputs_refuses_an_ai_path():
         "io_paths.cos.produce: no assembly 'ai' here (this front serves "
         "DO assembly 0x64 (1 byte), DI assembly 0x65 (1 byte))"
     )
+
+
+def test_the_status_page_says_where_each_point_travels_on_every_path(tmp_path):
+    from fieldgate import load_registry
+    from fieldgate.plugin import GatewayContext
+    from fieldgate.topology import load_topology
+
+    registry = load_registry()
+    topo = load_topology(
+        {
+            "gateway": {"name": "paths", "state_dir": str(tmp_path)},
+            "fronts": [
+                {
+                    "name": "dnet",
+                    "type": "devicenet",
+                    "interface": "virtual",
+                    "mac_id": 3,
+                    "io_paths": {"cos": {"produce": "ai", "consume": "ao"}},
+                }
+            ],
+            "backs": [
+                {
+                    "name": "io",
+                    "type": "loopback",
+                    "modules": [{"address": 1, "digital": 8, "analog": 2}],
+                }
+            ],
+        },
+        registry,
+    )
+    front = registry.lookup("front", "devicenet").factory(
+        topo.fronts[0], GatewayContext.build(topo)
+    )
+    front.slave = front.build()
+    where = front.point_locations()
+    # DO 0x64, AO 0x65, DI 0x66, AI 0x67; the poll carries all (0x68, 0x69), COS AI and AO alone
+    assert where["io/m1/di2"] == ["assembly 102 byte 0 bit 2 (poll response byte 0)"]
+    assert where["io/m1/ai1"] == [
+        "assembly 103 bytes 2-3 (poll response bytes 3-4, COS message bytes 2-3, little-endian)"
+    ]
+    assert where["io/m1/ao0"] == [
+        "assembly 101 bytes 0-1 (poll request bytes 1-2, COS data from the master bytes 0-1, "
+        "little-endian)"
+    ]

@@ -89,7 +89,8 @@ def test_seed_host_ok_class_attribute():
     assert back.requests == [("host ok", False), ("host ok", True)]
     assert rig.explicit("10 64 00 04 02") == "0A 94 09 FF"
     assert rig.explicit("10 64 00 04") == "0A 94 13 FF"
-    assert rig.explicit("0E 64 00 03") == "0A 94 14 FF"  # COM timeout: not served
+    assert rig.explicit("0E 64 00 03") == "0A 8E 00 00"  # COM timeout: no back with one runs
+    assert rig.explicit("10 64 00 03 C8 00") == "0A 94 10 FF"
     assert rig.explicit("0E 64 00 02") == "0A 8E 04 00"
     assert len(back.requests) == 2
 

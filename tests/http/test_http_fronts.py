@@ -71,6 +71,7 @@ async def test_devicenet_front_state_locations_and_fault_events(tmp_path):
             "poll",
             "bit-strobe",
             "cos-cyclic",
+            "cos-cyclic-data",
         }
         point = (await running.get("/api/v1/points/rs485/m1/di3")).json()
         assert point["served_by"] == [
