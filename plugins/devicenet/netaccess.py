@@ -31,6 +31,7 @@ class NetworkAccess:
         self.heartbeat_s = 0
         self.dup_at: float | None = None
         self.heartbeat_at: float | None = None
+        self.faulted_reply_at: float | None = None  # an identify request's delayed answer
         self._dup_step = 0
         self._restart: int | None = None
         self._new_mac: int | None = None
@@ -56,7 +57,14 @@ class NetworkAccess:
             listener(mac, baud)
 
     def deadlines(self) -> list[float | None]:
-        return [self.dup_at, self.heartbeat_at]
+        return [self.dup_at, self.heartbeat_at, self.faulted_reply_at]
+
+    def _faulted_reply(self) -> None:
+        self.faulted_reply_at = None
+        if self.slave.state == "comm-fault":
+            self.slave.send(
+                ids.group4_id(ids.G4_FAULTED_RESPONSE), self.identity_payload(response=False)
+            )
 
     # -- duplicate MAC ID check --------------------------------------------------------------
     def start_check(self, now: float, delay: float = 0.0) -> None:
@@ -85,6 +93,8 @@ class NetworkAccess:
         slave.send(ids.group2_id(slave.mac_id, ids.G2_DUP_MAC), self.identity_payload(response))
 
     def tick(self, now: float) -> None:
+        if self.faulted_reply_at is not None and now >= self.faulted_reply_at:
+            self._faulted_reply()
         if self.dup_at is not None and now >= self.dup_at:
             self._dup_mac_step(now)
         if self.slave.online and self.heartbeat_at is not None and now >= self.heartbeat_at:
@@ -136,15 +146,32 @@ class NetworkAccess:
 
     # -- Offline Connection Set ----------------------------------------------------------------
     def offline_request(self, data: bytes, now: float) -> None:
-        """Offline Connection Set (seed-003 §2.7): identify faulted nodes, or give one a new MAC ID."""
+        """Offline Connection Set (seed-003 §2.7), served while in communication fault:
+
+        * identify faulted nodes, ``[match<<6 | value] 4B [time delay byte offset]``: with the
+          match bit clear every faulted node answers, with it set only the one whose MAC ID is
+          ``value``; the answer ``00 vendor serial`` on 0x7EC leaves after as many ms as the
+          serial number's byte at the offset (LE, offset modulo 4) says, so that several
+          faulted nodes do not answer at once (none without an offset: the seed's
+          ``3F 4B 02`` with serial 1 answers at once);
+        * change the MAC ID of the node named by vendor and serial, ``<MAC> 4D vendor serial``:
+          the node restarts its duplicate MAC ID check there (TV-41/42).
+        """
         slave = self.slave
         if slave.state != "comm-fault":  # for faulted nodes only: counted, so a busy set shows
             slave.counters["rx_offline_not_faulted"] += 1
             return
-        if len(data) >= 2 and data[1] == cip.ALLOCATE and not data[0] & 0x40:
-            slave.send(
-                ids.group4_id(ids.G4_FAULTED_RESPONSE), self.identity_payload(response=False)
-            )
+        if len(data) in (2, 3) and data[1] == cip.ALLOCATE:
+            match, value = bool(data[0] & 0x40), data[0] & 0x3F
+            if data[0] & 0x80 or (match and value != slave.mac_id):
+                slave.counters["rx_offline_ignored"] += 1
+                return
+            delay_ms = 0
+            if len(data) == 3:
+                delay_ms = slave.settings.serial.to_bytes(4, "little")[data[2] % 4]
+            self.faulted_reply_at = now + delay_ms / 1000.0
+            if not delay_ms:
+                self._faulted_reply()
         elif (
             len(data) == 8
             and data[1] == cip.HEARTBEAT
