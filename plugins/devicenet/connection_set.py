@@ -31,6 +31,9 @@ from .paths import STROBE_MAX
 from .slave_state import SlaveState
 
 EXPLICIT_MIN_SIZE = 0x20
+IDENTITY_ALL_FIXED = (
+    14  # Get_Attributes_All of Identity before the product name (length byte + text)
+)
 NAMES = {EXPLICIT: "explicit", POLL: "poll", STROBE: "bit-strobe", COS_CYCLIC: "cos-cyclic"}
 
 
@@ -49,7 +52,12 @@ class ConnectionSet:
         self.slave = slave
         self.hooks: list[ConnectionHooks] = []
         self.connections = {i: Connection(i) for i in NAMES}
-        self.explicit_size = max(EXPLICIT_MIN_SIZE, slave.assemblies.largest + 4)
+        # every response fits (the largest assembly's data, Identity Get_Attributes_All with
+        # its product name: service + 14 + 1 + up to 32 bytes), so 0x11 never comes in practice
+        name = len(slave.settings.product_name.encode("latin-1", "replace")[:255])
+        self.explicit_size = max(
+            EXPLICIT_MIN_SIZE, slave.assemblies.largest + 4, IDENTITY_ALL_FIXED + 1 + name + 1
+        )
         self._master_ok = True
         self._master_listeners: list[Callable[[bool, str], None]] = []
 

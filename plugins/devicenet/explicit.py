@@ -138,6 +138,8 @@ class ExplicitServer:
         service = body[0]
         try:
             reply = self.serve(service, body[1:], now)
+            if 1 + len(reply) > self.connections.explicit_size:  # attribute 7 of instance 1
+                raise CipError(cip.REPLY_DATA_TOO_LARGE)
         except CipError as err:
             self._respond(header, self.error(header, err)[1:], now)
         else:

@@ -205,7 +205,7 @@ class IdentityObject(CipObject):
         if len(body) > 1:
             raise CipError(cip.TOO_MUCH_DATA)
         if body and body[0] != 0:
-            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)  # type 1 (factory defaults) is not offered
+            raise CipError(cip.INVALID_PARAMETER)  # type 1 (factory defaults) is not offered
         self.slave.schedule_restart(self.class_id)
         return b""
 
