@@ -36,6 +36,7 @@ from .errors import (
     suggest,
     yaml_problem,
 )
+from .guard import check_structure, read_limited
 from .model import BackConfig, FrontConfig, GatewaySection, StrictModel
 
 
@@ -81,12 +82,23 @@ class Topology:
         ]
         for f in self.fronts:
             lines.append(f"  front {f.name} ({f.type})")
+            lines += [f"    warning: {text}" for text in f.validation_warnings()]
         for b in self.backs:
             n = sum(1 for s in self.channel_specs if s.source.back == b.name)
             note = b.modules_note()
             count = f"{len(b.modules)} module(s)" if not note else f"modules {note}"
             lines.append(f"  back  {b.name} ({b.type}): {count}, {n} channel(s)")
+        lines += [f"warning: {text}" for text in self.warnings()]
         return "\n".join(lines)
+
+    def warnings(self) -> list[str]:
+        """What is valid but will not work as configured (a line booked beyond its poll_ms)."""
+        out: list[str] = []
+        for back in self.backs:
+            check = getattr(back, "timing_warnings", None)
+            if check is not None:
+                out += check()
+        return out
 
 
 class _ComponentType(Protocol):
@@ -117,15 +129,11 @@ def _by_name(items: list[T], name: str, what: str) -> T:
 
 
 def read_yaml(path: str | Path) -> Any:
-    """Parse a YAML file keeping positions; bytes that are not UTF-8, syntax errors and
-    duplicate keys become TopologyError."""
+    """Parse a YAML file keeping positions; a file that is not a regular one or too big,
+    bytes that are not UTF-8, syntax errors, duplicate keys, nesting too deep and aliases
+    that expand too far become TopologyError (``guard.py``)."""
     file = str(path)
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        raise TopologyError(
-            [ConfigIssue(file, None, None, "", f"cannot read file: {exc.strerror or exc}")]
-        ) from None
+    raw = read_limited(file)  # a regular file of sane size (guard.py)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -143,6 +151,7 @@ def read_yaml(path: str | Path) -> Any:
         ) from None
     yaml = YAML(typ="rt")
     try:
+        check_structure(text, file)  # depth, alias expansion, duplicate keys: before building
         return yaml.load(text)
     except MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark

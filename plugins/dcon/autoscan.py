@@ -24,6 +24,7 @@ from typing import Any
 
 from fieldgate.plugin import PluginStartError
 from fieldgate.serial_link import AsyncSerial
+from fieldgate.serial_timing import LineTiming, bits_per_char
 
 from .config import DconBackConfig, DconModuleConfig, parse_addresses
 from .link import DconLink
@@ -137,7 +138,20 @@ async def _probe(
         # may still come: let it pass before the first probe
         await asyncio.sleep(timeout_ms / 1000)
         serial.reset_input()
-        link = DconLink(serial, checksum, timeout_ms / 1000, settle_after_timeout=False)
+        timing = LineTiming.of(
+            baud,
+            timeout_ms,
+            config.byte_timeout_ms,
+            bits_per_char(config.bytesize, config.parity, config.stopbits),
+        )
+        link = DconLink(
+            serial,
+            checksum,
+            timeout_ms / 1000,
+            settle_after_timeout=False,
+            timing=timing,
+            echo=config.echo,
+        )
         return await scan_line(
             link, addresses, baud, report=lambda text: log.warning("%s: %s", config.name, text)
         )

@@ -23,10 +23,12 @@ protocols this back (``watchdog_settings``, ``watchdog_status``, ``set_watchdog`
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from fieldgate.host_watchdog import ClearSteps, clear_timeout
 from fieldgate.image import ChannelSpec, Kind
 from fieldgate.module_info import ModuleIdentity
 from fieldgate.plugin import GatewayContext, PluginStartError
@@ -98,7 +100,14 @@ class DconBack(SerialBack):
         serial = await AsyncSerial.open(
             cfg.port, cfg.baudrate, cfg.bytesize, cfg.parity, cfg.stopbits
         )
-        self.dcon = DconLink(serial, cfg.checksum, self.reply_timeout_ms / 1000)
+        timeout = self.reply_timeout_ms / 1000  # the topology's, or a front's since
+        self.dcon = DconLink(
+            serial,
+            cfg.checksum,
+            timeout,
+            timing=dataclasses.replace(cfg.timing(), response=timeout),
+            echo=cfg.echo,
+        )
         for module in self.modules.values():
             module.link = self.dcon
         return serial
@@ -172,15 +181,16 @@ class DconBack(SerialBack):
         if self._survey_left:
             start = self.context.clock() + SURVEY_PERIOD_S  # the listed modules' polls first
             jobs.append(
-                LineJob(
-                    "survey",
-                    SURVEY_PERIOD_S,
-                    self._survey_one,
-                    lambda: bool(self._survey_left),
-                    start,
-                )
+                LineJob("survey", SURVEY_PERIOD_S, self._survey_one, self._survey_wanted, start)
             )
         return jobs
+
+    def _survey_wanted(self) -> bool:
+        """Addresses left, and no host watchdog on: an empty address holds the line for a reply
+        timeout and its silence, which may be longer than the keep-alive (~**) may wait."""
+        return bool(self._survey_left) and not any(
+            m.watchdog_enabled for m in self.modules.values()
+        )
 
     async def _survey_one(self) -> None:
         """Probe one address the topology does not list; after the last, warn about what answered."""
@@ -295,14 +305,33 @@ class DconBack(SerialBack):
         return True
 
     def request_clear_watchdog(self, address: int) -> asyncio.Future[Any]:
-        """Queue ``~AA1`` for the module; returns a future (callers may ignore it)."""
+        """Queue the clear of the module's timeout (core's sequence: ``~**`` when host OK is
+        allowed, ``~AA1``, ``~AA0`` to confirm, the outputs written again); returns a future
+        (callers may ignore it)."""
         module = self.module(address)
 
         async def clear() -> None:
-            await module.clear_watchdog()
-            self._rewrite(module)  # bring the outputs back to what the image says
+            allowed = self._host_ok_allowed()
+            steps = ClearSteps(
+                clear=module.send_clear,
+                expired=module.timeout_flag,
+                rewrite_outputs=lambda: self._rewrite(module),  # back to what the image says
+                host_ok=self._host_ok if allowed else None,
+                without_host_ok="" if allowed else self._host_ok_off_reason(),
+            )
+            try:
+                outcome = await clear_timeout(steps)
+            except CommError as exc:
+                module.last_clear = f"failed: {exc}"
+                raise
+            module.watchdog_cleared(outcome)
 
         return self._submit(clear)
+
+    def _host_ok_off_reason(self) -> str:
+        if not self.host_ok_enabled:
+            return "switched off by the master (host OK attribute)"
+        return "a front's master is lost"
 
     def set_watchdog(
         self, address: int, enabled: bool, timeout_ms: int | None = None
@@ -360,6 +389,7 @@ class DconBack(SerialBack):
         self.reply_timeout_ms = ms
         if self.dcon is not None:
             self.dcon.timeout = ms / 1000
+            self.dcon.timing = dataclasses.replace(self.dcon.timing, response=ms / 1000)
 
     def can_latch_safe_value(self, address: int) -> bool:
         return self.module(address).has_outputs
@@ -395,6 +425,8 @@ class DconBack(SerialBack):
             "sending": self._host_ok_running,
             "sent": self.host_ok_sent,
         }
+        if self.dcon is not None:
+            status["echo"] = self.dcon.echo.describe()
         status["dcon_modules"] = [
             m.status() for m in sorted(self.modules.values(), key=lambda m: m.address)
         ]

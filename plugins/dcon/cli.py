@@ -10,6 +10,7 @@ from pathlib import Path
 
 from fieldgate.plugin import PluginStartError
 from fieldgate.serial_link import AsyncSerial, PtyPair
+from fieldgate.serial_timing import LineTiming
 from fieldgate.stopping import stopped_by_signals, wait_until
 
 from .link import DconLink
@@ -140,7 +141,11 @@ async def _scan(
             try:
                 # every scan reply carries its address, so a late one cannot be mistaken: no settling
                 link = DconLink(
-                    serial, args.checksum, args.timeout_ms / 1000, settle_after_timeout=False
+                    serial,
+                    args.checksum,
+                    args.timeout_ms / 1000,
+                    settle_after_timeout=False,
+                    timing=LineTiming.of(baud, args.timeout_ms, bits=10),
                 )
                 await scan_line(link, addresses, baud, progress, found)
             finally:

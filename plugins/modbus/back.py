@@ -317,6 +317,7 @@ class ModbusBack(SerialBack):
         if self.link is not None:
             status["modbus"] = {
                 **self.link.stats.as_dict(),
+                "echo": self.link.echo.describe(),
                 "refused_points": sorted(cid for m in self.modules.values() for cid in m.bad),
                 "single_writes_only": sorted(
                     a for a, m in self.modules.items() if not m.allow_multiple_writes

@@ -16,7 +16,7 @@ from fieldgate.image import Quality
 
 from . import values as regvalues
 from .codec import MAX_WRITE_BITS, MAX_WRITE_REGISTERS, Function
-from .config import Point, Table
+from .points import Point, Table
 
 
 @dataclass

@@ -141,6 +141,7 @@ class SparkplugFront(Front):
                 reconnect_min_s=cfg.reconnect_min_s,
                 reconnect_max_s=cfg.reconnect_max_s,
                 max_command_bytes=cfg.max_command_bytes,
+                rebirth_min_interval_s=cfg.rebirth_min_interval_ms / 1000,
             ),
             self.journal,
             last_bdseq=self._load_bdseq(),

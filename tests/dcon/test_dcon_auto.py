@@ -151,7 +151,7 @@ async def test_listed_modules_keep_working_and_a_line_that_differs_is_a_warning(
         tmp_path,
         line.a,
         modules=[{"address": 1, "model": "I-7055"}, {"address": 2, "model": "I-7018"}],
-        scan={"addresses": "1-5"},  # the other three, one a second
+        scan={"addresses": "1-5", "survey": True},  # the other three, one a second
     )
     with caplog.at_level(logging.WARNING):
         async with Gateway.load(listed, registry=dcon_registry) as gw:
@@ -166,6 +166,23 @@ async def test_listed_modules_keep_working_and_a_line_that_differs_is_a_warning(
     assert survey == ["I-7024 at 3 (type 0x33 +/-10 V, hex)", "I-7053 at 5"]
     assert "answer but are not in the topology: I-7024 at 3" in caplog.text
     assert "$AAM says '7017', topology says I-7018" in caplog.text
+
+
+async def test_the_survey_waits_while_a_host_watchdog_is_on(tmp_path, line, dcon_registry):
+    """An empty address holds the line for a reply timeout and its silence: longer than the
+    keep-alive of a 300 ms watchdog may wait, so no probe then (modules would go safe)."""
+    await line.serve(LINE)
+    listed = topology(
+        tmp_path,
+        line.a,
+        modules=[{"address": 1, "model": "I-7055", "watchdog": {"timeout_ms": 300}}],
+        scan={"addresses": "1-3", "survey": True},
+    )
+    async with Gateway.load(listed, registry=dcon_registry) as gw:
+        back = gw.component("rs485")
+        await _sleep(2.5)
+        assert back._survey_left == [2, 3] and not back.survey_done
+        assert not line.sim.module(1).timed_out and back.host_ok_sent > 5
 
 
 async def test_the_canopen_front_builds_its_objects_on_the_found_modules(
