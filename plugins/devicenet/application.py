@@ -106,29 +106,28 @@ class ApplicationObject(CipObject):
 
     def class_attributes(self) -> dict[int, Attribute]:
         table = super().class_attributes()
-        watchdogs = self.slave.host_watchdogs
-        if watchdogs.any((m.back, m.address) for m in self.modules):
-            table[HOST_OK] = Attribute(
-                lambda: u8(watchdogs.host_ok()), self._change(1, watchdogs.set_host_ok)
-            )
-            backs = {m.back for m in self.modules if watchdogs.has(m.back, m.address)}
-            info = self.slave.module_info
-            table[COM_TIMEOUT] = Attribute(
-                lambda: u16(info.reply_timeout_ms(backs) or 0),
-                self._change(2, lambda ms: info.set_reply_timeout_ms(backs, ms)),
-            )
+        watchdogs, info = self.slave.host_watchdogs, self.slave.module_info
+        backs = {m.back for m in self.modules if watchdogs.has(m.back, m.address)}
+        table[HOST_OK] = Attribute(
+            lambda: u8(watchdogs.host_ok()), self._change(1, watchdogs.set_host_ok)
+        )
+        table[COM_TIMEOUT] = Attribute(
+            lambda: u16(info.reply_timeout_ms(backs) or 0),
+            self._change(2, lambda ms: info.set_reply_timeout_ms(backs, ms)),
+        )
         return table
 
     def instance_attributes(self, instance: int) -> dict[int, Attribute]:
+        """Every attribute of seed-003 §3.6 on every module (the manual's 0 where the back has
+        no such notion), and the safe-value latch 0x18 on DCON modules with outputs."""
         module = self.modules[instance - 1]
         table = {
             0x02: Attribute(lambda: u8(module.address)),
             0x07: Attribute(lambda: u32(self.error_counter(module.back, module.address))),
         }
         info = self.slave.module_info
-        if info.has_identity(module.back, module.address):
-            for attribute, encode in IDENTITY_FIELDS.items():
-                table[attribute] = Attribute(self._identity_getter(module, encode))
+        for attribute, encode in IDENTITY_FIELDS.items():
+            table[attribute] = Attribute(self._identity_getter(module, encode))
         for offset, kind in enumerate(KINDS):
             part = module.parts.get(kind)
             size = part.size if part else 0
@@ -139,6 +138,10 @@ class ApplicationObject(CipObject):
                 table[DATA_ATTR + offset] = Attribute(
                     part.data, self._writer(part) if kind.is_output else None
                 )
+            else:  # no such channels: empty data, as the channel count says
+                table[DATA_ATTR + offset] = Attribute(
+                    const(b""), self._empty_writer() if kind.is_output else None
+                )
         watchdogs = self.slave.host_watchdogs
         if watchdogs.has(module.back, module.address):
             table.update(self._watchdog_attributes(watchdogs, module.back, module.address))
@@ -147,7 +150,24 @@ class ApplicationObject(CipObject):
                     None,
                     self._change(0, lambda _: info.latch_safe_value(module.back, module.address)),
                 )
+        else:  # no host watchdog here (a Modbus module): reads as off, cannot be set
+            table.update(
+                {
+                    WATCHDOG_ENABLE: Attribute(const(u8(0))),
+                    WATCHDOG_TIME: Attribute(const(u8(0))),
+                    WATCHDOG_STATUS: Attribute(const(u8(0))),
+                    WATCHDOG_CLEAR: Attribute(None),
+                }
+            )
         return table
+
+    def _empty_writer(self) -> Setter:
+        def write(data: bytes) -> bytes:
+            if data:
+                raise CipError(cip.TOO_MUCH_DATA)
+            return b""
+
+        return write
 
     def _identity_getter(
         self, module: ModuleView, encode: Callable[[ModuleIdentity], bytes]
