@@ -53,6 +53,11 @@ def topology(state_dir, channel: str) -> dict:
                     "serial": 42,
                     "product_name": "fieldgate conformance",
                 },
+                # COS and cyclic carry outputs too (the cos_consume / cyclic_both_ways cases)
+                "io_paths": {
+                    "cos": {"produce": "inputs", "consume": "outputs"},
+                    "cyclic": {"produce": "inputs", "consume": "outputs"},
+                },
             }
         ],
         "backs": [
@@ -263,3 +268,41 @@ def test_cli_devicenet_list_and_arguments():
         conformance_main(["--profile", "devicenet", "--list"]) == 2
     )  # a DeviceNet profile needs --protocol devicenet
     assert conformance_main(["--protocol", "devicenet", "--profile", "sdo", "--list"]) == 2
+
+
+def test_a_path_that_does_not_match_its_size_fails_io_paths(device, monkeypatch):
+    from fieldgate.plugins.devicenet.connection_set import ConnectionSet
+
+    original = ConnectionSet.select
+
+    def one_byte_short(c, produces, consumes):
+        original(c, produces, consumes)
+        c.produced_size = max(0, c.produced_size - 1)
+
+    monkeypatch.setattr(ConnectionSet, "select", staticmethod(one_byte_short))
+    assert failed(run(device, ["io_paths"])) == ["devicenet.io_paths"]
+
+
+def test_unacknowledged_master_data_fails_cos_and_cyclic(device, monkeypatch):
+    from fieldgate.plugins.devicenet.io_messaging import IoMessaging
+
+    original = IoMessaging.send
+
+    def no_empty_acks(self, message, payload):
+        if payload:
+            original(self, message, payload)
+
+    monkeypatch.setattr(IoMessaging, "send", no_empty_acks)
+    results = run(device, ["cos_consume", "cyclic_both_ways", "poll_io"])
+    assert {r.case.id: r.verdict for r in results} == {
+        "devicenet.poll_io": Verdict.PASS,
+        "devicenet.cos_consume": Verdict.FAIL,
+        "devicenet.cyclic_both_ways": Verdict.FAIL,
+    }
+
+
+def test_application_lengths_that_disagree_with_the_data_fail(device, monkeypatch):
+    from fieldgate.plugins.devicenet import application
+
+    monkeypatch.setattr(application, "LENGTH_ATTR", 0x10)  # counts where lengths belong
+    assert failed(run(device, ["application_object"])) == ["devicenet.application_object"]
