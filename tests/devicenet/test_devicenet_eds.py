@@ -183,25 +183,27 @@ async def test_eds_states_what_the_running_front_answers(
         assert (
             value(eds, "IO_Info", "PollInfo", 1) == 1 and value(eds, "IO_Info", "PollInfo", 2) == 1
         )
-        assert (
-            value(eds, "IO_Info", "Input1") == poll_in == cos_in
-            and value(eds, "IO_Info", "Output1") == poll_out
+        assert value(eds, "IO_Info", "Input1") == poll_in and value(eds, "IO_Info", "Output1") == (
+            poll_out
         )
         assert (
             value(eds, "IO_Info", "Input1", 2) == 0x000D
         )  # poll, COS, cyclic: the strobe answers fewer bytes
-        strobe = value(eds, "IO_Info", "StrobeInfo", 1)
-        assert strobe == 4 and value(eds, "IO_Info", f"Input{strobe}") == strobe_in == 8
-        assert value(eds, "IO_Info", f"Input{strobe}", 2) == 0x0002
-        assert (
-            value(eds, "IO_Info", "COSInfo", 1) == 1 and value(eds, "IO_Info", "COSInfo", 2) == 0
-        )  # COS consumes nothing
+        # the defaults are the topology's paths: each names an entry of the connection's size
+        strobe, cos = value(eds, "IO_Info", "StrobeInfo", 1), value(eds, "IO_Info", "COSInfo", 1)
+        assert value(eds, "IO_Info", f"Input{strobe}") == strobe_in
+        assert value(eds, "IO_Info", f"Input{strobe}", 2) & 0x0002
+        assert value(eds, "IO_Info", f"Input{cos}") == cos_in
+        assert value(eds, "IO_Info", f"Input{cos}", 2) & 0x0004
+        cos_out = value(eds, "IO_Info", "COSInfo", 2)
+        if example == "i7241d-style.yaml":  # strobe DI (1 byte), COS DI in and DO out
+            assert (strobe_in, cos_in, cos_out) == (1, 1, 2) and path_of(eds, "Output2") == 0x64
+        else:  # the defaults: the first 8 bytes of all inputs, COS all inputs and no outputs
+            assert (strobe, strobe_in, cos, cos_out) == (4, 8, 1, 0)
         entries = [
             key for key in eds.get_section("IO_Info").entries if key.startswith(("Input", "Output"))
         ]
-        assert entries == ["Input1", "Input2", "Input3", "Input4", "Output1", "Output2", "Output3"][
-            : len(entries)
-        ] and len(entries) == (7 if poll_out == 9 else 5)
+        assert len(entries) == (6 if poll_out == 9 else 5)
         for key in entries:  # every path names the assembly that holds its data
             path = bytes.fromhex(value(eds, "IO_Info", key, 5))
             assert value(eds, "IO_Info", key, 4) == 6 and path[:3] == b"\x20\x04\x24"
