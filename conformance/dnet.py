@@ -141,7 +141,10 @@ class DnetDevice:
         """One explicit request (service, class, instance, ...); the response, fragments acknowledged
         and reassembled; None if nothing came."""
         self.link.flush()
-        self.link.send(self.g2(G2_EXPLICIT_REQUEST), bytes([self.master_mac]) + body)
+        if len(body) <= 7:
+            self.link.send(self.g2(G2_EXPLICIT_REQUEST), bytes([self.master_mac]) + body)
+        else:
+            self._send_fragmented(body)
         frames: list[Frame] = []
         payload = b""
         expected_count = 0
@@ -187,6 +190,25 @@ class DnetDevice:
                 return Reply(payload[0] if payload else -1, payload[1:], frames)
             if expected_count > 200:
                 raise Fail("fragmented response never ends")
+
+    def _send_fragmented(self, body: bytes) -> None:
+        """A request longer than one frame: acknowledged fragments of 6 bytes, each sent after
+        the device acknowledged the one before (``[hdr|80] C0|n 00``)."""
+        chunks = [body[i : i + 6] for i in range(0, len(body), 6)]
+        for n, chunk in enumerate(chunks):
+            kind = FIRST if n == 0 else LAST if n == len(chunks) - 1 else MIDDLE
+            self.link.send(
+                self.g2(G2_EXPLICIT_REQUEST),
+                bytes([self.master_mac | 0x80, kind | n & 0x3F]) + chunk,
+            )
+            ack = self._explicit_response()
+            want = bytes([self.master_mac | 0x80, ACK | n & 0x3F, 0x00])
+            if ack is None or ack.data != want:
+                raise Fail(
+                    f"fragment {n} of a {len(body)}-byte request not acknowledged",
+                    expected=want.hex(" ").upper(),
+                    seen=str(ack) if ack else "nothing",
+                )
 
     def call(
         self, service: int, class_id: int, instance: int, rest: bytes = b"", what: str = ""

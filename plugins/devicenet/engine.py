@@ -166,6 +166,9 @@ class DeviceNetSlave(SlaveState):
         if frame.rtr:
             self.counters["rx_rtr_ignored"] += 1
             return
+        if len(frame.data) > 8:  # not a classic CAN frame (a virtual bus lets one through)
+            self.counters["rx_malformed"] += 1
+            return
         group, message, mac = ids.decode(frame.can_id)
         if group == 4 and message == ids.G4_FAULTED_REQUEST:
             self.network.offline_request(frame.data, now)
