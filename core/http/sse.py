@@ -111,7 +111,7 @@ class EventStreams:
     def _add(self, client: SseClient) -> None:
         self.clients.add(client)
         if self._subscription is None:
-            self._subscription = self.gateway.image.subscribe(self._changed)
+            self._subscription = self.gateway.image.subscribe_batch(self._changed)
             self._unsubscribe_events = self.gateway.context.events.subscribe(self._event)
 
     def _remove(self, client: SseClient) -> None:
@@ -121,10 +121,10 @@ class EventStreams:
             self._unsubscribe_events()
             self._subscription = self._unsubscribe_events = None
 
-    def _changed(self, change: Change) -> None:
-        cid = change.channel.id
+    def _changed(self, changes: list[Change]) -> None:
         for client in self.clients:
-            client.mark(cid)
+            for change in changes:
+                client.mark(change.id)
 
     def _event(self, event: Event) -> None:
         for client in self.clients:

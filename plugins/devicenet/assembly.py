@@ -20,13 +20,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from fieldgate.image import Channel, DataType, Kind, ProcessImage
-from fieldgate.layout import byte_value, of_kind, pack_bits
+from fieldgate.image import Channel, DataType, Kind, ProcessImage, Value
+from fieldgate.layout import bit_values, byte_value, of_kind, pack_bits
 
 FIRST_INSTANCE = 0x64
 CATEGORY_ORDER = (Kind.DO, Kind.AO, Kind.DI, Kind.AI)
 
-Values = dict[str, bool | int | float]
+Values = dict[str, Value]
 
 
 def word_of(channel: Channel) -> int:
@@ -91,14 +91,12 @@ class Assembly:
         values: Values = {}
         if self.kind.is_digital:
             for group, byte in zip(self.slots, data, strict=True):
-                for bit, ch in enumerate(group):
-                    if ch is not None:
-                        values[ch.id] = bool(byte >> bit & 1)
+                values.update(bit_values(group, byte))
             return values
         for i, channel in enumerate(self.slots):
             word = int.from_bytes(data[2 * i : 2 * i + 2], "little")
             try:
-                values[channel.id] = channel.spec.data_type.check(value_of_word(channel, word))
+                values[channel.id] = channel.dtype.check(value_of_word(channel, word))
             except ValueError:
                 pass
         return values
@@ -200,13 +198,11 @@ class Assemblies:
 
     def consume(self, assembly: AnyAssembly, data: bytes) -> list[str]:
         """Write consumed bytes (``len(data) == assembly.size``) to the outputs of an output
-        assembly: the one place where I/O and explicit data reach the image; returns the ids
-        that changed."""
-        changed = []
-        for channel_id, value in assembly.values(data).items():
-            if self.image.write_output(channel_id, value, self.origin):
-                changed.append(channel_id)
-        return changed
+        assembly, as one batch: the one place where I/O and explicit data reach the image;
+        returns the ids that changed."""
+        return [
+            change.id for change in self.image.write_outputs(assembly.values(data), self.origin)
+        ]
 
     def input_ids(self) -> list[str]:
         return [c.id for a in self.inputs for c in a.channels]

@@ -157,6 +157,8 @@ class ModbusModule(PolledModule):
 
     async def _retry_bad(self, now: float) -> dict[str, object]:
         readings: dict[str, object] = {}
+        if not self.bad:
+            return readings
         points = {p.channel: p for p in self._readable}
         recovered = False
         for cid, due in list(self.bad.items()):

@@ -70,9 +70,10 @@ def decode_block(block: ReadBlock, data: list) -> dict[str, object]:
     A register pair that is not a finite float32 gives the point over-range quality.
     """
     readings: dict[str, object] = {}
+    bits, start = block.table.is_bits, block.address
     for p in block.points:
-        offset = p.address - block.address
-        if block.table.is_bits:
+        offset = p.address - start
+        if bits:
             readings[p.channel] = bool(data[offset])
         elif p.bit is not None:
             readings[p.channel] = regvalues.get_field(data[offset], p.bit, p.dtype)

@@ -16,6 +16,9 @@ MODULES = [
 
 def topology(port: str, echo) -> dict:
     back = {"port": port, "baudrate": 2400, "timeout_ms": 100, "poll_ms": 10, "echo": echo}
+    # the test's relay is a process that a loaded CI host may pause for tens of ms inside a
+    # frame (a wire does not): a pause above the inter-byte timeout would end the frame early
+    back["byte_timeout_ms"] = 150
     return {
         "gateway": {"name": "dcon-timing"},
         "fronts": [{"name": "plc", "type": "memory"}],

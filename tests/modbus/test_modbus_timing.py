@@ -46,6 +46,8 @@ def topology(port: str, modules: list[dict] | None = None, **back) -> dict:
                 "port": port,
                 "baudrate": 9600,
                 "timeout_ms": 200,  # the default: shorter than the 266 ms reply
+                # the test's relay is a process a loaded CI host may pause inside a frame
+                "byte_timeout_ms": 150,
                 "poll_ms": 0,
                 "modules": modules or [BIG, SMALL],
                 **back,
