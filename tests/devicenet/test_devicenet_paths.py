@@ -273,3 +273,18 @@ def test_the_status_page_says_where_each_point_travels_on_every_path(tmp_path):
         "assembly 101 bytes 0-1 (poll request bytes 1-2, COS data from the master bytes 0-1, "
         "little-endian)"
     ]
+
+
+def test_the_masters_cyclic_data_reach_the_image_as_one_batch():
+    """COS/cyclic outputs go through the same batched write as a poll's."""
+    rig = i7241d_rig(cyclic=("ai", "outputs"))
+    batches = []
+    rig.image.subscribe_batch(batches.append, ids=[c.id for c in rig.image if c.kind.is_output])
+    rig.allocate(0x21)
+    assert rig.send("44C 0A 10 05 04 09 F4 01")[0] == "44B 0A 90 F4 01"  # then 16 bytes of AI
+    rig.send("44A")
+    assert rig.send("44D 00 81 01 00 00 00 00 00") == []
+    assert rig.send("44D 81 00 00") == ["3C9"]
+    assert [sorted((c.id, c.value) for c in b) for b in batches] == [
+        [("rs485/m1/do0", True), ("rs485/m1/do7", True), ("rs485/m3/ao0", 1)]
+    ]
