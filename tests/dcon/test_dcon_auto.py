@@ -255,6 +255,13 @@ def test_scan_files_are_checked_and_feed_validate_and_both_eds_generators(
     with pytest.raises(TopologyError) as err:
         load_topology(topology(tmp_path, "/dev/x", modules=[]), dcon_registry)
     assert "give at least one module, or modules: auto" in str(err.value.issues[0])
+    # without a scan file the channel ids come at start: a front's expose on them is not refused,
+    # one on another back still is
+    front = {"name": "plc", "type": "memory", "expose": ["rs485/m1/*"]}
+    assert load_topology(topology(tmp_path, "/dev/x", front), dcon_registry).channel_specs == []
+    front["expose"] = ["other/m1/*"]
+    with pytest.raises(TopologyError, match="matches no channel"):
+        load_topology(topology(tmp_path, "/dev/x", front), dcon_registry)
 
 
 async def test_simulate_serves_the_scan_files_modules_and_needs_one(tmp_path, dcon_registry):
