@@ -29,7 +29,7 @@ from fieldgate.plugin import Front, GatewayContext, PluginStartError, Registry, 
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
-from .assembly import Assemblies
+from .assembly import Assemblies, plural
 from .engine import DeviceNetSlave
 from .paths import DEFAULT_PATHS, check_selector
 from .settings import BAUD_RATES, Settings
@@ -237,10 +237,10 @@ class DeviceNetFront(Front):
             cfg.channel,
             slave.bitrate,
             "; ".join(
-                f"{kind} {path.produced_size} bytes in"
+                f"{kind} {plural(path.produced_size)} in"
                 + (f" (0x{path.produce.instance:02X})" if path.produce else "")
                 + (
-                    f", {path.consumed_size} out (0x{path.consume.instance:02X})"
+                    f", {plural(path.consumed_size)} out (0x{path.consume.instance:02X})"
                     if path.consume
                     else ""
                 )
