@@ -11,6 +11,7 @@ import asyncio
 import logging
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .plugin import Registry, load_registry
@@ -50,6 +51,44 @@ def add_overrides_argument(
         metavar="PATH=VALUE",
         help=f"override a topology field before validation, e.g. {example}",
     )
+    parser.add_argument(
+        "--scan-file",
+        action="append",
+        default=[],
+        metavar="[BACK=]FILE",
+        help="a scan file for a back that finds its modules at start (DCON modules: auto): "
+        "sets backs.BACK.scan.file; BACK may be left out when the topology has one back",
+    )
+
+
+def overrides_of(args: argparse.Namespace, source: str | Path) -> dict[str, Any]:
+    """``--set`` and ``--scan-file`` of a command that loads the topology ``source``."""
+    overrides = parse_overrides(args.set)
+    for item in getattr(args, "scan_file", None) or []:
+        back, sep, file = item.rpartition("=")
+        if not sep:
+            back = _only_back(source, item)
+        if not back or not file:
+            raise SystemExit(f"fieldgate: --scan-file expects [BACK=]FILE, got {item!r}")
+        overrides[f"backs.{back}.scan.file"] = str(Path(file).resolve())
+    return overrides
+
+
+def _only_back(source: str | Path, item: str) -> str:
+    from .topology.loader import read_yaml
+
+    try:
+        data = read_yaml(source)
+    except TopologyError:
+        return "0"  # the topology's own error is reported when it is loaded
+    backs = data.get("backs") if isinstance(data, dict) else None
+    names = [b.get("name") for b in backs if isinstance(b, dict)] if isinstance(backs, list) else []
+    if len(names) == 1 and isinstance(names[0], str):
+        return names[0]
+    raise SystemExit(
+        f"fieldgate: --scan-file {item}: the topology has {len(names)} backs; name one: "
+        f"--scan-file {names[0] if names and isinstance(names[0], str) else 'BACK'}={item}"
+    )
 
 
 def parse_overrides(items: list[str]) -> dict[str, Any]:
@@ -79,7 +118,7 @@ def _scalar(yaml: YAML, text: str) -> Any:
 
 def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
     try:
-        topology = load_topology(args.file, registry, parse_overrides(args.set))
+        topology = load_topology(args.file, registry, overrides_of(args, args.file))
     except TopologyError as exc:
         for issue in exc.issues:
             print(issue, file=sys.stderr)
@@ -103,7 +142,7 @@ def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
 
 
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
-    overrides = parse_overrides(args.set)
+    overrides = overrides_of(args, args.file)
     if args.http is not None:
         overrides["gateway.http.listen"] = args.http
     try:

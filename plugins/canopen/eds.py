@@ -187,11 +187,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fieldgate.cli import parse_overrides
+    from fieldgate.cli import overrides_of
 
     try:
         text = write_eds(
-            args.topology, args.front, args.output, overrides=parse_overrides(args.set)
+            args.topology, args.front, args.output, overrides=overrides_of(args, args.topology)
         )
     except TopologyError as exc:
         for issue in exc.issues:

@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 from fieldgate.plugin import PluginStartError
 from fieldgate.serial_link import AsyncSerial, PtyPair
@@ -13,7 +14,8 @@ from fieldgate.serial_timing import LineTiming
 from fieldgate.stopping import stopped_by_signals, wait_until
 
 from .link import DconLink
-from .scan import parse_addresses, progress_bar, scan_line, topology_yaml
+from .scan import parse_addresses, progress_bar, scan_line, scanned, topology_yaml
+from .scanfile import ScanFile
 from .simulator import DconSimulator
 
 
@@ -37,6 +39,12 @@ def configure_scan(parser: argparse.ArgumentParser) -> None:
         "--timeout-ms", type=int, default=100, help="reply timeout per address (default 100)"
     )
     parser.add_argument("--name", default="rs485", help="back name in the printed topology")
+    parser.add_argument(
+        "-o",
+        "--output",
+        metavar="FILE",
+        help="also write a scan file (JSON) for modules: auto, the EDS generators and --simulate",
+    )
 
 
 def add_baud_alias(parser: argparse.ArgumentParser, **kwargs) -> None:
@@ -72,9 +80,32 @@ def run_scan(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     sys.stdout.write(topology_yaml(found, args.port, args.checksum, args.name))
+    if args.output is not None and not interrupted:
+        try:
+            scan_file(args, found, bauds).write(Path(args.output))
+        except OSError as exc:
+            print(
+                f"fieldgate scan dcon: {args.output}: cannot write the scan file: {exc.strerror or exc}",
+                file=sys.stderr,
+            )
+            return 2
+        print(
+            f"fieldgate scan dcon: {len(found)} module(s) written to {args.output}", file=sys.stderr
+        )
     if interrupted:
         return INTERRUPTED
     return 0 if found else 1
+
+
+def scan_file(args: argparse.Namespace, found: list, bauds: list[int]) -> ScanFile:
+    """What the scan found, as ``modules: auto`` and the EDS generators read it."""
+    return ScanFile(
+        args.port,
+        [scanned(f, args.checksum) for f in found],
+        args.addresses,
+        bauds,
+        [args.checksum],
+    )
 
 
 INTERRUPTED = (

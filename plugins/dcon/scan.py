@@ -10,10 +10,14 @@ from fieldgate.health import ErrorKind
 from fieldgate.polling import CommError
 
 from . import codec
+from .config import parse_addresses
 from .formats import DataFormat
 from .link import DconLink
 from .profiles import Profile, find_profile
+from .scanfile import ScannedModule
 from .tables import TABLES
+
+__all__ = ["Found", "parse_addresses", "progress_bar", "scan_line", "scanned", "topology_yaml"]
 
 
 @dataclass(frozen=True)
@@ -37,12 +41,32 @@ class Found:
 Progress = Callable[[int, int, int], None]  # (done, total, found)
 
 
+def scanned(found: Found, line_checksum: bool) -> ScannedModule:
+    """A module found on the line as a scan file records it (the line's checksum setting when
+    the module's own $AA2 format byte does not say: it always does)."""
+    return ScannedModule(
+        found.address,
+        found.baudrate,
+        found.config.checksum if found.config is not None else line_checksum,
+        found.name,
+        found.firmware,
+        found.profile.model if found.profile else None,
+        found.config.type_code,
+        DataFormat(found.config.data_format).label,
+    )
+
+
+def _to_stderr(text: str) -> None:
+    print(f"\n{text}", file=sys.stderr)
+
+
 async def scan_line(
     link: DconLink,
     addresses: Iterable[int],
     baudrate: int,
     progress: Progress | None = None,
     found: list[Found] | None = None,
+    report: Callable[[str], None] = _to_stderr,
 ) -> list[Found]:
     """Probe each address; modules that answer ``$AA2`` are identified. Silence = nobody there.
 
@@ -54,17 +78,23 @@ async def scan_line(
     found = [] if found is None else found
     count = len(found)
     for done, address in enumerate(addresses, 1):
-        try:
-            config = codec.parse_config(
-                await link.transact(codec.command("$", address, "2")), address
-            )
-            name = codec.addressed(await link.transact(codec.command("$", address, "M")), address)
-            firmware = _optional(await _try(link, address, "F"))
-        except CommError as exc:
-            if exc.kind is not ErrorKind.TIMEOUT:
-                print(f"\naddress {address}: answered but {exc.kind}: {exc}", file=sys.stderr)
-        else:
-            found.append(Found(address, baudrate, name, firmware, config, find_profile(name)))
+        for attempt in (1, 2):  # an answer that is not one (noise, a late reply) is tried again
+            try:
+                config = codec.parse_config(
+                    await link.transact(codec.command("$", address, "2")), address
+                )
+                name = codec.addressed(
+                    await link.transact(codec.command("$", address, "M")), address
+                )
+                firmware = _optional(await _try(link, address, "F"))
+            except CommError as exc:
+                if exc.kind is ErrorKind.TIMEOUT:
+                    break
+                if attempt == 2:
+                    report(f"address {address}: answered but {exc.kind}: {exc}")
+            else:
+                found.append(Found(address, baudrate, name, firmware, config, find_profile(name)))
+                break
         if progress is not None:
             progress(done, len(addresses), len(found) - count)
     return found
@@ -129,15 +159,3 @@ def topology_yaml(found: list[Found], port: str, checksum: bool, name: str = "rs
     if len(lines) == 1:
         lines.append("  []  # no module answered")
     return "\n".join(lines) + "\n"
-
-
-def parse_addresses(text: str) -> list[int]:
-    """'0-255', '1-15,32' -> addresses."""
-    result: list[int] = []
-    for part in text.split(","):
-        low, _, high = part.strip().partition("-")
-        start, end = int(low, 0), int(high or low, 0)
-        if not 0 <= start <= end <= 255:
-            raise ValueError(f"address range {part!r} outside 0..255")
-        result.extend(range(start, end + 1))
-    return sorted(set(result))

@@ -20,6 +20,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import can
+import pytest
 from conformance_gateway import NA9161_PROFILE_CASES
 from socketcan_guest import SLOWDOWN, in_guest, scaled
 
@@ -200,6 +201,7 @@ def failure_blocks(report: str) -> str:
     return "\n".join(blocks)
 
 
+@pytest.mark.timeout(900)  # four examples, one after the other: 3-4 minutes, more on a busy host
 def test_every_canopen_example_passes_the_whole_suite(tmp_path):
     results: dict[str, tuple[ET.Element, str]] = {}
     for example in EXAMPLES:

@@ -14,6 +14,7 @@ from ruamel.yaml import YAML
 
 from fieldgate.plugins.dcon.link import DconLink
 from fieldgate.plugins.dcon.scan import parse_addresses, scan_line, topology_yaml
+from fieldgate.plugins.dcon.scanfile import ScanFile
 from fieldgate.plugins.dcon.simulator import DconSimulator
 from fieldgate.serial_link import AsyncSerial, PtyPair
 from fieldgate.topology import load_topology
@@ -99,7 +100,7 @@ def test_parse_addresses_rejects_out_of_range():
         parse_addresses("250-300")
 
 
-def test_simulate_and_scan_commands_together():
+def test_simulate_and_scan_commands_together(tmp_path):
     exe = os.path.join(os.path.dirname(sys.executable), "fieldgate")
     sim = subprocess.Popen(
         [
@@ -140,12 +141,15 @@ def test_simulate_and_scan_commands_together():
                 "100",
                 "--baudrate",
                 "19200",
+                "-o",
+                str(tmp_path / "line.json"),
             ],
             capture_output=True,
             text=True,
             timeout=30,
         )
         assert scan.returncode == 0, scan.stderr
+        assert f"2 module(s) written to {tmp_path / 'line.json'}" in scan.stderr
         assert "10/10 addresses, 2 module(s) found" in scan.stderr
         backs = YAML(typ="safe").load(scan.stdout)["backs"]
         assert [(m["address"], m["model"]) for m in backs[0]["modules"]] == [
@@ -156,6 +160,14 @@ def test_simulate_and_scan_commands_together():
             backs[0]["modules"][1]["type_code"] == 0x0A
             and backs[0]["modules"][1]["data_format"] == "percent"
         )
+        # the scan file: what modules: auto and the EDS generators read
+        written = ScanFile.read(tmp_path / "line.json")
+        assert (written.port, written.addresses, written.baudrates) == (port, "0-9", [19200])
+        assert [m.describe() for m in written.supported()] == [
+            "I-7060 at 3",
+            "I-7012 at 7 (type 0x0A +/-1 V, percent)",
+        ]
+        assert [m.baudrate for m in written.modules] == [19200, 19200]
     finally:
         sim.terminate()
         sim.wait(timeout=10)
