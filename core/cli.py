@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from .plugin import Registry, load_registry
+from .plugin import ENTRY_POINT_GROUP, Command, Registry, load_registry, one_line
 from .runtime import Gateway, GatewayStartError
 from .stopping import stopped_by_signals, wait_until
 from .topology import TopologyError, load_topology
@@ -90,15 +90,29 @@ def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
     return 0
 
 
+PLUGINS_HEADER = ("PLUGIN", "VERSION", "DISTRIBUTION", "PROVIDES", "SUMMARY")
+
+
 def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
+    """The installed plugins as a table; exit 1 when one failed to load (its row says why)."""
     if not registry.plugins:
-        print("no plugins installed")
+        print(f"no plugins installed (entry-point group {ENTRY_POINT_GROUP})")
         return 0
-    width = max(len(n) for n in registry.plugins)
+    rows = [PLUGINS_HEADER]
     for name, info in sorted(registry.plugins.items()):
-        provides = ", ".join(info.provides) or "-"
-        state = f"  FAILED: {info.error}" if info.error else ""
-        print(f"{name:<{width}}  {info.version:<8}  {provides}  ({info.distribution}){state}")
+        summary = f"FAILED: {info.error}" if info.failed else info.summary
+        rows.append(
+            (name, info.version, info.distribution, ", ".join(info.provides) or "-", summary)
+        )
+    widths = [max(len(row[i]) for row in rows) for i in range(len(PLUGINS_HEADER) - 1)]
+    for row in rows:
+        cells = [cell.ljust(width) for cell, width in zip(row, widths, strict=False)]
+        print("  ".join([*cells, row[-1]]).rstrip())
+    failed = registry.failed()
+    if failed:
+        names = ", ".join(info.name for info in failed)
+        print(f"fieldgate plugins: {len(failed)} plugin(s) failed: {names}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -328,9 +342,30 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
                 )
             parent = groups[key]
         cp = parent.add_parser(command.path[-1], help=f"{command.help} [{command.plugin}]")
-        command.configure(cp)
+        try:
+            command.configure(cp)
+        except Exception as exc:  # a broken plugin command must not take the others down
+            _command_broken(registry, command, cp, one_line(exc))
+            continue
         cp.set_defaults(handler=lambda a, r, run=command.run: run(a))
     return parser
+
+
+def _command_broken(
+    registry: Registry, command: Command, parser: argparse.ArgumentParser, error: str
+) -> None:
+    """A plugin command whose options could not be set up: ``fieldgate plugins`` reports the
+    plugin as failed, and the command itself says so in one line (exit 2)."""
+    words = " ".join(command.path)
+    info = registry.plugins.get(command.plugin)
+    if info is not None and not info.failed:
+        info.error = f"command '{words}': {error}"
+
+    def refuse(args: argparse.Namespace, registry: Registry) -> int:
+        print(f"fieldgate {words}: broken in plugin {command.plugin}: {error}", file=sys.stderr)
+        return 2
+
+    parser.set_defaults(handler=refuse)
 
 
 def _with_parents(

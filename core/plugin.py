@@ -236,8 +236,27 @@ class PluginInfo:
     name: str
     version: str
     distribution: str
-    error: str = ""  # why the plugin failed to load, if it did
+    error: str = ""  # why the plugin failed to load or register, in one line
     provides: list[str] = field(default_factory=list)
+    summary: str = ""  # the first line of the plugin module's docstring
+
+    @property
+    def failed(self) -> bool:
+        return bool(self.error)
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as ``Type: message`` on one line (messages may span several)."""
+    text = " ".join(str(exc).split())
+    if len(text) > 300:
+        text = text[:297] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def summary_of(module: object) -> str:
+    """A plugin's summary: the first line of its module's docstring, without reST markup."""
+    doc = (getattr(module, "__doc__", None) or "").strip()
+    return doc.splitlines()[0].replace("``", "") if doc else ""
 
 
 class Registry:
@@ -275,7 +294,13 @@ class Registry:
         configure: Callable[[argparse.ArgumentParser], None],
         run: Callable[[argparse.Namespace], int],
     ) -> None:
-        self.commands.append(Command(tuple(path), help, configure, run, self._current))
+        path = tuple(path)
+        for other in self.commands:
+            if other.path == path:
+                raise ValueError(
+                    f"command '{' '.join(path)}' registered by both {other.plugin} and {self._current}"
+                )
+        self.commands.append(Command(path, help, configure, run, self._current))
         if self._current in self.plugins:
             self.plugins[self._current].provides.append("command:" + " ".join(path))
 
@@ -303,6 +328,35 @@ class Registry:
     def lookup(self, role: str, type_name: str) -> ComponentType | None:
         return self.types.get((role, type_name))
 
+    def failed(self) -> list[PluginInfo]:
+        """The plugins that failed to load or to register, by name."""
+        return [info for _, info in sorted(self.plugins.items()) if info.failed]
+
+    def why_missing(self, role: str, type_name: str) -> str:
+        """What to add when no plugin provides ``type_name``: the installed plugins that failed
+        (the one named like the type when there is one, else all of them); "" when none did.
+
+        A broken plugin is reported this way only to a topology that needs a type it may
+        provide; everything else keeps working without it.
+        """
+        failed = self.failed()
+        named = [p for p in failed if type_name in (p.name, p.distribution)] or [
+            p for p in failed if type_name in p.distribution
+        ]
+        return "".join(
+            f"; plugin {p.name} ({p.distribution}) failed to load: {p.error}"
+            for p in named or failed
+        )
+
+    def _snapshot(self) -> tuple[Any, ...]:
+        return (dict(self.types), list(self.commands), dict(self.simulators))
+
+    def _restore(self, snapshot: tuple[Any, ...]) -> None:
+        """Undo what a plugin registered before it failed: it provides nothing, not half."""
+        self.types, self.commands, self.simulators = snapshot
+        if self._current in self.plugins:
+            self.plugins[self._current].provides.clear()
+
     def type_names(self, role: str) -> list[str]:
         return sorted(t for (r, t) in self.types if r == role)
 
@@ -319,12 +373,22 @@ def _make_manager() -> pluggy.PluginManager:
     return pm
 
 
+def _dist_summary(dist: importlib.metadata.Distribution | None) -> str:
+    """The distribution's one-line Summary (a plugin module without a docstring)."""
+    if dist is None:
+        return ""
+    return str(dist.metadata.json.get("summary", ""))
+
+
 def load_registry(extra_plugins: list[object] | None = None) -> Registry:
     """Discover plugins through the entry-point group and collect what they register.
 
-    A plugin that fails to import or to register is recorded with its error (shown by
-    ``fieldgate plugins``) and skipped; it never prevents the others from loading.
-    ``extra_plugins`` lets tests and embedding code add plugin objects directly.
+    A plugin that fails to import or to register is recorded with its error in one line and
+    provides nothing (what it registered before failing is undone); it never prevents the
+    others from loading. ``fieldgate plugins`` lists it (and exits 1); ``validate`` and
+    ``run`` name it only when the topology needs a type no working plugin provides
+    (:meth:`Registry.why_missing`). ``extra_plugins`` lets tests and embedding code add
+    plugin objects directly.
     """
     registry = Registry()
     pm = _make_manager()
@@ -335,25 +399,28 @@ def load_registry(extra_plugins: list[object] | None = None) -> Registry:
         registry.plugins[ep.name] = info
         try:
             module = ep.load()
+            info.summary = summary_of(module) or _dist_summary(ep.dist)
             pm.register(module, name=ep.name)
-        except Exception as exc:  # broken third-party plugin: report, keep going
-            info.error = f"{type(exc).__name__}: {exc}"
-            log.error("plugin %s (%s) failed to load: %s", ep.name, dist, info.error)
+        except (Exception, SystemExit) as exc:  # broken third-party plugin: report, keep going
+            info.error = one_line(exc)
+            log.info("plugin %s (%s) failed to load: %s", ep.name, dist, info.error)
     for i, plugin in enumerate(extra_plugins or []):
         name = getattr(plugin, "PLUGIN_NAME", f"extra{i}")
         registry.plugins[name] = PluginInfo(
-            name, getattr(plugin, "__version__", "0"), "(in process)"
+            name, getattr(plugin, "__version__", "0"), "(in process)", summary=summary_of(plugin)
         )
         pm.register(plugin, name=name)
     for name, _plugin in pm.list_name_plugin():
         registry._current = name
+        before = registry._snapshot()
         try:
             pm.subset_hook_caller(
                 "fieldgate_register",
                 remove_plugins=[p for n, p in pm.list_name_plugin() if n != name],
             )(registry=registry)
-        except Exception as exc:
-            registry.plugins[name].error = f"{type(exc).__name__}: {exc}"
-            log.error("plugin %s failed to register: %s", name, registry.plugins[name].error)
+        except (Exception, SystemExit) as exc:
+            registry._restore(before)
+            registry.plugins[name].error = one_line(exc)
+            log.info("plugin %s failed to register: %s", name, registry.plugins[name].error)
     registry._current = "?"
     return registry

@@ -1,4 +1,6 @@
-"""A third-party fieldgate plugin with one back and one front, used by the tests.
+"""Test plugin: a loopback back and a memory front, used by fieldgate's tests.
+
+A third-party package (fieldgate-loopback, installed in the test environment only).
 
 * back ``loopback``: each module's DO n is wired to its DI n, AO n to AI n (SO byte n to
   SI byte n: a special module's raw block), like the
