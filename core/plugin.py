@@ -207,10 +207,12 @@ class Command:
 
 
 class Simulator(ABC):
-    """Simulated modules of one back, serving the far end of a serial port.
+    """Simulated modules of one back: the far end of its serial port, or whatever else the
+    back talks to (a file, a socket).
 
     Registered per back type with :meth:`Registry.add_simulator`; used by
-    ``fieldgate run --simulate`` (the demo) and by tests.
+    ``fieldgate run --simulate`` (the demo), ``fieldgate simulate BACK`` and by tests.
+    ``start()`` raises :class:`PluginStartError` with a one-line cause when it cannot serve.
     """
 
     @abstractmethod
@@ -228,7 +230,9 @@ class Simulator(ABC):
         """What the gateway last wrote to a simulated module output."""
 
 
-SimulatorFactory = Callable[..., Simulator]  # (back_config, port: str, animate: bool) -> Simulator
+# (back_config, port, animate) -> Simulator; port: the simulator's end of a pty for a serial
+# back (core put the other end in back_config.port), None for any other back (core.simulation)
+SimulatorFactory = Callable[..., Simulator]
 
 
 @dataclass
@@ -305,8 +309,17 @@ class Registry:
             self.plugins[self._current].provides.append("command:" + " ".join(path))
 
     def add_simulator(self, back_type: str, factory: SimulatorFactory) -> None:
-        """``factory(back_config, port, animate)`` returns a :class:`Simulator` for that back type."""
+        """``factory(back_config, port, animate)`` returns a :class:`Simulator` for that back type.
+
+        For a serial back (``SerialBackConfig``) ``port`` is the simulator's end of a
+        pseudo-terminal pair whose other end is already in ``back_config.port``; for any other
+        back it is None, and the factory points ``back_config`` at what its simulator serves.
+        """
+        if back_type in self.simulators:
+            raise ValueError(f"a simulator for back type {back_type!r} is registered twice")
         self.simulators[back_type] = factory
+        if self._current in self.plugins:
+            self.plugins[self._current].provides.append(f"simulator:{back_type}")
 
     def _add(
         self,
