@@ -1,4 +1,4 @@
-"""``fieldgate conformance`` and ``python -m fieldgate.conformance``."""
+"""The conformance test tool for CANopen and DeviceNet devices: ``fieldgate conformance`` (also ``python -m fieldgate.conformance``)."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
+from fieldgate.exitcodes import ExitCode
 from fieldgate.plugin import PluginStartError, hookimpl
 
 from .framework import (
@@ -169,19 +170,19 @@ def run(args: argparse.Namespace) -> int:
             f"conformance: profile {', '.join(foreign)} is not a {args.protocol} profile (see --protocol)",
             file=sys.stderr,
         )
-        return 2
+        return ExitCode.CANNOT_RUN
     if args.list:
         for c in select(args.profile, args.patterns, protocol=args.protocol):
             print(f"{c.id:<34} {c.title}")
-        return 0
+        return ExitCode.OK
     if args.protocol == "devicenet":
         return run_devicenet(args)
     if args.node_id is None or args.eds is None:
         print("conformance: --node-id and --eds are required", file=sys.stderr)
-        return 2
+        return ExitCode.CANNOT_RUN
     if not 1 <= args.node_id <= 127:
         print("conformance: --node-id must be 1..127", file=sys.stderr)
-        return 2
+        return ExitCode.CANNOT_RUN
     config = config_from_args(args)
     print(
         f"fieldgate conformance: node {args.node_id} on {args.interface}:{args.channel}, EDS {args.eds}",
@@ -227,19 +228,19 @@ def _run_and_report(args: argparse.Namespace, properties: dict[str, str], start)
             f"conformance: cannot start: {exc}{VIRTUAL_HINT if args.interface == 'virtual' else ''}",
             file=sys.stderr,
         )
-        return 2
+        return ExitCode.CANNOT_RUN
     except (
         OSError,
         ValueError,
         PluginStartError,
     ) as exc:  # the bus (one line from open_bus) or the EDS
         print(f"conformance: cannot start: {exc}", file=sys.stderr)
-        return 2
+        return ExitCode.CANNOT_RUN
     print()
     print(summary(results))
     if args.junit:
         write_junit(results, args.junit, properties)
-    return 1 if any(r.verdict is Verdict.FAIL for r in results) else 0
+    return ExitCode.FAILED if any(r.verdict is Verdict.FAIL for r in results) else ExitCode.OK
 
 
 def run_devicenet(args: argparse.Namespace) -> int:
@@ -255,7 +256,7 @@ def run_devicenet(args: argparse.Namespace) -> int:
             "conformance: --protocol devicenet needs --mac-id 0..63 (and a different --master-mac 0..63)",
             file=sys.stderr,
         )
-        return 2
+        return ExitCode.CANNOT_RUN
     base = config_from_args(args)
     config = DnetSuiteConfig(
         args.mac_id, args.master_mac, args.profile, args.patterns, base.timing, base.options

@@ -11,8 +11,9 @@ import asyncio
 import logging
 import sys
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
+from .exitcodes import ExitCode
 from .plugin import ENTRY_POINT_GROUP, Command, Registry, load_registry, one_line
 from .runtime import Gateway, GatewayStartError
 from .stopping import stopped_by_signals, wait_until
@@ -39,8 +40,49 @@ def setup_logging(level: str, fmt: str = "text") -> None:
             handler.setFormatter(JsonFormatter())
 
 
+def usage_error(message: str) -> NoReturn:
+    """A wrong command line found after argparse: one line, exit 2 (as argparse's own)."""
+    print(f"fieldgate: {message}", file=sys.stderr)
+    raise SystemExit(ExitCode.CANNOT_RUN)
+
+
+def deprecated(old: str, new: str) -> None:
+    """The one-line note an old spelling prints (it keeps working for one more release)."""
+    print(
+        f"fieldgate: '{old}' is deprecated and goes away in the next release; use '{new}'",
+        file=sys.stderr,
+    )
+
+
+def deprecated_alias(
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup, old: str, new: str, **kwargs: Any
+) -> None:
+    """``old``, a former name of option ``new``: still accepted (with the note), not in the help."""
+
+    class Alias(argparse.Action):
+        def __call__(
+            self,
+            parser: argparse.ArgumentParser,
+            namespace: argparse.Namespace,
+            values: Any,
+            option_string: str | None = None,
+        ) -> None:
+            deprecated(old, new)
+            setattr(namespace, self.dest, values)
+
+    parser.add_argument(
+        old,
+        dest=new.lstrip("-").replace("-", "_"),
+        action=Alias,
+        default=argparse.SUPPRESS,
+        help=argparse.SUPPRESS,
+        **kwargs,
+    )
+
+
 def add_overrides_argument(
-    parser: argparse.ArgumentParser, example: str = "fronts.can.interface=virtual"
+    parser: argparse.ArgumentParser | argparse._ArgumentGroup,
+    example: str = "fronts.can.interface=virtual",
 ) -> None:
     """``--set PATH=VALUE`` (repeatable), read with :func:`parse_overrides`: every command that loads a topology."""
     parser.add_argument(
@@ -61,7 +103,7 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise SystemExit(f"fieldgate: --set expects PATH=VALUE, got {item!r}")
+            usage_error(f"--set expects PATH=VALUE, got {item!r}")
         out[key] = _scalar(yaml, value)
     return out
 
@@ -84,10 +126,10 @@ def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
         for issue in exc.issues:
             print(issue, file=sys.stderr)
         print(f"{args.file}: {len(exc.issues)} error(s)", file=sys.stderr)
-        return 1
+        return ExitCode.FAILED
     print(f"{args.file}: valid")
     print(topology.summary())
-    return 0
+    return ExitCode.OK
 
 
 PLUGINS_HEADER = ("PLUGIN", "VERSION", "DISTRIBUTION", "PROVIDES", "SUMMARY")
@@ -97,7 +139,7 @@ def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
     """The installed plugins as a table; exit 1 when one failed to load (its row says why)."""
     if not registry.plugins:
         print(f"no plugins installed (entry-point group {ENTRY_POINT_GROUP})")
-        return 0
+        return ExitCode.OK
     rows = [PLUGINS_HEADER]
     for name, info in sorted(registry.plugins.items()):
         summary = f"FAILED: {info.error}" if info.failed else info.summary
@@ -112,8 +154,8 @@ def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
     if failed:
         names = ", ".join(info.name for info in failed)
         print(f"fieldgate plugins: {len(failed)} plugin(s) failed: {names}", file=sys.stderr)
-        return 1
-    return 0
+        return ExitCode.FAILED
+    return ExitCode.OK
 
 
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
@@ -131,7 +173,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
     except TopologyError as exc:
         for issue in exc.issues:
             print(issue, file=sys.stderr)
-        return 1
+        return ExitCode.FAILED
     return _runner(args.loop).run(_run(gateway, args))
 
 
@@ -153,9 +195,9 @@ def loop_factory(choice: str = "auto") -> Callable[[], asyncio.AbstractEventLoop
         import uvloop
     except ImportError:
         if choice == "uvloop":
-            raise SystemExit(
-                "fieldgate: --loop uvloop: uvloop is not installed here (pip install uvloop; there is none for Windows)"
-            ) from None
+            usage_error(
+                "--loop uvloop: uvloop is not installed here (pip install uvloop; there is none for Windows)"
+            )
         return asyncio.new_event_loop
     return uvloop.new_event_loop
 
@@ -176,7 +218,7 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
             await gateway.start()
         except GatewayStartError as exc:
             log.error("cannot start: %s", exc)
-            return 2
+            return ExitCode.CANNOT_RUN
         status = (
             asyncio.create_task(_print_status(gateway, args.status_every))
             if args.status_every
@@ -187,7 +229,7 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
         if status is not None:
             status.cancel()
         await gateway.stop()
-    return 0
+    return ExitCode.OK
 
 
 STATUS_LEGEND = (
@@ -325,22 +367,59 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.set_defaults(handler=lambda a, r: run_status(a))
 
     p = sub.add_parser(
-        "plugins", help="list installed plugins with what they provide and their version"
+        "plugins",
+        help="list installed plugins: version, distribution, what each provides, summary; "
+        "exit 1 when one failed to load",
     )
     p.set_defaults(handler=cmd_plugins)
 
+    from . import edscmd, scancmd, simcmd
+
+    p = sub.add_parser("eds", help="write the EDS of a front (CANopen, DeviceNet, ...)")
+    edscmd.configure(p, registry)
+    p.set_defaults(handler=edscmd.run)
+
     groups: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]] = {}
-    for command in sorted(registry.commands, key=lambda c: c.path):
+
+    def group(path: tuple[str, ...], help_text: str | None = None) -> Any:
         parent = sub
-        for depth, word in enumerate(command.path[:-1]):
-            key = " ".join(command.path[: depth + 1])
+        for depth, word in enumerate(path):
+            key = " ".join(path[: depth + 1])
             if key not in groups:
-                group_parser = parent.add_parser(word, help=f"{word} commands from plugins")
+                group_parser = parent.add_parser(
+                    word, help=help_text or f"{word} commands from plugins"
+                )
                 groups[key] = _with_parents(
-                    group_parser.add_subparsers(dest=f"sub{depth}", metavar="NAME", required=True),
+                    group_parser.add_subparsers(dest=f"sub{depth}", metavar="BACK", required=True),
                     common,
                 )
             parent = groups[key]
+        return parent
+
+    for back_type in sorted(registry.simulators):
+        p = group(
+            ("simulate",), "serve a back's simulated modules (a serial line, a file, ...)"
+        ).add_parser(
+            back_type,
+            help=f"simulated {back_type} modules [{registry.provider(f'simulator:{back_type}')}]",
+        )
+        simcmd.configure(p, registry, back_type)
+        p.set_defaults(handler=lambda a, r, t=back_type: simcmd.run(a, r, t))
+    for back_type, scanner in sorted(registry.scanners.items()):
+        p = group(("scan",), "find the modules on a line; print a topology section").add_parser(
+            back_type,
+            help=f"find {back_type} modules on a line [{registry.provider(f'scan:{back_type}')}]",
+        )
+        scancmd.configure(p, scanner, back_type)
+        p.set_defaults(handler=lambda a, r, t=back_type: scancmd.run(a, r, t))
+
+    for command in sorted(registry.commands, key=lambda c: c.path):
+        parent = group(command.path[:-1]) if len(command.path) > 1 else sub
+        if command.path[-1] in parent.choices:  # a core command (simulate BACK, eds) has the name
+            info = registry.plugins.get(command.plugin)
+            if info is not None and not info.failed:
+                info.error = f"command '{' '.join(command.path)}' is taken by fieldgate itself"
+            continue
         cp = parent.add_parser(command.path[-1], help=f"{command.help} [{command.plugin}]")
         try:
             command.configure(cp)
@@ -363,7 +442,7 @@ def _command_broken(
 
     def refuse(args: argparse.Namespace, registry: Registry) -> int:
         print(f"fieldgate {words}: broken in plugin {command.plugin}: {error}", file=sys.stderr)
-        return 2
+        return ExitCode.CANNOT_RUN
 
     parser.set_defaults(handler=refuse)
 
@@ -390,9 +469,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.handler(args, registry) or 0)
     except KeyboardInterrupt:
-        return 130
+        return ExitCode.INTERRUPTED
     except BrokenPipeError:
-        return 0
+        return ExitCode.OK
 
 
 if __name__ == "__main__":

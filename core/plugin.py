@@ -10,6 +10,7 @@ own plugins register exactly the same way as a third-party package.
 from __future__ import annotations
 
 import argparse
+import copy
 import importlib.metadata
 import logging
 from abc import ABC, abstractmethod
@@ -43,6 +44,12 @@ class PluginStartError(Exception):
 
     The message is the cause in one line; the runtime adds the component name.
     """
+
+
+class CommandError(Exception):
+    """A plugin's part of a command cannot do what was asked (no such front, a value the
+    device cannot take); the message is the reason in one line. The command prints it and
+    exits with :attr:`~fieldgate.exitcodes.ExitCode.FAILED`."""
 
 
 class GatewayContext:
@@ -229,10 +236,111 @@ class Simulator(ABC):
     def get_output(self, channel_id: str) -> bool | int | float:
         """What the gateway last wrote to a simulated module output."""
 
+    # optional, for ``fieldgate simulate BACK`` (its stdin commands and its banner)
+    def get(self, channel_id: str) -> bool | int | float:
+        """Any channel's value in the simulated module (``get`` and ``show``); by default
+        outputs only (KeyError for an input)."""
+        return self.get_output(channel_id)
+
+    def command(self, words: list[str]) -> str | None:
+        """A command of this simulator's own (the Modbus ``fault``): its answer, or None when
+        ``words`` is not one of them. Raise KeyError/ValueError for a one-line error."""
+        return None
+
+    def commands_help(self) -> str:
+        """The syntax of this simulator's own commands, for ``help`` ("" when none)."""
+        return ""
+
+    def describe(self) -> list[str]:
+        """Lines about the simulated modules, printed before ``fieldgate simulate``'s banner."""
+        return []
+
 
 # (back_config, port, animate) -> Simulator; port: the simulator's end of a pty for a serial
 # back (core put the other end in back_config.port), None for any other back (core.simulation)
 SimulatorFactory = Callable[..., Simulator]
+
+
+def module_address_model(spec: str) -> dict[str, Any]:
+    """``3:M-7055D`` as a module mapping (``fieldgate simulate BACK --module``'s default form)."""
+    address, sep, model = spec.partition(":")
+    if not sep or not model or not address.strip().isdigit():
+        raise ValueError(f"--module expects ADDRESS:MODEL, got {spec!r}")
+    return {"address": int(address), "model": model}
+
+
+@dataclass(frozen=True)
+class SimulateCli:
+    """How ``fieldgate simulate BACK`` builds a back from the command line (optional: without
+    it, ``--module ADDRESS:MODEL`` makes ``{address, model}`` modules).
+
+    ``module`` turns one ``--module`` value into a module mapping (ValueError: a one-line
+    reason); ``configure`` adds the options of this back only to its argument group, and
+    ``fields`` turns them into fields of the back's config (``checksum: true``).
+    """
+
+    module_metavar: str = "ADDRESS:MODEL"
+    module_example: str = "3:M-7055D"
+    module: Callable[[str], dict[str, Any]] = module_address_model
+    configure: Callable[[argparse._ArgumentGroup], None] | None = None
+    fields: Callable[[argparse.Namespace], dict[str, Any]] | None = None
+
+
+@dataclass(frozen=True)
+class EdsRequest:
+    """What ``fieldgate eds`` hands a front type's EDS writer."""
+
+    topology: Topology
+    front: FrontConfig  # the front to describe (validated by its plugin's model)
+    registry: Registry
+    options: argparse.Namespace  # the command's options, this front type's own among them
+    file_name: str | None  # the output's file name (an EDS names itself), None on standard output
+
+
+@dataclass(frozen=True)
+class EdsWriter:
+    front_type: str
+    write: Callable[[EdsRequest], str]
+    configure: Callable[[argparse._ArgumentGroup], None] | None
+    plugin: str
+    encoding: str = "utf-8"  # of the file -o writes (a DeviceNet EDS is Latin-1)
+
+
+ScanProgress = Callable[[int, int, int], None]  # (addresses done, addresses in all, modules found)
+
+
+class Scanner(ABC):
+    """Finds the modules on a line for ``fieldgate scan BACK``.
+
+    Core runs the command: the options every back shares (``--port``, ``--baudrate`` one
+    or several, ``--addresses``, ``--timeout-ms``, ``--name``), one :meth:`scan` per baud
+    rate, the progress bar, Ctrl-C (what was found so far is printed, exit 130) and the exit
+    code (0 found, 1 none, 2 the port failed).
+    """
+
+    addresses: str = "0-255"  # the default --addresses
+    address_range: tuple[int, int] = (0, 255)  # the addresses the protocol has
+
+    def configure(self, group: argparse._ArgumentGroup) -> None:  # noqa: B027  (optional)
+        """Add the options of this back only (DCON's ``--checksum``)."""
+
+    @abstractmethod
+    async def scan(
+        self,
+        port: str,
+        baudrate: int,
+        addresses: list[int],
+        args: argparse.Namespace,
+        progress: ScanProgress,
+        found: list[Any],
+    ) -> None:
+        """Probe ``addresses`` at one baud rate, appending each module to ``found`` as it is
+        identified and calling ``progress`` after each address; raise
+        :class:`PluginStartError` (one line) when the port cannot be opened."""
+
+    @abstractmethod
+    def topology(self, found: list[Any], args: argparse.Namespace) -> str:
+        """A ready-to-paste ``backs:`` section for what was found (every baud rate)."""
 
 
 @dataclass
@@ -270,6 +378,9 @@ class Registry:
         self.types: dict[tuple[str, str], ComponentType] = {}
         self.commands: list[Command] = []
         self.simulators: dict[str, SimulatorFactory] = {}
+        self.simulate_cli: dict[str, SimulateCli] = {}
+        self.eds_writers: dict[str, EdsWriter] = {}
+        self.scanners: dict[str, Scanner] = {}
         self.plugins: dict[str, PluginInfo] = {}
         self._current = "?"
 
@@ -308,18 +419,57 @@ class Registry:
         if self._current in self.plugins:
             self.plugins[self._current].provides.append("command:" + " ".join(path))
 
-    def add_simulator(self, back_type: str, factory: SimulatorFactory) -> None:
+    def add_simulator(
+        self, back_type: str, factory: SimulatorFactory, cli: SimulateCli | None = None
+    ) -> None:
         """``factory(back_config, port, animate)`` returns a :class:`Simulator` for that back type.
 
         For a serial back (``SerialBackConfig``) ``port`` is the simulator's end of a
         pseudo-terminal pair whose other end is already in ``back_config.port``; for any other
         back it is None, and the factory points ``back_config`` at what its simulator serves.
+        ``fieldgate run --simulate`` uses it, and ``fieldgate simulate BACK`` serves it from
+        the command line (``cli``: how ``--module`` and the back's own options read).
         """
         if back_type in self.simulators:
             raise ValueError(f"a simulator for back type {back_type!r} is registered twice")
         self.simulators[back_type] = factory
+        self.simulate_cli[back_type] = cli or SimulateCli()
+        self._provides(f"simulator:{back_type}")
+
+    def add_eds(
+        self,
+        front_type: str,
+        write: Callable[[EdsRequest], str],
+        configure: Callable[[argparse._ArgumentGroup], None] | None = None,
+        encoding: str = "utf-8",
+    ) -> None:
+        """``fieldgate eds TOPOLOGY [--front NAME]`` for fronts of ``front_type``: ``write``
+        returns the EDS text (raise :class:`CommandError` for a one-line refusal);
+        ``configure`` adds options of this front type only; ``encoding``: the file's."""
+        if front_type in self.eds_writers:
+            raise ValueError(
+                f"an EDS writer for front type {front_type!r} is registered by both "
+                f"{self.eds_writers[front_type].plugin} and {self._current}"
+            )
+        self.eds_writers[front_type] = EdsWriter(
+            front_type, write, configure, self._current, encoding
+        )
+        self._provides(f"eds:{front_type}")
+
+    def add_scanner(self, back_type: str, scanner: Scanner) -> None:
+        """``fieldgate scan BACK`` for backs of ``back_type``."""
+        if back_type in self.scanners:
+            raise ValueError(f"a scanner for back type {back_type!r} is registered twice")
+        self.scanners[back_type] = scanner
+        self._provides(f"scan:{back_type}")
+
+    def _provides(self, what: str) -> None:
         if self._current in self.plugins:
-            self.plugins[self._current].provides.append(f"simulator:{back_type}")
+            self.plugins[self._current].provides.append(what)
+
+    def provider(self, what: str) -> str:
+        """The plugin that provides ``what`` (``"simulator:modbus"``, ``"back:dcon"``), or "?"."""
+        return next((n for n, info in self.plugins.items() if what in info.provides), "?")
 
     def _add(
         self,
@@ -361,12 +511,15 @@ class Registry:
             for p in named or failed
         )
 
-    def _snapshot(self) -> tuple[Any, ...]:
-        return (dict(self.types), list(self.commands), dict(self.simulators))
+    _REGISTERED = ("types", "commands", "simulators", "simulate_cli", "eds_writers", "scanners")
 
-    def _restore(self, snapshot: tuple[Any, ...]) -> None:
+    def _snapshot(self) -> dict[str, Any]:
+        return {name: copy.copy(getattr(self, name)) for name in self._REGISTERED}
+
+    def _restore(self, snapshot: dict[str, Any]) -> None:
         """Undo what a plugin registered before it failed: it provides nothing, not half."""
-        self.types, self.commands, self.simulators = snapshot
+        for name, value in snapshot.items():
+            setattr(self, name, value)
         if self._current in self.plugins:
             self.plugins[self._current].provides.clear()
 

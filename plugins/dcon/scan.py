@@ -1,13 +1,18 @@
-"""Finding DCON modules on a line: ``$AA2`` at every address, then ``$AAM``/``$AAF`` to identify."""
+"""Finding DCON modules on a line: ``$AA2`` at every address, then ``$AAM``/``$AAF`` to identify
+(``fieldgate scan dcon``; core runs the command: baud rates, progress, Ctrl-C)."""
 
 from __future__ import annotations
 
+import argparse
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 from fieldgate.health import ErrorKind
+from fieldgate.plugin import Scanner, ScanProgress
 from fieldgate.polling import CommError
+from fieldgate.serial_link import AsyncSerial
 
 from . import codec
 from .formats import DataFormat
@@ -34,14 +39,11 @@ class Found:
         return rng.label if rng else "unknown type code"
 
 
-Progress = Callable[[int, int, int], None]  # (done, total, found)
-
-
 async def scan_line(
     link: DconLink,
     addresses: Iterable[int],
     baudrate: int,
-    progress: Progress | None = None,
+    progress: ScanProgress | None = None,
     found: list[Found] | None = None,
 ) -> list[Found]:
     """Probe each address; modules that answer ``$AA2`` are identified. Silence = nobody there.
@@ -81,19 +83,6 @@ def _optional(text: str | None) -> str:
     return text or ""
 
 
-def progress_bar(stream=sys.stderr, width: int = 32) -> Progress:
-    def show(done: int, total: int, found: int) -> None:
-        filled = width * done // max(total, 1)
-        stream.write(
-            f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} addresses, {found} module(s) found"
-        )
-        if done == total:
-            stream.write("\n")
-        stream.flush()
-
-    return show
-
-
 def topology_yaml(found: list[Found], port: str, checksum: bool, name: str = "rs485") -> str:
     """Ready-to-paste ``backs:`` entries, one per baud rate that had modules."""
     lines = ["backs:"]
@@ -131,13 +120,31 @@ def topology_yaml(found: list[Found], port: str, checksum: bool, name: str = "rs
     return "\n".join(lines) + "\n"
 
 
-def parse_addresses(text: str) -> list[int]:
-    """'0-255', '1-15,32' -> addresses."""
-    result: list[int] = []
-    for part in text.split(","):
-        low, _, high = part.strip().partition("-")
-        start, end = int(low, 0), int(high or low, 0)
-        if not 0 <= start <= end <= 255:
-            raise ValueError(f"address range {part!r} outside 0..255")
-        result.extend(range(start, end + 1))
-    return sorted(set(result))
+class DconScanner(Scanner):
+    addresses = "0-255"
+    address_range = (0, 255)
+
+    def configure(self, group: argparse._ArgumentGroup) -> None:
+        group.add_argument("--checksum", action="store_true", help="send and expect DCON checksums")
+
+    async def scan(
+        self,
+        port: str,
+        baudrate: int,
+        addresses: list[int],
+        args: argparse.Namespace,
+        progress: ScanProgress,
+        found: list[Any],
+    ) -> None:
+        serial = await AsyncSerial.open(port, baudrate)  # PluginStartError: one line
+        try:
+            # every scan reply carries its address, so a late one cannot be mistaken: no settling
+            link = DconLink(
+                serial, args.checksum, args.timeout_ms / 1000, settle_after_timeout=False
+            )
+            await scan_line(link, addresses, baudrate, progress, found)
+        finally:
+            await serial.close()
+
+    def topology(self, found: list[Any], args: argparse.Namespace) -> str:
+        return topology_yaml(found, args.port, args.checksum, args.name)

@@ -394,6 +394,37 @@ class ModbusSimulator(Simulator):
             if address is None or a == address:
                 module.faults.clear()
 
+    # -- fieldgate simulate modbus: the simulator's own commands ------------------------
+    def command(self, words: list[str]) -> str | None:
+        """``fault ADDRESS KIND [COUNT] [code=N] [delay=S] [address=N]`` and ``clear [ADDRESS]``."""
+        cmd, rest = words[0].lower(), words[1:]
+        if cmd == "fault" and len(rest) >= 2:
+            options = {k: v for k, _, v in (w.partition("=") for w in rest[2:] if "=" in w)}
+            counts = [int(w) for w in rest[2:] if w.isdigit()]
+            address = int(options["address"]) if "address" in options else None
+            fault = Fault(
+                rest[1],
+                count=counts[0] if counts else None,
+                code=int(options.get("code", 4)),
+                delay=float(options.get("delay", 0.5)),
+                address=address,
+            )
+            self.inject(int(rest[0]), fault)
+            where = "" if address is None else f" on requests touching address {address}"
+            return f"module {rest[0]}: {fault.kind}{where}" + (
+                f" for {fault.count} replies" if fault.count else " until cleared"
+            )
+        if cmd == "clear":
+            self.clear_faults(int(rest[0]) if rest else None)
+            return "faults cleared"
+        return None
+
+    def commands_help(self) -> str:
+        return (
+            f"fault ADDRESS {{{'|'.join(FAULT_KINDS)}}} [COUNT] [code=N] [delay=S] [address=N]"
+            " | clear [ADDRESS]"
+        )
+
     @property
     def requests(self) -> deque[Request]:
         return self.responder.log

@@ -1,20 +1,23 @@
-"""End to end: a gateway with the modbus back on simulated modules, and the simulate CLI."""
+"""End to end: a gateway with the modbus back on simulated modules, and ``fieldgate simulate
+modbus`` (the command core serves for every back with a simulator)."""
 
 import argparse
 import asyncio
 import os
 import re
 import signal
+import subprocess
 import sys
 
 import pytest
 from modbus_line import I7232D_MODULES
 
-from fieldgate import Gateway, Quality
-from fieldgate.plugins.modbus.cli import build_config, execute
+from fieldgate import Gateway, Quality, load_registry
 from fieldgate.plugins.modbus.client import ModbusLink
 from fieldgate.plugins.modbus.config import ModbusBackConfig
 from fieldgate.plugins.modbus.simulator import ModbusSimulator
+from fieldgate.simcmd import UsageError, build_config
+from fieldgate.simcmd import execute as run_command
 
 
 async def wait_for(condition, timeout=5.0):
@@ -95,6 +98,10 @@ async def test_a_dead_module_in_the_gateway_goes_comm_fault_and_comes_back(regis
         await gateway.stop()
 
 
+def execute(sim: ModbusSimulator, line: str) -> str:
+    return run_command(sim, list(sim.channels), line)
+
+
 def test_cli_commands():
     config = ModbusBackConfig(name="rs485", port="unused", modules=I7232D_MODULES)
     sim = ModbusSimulator(config, "unused")
@@ -124,7 +131,7 @@ async def test_fieldgate_simulate_modbus_serves_a_pty(tmp_path):
         "3:M-7055D",
         "--baudrate",
         "115200",
-        "--set",
+        "--input",
         "rs485/m1/di0=1",
         "--duration",
         "20",
@@ -168,7 +175,7 @@ def test_fieldgate_simulate_modbus_stops_with_exit_0_on_ctrl_c_and_sigterm(stopp
     terminal with a read pending (it used to hang there, or exit 130)."""
     code, stderr = stopped_by_signal(
         ["simulate", "modbus", "--pty", "--module", "1:M-7055D"],
-        "simulating modules 1 (M-7055D)",
+        "simulating back rs485 (modbus): modules 1 (M-7055D)",
         sig,
     )
     assert code == 0 and "Traceback" not in stderr
@@ -210,6 +217,7 @@ def test_cli_takes_the_modules_from_a_topology(tmp_path):
         "gateway: {name: plant}\nfronts: [{name: plc, type: memory}]\nbacks:\n"
         "  - {name: line2, type: modbus, port: /dev/ttyUSB0, baudrate: 19200, modules: [{address: 7, model: M-7060D}]}\n"
     )
+    registry = load_registry()
     args = argparse.Namespace(
         port="/dev/pts/99",
         pty=False,
@@ -218,14 +226,15 @@ def test_cli_takes_the_modules_from_a_topology(tmp_path):
         module=[],
         name="rs485",
         baudrate=None,
+        set=[],
     )
-    config = build_config(args)
+    config = build_config(args, registry, "modbus")
     assert (config.name, config.port, config.baudrate) == ("line2", "/dev/pts/99", 19200)
     assert "line2/m7/do3" in {s.id for s in config.channel_specs()}
     args.back = "nope"
-    with pytest.raises(ValueError, match="has no modbus back named nope"):
-        build_config(args)
-    with pytest.raises(ValueError, match="expects ADDRESS:MODEL"):
+    with pytest.raises(UsageError, match="has no modbus back named nope"):
+        build_config(args, registry, "modbus")
+    with pytest.raises(UsageError, match="expects ADDRESS:MODEL"):
         build_config(
             argparse.Namespace(
                 port="x",
@@ -235,5 +244,25 @@ def test_cli_takes_the_modules_from_a_topology(tmp_path):
                 module=["M-7060D"],
                 name="rs485",
                 baudrate=None,
-            )
+                set=[],
+            ),
+            registry,
+            "modbus",
         )
+
+
+def test_the_old_set_channel_value_still_sets_an_input_with_a_deprecation_note():
+    result = subprocess.run(
+        [sys.executable, "-m", "fieldgate", "simulate", "modbus", "--pty"]
+        + ["--module", "1:M-7052D", "--set", "rs485/m1/di0=1", "--duration", "20"],
+        input="get rs485/m1/di0\nquit\n",
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "rs485/m1/di0 = True" in result.stdout.splitlines()
+    assert result.stderr.strip() == (
+        "fieldgate: '--set CHANNEL=VALUE' is deprecated and goes away in the next release; "
+        "use '--input CHANNEL=VALUE'"
+    )
