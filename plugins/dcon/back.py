@@ -31,6 +31,7 @@ from fieldgate.image import ChannelSpec, Kind
 from fieldgate.plugin import GatewayContext, PluginStartError
 from fieldgate.polling import CommError, LineJob, SerialBack
 from fieldgate.serial_link import AsyncSerial
+from fieldgate.topology import ModuleConfig
 
 from .codec import HOST_OK
 from .config import DconBackConfig, DconModuleConfig
@@ -96,7 +97,8 @@ class DconBack(SerialBack):
                 out[cid] = [f"#{aa}(data)" if p.ao_style == AO_SINGLE else f"#{aa}{i}(data)"]
         return out
 
-    def make_module(self, config: DconModuleConfig, specs: list[ChannelSpec]) -> DconModule:
+    def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> DconModule:
+        assert isinstance(config, DconModuleConfig)  # (the modules of a dcon back)
         assert self.dcon is not None
         module = DconModule(
             config, specs, self.context.image, self.dcon, watch_status=not self._host_ok_allowed()
@@ -265,13 +267,12 @@ class DconBack(SerialBack):
         """True while the module sits in host-watchdog timeout (0x2003 != 0)."""
         return self.module(address).in_watchdog
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         status = super().status()
+        period = self.host_ok_period()
         status["host_ok"] = {
             "enabled": self.host_ok_enabled,
-            "period_ms": None
-            if self.host_ok_period() is None
-            else round(self.host_ok_period() * 1000),
+            "period_ms": None if period is None else round(period * 1000),
             "sending": self._host_ok_running,
             "sent": self.host_ok_sent,
         }

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -10,7 +10,7 @@ from fieldgate.image import ChannelSpec, DataType, Kind, Scaling, Source, channe
 from fieldgate.topology import ModuleConfig, SerialBackConfig, StrictModel
 
 from .profiles import Profile, find_profile, model_names
-from .tables import TABLES, TypeRange
+from .tables import TABLES, TypeRange, TypeTable
 
 FormatName = Literal["auto", "hex", "engineering", "percent", "ohms"]
 
@@ -84,7 +84,7 @@ class DconModuleConfig(ModuleConfig):
         return profile
 
     @property
-    def type_table(self):
+    def type_table(self) -> TypeTable | None:
         key = self.profile.ai_table or self.profile.ao_table
         return TABLES[key] if key else None
 
@@ -173,7 +173,7 @@ class DconBackConfig(SerialBackConfig):
     def _spec(
         self, m: DconModuleConfig, kind: Kind, index: int, rng: TypeRange | None
     ) -> ChannelSpec:
-        extra: dict = {}
+        extra: dict[str, Any] = {}
         if kind.is_output:
             extra["error_mode"], extra["shutdown_mode"] = m.output_modes(kind, index)
         if not kind.is_digital and rng is not None:

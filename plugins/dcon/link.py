@@ -3,11 +3,25 @@
 from __future__ import annotations
 
 import asyncio
+from typing import Protocol
 
 from fieldgate.health import ErrorKind
 from fieldgate.polling import CommError
 
 from .codec import CR, frame, unframe
+
+
+class SerialPort(Protocol):
+    """What the link needs of a port (:class:`fieldgate.serial_link.AsyncSerial` is one)."""
+
+    async def write(self, data: bytes) -> None: ...
+
+    async def read_until(self, terminator: bytes, timeout: float) -> bytes: ...
+
+    def reset_input(self) -> None: ...
+
+    @property
+    def pending(self) -> int: ...
 
 
 class DconLink:
@@ -18,7 +32,12 @@ class DconLink:
     """
 
     def __init__(
-        self, serial, use_checksum: bool, timeout: float, *, settle_after_timeout: bool = True
+        self,
+        serial: SerialPort,
+        use_checksum: bool,
+        timeout: float,
+        *,
+        settle_after_timeout: bool = True,
     ):
         self.serial = serial
         self.settle_after_timeout = settle_after_timeout

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from fieldgate.health import ErrorKind
@@ -56,7 +57,9 @@ class DconModule(PolledModule):
         self.polls = 0
         self.resets = 0
         self._seen_online = False
-        self.on_reset = lambda module: None  # set by the back: rewrite the outputs
+        self.on_reset: Callable[[DconModule], None] = lambda module: (
+            None
+        )  # set by the back: rewrite the outputs
         wd = config.watchdog
         self.watchdog_enabled = bool(wd and wd.enabled)
         self.watchdog_timeout_ms = wd.timeout_ms if wd else 0
@@ -354,7 +357,7 @@ class DconModule(PolledModule):
         wanted = [
             (letter, value)
             for letter, value in (("S", cfg.safe_value), ("P", cfg.power_on_value))
-            if value is not None
+            if isinstance(value, int)  # (a bit pattern: the config checks it for digital modules)
         ]
         missing = [
             (letter, value)
@@ -391,7 +394,7 @@ class DconModule(PolledModule):
         for index, raw in enumerate(before):
             await self._write_analog(index, raw)
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             "address": self.address,
             "model": self.profile.model,

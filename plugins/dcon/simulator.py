@@ -44,7 +44,7 @@ class DconSimulator(Simulator):
         self.baudrate = baudrate
         self.animate = animate
         self.server = PortServer(port, self._received, baudrate=baudrate)
-        self._ticker: asyncio.Task | None = None
+        self._ticker: asyncio.Task[None] | None = None
 
     @property
     def replies(self) -> int:
@@ -71,7 +71,7 @@ class DconSimulator(Simulator):
     def from_modules(
         cls,
         port: str,
-        modules: list[tuple],
+        modules: list[tuple[Any, ...]],
         *,
         checksum: bool = False,
         baudrate: int = 9600,

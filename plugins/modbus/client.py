@@ -24,11 +24,13 @@ import time
 from collections import Counter
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import serial
 from pymodbus import FramerType
 from pymodbus.client import AsyncModbusSerialClient
 from pymodbus.exceptions import ConnectionException, ModbusException
+from pymodbus.pdu import ModbusPDU
 
 from fieldgate.health import ErrorKind
 from fieldgate.plugin import PluginStartError
@@ -36,6 +38,9 @@ from fieldgate.polling import CommError, LineLost
 from fieldgate.serial_link import char_time
 
 from .codec import Function, diagnose
+
+if TYPE_CHECKING:
+    from .config import ModbusBackConfig
 
 log = logging.getLogger("fieldgate.modbus")
 logging.getLogger("pymodbus").setLevel(
@@ -59,12 +64,12 @@ def inter_frame_gap(baudrate: int, bits_per_char: int = 11) -> float:
 
 @dataclass
 class ModbusStats:
-    requests: Counter = field(default_factory=Counter)  # by function code
-    errors: Counter = field(default_factory=Counter)  # by ErrorKind
-    exception_codes: Counter = field(default_factory=Counter)
+    requests: Counter[int] = field(default_factory=Counter)  # by function code
+    errors: Counter[ErrorKind] = field(default_factory=Counter)
+    exception_codes: Counter[int] = field(default_factory=Counter)
     last_rtt: float | None = None
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {
             "requests": {f"fc{k}": v for k, v in sorted(self.requests.items())},
             "errors": {str(k): v for k, v in self.errors.items()},
@@ -91,7 +96,7 @@ class ModbusLink:
         self.timeout = timeout
         self.gap = inter_frame_gap(baudrate) if inter_frame is None else inter_frame
         self.stats = ModbusStats()
-        self._settings = {
+        self._settings: dict[str, Any] = {
             "baudrate": baudrate,
             "bytesize": bytesize,
             "parity": parity,
@@ -103,7 +108,7 @@ class ModbusLink:
         self._quiet_since = 0.0
 
     @classmethod
-    def from_config(cls, config) -> ModbusLink:
+    def from_config(cls, config: ModbusBackConfig) -> ModbusLink:
         gap = None if config.inter_frame_ms is None else config.inter_frame_ms / 1000
         return cls(
             config.port,
@@ -147,12 +152,15 @@ class ModbusLink:
         return data
 
     # -- transactions -----------------------------------------------------------
+    @property
+    def _open_client(self) -> AsyncModbusSerialClient:
+        if self._client is None:
+            raise CommError(ErrorKind.IO, "the port is not open")
+        return self._client
+
     async def read_bits(self, unit: int, function: int, address: int, count: int) -> list[bool]:
-        call = (
-            self._client.read_coils
-            if function == Function.READ_COILS
-            else self._client.read_discrete_inputs
-        )
+        client = self._open_client
+        call = client.read_coils if function == Function.READ_COILS else client.read_discrete_inputs
         reply = await self._transact(
             unit, function, lambda: call(address, count=count, device_id=unit)
         )
@@ -162,10 +170,11 @@ class ModbusLink:
         return bits[:count]
 
     async def read_registers(self, unit: int, function: int, address: int, count: int) -> list[int]:
+        client = self._open_client
         call = (
-            self._client.read_holding_registers
+            client.read_holding_registers
             if function == Function.READ_HOLDING_REGISTERS
-            else self._client.read_input_registers
+            else client.read_input_registers
         )
         reply = await self._transact(
             unit, function, lambda: call(address, count=count, device_id=unit)
@@ -175,9 +184,12 @@ class ModbusLink:
             raise self._bad(function, f"reply carries {len(registers)} registers, {count} asked")
         return registers
 
-    async def write(self, unit: int, function: int, address: int, values: list) -> None:
-        def request():
-            c = self._client
+    async def write(
+        self, unit: int, function: int, address: int, values: list[bool] | list[int]
+    ) -> None:
+        c = self._open_client
+
+        def request() -> Awaitable[ModbusPDU]:
             if function == Function.WRITE_SINGLE_COIL:
                 return c.write_coil(address, bool(values[0]), device_id=unit)
             if function == Function.WRITE_SINGLE_REGISTER:
@@ -190,7 +202,9 @@ class ModbusLink:
         if getattr(reply, "address", address) != address:
             raise self._bad(function, f"write echo names address {reply.address}, not {address}")
 
-    async def _transact(self, unit: int, function: int, request: Callable[[], Awaitable]) -> object:
+    async def _transact(
+        self, unit: int, function: int, request: Callable[[], Awaitable[ModbusPDU | None]]
+    ) -> ModbusPDU:
         """Run one pymodbus request with t3.5 silence before it; classify failures."""
         if self._client is None:
             raise CommError(ErrorKind.IO, "the port is not open")
@@ -204,7 +218,7 @@ class ModbusLink:
         self.stats.requests[function] += 1
         started = time.monotonic()
         try:
-            reply = await request()
+            reply: ModbusPDU | None = await request()  # (None: pymodbus gave up without a reply)
         except ConnectionException as exc:
             raise self._lost(f"port failed: {exc}") from None
         except ModbusException:
@@ -248,7 +262,7 @@ def _describe(kind: ErrorKind, data: bytes) -> str:
     return f"{kind}: received {data[:32].hex(' ')}{' ...' if len(data) > 32 else ''}"
 
 
-def _check_port(port: str, settings: dict) -> None:
+def _check_port(port: str, settings: dict[str, Any]) -> None:
     """Open and close the port once, so a missing device gives a one-line cause."""
     try:
         serial.serial_for_url(port, **settings, timeout=0).close()

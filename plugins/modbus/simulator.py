@@ -115,7 +115,7 @@ class SimModule:
                 self.tables[p.table][a] = False if p.table.is_bits else 0
 
     # -- values by point ------------------------------------------------------------
-    def set_point(self, p: Point, value) -> None:
+    def set_point(self, p: Point, value: bool | int | float) -> None:
         cells = self.tables[p.table]
         if p.table.is_bits:
             cells[p.address] = bool(value)
@@ -125,7 +125,7 @@ class SimModule:
             for i, word in enumerate(regvalues.encode(p.dtype, value, p.word_order)):
                 cells[p.address + i] = word
 
-    def get_point(self, p: Point):
+    def get_point(self, p: Point) -> bool | int | float:
         cells = self.tables[p.table]
         if p.table.is_bits:
             return cells[p.address]
@@ -156,7 +156,7 @@ class SimModule:
         if any(a not in cells for a in span):
             return exception_response(self.address, fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
         if fc in (1, 2):
-            return read_bits_response(self.address, fc, [cells[a] for a in span])
+            return read_bits_response(self.address, fc, [bool(cells[a]) for a in span])
         if fc in (3, 4):
             return read_registers_response(self.address, fc, [cells[a] for a in span])
         before = {a: cells[a] for a in span}
@@ -333,7 +333,7 @@ class ModbusSimulator(Simulator):
             parity=c.parity,
             stopbits=c.stopbits,
         )
-        self._task: asyncio.Task | None = None
+        self._task: asyncio.Task[None] | None = None
         self.output_listeners: list[Callable[[str, object], None]] = []
         self._outputs_seen = {
             cid: m.get_point(p) for cid, (m, p) in self.channels.items() if p.kind.is_output
@@ -367,7 +367,7 @@ class ModbusSimulator(Simulator):
                 f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})"
             ) from None
 
-    def set_input(self, channel_id: str, value) -> None:
+    def set_input(self, channel_id: str, value: bool | int | float) -> None:
         module, point = self._lookup(channel_id)
         if point.kind.is_output:
             raise ValueError(f"{channel_id} is an output; the gateway writes it")
@@ -375,11 +375,11 @@ class ModbusSimulator(Simulator):
             point, point.dtype.check(value) if point.dtype is not DataType.FLOAT32 else float(value)
         )
 
-    def get_output(self, channel_id: str):
+    def get_output(self, channel_id: str) -> bool | int | float:
         module, point = self._lookup(channel_id)
         return module.get_point(point)
 
-    def get(self, channel_id: str):
+    def get(self, channel_id: str) -> bool | int | float:
         """Any channel's current value in the simulated module (inputs too)."""
         module, point = self._lookup(channel_id)
         return module.get_point(point)
@@ -465,7 +465,7 @@ class ModbusSimulator(Simulator):
                 module.set_point(p, _animated_value(p, tick))
 
 
-def _animated_value(p: Point, tick: int):
+def _animated_value(p: Point, tick: int) -> bool | int | float:
     if p.kind is Kind.SI:  # a counter block: the tick count, little-endian, every 4 bytes
         return tick >> 8 * (p.index % 4) & 0xFF
     if p.kind is Kind.DI:
@@ -498,7 +498,7 @@ def demo_wiring(config: ModbusBackConfig) -> list[tuple[str, str]]:
                 out.append([p for p in pts if p.kind is kind])
         return out
 
-    pairs = []
+    pairs: list[tuple[str, str]] = []
     for out_kind, in_kind in ((Kind.DO, Kind.DI), (Kind.AO, Kind.AI)):
         # modules and channels pair up as far as both sides go; the rest have no partner
         for outs, ins in zip(having(out_kind), having(in_kind, without=out_kind), strict=False):
