@@ -7,7 +7,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from fieldgate.exitcodes import ExitCode
-from fieldgate.plugin import PluginStartError, hookimpl
+from fieldgate.plugin import PluginStartError, Registry, hookimpl
 
 from .framework import (
     DEVICENET_PROFILES,
@@ -22,6 +22,9 @@ from .outcome import DeviceSilent
 from .report import details, line, summary, write_junit
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from .framework import CaseResult
     from .runner import SuiteConfig
 
 HELP = "run the CANopen conformance suite against a device (black box: bus + EDS)"
@@ -208,10 +211,16 @@ def run(args: argparse.Namespace) -> int:
     )
 
 
-def _run_and_report(args: argparse.Namespace, properties: dict[str, str], start) -> int:
+def _run_and_report(
+    args: argparse.Namespace,
+    properties: dict[str, str],
+    start: Callable[
+        [Callable[[CaseResult], None], Callable[[dict[str, str]], None]], list[CaseResult]
+    ],
+) -> int:
     """Run ``start(progress, on_start)``, print the report, write JUnit; the exit code."""
 
-    def progress(result):
+    def progress(result: CaseResult) -> None:
         print(line(result), flush=True)
         if result.verdict is Verdict.FAIL:
             print("\n".join(details(result)), flush=True)
@@ -287,5 +296,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 @hookimpl
-def fieldgate_register(registry) -> None:
+def fieldgate_register(registry: Registry) -> None:
     registry.add_command(("conformance",), HELP, configure, run)
