@@ -211,24 +211,35 @@ def _runner(choice: str) -> asyncio.Runner:
 
 
 async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
+    from .systemd import Notifier, status_line
+
     log = logging.getLogger("fieldgate")
+    notifier = Notifier.from_environment()  # systemd's Type=notify service (docs/deploy.md)
     with stopped_by_signals() as stop:
         log.info("event loop: %s", loop_name(asyncio.get_running_loop()))
         try:
             await gateway.start()
         except GatewayStartError as exc:
             log.error("cannot start: %s", exc)
+            if notifier is not None:
+                notifier.status(f"cannot start: {exc}")
+                notifier.close()
             return ExitCode.CANNOT_RUN
-        status = (
-            asyncio.create_task(_print_status(gateway, args.status_every))
-            if args.status_every
-            else None
-        )
+        tasks = []
+        if args.status_every:
+            tasks.append(asyncio.create_task(_print_status(gateway, args.status_every)))
+        if notifier is not None:
+            notifier.ready(status_line(gateway))
+            tasks.append(asyncio.create_task(notifier.keep_alive(lambda: status_line(gateway))))
         await wait_until(stop, args.duration)
         log.info("stopping")
-        if status is not None:
-            status.cancel()
+        if notifier is not None:
+            notifier.stopping()
+        for task in tasks:
+            task.cancel()
         await gateway.stop()
+        if notifier is not None:
+            notifier.close()
     return ExitCode.OK
 
 
@@ -373,7 +384,14 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     )
     p.set_defaults(handler=cmd_plugins)
 
-    from . import edscmd, scancmd, simcmd
+    from . import edscmd, scancmd, simcmd, unitcmd
+
+    p = sub.add_parser(
+        "service-unit",
+        help=f"print the systemd unit {unitcmd.UNIT_NAME} for this installation (docs/deploy.md)",
+    )
+    unitcmd.configure(p)
+    p.set_defaults(handler=lambda a, r: unitcmd.run(a))
 
     p = sub.add_parser("eds", help="write the EDS of a front (CANopen, DeviceNet, ...)")
     edscmd.configure(p, registry)
