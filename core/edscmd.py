@@ -18,7 +18,7 @@ from .topology import FrontConfig, Topology, TopologyError, load_topology
 
 
 def configure(parser: argparse.ArgumentParser, registry: Registry) -> None:
-    from .cli import add_overrides_argument
+    from .cliargs import add_overrides_argument
 
     types = ", ".join(sorted(registry.eds_writers)) or "none installed"
     parser.add_argument("topology", help="topology YAML file")
@@ -67,7 +67,7 @@ def choose_front(topology: Topology, registry: Registry, name: str | None) -> Fr
 
 def eds_text(args: argparse.Namespace, registry: Registry) -> tuple[FrontConfig, str]:
     """The front and its EDS, as the command line asks (TopologyError, CommandError)."""
-    from .cli import parse_overrides
+    from .cliargs import parse_overrides
 
     topology = load_topology(args.topology, registry, parse_overrides(args.set))
     front = choose_front(topology, registry, args.front)

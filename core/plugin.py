@@ -562,6 +562,13 @@ def load_registry(extra_plugins: list[object] | None = None) -> Registry:
         dist = ep.dist.name if ep.dist else "?"
         version = ep.dist.version if ep.dist else "?"
         info = PluginInfo(ep.name, version, dist)
+        if ep.name in registry.plugins:  # two distributions chose one name: the first keeps it
+            info.name = f"{ep.name}@{dist}"
+            info.error = (
+                f"plugin name {ep.name!r} is taken by {registry.plugins[ep.name].distribution}"
+            )
+            registry.plugins[info.name] = info
+            continue
         registry.plugins[ep.name] = info
         try:
             module = ep.load()

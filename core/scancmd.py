@@ -19,7 +19,7 @@ from .plugin import PluginStartError, Registry, Scanner, ScanProgress
 
 
 def configure(parser: argparse.ArgumentParser, scanner: Scanner, back_type: str) -> None:
-    from .cli import deprecated_alias
+    from .cliargs import deprecated_alias
 
     low, high = scanner.address_range
     parser.add_argument("--port", required=True, help="serial device or pyserial URL")

@@ -48,7 +48,7 @@ def is_serial(registry: Registry, back_type: str) -> bool:
 
 def configure(parser: argparse.ArgumentParser, registry: Registry, back_type: str) -> None:
     """The options of ``fieldgate simulate BACK_TYPE``."""
-    from .cli import add_overrides_argument, deprecated_alias, seconds
+    from .cliargs import add_overrides_argument, deprecated_alias, seconds
 
     cli = registry.simulate_cli[back_type]
     modules = parser.add_argument_group("modules (a topology's back, or --module)")
@@ -109,7 +109,7 @@ def build_config(args: argparse.Namespace, registry: Registry, back_type: str) -
     TopologyError: the topology file is invalid (exit 1); UsageError: the command line does
     not describe a valid back (exit 2).
     """
-    from .cli import parse_overrides
+    from .cliargs import parse_overrides
     from .topology import load_topology
 
     serial = is_serial(registry, back_type)
@@ -162,7 +162,7 @@ def build_config(args: argparse.Namespace, registry: Registry, back_type: str) -
 
 
 def run(args: argparse.Namespace, registry: Registry, back_type: str) -> int:
-    from .cli import deprecated
+    from .cliargs import deprecated
 
     command = f"fieldgate simulate {back_type}"
     legacy = [item for item in args.set if "/" in item.partition("=")[0]]

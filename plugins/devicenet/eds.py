@@ -534,7 +534,7 @@ def register_eds(registry: Registry) -> None:
 
 # -- fieldgate devicenet eds: the old spelling, kept for one release --------------------------
 def configure(parser: argparse.ArgumentParser) -> None:
-    from fieldgate.cli import add_overrides_argument
+    from fieldgate.cliargs import add_overrides_argument
 
     parser.add_argument("topology", help="topology YAML file")
     parser.add_argument("--front", help="devicenet front name (default: the first devicenet front)")
@@ -551,7 +551,7 @@ def to_stderr(*lines: str, code: int = ExitCode.FAILED) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fieldgate.cli import deprecated, parse_overrides
+    from fieldgate.cliargs import deprecated, parse_overrides
 
     deprecated("fieldgate devicenet eds", "fieldgate eds TOPOLOGY [--front NAME]")
     try:

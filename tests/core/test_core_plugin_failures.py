@@ -22,8 +22,9 @@ EXAMPLE = REPO / "examples" / "i7232d-style.yaml"
 
 
 def install_broken(site: Path) -> None:
-    """fieldgate-broken 0.3: plugin ``jsonfile`` fails to import, plugin ``halfway`` fails
-    while registering, after it registered a back type."""
+    """fieldgate-broken 0.3: plugin ``csvfile`` fails to import, plugin ``halfway`` fails
+    while registering, after it registered a back type, and plugin ``jsonfile`` has the name
+    of the guide's example plugin (installed in the test venv)."""
     site.mkdir(parents=True, exist_ok=True)
     (site / "fieldgate_broken_import.py").write_text(
         '"""A plugin whose dependency is missing."""\nimport fieldgate_missing_dependency\n'
@@ -37,6 +38,7 @@ def install_broken(site: Path) -> None:
         '    registry.add_back("halfway", LoopbackConfig, LoopbackBack)\n'
         '    raise RuntimeError("cannot find its license file")\n'
     )
+    (site / "fieldgate_broken_named.py").write_text('"""A plugin named like another one."""\n')
     info = site / "fieldgate_broken-0.3.dist-info"
     info.mkdir(exist_ok=True)
     (info / "METADATA").write_text(
@@ -44,10 +46,13 @@ def install_broken(site: Path) -> None:
     )
     (info / "entry_points.txt").write_text(
         "[fieldgate.plugins]\n"
-        "jsonfile = fieldgate_broken_import\n"
+        "csvfile = fieldgate_broken_import\n"
         "halfway = fieldgate_broken_halfway\n"
+        "jsonfile = fieldgate_broken_named\n"
     )
-    (info / "top_level.txt").write_text("fieldgate_broken_import\nfieldgate_broken_halfway\n")
+    (info / "top_level.txt").write_text(
+        "fieldgate_broken_import\nfieldgate_broken_halfway\nfieldgate_broken_named\n"
+    )
 
 
 @pytest.fixture(scope="module")
@@ -76,16 +81,23 @@ def test_fieldgate_plugins_exits_1_and_gives_each_failure_in_one_line(broken_env
     assert result.returncode == 1, result.stdout + result.stderr
     rows = {line.split()[0]: line for line in result.stdout.splitlines()}
     assert rows["PLUGIN"].split() == ["PLUGIN", "VERSION", "DISTRIBUTION", "PROVIDES", "SUMMARY"]
-    assert rows["jsonfile"].endswith(
+    assert rows["csvfile"].endswith(
         "FAILED: ModuleNotFoundError: No module named 'fieldgate_missing_dependency'"
     )
-    assert "fieldgate-broken" in rows["jsonfile"]
+    assert "fieldgate-broken" in rows["csvfile"]
+    # two plugins of one name: the first on the path keeps it, the other fails and says why
+    assert "FAILED" not in rows["jsonfile"] and "fieldgate-broken" in rows["jsonfile"]
+    assert rows["jsonfile@fieldgate-jsonfile"].endswith(
+        "FAILED: plugin name 'jsonfile' is taken by fieldgate-broken"
+    )
     # what it registered before failing is undone: it provides nothing, not half
     assert rows["halfway"].split()[3] == "-"
     assert rows["halfway"].endswith("FAILED: RuntimeError: cannot find its license file")
     # the others are listed as usual
     assert "FAILED" not in rows["modbus"] and "back:modbus" in rows["modbus"]
-    assert result.stderr.strip() == "fieldgate plugins: 2 plugin(s) failed: halfway, jsonfile"
+    assert result.stderr.strip() == (
+        "fieldgate plugins: 3 plugin(s) failed: csvfile, halfway, jsonfile@fieldgate-jsonfile"
+    )
 
 
 def test_a_topology_that_does_not_use_it_validates_and_runs(broken_env):
@@ -94,7 +106,7 @@ def test_a_topology_that_does_not_use_it_validates_and_runs(broken_env):
     assert valid.stderr == ""  # not a word about the broken plugins
     run = fieldgate(broken_env, "run", str(EXAMPLE), "--simulate", "--duration", "0.5")
     assert run.returncode == 0, run.stderr
-    assert "broken" not in run.stderr and "jsonfile" not in run.stderr
+    assert "broken" not in run.stderr and "csvfile" not in run.stderr
 
 
 def test_a_topology_that_needs_it_names_it_and_its_error(broken_env, tmp_path):
@@ -102,16 +114,16 @@ def test_a_topology_that_needs_it_names_it_and_its_error(broken_env, tmp_path):
     topology.write_text(
         "gateway: {name: files}\n"
         "fronts: [{name: plc, type: memory}]\n"
-        "backs: [{name: lab, type: jsonfile, modules: []}]\n"
+        "backs: [{name: lab, type: csvfile, modules: []}]\n"
     )
     for command in ("validate", "run"):
         result = fieldgate(broken_env, command, str(topology))
         assert result.returncode == 1, result.stderr
-        (line,) = [text for text in result.stderr.splitlines() if "jsonfile" in text]
+        (line,) = [text for text in result.stderr.splitlines() if "csvfile" in text]
         assert line.startswith(f"{topology}:3:")
         assert (
-            "no installed plugin provides back type 'jsonfile'" in line
-            and "plugin jsonfile (fieldgate-broken) failed to load: ModuleNotFoundError: "
+            "no installed plugin provides back type 'csvfile'" in line
+            and "plugin csvfile (fieldgate-broken) failed to load: ModuleNotFoundError: "
             "No module named 'fieldgate_missing_dependency'"
             in line
         )
