@@ -7,7 +7,7 @@ other nodes' TPDO1s, never ours) through a raw ``AF_CAN`` socket (the standard l
 python-can: the fastest a Python sender gets), ``--rate`` frames/s (0: as fast as it can).
 A full transmit queue (ENOBUFS) is waited out, not counted. Prints one JSON line:
 ``{"frames": N, "seconds": S, "rate": N/S}``. Used by bench/can_load.py and
-tests/uml/test_uml_can_load.py; needs Linux with SocketCAN (inside User-Mode Linux here).
+tests/socketcan/test_socketcan_can_load.py; needs Linux with SocketCAN (inside User-Mode Linux here).
 """
 
 from __future__ import annotations

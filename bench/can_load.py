@@ -1,8 +1,8 @@
 """CANopen slaves on a busy bus over real SocketCAN: fieldgate against canopen's LocalNode
 (and durand where installed), in one User-Mode Linux boot, with one raw client.
 
-    FIELDGATE_UML_TIMEOUT=2400 .ci/uml/run python bench/can_load.py            # 60 s per phase
-    .ci/uml/run python bench/can_load.py --duration 5 --requests 500          # a quick run
+    FIELDGATE_SOCKETCAN_TIMEOUT=2400 .ci/socketcan/run python bench/can_load.py            # 60 s per phase
+    .ci/socketcan/run python bench/can_load.py --duration 5 --requests 500          # a quick run
 
 Each slave is its own process on its own vcan interface, node-ID 5, serving 0x1000 (device type):
 ``fieldgate run`` with a canopen front and the in-memory ``loopback`` back (no serial
@@ -613,7 +613,7 @@ def main() -> None:
         return serve_durand(args.channel)
     if not Path(f"/sys/class/net/{args.channel}").exists():
         raise SystemExit(
-            f"no {args.channel}: run inside User-Mode Linux: .ci/uml/run python bench/can_load.py"
+            f"no {args.channel}: run inside User-Mode Linux: .ci/socketcan/run python bench/can_load.py"
         )
     kinds = [k.strip() for k in args.slaves.split(",") if k.strip()]
     if "durand" in kinds:

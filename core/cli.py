@@ -13,12 +13,13 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from .cliargs import (
-    add_overrides_argument,
-    parse_overrides,
-    seconds,
-    usage_error,
+from .cliargs import (  # `X as X`: plugins import these two from here too
+    add_overrides_argument as add_overrides_argument,
 )
+from .cliargs import (
+    parse_overrides as parse_overrides,
+)
+from .cliargs import seconds, usage_error
 from .exitcodes import ExitCode
 from .plugin import ENTRY_POINT_GROUP, Command, Registry, load_registry, one_line
 from .runtime import Gateway, GatewayStartError

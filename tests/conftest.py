@@ -42,3 +42,18 @@ def stopped_by_signal():
             os.close(terminal)
 
     return stop
+
+
+def pytest_collection_modifyitems(config, items):
+    """In a slow SocketCAN guest (QEMU's software emulation), each test's time limit
+    stretches by the slowdown `.ci/socketcan/run` measured, as its waits do."""
+    from socketcan_timing import SLOWDOWN
+
+    if SLOWDOWN <= 1:
+        return
+    default = float(config.getini("timeout") or 0)
+    for item in items:
+        marker = item.get_closest_marker("timeout")
+        limit = marker.args[0] if marker is not None and marker.args else default
+        if limit:
+            item.add_marker(pytest.mark.timeout(limit * SLOWDOWN), append=False)

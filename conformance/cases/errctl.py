@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable
 from itertools import pairwise
 
-from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_START, NMT_STOP
+from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_START, NMT_STOP, SdoAbort, abort_text
 from ..framework import Context, Fail, Skip, case
 from ..link import Frame
 from .common import EMCY_LIFE_GUARD, emcy_code, expect_emcy
@@ -148,6 +148,28 @@ def guard_replies(ctx: Context, count: int) -> list[int]:
 
 def require_guarding(ctx: Context) -> None:
     ctx.device.require(0x100C, why="node guarding")
+    guarding_mode(ctx)
+
+
+def guarding_mode(ctx: Context) -> None:
+    """Switch a device with a running heartbeat producer to node guarding, as a master does:
+    CiA 301 (§7.2.8.3.2) uses guarding only while 0x1017 is 0. Needed again after every reset
+    communication of a device whose 0x1017 default is not 0; 0x1017 is restored at the end."""
+    dev = ctx.device
+    if not dev.has(0x1017):
+        return
+    period = dev.read(0x1017, 0)
+    if not period:
+        return
+    try:
+        dev.write(0x1017, 0, 0)
+    except SdoAbort as exc:
+        raise Skip(
+            f"heartbeat producer on ({period} ms) and 0x1017 = 0 refused ({abort_text(exc.code)}):"
+            " node guarding is not used while it runs (CiA 301 §7.2.8.3.2)"
+        ) from None
+    ctx.cleanup(lambda: dev.write(0x1017, 0, period))
+    dev.link.collect(0x700 + dev.node_id, 0.02)  # a heartbeat already under way is not a reply
 
 
 @case(
@@ -160,6 +182,7 @@ def guarding_toggle(ctx: Context) -> None:
     dev = ctx.device
     if dev.reset(NMT_RESET_COMM) is None:
         raise Fail("no boot-up after reset communication", seen="nothing")
+    guarding_mode(ctx)  # the reset brought a heartbeat producer default back
     replies = guard_replies(ctx, 4)
     toggles = [r >> 7 for r in replies]
     if toggles != [0, 1, 0, 1]:
@@ -192,6 +215,7 @@ def life_guard(
     dev = ctx.device
     dev.require(0x100D, why="life time factor")
     dev.require(0x1014, why="EMCY shows the life guarding event")
+    guarding_mode(ctx)  # first: its restore runs after the others
     ctx.cleanup(lambda: dev.reset(NMT_RESET_COMM))
     ctx.cleanup(lambda: dev.write(0x100D, 0, 0))
     ctx.cleanup(lambda: dev.write(0x100C, 0, 0))

@@ -153,7 +153,12 @@ def reset_comm_vs_node(ctx: Context) -> None:
         [v for v in rw_ints(dev, 0x1000, 0x1FFF, avoid) if int_default(v) is not None],
         "communication",
     )
-    apps = [v for v in rw_ints(dev, 0x2000, 0x9FFF) if int_default(v) is not None]
+    # The device profile area first: its reset semantics are CiA's. A manufacturer object may
+    # hold what lives in an I/O module (ICP DAS 0x2001: a module's host watchdog) or a setting
+    # applied at reset node (NA-9161 0x4500:2), which a reset node cannot undo.
+    apps = [v for v in rw_ints(dev, 0x6000, 0x9FFF) if int_default(v) is not None] or [
+        v for v in rw_ints(dev, 0x2000, 0x5FFF) if int_default(v) is not None
+    ]
     app = _write_other(ctx, sorted(apps, key=lambda v: v.pdo_mappable), "application")
     expect_bootup(ctx, NMT_RESET_COMM, "reset communication")
     for var, want, what in (

@@ -90,6 +90,12 @@ def restore_later(ctx: Context, index: int, sub: int) -> None:
 @case("seed", "tv01_expedited_upload", "TV-01 / TV-S01: 0x1400:0 = 2 by expedited upload")
 def tv01(ctx: Context) -> None:
     require_objects(ctx, 0x1400)
+    highest = ctx.device.od_default(0x1400, 0, 2)
+    if highest != 2:
+        raise Skip(
+            f"the EDS gives 0x1400 {highest} sub-entries (CiA 301 v4.2 allows 2 or 5); the"
+            " I-7232D's answer byte 02 is its own"
+        )
     replay(
         ctx,
         """

@@ -78,6 +78,7 @@ class Topology:
         ]
         for f in self.fronts:
             lines.append(f"  front {f.name} ({f.type})")
+            lines += [f"    warning: {text}" for text in f.validation_warnings()]
         for b in self.backs:
             n = sum(1 for s in self.channel_specs if s.source.back == b.name)
             lines.append(f"  back  {b.name} ({b.type}): {len(b.modules)} module(s), {n} channel(s)")

@@ -193,6 +193,11 @@ class FrontConfig(ComponentConfig):
         """
         return self.expose
 
+    def validation_warnings(self) -> list[str]:
+        """What ``fieldgate validate`` should point out although the section is valid
+        (a listener that accepts clients without authenticating them)."""
+        return []
+
 
 class ModuleConfig(StrictModel):
     """One RS-485 module. Plugins subclass it to add model presets and channel declarations."""

@@ -4,7 +4,7 @@ The node states the CAN-IDs it takes frames on (``Node.listen_ids``); the adapte
 to ``bus.set_filters`` (python-can filters in ``recv`` on the virtual bus, the kernel on
 SocketCAN). Every configuration change is checked: SDO writes to a PDO COB-ID, 0x1005,
 0x1012, 0x1016 and an SDO channel, NMT reset communication, an LSS node-ID switch; and a
-frame outside the set never reaches the node. (Over real vcan: tests/uml/test_uml_can_load.py.)
+frame outside the set never reaches the node. (Over real vcan: tests/socketcan/test_socketcan_can_load.py.)
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The live page in a real browser: the distribution's headless Chromium driven by Selenium.
 
 Chromium and chromedriver come from the distribution (.ci/browser/install, run by
-scripts/test when CI=true or with --uml). Without them the test is skipped with the reason,
+scripts/test when CI=true or with --socketcan). Without them the test is skipped with the reason,
 except under CI=true, where it fails. ``FIELDGATE_SCREENSHOT=docs/observability-page.png``
 saves the page as docs/observability.md shows it.
 """
@@ -29,7 +29,7 @@ def _missing(why: str) -> None:
     if os.environ.get("CI") == "true":
         pytest.fail(f"{why} (CI=true: .ci/browser/install should have installed it)")
     pytest.skip(
-        f"{why}: run .ci/browser/install (or scripts/test --uml) to test the page in Chromium"
+        f"{why}: run .ci/browser/install (or scripts/test --socketcan) to test the page in Chromium"
     )
 
 

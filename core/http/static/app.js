@@ -84,7 +84,18 @@ function frontFacts(name, f) {
     const open = Object.entries(f.connections).map(([n, c]) => `${n} ${c.state}`).join(", ");
     facts.push(["connections", open || "none"]);
   }
-  facts.push(["master", f.master_ok ? "present" : "lost" + (f.master && f.master.reason ? `: ${f.master.reason}` : "")]);
+  if (f.endpoint) facts.push(["endpoint", f.endpoint]);
+  // a server front (OPC UA, Modbus TCP) lists its clients and counters; it has no master
+  if (Array.isArray(f.clients)) {
+    const who = f.clients.map((c) => (c.user ? `${c.peer} (${c.user})` : c.peer));
+    facts.push(["clients", who.length ? `${who.length}: ${who.join(", ")}` : "none"]);
+  } else {
+    facts.push(["master", f.master_ok ? "present" : "lost" + (f.master && f.master.reason ? `: ${f.master.reason}` : "")]);
+  }
+  if (Array.isArray(f.clients) && f.counters) {
+    const shown = Object.entries(f.counters).map(([k, v]) => `${k.replace(/_/g, " ")} ${v}`);
+    if (shown.length) facts.push(["counters", shown.join(" · ")]);
+  }
   if (f.bus) facts.push(["CAN", `${f.bus.bus_off ? "BUS-OFF" : "ok"} · rx ${f.bus.rx} · tx ${f.bus.tx}`]);
   const services = f.services || {};
   if (services.emcy) facts.push(["EMCY", services.emcy.active.length ? `active ${services.emcy.active.join(", ")}` : "none active"]);

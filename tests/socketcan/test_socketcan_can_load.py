@@ -26,6 +26,7 @@ from pathlib import Path
 
 import can
 import pytest
+from socketcan_timing import scaled
 
 from fieldgate import Gateway, load_registry
 from fieldgate.can import socketcan_raw
@@ -38,10 +39,10 @@ FLOOD_S = 3.0
 FOREIGN = "0x181-0x184,0x186-0x1FF"
 
 pytestmark = [
-    pytest.mark.uml,
+    pytest.mark.socketcan,
     pytest.mark.skipif(
         not Path(f"/sys/class/net/{CHANNEL}").exists(),
-        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/uml/run)",
+        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/socketcan/run)",
     ),
 ]
 
@@ -67,7 +68,7 @@ def start_flood(seconds: float = FLOOD_S, ids: str = FOREIGN) -> subprocess.Pope
 
 
 def flood_result(proc: subprocess.Popen[str]) -> dict:
-    out, _ = proc.communicate(timeout=60)
+    out, _ = proc.communicate(timeout=scaled(60))
     assert proc.returncode == 0
     result = json.loads(out.strip().splitlines()[-1])
     assert result["frames"] > 1000, result  # it was a flood

@@ -1,4 +1,4 @@
-"""The suite over real SocketCAN (vcan0 inside User-Mode Linux, `.ci/uml/run`), skipped elsewhere.
+"""The suite over real SocketCAN (vcan0 inside User-Mode Linux, `.ci/socketcan/run`), skipped elsewhere.
 
 The gateway runs as its own process (`fieldgate run`), the suite as another
 (`python -m fieldgate.conformance`), exactly as a test engineer would use them.
@@ -23,14 +23,15 @@ from conformance_gateway import (
     topology,
     write_eds,
 )
+from socketcan_timing import SLOWDOWN, scaled
 
 CHANNEL = "vcan0"
 
 pytestmark = [
-    pytest.mark.uml,
+    pytest.mark.socketcan,
     pytest.mark.skipif(
         not Path(f"/sys/class/net/{CHANNEL}").exists(),
-        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/uml/run)",
+        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/socketcan/run)",
     ),
 ]
 
@@ -65,7 +66,7 @@ def test_suite_over_vcan0_against_the_gateway_process(tmp_path):
         stderr=subprocess.STDOUT,
     )
     try:
-        assert wait_bootup(30), (tmp_path / "gateway.log").read_text()
+        assert wait_bootup(scaled(30)), (tmp_path / "gateway.log").read_text()
         junit = tmp_path / "conformance.xml"
         run = subprocess.run(
             [
@@ -88,11 +89,11 @@ def test_suite_over_vcan0_against_the_gateway_process(tmp_path):
                 "--heartbeat-ms",
                 "100",
                 "--tolerance-ms",
-                "40",
+                f"{40 * SLOWDOWN:.0f}",
             ],
             capture_output=True,
             text=True,
-            timeout=600,
+            timeout=scaled(600),
         )
         assert run.returncode in (0, 1), run.stdout[-3000:] + run.stderr[-2000:]
         suite = ET.parse(junit).getroot().find("testsuite")
@@ -111,7 +112,7 @@ def test_suite_over_vcan0_against_the_gateway_process(tmp_path):
     finally:
         gateway.terminate()
         try:
-            gateway.wait(10)
+            gateway.wait(scaled(10))
         except subprocess.TimeoutExpired:
             gateway.kill()
             gateway.wait()

@@ -1,4 +1,4 @@
-"""The DeviceNet front over real SocketCAN. Runs inside User-Mode Linux (`.ci/uml/run`), skipped elsewhere.
+"""The DeviceNet front over real SocketCAN. Runs inside User-Mode Linux (`.ci/socketcan/run`), skipped elsewhere.
 
 Two gateways run as their own processes (``fieldgate run ... --simulate``), two DeviceNet
 slaves on vcan0:
@@ -44,6 +44,7 @@ from pathlib import Path
 
 import can
 import pytest
+from socketcan_timing import scaled
 
 from fieldgate.conformance import select
 
@@ -54,10 +55,10 @@ PRODUCT_NAME = "fieldgate DeviceNet on vcan0"  # 27 characters: a fragmented exp
 I7241D_EXAMPLE, I7241D_MAC = REPO / "examples" / "i7241d-style.yaml", 1
 
 pytestmark = [
-    pytest.mark.uml,
+    pytest.mark.socketcan,
     pytest.mark.skipif(
         not Path(f"/sys/class/net/{CHANNEL}").exists(),
-        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/uml/run)",
+        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/socketcan/run)",
     ),
 ]
 
@@ -166,7 +167,7 @@ class GatewayProcess:
             return self.proc.wait(timeout)
         except subprocess.TimeoutExpired:
             self.proc.send_signal(signal.SIGABRT)
-            self.proc.wait(10)
+            self.proc.wait(scaled(10))
             return None
 
     def stop(self) -> None:
@@ -222,7 +223,7 @@ def network(tmp_path_factory):
     try:
         bench.start()
         i7241d.start()
-        assert wait_online([bench, i7241d], 30), bench.log() + i7241d.log()
+        assert wait_online([bench, i7241d], scaled(30)), bench.log() + i7241d.log()
         yield Network(bench, i7241d)
     finally:
         bench.stop()
@@ -246,7 +247,7 @@ def words(values: list[int]) -> bytes:
 async def wait_for_image(
     gateway: GatewayProcess, expected: dict[str, str], timeout: float = 5.0
 ) -> dict[str, str]:
-    end = time.monotonic() + timeout
+    end = time.monotonic() + scaled(timeout)
     while True:
         image = gateway.image()
         if (
@@ -357,7 +358,7 @@ def test_devicenet_conformance_profile_passes_over_vcan0(gateway, tmp_path):
         ],
         capture_output=True,
         text=True,
-        timeout=120,
+        timeout=scaled(120),
         cwd=REPO,
     )
     assert run.returncode == 0, run.stdout[-8000:] + run.stderr[-2000:] + gateway.log()[-3000:]
@@ -576,7 +577,7 @@ def test_the_front_hears_the_bus_again_after_the_interface_restarts(tmp_path, lo
     dup_mac = 0x400 | I7241D_MAC << 3 | 7
     gateway.start()
     try:
-        assert wait_online([gateway], 30), gateway.log()
+        assert wait_online([gateway], scaled(30)), gateway.log()
         restart_interface()
         with can.Bus(interface="socketcan", channel=CHANNEL) as bus:
             bus.send(

@@ -1,6 +1,6 @@
-"""Real SocketCAN, end to end. Runs inside User-Mode Linux (`.ci/uml/run`), skipped elsewhere.
+"""Real SocketCAN, end to end. Runs inside User-Mode Linux (`.ci/socketcan/run`), skipped elsewhere.
 
-The UML stage creates vcan0 and sets FIELDGATE_TEST_CAN=socketcan:vcan0. These tests prove
+The SocketCAN stage (.ci/socketcan/run) creates vcan0 and sets FIELDGATE_TEST_CAN=socketcan:vcan0. These tests prove
 that python-can's socketcan interface really carries frames between processes, then run
 the CANopen integration tests (every tests/canopen module that starts its device through
 canopen_dut, which reads FIELDGATE_TEST_CAN) over vcan0, with the gateway started from
@@ -18,15 +18,16 @@ from pathlib import Path
 
 import can
 import pytest
+from socketcan_timing import scaled
 
 CHANNEL = "vcan0"
 REPO = Path(__file__).resolve().parents[2]
 
 pytestmark = [
-    pytest.mark.uml,
+    pytest.mark.socketcan,
     pytest.mark.skipif(
         not Path(f"/sys/class/net/{CHANNEL}").exists(),
-        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/uml/run)",
+        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/socketcan/run)",
     ),
 ]
 
@@ -50,6 +51,7 @@ ECHO_PEER = textwrap.dedent(
 
 
 def _recv_id(bus: can.BusABC, can_id: int, timeout: float = 2.0) -> can.Message:
+    timeout = scaled(timeout)
     while True:
         msg = bus.recv(timeout)
         assert msg is not None, f"no frame with id {can_id:#x} within {timeout} s"
@@ -71,7 +73,7 @@ def test_frames_cross_between_two_processes_on_vcan0():
                 assert bytes(echo.data) == bytes(reversed(payload))
                 assert echo.channel == CHANNEL
             bus.send(can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False))
-        assert peer.wait(10) == 0
+        assert peer.wait(scaled(10)) == 0
     finally:
         if peer.poll() is None:
             peer.kill()
@@ -106,7 +108,7 @@ def test_kernel_filters_apply_on_vcan0():
                 arbitration_id=0x7E4, data=bytes([0x5E, 5]) + bytes(6), is_extended_id=False
             )
         )
-        msg = rx.recv(2.0)
+        msg = rx.recv(scaled(2.0))
         assert msg is not None and msg.arbitration_id == 0x7E4
         assert rx.recv(0.2) is None
 
@@ -135,7 +137,7 @@ async def test_socketcan_is_read_by_the_event_loop_without_a_thread():
         assert threading.active_count() == threads_before
         for n in range(50):
             tx.send(can.Message(arbitration_id=0x180 + n, data=bytes([n]), is_extended_id=False))
-        await asyncio.wait_for(done.wait(), 5)
+        await asyncio.wait_for(done.wait(), scaled(5))
         receiver.stop()
     assert [(i, d) for i, d, _ in got] == [(0x180 + n, bytes([n])) for n in range(50)]
     assert {t for _, _, t in got} == {threading.get_ident()}
@@ -161,14 +163,14 @@ def test_canopen_integration_suite_passes_over_vcan0_with_gateway_as_a_process()
             "-p",
             "no:cacheprovider",
             "-m",
-            "not uml",
+            "not socketcan",
             *selected,
         ],
         cwd=REPO,
         env=env,
         capture_output=True,
         text=True,
-        timeout=240,
+        timeout=scaled(240),
     )
     summary = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else ""
     assert proc.returncode == 0, proc.stdout[-6000:] + proc.stderr[-2000:]
