@@ -16,10 +16,10 @@ from typing import TYPE_CHECKING, Any
 from .cliargs import (  # `X as X`: plugins import these two from here too
     add_overrides_argument as add_overrides_argument,
 )
+from .cliargs import invalid_topology, seconds, usage_error
 from .cliargs import (
     parse_overrides as parse_overrides,
 )
-from .cliargs import seconds, usage_error
 from .exitcodes import ExitCode
 from .plugin import ENTRY_POINT_GROUP, Command, Registry, load_registry, one_line
 from .runtime import Gateway, GatewayStartError
@@ -49,10 +49,9 @@ def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
     try:
         topology = load_topology(args.file, registry, parse_overrides(args.set))
     except TopologyError as exc:
-        for issue in exc.issues:
-            print(issue, file=sys.stderr)
+        code = invalid_topology(exc)
         print(f"{args.file}: {len(exc.issues)} error(s)", file=sys.stderr)
-        return ExitCode.FAILED
+        return code
     print(f"{args.file}: valid")
     print(topology.summary())
     return ExitCode.OK
@@ -97,9 +96,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
             animate=args.simulate,
         )
     except TopologyError as exc:
-        for issue in exc.issues:
-            print(issue, file=sys.stderr)
-        return ExitCode.FAILED
+        return invalid_topology(exc)
     return _runner(args.loop).run(_run(gateway, args))
 
 

@@ -9,9 +9,17 @@ import sys
 from typing import TYPE_CHECKING, Any, NoReturn
 
 from .exitcodes import ExitCode
+from .topology import TopologyError
 
 if TYPE_CHECKING:  # ruamel.yaml is imported when --set is used, not at every start
     from ruamel.yaml import YAML
+
+
+def invalid_topology(exc: TopologyError) -> int:
+    """Every error of a topology, one line each, on standard error; the exit code (1)."""
+    for issue in exc.issues:
+        print(issue, file=sys.stderr)
+    return ExitCode.FAILED
 
 
 def usage_error(message: str) -> NoReturn:

@@ -12,6 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from .cliargs import invalid_topology
 from .exitcodes import ExitCode
 from .plugin import CommandError, EdsRequest, Registry
 from .topology import FrontConfig, Topology, TopologyError, load_topology
@@ -84,9 +85,7 @@ def run(args: argparse.Namespace, registry: Registry) -> int:
     try:
         front, text = eds_text(args, registry)
     except TopologyError as exc:
-        for issue in exc.issues:
-            print(issue, file=sys.stderr)
-        return ExitCode.FAILED
+        return invalid_topology(exc)
     except CommandError as exc:
         print(f"{args.topology}: {exc}", file=sys.stderr)
         return ExitCode.FAILED

@@ -162,7 +162,7 @@ def build_config(args: argparse.Namespace, registry: Registry, back_type: str) -
 
 
 def run(args: argparse.Namespace, registry: Registry, back_type: str) -> int:
-    from .cliargs import deprecated
+    from .cliargs import deprecated, invalid_topology
 
     command = f"fieldgate simulate {back_type}"
     legacy = [item for item in args.set if "/" in item.partition("=")[0]]
@@ -174,9 +174,7 @@ def run(args: argparse.Namespace, registry: Registry, back_type: str) -> int:
         config = build_config(args, registry, back_type)
         inputs = [_input(item) for item in args.input]
     except TopologyError as exc:
-        for issue in exc.issues:
-            print(issue, file=sys.stderr)
-        return ExitCode.FAILED
+        return invalid_topology(exc)
     except UsageError as exc:
         print(f"{command}: {exc}", file=sys.stderr)
         return ExitCode.CANNOT_RUN
