@@ -15,8 +15,10 @@ from .image import (
     Kind,
     ProcessImage,
     Quality,
+    Reading,
     Scaling,
     Source,
+    Value,
     channel_id,
 )
 from .masters import MasterMonitor
@@ -44,9 +46,11 @@ __all__ = [
     "PluginStartError",
     "ProcessImage",
     "Quality",
+    "Reading",
     "Registry",
     "Scaling",
     "Source",
+    "Value",
     "channel_id",
     "hookimpl",
     "load_registry",

@@ -21,6 +21,15 @@ back join by implementing two small protocols:
   ``set_watchdog``, ``request_clear_watchdog``, and the back-wide host-OK switch
   ``host_ok_enabled`` / ``set_host_ok`` (the dcon back implements both).
 
+**Clearing a timeout** is one sequence for every back, :func:`clear_timeout` (the back
+supplies the line steps, :class:`ClearSteps`). A module's host watchdog keeps running
+while the keep-alive is paused (master lost, or the master switched host OK off), and
+``~AA1`` clears the flag without restarting it: sent first, the module times out again at
+once. So, with host OK allowed: the keep-alive first (``~**``: the watchdog restarts),
+then the clear (``~AA1``), a confirmation (``~AA0`` must show the flag gone), then the
+outputs are written again. With host OK switched off by the master, the clear goes out
+without it, and the result says so (the module will time out again after its timeout).
+
 Fronts translate the exceptions into their protocol's answers: :class:`NoHostWatchdog`
 (the module has none here), ``ValueError`` (a value out of range),
 :class:`WatchdogUnavailable` (the back cannot do it now: not running, module unknown).
@@ -30,8 +39,12 @@ line request's outcome shows in the module's status and health.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Awaitable, Callable, Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
+
+from .health import ErrorKind
+from .polling import CommError
 
 Key = tuple[str, int]  # (back name, module address)
 Setting = tuple[bool, int]  # (enabled, timeout in ms; 0 = unknown)
@@ -68,6 +81,52 @@ class WatchdogBack(Protocol):
 
     def set_host_ok(self, enabled: bool) -> None:
         """Allow or stop the keep-alive: with it off, watchdog-enabled modules time out."""
+
+
+@dataclass
+class ClearSteps:
+    """What :func:`clear_timeout` needs of a back's line, for one module.
+
+    ``host_ok``: send the keep-alive now (DCON ``~**``), or None when it may not be sent,
+    with ``without_host_ok`` saying why (the master switched it off, a master is lost).
+    """
+
+    clear: Callable[[], Awaitable[None]]  # reset the module's timeout flag (``~AA1``)
+    expired: Callable[[], Awaitable[bool]]  # read the flag back (``~AA0`` bit 2)
+    rewrite_outputs: Callable[[], None]  # queue the outputs the image holds
+    host_ok: Callable[[], Awaitable[None]] | None = None
+    without_host_ok: str = ""
+
+
+CLEARED = "cleared"
+
+
+async def clear_timeout(steps: ClearSteps) -> str:
+    """Clear a module's host-watchdog timeout; the outcome for the module's status.
+
+    Raises :class:`~fieldgate.polling.CommError` (kind ``watchdog``) when the module still
+    reports the timeout after the clear, or the line's own error when a step fails.
+    """
+    if steps.host_ok is not None:
+        await steps.host_ok()  # first: the module's watchdog restarts, the clear then holds
+    await steps.clear()
+    if await steps.expired():
+        why = (
+            f" (host OK is off: {steps.without_host_ok}; its watchdog had run out already)"
+            if steps.host_ok is None
+            else ""
+        )
+        raise CommError(
+            ErrorKind.WATCHDOG,
+            f"the module still reports a host-watchdog timeout after the clear{why}",
+        )
+    steps.rewrite_outputs()
+    if steps.host_ok is None:
+        return (
+            f"cleared without host OK ({steps.without_host_ok}): "
+            "the module times out again after its watchdog timeout"
+        )
+    return CLEARED
 
 
 class NoHostWatchdog(LookupError):

@@ -12,10 +12,21 @@ Subscription callbacks run synchronously inside the write that caused them, in t
 same event-loop turn. They must be quick and must not block; a callback that raises
 is logged and skipped, it never breaks the writer (a poller or a CAN engine).
 
+Batches
+-------
+Every write call is one batch: ``update_inputs`` takes all the inputs of a poll reply,
+``write_outputs`` all the outputs of an RPDO or a DeviceNet poll request. The image
+checks them all, updates them, then calls each subscriber once: a ``subscribe_batch``
+callback gets the list of changes it wants (each channel that changed, with its own
+value, quality and timestamp), so an event-driven TPDO, a Sparkplug message or a
+write-on-change wake-up is prepared once per message rather than once per bit.
+``subscribe`` callbacks still get one call per change. The single-channel calls
+(``update_input``, ``write_output``) are batches of one.
+
 Direction of data
 -----------------
-* Inputs (DI, AI, SI) are written by backs (``update_input``) and read by fronts.
-* Outputs (DO, AO, SO) are written by fronts (``write_output``) and read by backs.
+* Inputs (DI, AI, SI) are written by backs (``update_inputs``) and read by fronts.
+* Outputs (DO, AO, SO) are written by fronts (``write_outputs``) and read by backs.
 * SI/SO channels are the bytes (UINT8) of a module's raw byte block, e.g. a high-speed
   counter's 6 input and 2 output bytes; fronts that know no such area leave them out.
 Both sides subscribe to changes, so event-driven PDOs, DeviceNet change-of-state and
@@ -26,13 +37,14 @@ from __future__ import annotations
 
 import asyncio
 import fnmatch
+import itertools
 import logging
 import re
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Any
+from typing import Any, NoReturn
 
 log = logging.getLogger("fieldgate.image")
 
@@ -185,15 +197,28 @@ def channel_id(back: str, address: int, kind: Kind, index: int) -> str:
     return f"{back}/m{address}/{kind.value}{index}"
 
 
+Value = bool | int | float
+Reading = Value | tuple[Value, Quality]
+"""What a back reports for one input: its value, or (value, Quality) when the module itself
+reports a quality for it (over-range, config error...)."""
+
+
 @dataclass
 class Channel:
     spec: ChannelSpec
-    value: bool | int | float
+    value: Value
     quality: Quality
     timestamp: float | None = None  # monotonic time of the last good update
     error_mode: ErrorMode = field(default_factory=ErrorMode)
-    last_good: bool | int | float | None = None  # value at the last good update
+    last_good: Value | None = None  # value at the last good update
     written_by: str = ""  # origin of the last output write
+    # from the spec, once: the write path reads them for every value
+    dtype: DataType = field(init=False, repr=False, compare=False)
+    is_output: bool = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self.dtype = self.spec.data_type
+        self.is_output = self.spec.kind.is_output
 
     @property
     def id(self) -> str:
@@ -208,45 +233,71 @@ class Channel:
         return self.spec.source
 
 
-@dataclass(frozen=True)
 class Change:
-    """One change of value or quality, passed to subscribers."""
+    """One channel's change of value or quality, as subscribers receive it.
 
-    channel: Channel
-    old_value: bool | int | float
-    old_quality: Quality
-    origin: str
+    A snapshot taken when the change was written: ``value``, ``quality`` and ``timestamp``
+    are the channel's right after this change (``timestamp``: the image-clock time of its
+    last good value; for a good value, the time the batch gave), ``old_value`` and
+    ``old_quality`` what it had before, ``origin`` who wrote it. A later change of the same
+    channel comes as a Change of its own. Subscribers must not modify it.
+    """
 
-    @property
-    def value(self) -> bool | int | float:
-        return self.channel.value
+    __slots__ = (
+        "channel",
+        "id",
+        "value",
+        "quality",
+        "timestamp",
+        "old_value",
+        "old_quality",
+        "origin",
+    )
 
-    @property
-    def quality(self) -> Quality:
-        return self.channel.quality
+    def __init__(self, channel: Channel, old_value: Value, old_quality: Quality, origin: str):
+        self.channel = channel
+        self.id = channel.spec.id
+        self.value = channel.value
+        self.quality = channel.quality
+        self.timestamp = channel.timestamp
+        self.old_value = old_value
+        self.old_quality = old_quality
+        self.origin = origin
 
     @property
     def value_changed(self) -> bool:
-        return self.old_value != self.channel.value
+        return self.old_value != self.value
+
+    def __repr__(self) -> str:
+        return (
+            f"Change({self.id}: {self.old_value!r} {self.old_quality} -> {self.value!r} "
+            f"{self.quality} at {self.timestamp}, by {self.origin})"
+        )
 
 
 Callback = Callable[[Change], None]
+BatchCallback = Callable[[list[Change]], None]
 
 
 class Subscription:
-    """Handle returned by :meth:`ProcessImage.subscribe`; call :meth:`cancel` to stop."""
+    """Handle returned by :meth:`ProcessImage.subscribe` / :meth:`ProcessImage.subscribe_batch`;
+    call :meth:`cancel` to stop."""
 
     def __init__(
         self,
         image: ProcessImage,
-        callback: Callback,
+        callback: Callable[[Any], None],
         kinds: frozenset[Kind] | None,
         ids: frozenset[str] | None,
+        batch: bool = False,
     ):
         self._image = image
         self.callback = callback
         self.kinds = kinds
         self.ids = ids
+        self.batch = batch
+        self.active = True
+        self.seq = next(image._seq)
 
     def wants(self, channel: Channel) -> bool:
         if self.kinds is not None and channel.kind not in self.kinds:
@@ -254,15 +305,54 @@ class Subscription:
         return self.ids is None or channel.id in self.ids
 
     def cancel(self) -> None:
-        self._image._subscriptions = [s for s in self._image._subscriptions if s is not self]
+        self.active = False
+        self._image._remove(self)
+
+
+def _by_seq(item: tuple[Subscription, list[Change]]) -> int:
+    return item[0].seq
+
+
+_Staged = tuple[Channel, Value, Quality]
 
 
 class ProcessImage:
-    """All channels of one gateway, with quality, timestamps, error modes and subscriptions."""
+    """All channels of one gateway, with quality, timestamps, error modes and subscriptions.
+
+    Writing, one channel or many at once:
+
+    * backs: :meth:`update_inputs` (every input of one reply, with its quality and the
+      time it was acquired), :meth:`update_input` (one), :meth:`set_quality`;
+    * fronts: :meth:`write_outputs` (every output one message carries: an RPDO, a
+      DeviceNet poll request), :meth:`write_output` (one).
+
+    Each call is one *batch*: every id and value is checked first (nothing is written
+    when one is wrong), then the channels are updated, then subscribers are told once:
+    a :meth:`subscribe_batch` callback gets one list with the changes it wants, a
+    :meth:`subscribe` callback one call per change. A channel whose value and quality
+    stay the same notifies nobody (a good value still refreshes its timestamp).
+
+    A back reporting one reply, and a front that sends one message per reply::
+
+        image.update_inputs(
+            {"rs485/m1/di0": True, "rs485/m1/ai0": (32767, Quality.OVER_RANGE)},
+            timestamp=reply_time,  # image.clock() when the reply came in
+        )
+
+        def changed(changes: list[Change]) -> None:
+            for c in changes:  # only what changed: c.id, c.value, c.quality, c.timestamp
+                ...
+            send_one_message()
+
+        image.subscribe_batch(changed, ids=my_input_ids)
+    """
 
     def __init__(self, clock: Callable[[], float] = time.monotonic):
         self._channels: dict[str, Channel] = {}
         self._subscriptions: list[Subscription] = []
+        self._routes: dict[str, tuple[Subscription, ...]] = {}  # channel id -> who wants it
+        self._route_of: dict[tuple[Subscription, ...], tuple[Subscription, ...]] = {}
+        self._seq = itertools.count()
         self.clock = clock
 
     # -- building -------------------------------------------------------------
@@ -277,6 +367,7 @@ class ProcessImage:
         quality = Quality.GOOD if spec.kind.is_output else Quality.NOT_READ
         channel = Channel(spec, value, quality, error_mode=spec.error_mode)
         self._channels[spec.id] = channel
+        self._forget_routes()
         return channel
 
     # -- reading --------------------------------------------------------------
@@ -292,7 +383,7 @@ class ProcessImage:
         except KeyError:
             raise KeyError(f"no channel {channel_id!r} in the process image") from None
 
-    def value(self, channel_id: str) -> bool | int | float:
+    def value(self, channel_id: str) -> Value:
         return self[channel_id].value
 
     def channels(
@@ -318,55 +409,167 @@ class ProcessImage:
         return iter(self._channels.values())
 
     # -- writing --------------------------------------------------------------
+    def update_inputs(
+        self,
+        readings: Mapping[str, Reading],
+        quality: Quality = Quality.GOOD,
+        origin: str = "back",
+        timestamp: float | None = None,
+    ) -> list[Change]:
+        """A back reports the inputs of one reply, in one batch.
+
+        ``readings`` maps channel ids to values, or to ``(value, Quality)`` for a channel
+        whose module reports its own quality (over-range, config error); ``quality``
+        applies to the others. ``timestamp`` is when the values were acquired, on the
+        image's clock (default: now); every good value gets it as its channel's
+        timestamp. Raises KeyError (unknown id) or ValueError (an output, a value outside
+        the channel's data type) before anything is written. Returns the changes of
+        value or quality, in the order given.
+        """
+        channels = self._channels
+        staged: list[_Staged] = []
+        for cid, reading in readings.items():
+            channel = channels.get(cid)
+            if channel is None or channel.is_output:
+                self._refuse(cid, "an output; backs write inputs only")
+            if reading.__class__ is bool and channel.dtype is _BOOL:  # the common case, inline
+                staged.append((channel, reading, quality))
+            elif isinstance(reading, tuple):
+                value, own = reading
+                staged.append((channel, _checked(channel, value), own))
+            else:
+                staged.append((channel, _checked(channel, reading), quality))
+        return self._commit(staged, origin, timestamp)
+
     def update_input(
         self,
         channel_id: str,
-        value: bool | int | float,
+        value: Value,
         quality: Quality = Quality.GOOD,
         origin: str = "back",
     ) -> bool:
-        """A back end reports a fresh reading. Returns True when value or quality changed."""
-        channel = self[channel_id]
-        if channel.kind.is_output:
-            raise ValueError(f"{channel_id} is an output; backs write inputs only")
-        return self._set(channel, channel.spec.data_type.check(value), quality, origin)
+        """A back reports one fresh reading. Returns True when value or quality changed."""
+        return bool(self.update_inputs({channel_id: value}, quality, origin))
 
-    def write_output(
-        self, channel_id: str, value: bool | int | float, origin: str = "front"
-    ) -> bool:
-        """A front (or an error mode) sets an output. Returns True when the value changed."""
-        channel = self[channel_id]
-        if not channel.kind.is_output:
-            raise ValueError(f"{channel_id} is an input; only outputs can be written")
-        channel.written_by = origin
-        return self._set(channel, channel.spec.data_type.check(value), channel.quality, origin)
+    def write_outputs(self, values: Mapping[str, Value], origin: str = "front") -> list[Change]:
+        """A front (or an error mode) sets the outputs of one message, in one batch.
+
+        ``values`` maps output channel ids to values; every output keeps its quality (the
+        back that drives the module owns it) and remembers ``origin`` as its writer.
+        Raises KeyError (unknown id) or ValueError (an input, a value outside the
+        channel's data type) before anything is written. Returns the changes, in the
+        order given.
+        """
+        channels = self._channels
+        staged: list[_Staged] = []
+        for cid, value in values.items():
+            channel = channels.get(cid)
+            if channel is None or not channel.is_output:
+                self._refuse(cid, "an input; only outputs can be written")
+            if value.__class__ is bool and channel.dtype is _BOOL:  # the common case, inline
+                staged.append((channel, value, channel.quality))
+            else:
+                staged.append((channel, _checked(channel, value), channel.quality))
+        return self._commit(staged, origin, None, written=True)
+
+    def write_output(self, channel_id: str, value: Value, origin: str = "front") -> bool:
+        """A front (or an error mode) sets one output. Returns True when the value changed."""
+        return bool(self.write_outputs({channel_id: value}, origin))
 
     def set_quality(
         self, channel_ids: Iterable[str], quality: Quality, origin: str = "back"
-    ) -> None:
-        """Change the quality of channels and keep their last values (stale, comm fault, ...)."""
-        for cid in channel_ids:
-            channel = self[cid]
-            self._set(channel, channel.value, quality, origin)
+    ) -> list[Change]:
+        """Change the quality of channels and keep their last values (stale, comm fault, ...),
+        in one batch. Returns the changes."""
+        staged = [(self[cid], self[cid].value, quality) for cid in channel_ids]
+        return self._commit(staged, origin, None)
 
-    def _set(
-        self, channel: Channel, value: bool | int | float, quality: Quality, origin: str
-    ) -> bool:
-        if quality is Quality.GOOD:
-            channel.timestamp = self.clock()
-            channel.last_good = value
-        old_value, old_quality = channel.value, channel.quality
-        if old_value == value and old_quality is quality and type(old_value) is type(value):
-            return False
-        channel.value, channel.quality = value, quality
-        change = Change(channel, old_value, old_quality, origin)
-        for sub in list(self._subscriptions):
-            if sub.wants(channel):
+    def _refuse(self, channel_id: str, what: str) -> NoReturn:
+        if channel_id not in self._channels:
+            raise KeyError(f"no channel {channel_id!r} in the process image")
+        raise ValueError(f"{channel_id} is {what}")
+
+    def _commit(
+        self, staged: list[_Staged], origin: str, timestamp: float | None, written: bool = False
+    ) -> list[Change]:
+        """Write what was checked; ``written``: outputs, which remember their writer."""
+        now = self.clock() if timestamp is None else timestamp
+        changes: list[Change] = []
+        append, good = changes.append, Quality.GOOD
+        for channel, value, quality in staged:
+            if written:
+                channel.written_by = origin
+            if quality is good:
+                channel.timestamp = now
+                channel.last_good = value
+            old_value, old_quality = channel.value, channel.quality
+            if old_value == value and old_quality is quality and type(old_value) is type(value):
+                continue
+            channel.value, channel.quality = value, quality
+            append(Change(channel, old_value, old_quality, origin))
+        if changes and self._subscriptions:
+            self._notify(changes)
+        return changes
+
+    def _notify(self, changes: list[Change]) -> None:
+        routes = self._routes
+        route: tuple[Subscription, ...] | None = None
+        for change in changes:  # usually every change goes to the same subscribers
+            subs = routes.get(change.id)
+            if subs is None:
+                subs = self._route(change.channel)
+            if route is None:
+                route = subs
+            elif subs is not route:
+                self._deliver(self._grouped(changes))
+                return
+        if route:
+            self._deliver([(sub, changes) for sub in route])
+
+    def _grouped(self, changes: list[Change]) -> list[tuple[Subscription, list[Change]]]:
+        """Each subscriber's changes, in write order; subscribers in subscription order."""
+        groups: dict[Subscription, list[Change]] = {}
+        routes = self._routes
+        for change in changes:
+            subs = routes.get(change.id)
+            if subs is None:
+                subs = self._route(change.channel)
+            for sub in subs:
+                group = groups.get(sub)
+                if group is None:
+                    groups[sub] = [change]
+                else:
+                    group.append(change)
+        return sorted(groups.items(), key=_by_seq)
+
+    def _deliver(self, deliveries: list[tuple[Subscription, list[Change]]]) -> None:
+        for sub, group in deliveries:
+            if not sub.active:  # cancelled by a subscriber served before it
+                continue
+            if sub.batch:
+                try:
+                    sub.callback(group[:])  # a list of its own
+                except Exception:  # a bad subscriber must never stop a writer
+                    log.exception(
+                        "subscriber %r failed on %s", sub.callback, ", ".join(c.id for c in group)
+                    )
+                continue
+            for change in group:
                 try:
                     sub.callback(change)
                 except Exception:  # a bad subscriber must never stop a writer
-                    log.exception("subscriber %r failed on %s", sub.callback, channel.id)
-        return True
+                    log.exception("subscriber %r failed on %s", sub.callback, change.id)
+
+    def _route(self, channel: Channel) -> tuple[Subscription, ...]:
+        """Who wants this channel; channels wanted by the same subscribers share one tuple."""
+        subs = tuple(s for s in self._subscriptions if s.wants(channel))
+        subs = self._route_of.setdefault(subs, subs)
+        self._routes[channel.spec.id] = subs
+        return subs
+
+    def _forget_routes(self) -> None:
+        self._routes.clear()
+        self._route_of.clear()
 
     # -- subscriptions --------------------------------------------------------
     def subscribe(
@@ -376,14 +579,55 @@ class ProcessImage:
         kinds: Iterable[Kind] | None = None,
         ids: Iterable[str] | None = None,
     ) -> Subscription:
+        """Call ``callback(change)`` for each change of a channel of these kinds / ids.
+
+        Inside a batch each change is its own call, in the order written, after the
+        whole batch is in the image. Reacting once per batch is cheaper:
+        :meth:`subscribe_batch`.
+        """
+        return self._add_subscription(callback, kinds, ids, batch=False)
+
+    def subscribe_batch(
+        self,
+        callback: BatchCallback,
+        *,
+        kinds: Iterable[Kind] | None = None,
+        ids: Iterable[str] | None = None,
+    ) -> Subscription:
+        """Call ``callback(changes)`` once per write call that changed channels it wants.
+
+        ``changes`` is a list (the subscriber's to keep) of the :class:`Change` of every
+        wanted channel whose value or quality changed, each with its own value, quality
+        and timestamp, in the order written; channels that did not change are not in it,
+        and a call that changed none of them makes no call. Subscribers are called in
+        the order they subscribed, synchronously, after the batch is in the image (a
+        subscriber reads the whole message's values); what they write in turn is a new
+        batch, delivered before the next subscriber of this one. A callback that raises
+        is logged and the others are still called.
+        """
+        return self._add_subscription(callback, kinds, ids, batch=True)
+
+    def _add_subscription(
+        self,
+        callback: Callable[[Any], None],
+        kinds: Iterable[Kind] | None,
+        ids: Iterable[str] | None,
+        batch: bool,
+    ) -> Subscription:
         sub = Subscription(
             self,
             callback,
             frozenset(kinds) if kinds is not None else None,
             frozenset(ids) if ids is not None else None,
+            batch,
         )
         self._subscriptions.append(sub)
+        self._forget_routes()
         return sub
+
+    def _remove(self, sub: Subscription) -> None:
+        self._subscriptions = [s for s in self._subscriptions if s is not sub]
+        self._forget_routes()
 
     def queue(
         self,
@@ -400,17 +644,18 @@ class ProcessImage:
         q: asyncio.Queue[Change] = asyncio.Queue(maxsize)
         dropped = False
 
-        def put(change: Change) -> None:
+        def put(changes: list[Change]) -> None:
             nonlocal dropped
-            try:
-                q.put_nowait(change)
-                dropped = False
-            except asyncio.QueueFull:
-                if not dropped:
-                    log.warning("change queue full, dropping changes of %s", change.channel.id)
-                dropped = True
+            for change in changes:
+                try:
+                    q.put_nowait(change)
+                    dropped = False
+                except asyncio.QueueFull:
+                    if not dropped:
+                        log.warning("change queue full, dropping changes of %s", change.id)
+                    dropped = True
 
-        return q, self.subscribe(put, kinds=kinds, ids=ids)
+        return q, self.subscribe_batch(put, kinds=kinds, ids=ids)
 
     # -- error modes ----------------------------------------------------------
     def set_error_mode(self, channel_id: str, mode: ErrorMode) -> None:
@@ -422,24 +667,22 @@ class ProcessImage:
     def apply_error_modes(
         self, channel_ids: Iterable[str] | None = None, origin: str = "error-mode"
     ) -> list[str]:
-        """Drive every output whose error mode says so to its error value.
+        """Drive every output whose error mode says so to its error value, in one batch.
 
         Called when a front loses its master. Returns the ids whose value changed.
         """
-        outputs = self._outputs(channel_ids)
-        return [
-            c.id
-            for c in outputs
-            if c.error_mode.use_value and self.write_output(c.id, c.error_mode.value, origin)
-        ]
+        values = {
+            c.id: c.error_mode.value for c in self._outputs(channel_ids) if c.error_mode.use_value
+        }
+        return [change.id for change in self.write_outputs(values, origin)]
 
     def apply_shutdown_modes(self, origin: str = "shutdown") -> list[str]:
-        changed = []
-        for c in self._outputs(None):
-            mode = c.spec.shutdown_mode
-            if mode is not None and mode.use_value and self.write_output(c.id, mode.value, origin):
-                changed.append(c.id)
-        return changed
+        values = {
+            c.id: mode.value
+            for c in self._outputs(None)
+            if (mode := c.spec.shutdown_mode) is not None and mode.use_value
+        }
+        return [change.id for change in self.write_outputs(values, origin)]
 
     def _outputs(self, channel_ids: Iterable[str] | None) -> list[Channel]:
         if channel_ids is None:
@@ -458,6 +701,19 @@ class ProcessImage:
             }
             for c in self._channels.values()
         ]
+
+
+_BOOL = DataType.BOOL
+
+
+def _checked(channel: Channel, value: Value) -> Value:
+    """``value`` in the channel's data type (a bool for a digital channel needs no work)."""
+    if value.__class__ is bool and channel.dtype is _BOOL:
+        return value
+    try:
+        return channel.dtype.check(value)
+    except ValueError as exc:
+        raise ValueError(f"{channel.spec.id}: {exc}") from None
 
 
 def _natural_key(text: str) -> list[int | str]:

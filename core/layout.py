@@ -55,15 +55,21 @@ def pack_bits(
 
 def byte_value(slots: Sequence[Channel | None]) -> int:
     """The byte a group of 8 digital slots reads as (padding bits read 0)."""
-    return sum(1 << bit for bit, ch in enumerate(slots) if ch is not None and ch.value)
+    value = 0
+    for bit, ch in enumerate(slots):  # a plain loop: every TPDO and poll response packs bytes
+        if ch is not None and ch.value:
+            value |= 1 << bit
+    return value
+
+
+def bit_values(slots: Sequence[Channel | None], value: int) -> dict[str, bool]:
+    """Each real bit of ``value`` for its channel (padding bits dropped), LSB first."""
+    return {ch.id: bool(value >> bit & 1) for bit, ch in enumerate(slots) if ch is not None}
 
 
 def write_byte(
     image: ProcessImage, slots: Sequence[Channel | None], value: int, origin: str
 ) -> list[str]:
-    """Write each real bit of ``value`` to its output channel; returns the ids that changed."""
-    changed = []
-    for bit, ch in enumerate(slots):
-        if ch is not None and image.write_output(ch.id, bool(value >> bit & 1), origin):
-            changed.append(ch.id)
-    return changed
+    """Write each real bit of ``value`` to its output channel, as one batch; returns the ids
+    that changed."""
+    return [change.id for change in image.write_outputs(bit_values(slots, value), origin)]

@@ -164,16 +164,23 @@ class LineScheduler:
     def attach(self) -> None:
         """Subscribe to output changes (write-on-change)."""
         if self._subscription is None and self._by_output:
-            self._subscription = self.image.subscribe(self._on_output_change, ids=self._by_output)
+            self._subscription = self.image.subscribe_batch(
+                self._on_output_changes, ids=self._by_output
+            )
 
     def detach(self) -> None:
         if self._subscription is not None:
             self._subscription.cancel()
             self._subscription = None
 
-    def _on_output_change(self, change: Change) -> None:
-        if change.value_changed:
-            self._by_output[change.channel.id].dirty.add(change.channel.id)
+    def _on_output_changes(self, changes: list[Change]) -> None:
+        dirty = False
+        for change in changes:
+            if change.value_changed:
+                cid = change.id
+                self._by_output[cid].dirty.add(cid)
+                dirty = True
+        if dirty:
             self._wake.set()
 
     def mark_all_outputs_dirty(self) -> None:
@@ -360,7 +367,7 @@ class LineScheduler:
             if ok and st.module.inputs:
                 ok, readings = await self._attempt(st, st.module.read_inputs)
         if ok and readings:
-            self._apply(readings)
+            self.image.update_inputs(readings, timestamp=self.clock())
         if ok and st.module.outputs:
             quality = st.module.output_quality()
             self.image.set_quality(
@@ -368,11 +375,6 @@ class LineScheduler:
             )
         st.due = started + (st.period if st.health.online else self.offline_probe_period)
         self._count_cycle(st)
-
-    def _apply(self, readings: dict[str, Reading]) -> None:
-        for cid, reading in readings.items():
-            value, quality = reading if isinstance(reading, tuple) else (reading, Quality.GOOD)
-            self.image.update_input(cid, value, quality)
 
     async def _write(self, st: _ModuleState) -> None:
         ids, st.dirty = st.dirty, set()

@@ -27,6 +27,9 @@ import serial
 
 from .plugin import PluginStartError
 from .polling import LineLost
+from .serial_timing import Exchange, Outcome, char_time
+
+__all__ = ["AsyncSerial", "PtyPair", "PluggablePty", "PortServer", "cancel_task", "char_time"]
 
 _PARITY = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
 
@@ -41,6 +44,7 @@ class AsyncSerial:
         self._loop.add_reader(self._fd, self._readable)
         self.closed = False
         self.lost: str | None = None  # why the port failed; it stays failed until re-opened
+        self.last_rx = self._loop.time()  # when the last byte arrived (line silence)
 
     @classmethod
     async def open(
@@ -63,6 +67,10 @@ class AsyncSerial:
             raise PluginStartError(f"invalid serial settings for {url}: {exc}") from None
         return cls(port)
 
+    def _drain(self) -> None:
+        if not self.closed and self.lost is None:
+            self._readable()
+
     def _readable(self) -> None:
         try:
             chunk = self.port.read(4096)
@@ -72,7 +80,17 @@ class AsyncSerial:
             self._loop.remove_reader(self._fd)
         if chunk:
             self._buffer += chunk
+            self.last_rx = self._loop.time()
         self._data.set()
+
+    @property
+    def now(self) -> float:
+        """The loop's clock, the one every time of this port is read on."""
+        return self._loop.time()
+
+    async def sleep(self, seconds: float) -> None:
+        self._check_lost()
+        await asyncio.sleep(seconds)
 
     @property
     def pending(self) -> int:
@@ -121,6 +139,50 @@ class AsyncSerial:
                     self._buffer.clear()
                     return frame
 
+    async def exchange(self, request: bytes, exchange: Exchange) -> Outcome:
+        """Send ``request`` and read the reply as ``exchange`` (fieldgate.serial_timing) says.
+
+        Whatever arrived before the request is dropped. The exchange gets each chunk with
+        the loop time it was read at and decides: reply, timeout, truncated, echo trouble.
+        """
+        self.reset_input()
+        await self.write(request)
+        exchange.sent(self._loop.time())
+        while True:
+            if self._buffer:
+                data = bytes(self._buffer)
+                self._buffer.clear()
+                outcome = exchange.feed(data, self.last_rx)
+            else:
+                outcome = exchange.check(self._loop.time())
+            if outcome is not None:
+                return outcome
+            try:
+                await self._wait(exchange.deadline())
+            except TimeoutError:
+                # a deadline is about bytes on the wire, not about when this loop got round
+                # to them: take what the port holds before the exchange concludes anything
+                self._drain()
+
+    async def wait_silence(self, silence: float, limit: float) -> bool:
+        """Wait until no byte has arrived for ``silence`` seconds (at most ``limit`` seconds),
+        then drop what came. True when the line fell silent, False when it kept talking."""
+        give_up = self._loop.time() + limit
+        while True:
+            self._drain()  # bytes the loop has not read yet are not silence
+            quiet_at = self.last_rx + silence
+            now = self._loop.time()
+            if now >= quiet_at:
+                self.reset_input()
+                return True
+            if now >= give_up:
+                self.reset_input()
+                return False
+            try:
+                await self._wait(min(quiet_at, give_up))
+            except TimeoutError:
+                pass
+
     async def _wait(self, deadline: float) -> None:
         self._check_lost()
         remaining = deadline - self._loop.time()
@@ -134,6 +196,10 @@ class AsyncSerial:
         self._check_lost()
 
     async def close(self) -> None:
+        self.close_now()
+
+    def close_now(self) -> None:
+        """Close at once (from synchronous code too)."""
         if not self.closed:
             self.closed = True
             try:
@@ -150,11 +216,6 @@ def _cause(exc: serial.SerialException) -> str:
     if exc.errno == 13 or "Permission denied" in str(exc):
         return "permission denied"
     return str(inner or exc)
-
-
-def char_time(baudrate: int, bits_per_char: int = 11) -> float:
-    """Seconds per character on the wire (start + 8 data + parity/stop = 11 bits by default)."""
-    return bits_per_char / baudrate
 
 
 class PtyPair:

@@ -47,7 +47,7 @@ def stopped_by_signal():
 def pytest_collection_modifyitems(config, items):
     """In a slow SocketCAN guest (QEMU's software emulation), each test's time limit
     stretches by the slowdown `.ci/socketcan/run` measured, as its waits do."""
-    from socketcan_timing import SLOWDOWN
+    from socketcan_guest import SLOWDOWN
 
     if SLOWDOWN <= 1:
         return

@@ -69,7 +69,8 @@ class CanEngine(Protocol):
     """What the adapter needs of a sans-I/O engine: frames and times in, frames out."""
 
     @property
-    def deadline_after_call(self) -> float | None: ...
+    def deadline_after_call(self) -> float | None:
+        """``next_deadline()`` as of the end of the last receive(), tick() or flush()."""
 
     def boot(self, now: float) -> list[Frame]: ...
     def receive(self, frame: Frame, now: float) -> list[Frame]: ...
@@ -425,16 +426,15 @@ class CanAdapter:
             frames = self.node.flush()
             self._refresh_filters()
             self._send(frames)
-            self._arm()
+            self._arm(self.node.deadline_after_call, known=True)
 
     def run_engine(self) -> None:
         """Let the engine act now (a process-image event changed its inputs): tick, send, re-arm."""
         with self.engine_lock:
-            frames = self.node.tick(self.now)
-            frames += self.node.flush()
+            frames = self.node.tick(self.now)  # (drains what was queued, notes the deadline)
             self._refresh_filters()
             self._send(frames)
-            self._arm()
+            self._arm(self.node.deadline_after_call, known=True)
 
     def _arm(self, deadline: float | None = None, known: bool = False) -> None:
         """Have ``_tick`` run by the node's next deadline.

@@ -339,6 +339,11 @@ class GatewayMetrics:
     def render(self) -> bytes:
         return generate_latest(self.registry)
 
+    @staticmethod
+    def render_family(family: Metric) -> bytes:
+        """One family in the text format."""
+        return generate_latest(_Families([family]))
+
     async def render_async(self, slice_s: float = 0.0005) -> bytes:
         """The same text, collected and formatted in slices with a loop turn in between.
 
@@ -351,7 +356,7 @@ class GatewayMetrics:
         parts: list[bytes] = []
         started = time.perf_counter()
         for family in self.collector.collect():
-            parts.append(generate_latest(_Families([family])))
+            parts.append(self.render_family(family))
             if time.perf_counter() - started >= slice_s:
                 await asyncio.sleep(0)
                 started = time.perf_counter()

@@ -1,45 +1,66 @@
-"""A small, strict HTTP/1.1 server on asyncio streams, for read-only status endpoints.
+"""The status server's HTTP layer: aiohttp's low-level server, with fieldgate's budgets.
 
-Why our own and not aiohttp: the gateway serves a handful of GET endpoints to a few
-clients; a server on ``asyncio.start_server`` is ~250 lines we can bound exactly (request
-line, header block, header count, timeouts, connections), while aiohttp would bring a
-dozen transitive packages and its own idea of the event loop's load.
+Why aiohttp (measured, ``bench/http_stacks.py``, docs/observability.md "Why aiohttp"):
+the server was ours, on asyncio streams, and the attack cases of a new user's first try
+broke it: 64 idle keep-alive connections held every slot and ``/healthz`` got 503 for as
+long as they liked, slowloris connections did the same, two ``Content-Length`` or two
+``Host`` headers were accepted (request smuggling behind a proxy). aiohttp's parser
+(llhttp) refuses conflicting framing and duplicate singleton headers by design, with a
+400; it embeds in the gateway's running loop without taking its signals; it costs about
+half the CPU per request of uvicorn with h11 (116 us against 242 us per keep-alive
+request in the comparison), and it does TLS. What it lacks for a gateway's status port
+is kept here, on top of its public server API:
 
-Limits (a client that breaks one gets a plain-text 4xx and the connection is closed):
+* **budgets, never a lock-out.** A new connection is always accepted: when more than
+  ``max_connections`` are open (or more than ``max_per_peer`` from one address), the
+  connection that has waited longest *without a request in progress* (an idle keep-alive
+  or a slowloris head) is closed to make room. Requests being served and event streams
+  are never evicted; event streams have their own limit (``sse_max_clients``, checked
+  and taken in one step). So ``/healthz`` and ``/readyz`` are answered whatever idle,
+  slow or streaming clients do;
+* **head and idle timeouts.** A connection must complete its first request head within
+  ``head_timeout`` (else 408 and close) and may idle ``idle_timeout`` between requests:
+  a slowloris dribbling one byte a second is closed like any idle client;
+* **read-only, no bodies.** GET and HEAD only (405, the service says so), a request with a
+  body gets 413, HTTP/1.1 without ``Host`` gets 400, an undecodable query 400;
+* **plain errors.** Every error is ``<code> <phrase>: <why>`` in text/plain with
+  ``Connection: close``; a handler's exception is logged once and answered 500 without a
+  traceback.
 
-* the request line and headers together at most :data:`MAX_HEAD` bytes (431), the
-  request line at most :data:`MAX_REQUEST_LINE` (414), at most :data:`MAX_HEADERS`
-  headers (431), read within :data:`HEAD_TIMEOUT` (408);
-* no request bodies (read-only: 413), GET and HEAD only (405 with ``Allow``);
-* keep-alive idle connections close after :data:`IDLE_TIMEOUT`; writes that cannot drain
-  within :data:`WRITE_TIMEOUT` close the connection;
-* at most ``max_connections`` at once: beyond that a 503 and close.
-
-Handlers never see a malformed request and any exception in one is logged once and
-answered with a 500 without a traceback.
+Handlers see a :class:`Request` and return a :class:`Response` or a :class:`Stream`
+(Server-Sent Events); they never see aiohttp.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
+import ssl
+import time
 from collections import Counter
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from email.utils import formatdate
 from http import HTTPStatus
+from typing import Any
 from urllib.parse import parse_qsl, unquote
 
-log = logging.getLogger("fieldgate.http")
+from aiohttp import web
+from aiohttp.http_exceptions import LineTooLong
+from aiohttp.web_protocol import RequestHandler
 
-MAX_HEAD = 16 * 1024
-MAX_REQUEST_LINE = 8 * 1024
+log = logging.getLogger("fieldgate.http")
+logging.getLogger("aiohttp.server").setLevel(logging.CRITICAL)  # bad requests: our 4xx says it
+logging.getLogger("aiohttp.access").setLevel(logging.CRITICAL)
+
+MAX_REQUEST_LINE = 8190  # aiohttp's max_line_size
+MAX_FIELD = 8190  # one header line
 MAX_HEADERS = 64
 HEAD_TIMEOUT = 10.0
 IDLE_TIMEOUT = 30.0
 WRITE_TIMEOUT = 10.0
-MAX_CONNECTIONS = 64
+MAX_CONNECTIONS = 256
+MAX_PER_PEER = 128
+SWEEP_S = 0.5
 SERVER = "fieldgate"
 
 
@@ -61,20 +82,38 @@ class Response:
     headers: list[tuple[str, str]] = field(default_factory=list)
 
 
-StreamBody = Callable[[asyncio.StreamWriter], Awaitable[None]]
+class StreamWriter:
+    """What a stream body writes to: ``write`` buffers, ``drain`` sends (and waits while the
+    client is behind)."""
+
+    def __init__(self, response: web.StreamResponse) -> None:
+        self._response = response
+        self._buffer = bytearray()
+
+    def write(self, data: bytes) -> None:
+        self._buffer += data
+
+    async def drain(self) -> None:
+        if self._buffer:
+            data, self._buffer = bytes(self._buffer), bytearray()
+            await self._response.write(data)
+
+
+StreamBody = Callable[[StreamWriter], Awaitable[None]]
 
 
 @dataclass
 class Stream:
     """A response whose body a coroutine writes until it returns (Server-Sent Events).
 
-    The body is cancelled as soon as the client closes its end (or sends anything more:
-    an event stream takes no further requests on its connection).
+    The body is cancelled as soon as the client closes its end. ``release`` runs when the
+    stream ends, however it ends (the slot it holds, taken when the request was accepted).
     """
 
     body: StreamBody
     content_type: str = "text/event-stream; charset=utf-8"
     headers: list[tuple[str, str]] = field(default_factory=list)
+    release: Callable[[], None] = lambda: None
 
 
 Handler = Callable[[Request], Awaitable[Response | Stream]]
@@ -96,46 +135,96 @@ class BadRequest(Exception):
         self.text = text
 
 
-def parse_head(data: bytes, peer: str = "") -> Request:
-    """The request line and headers (``data`` ends with the blank line), or BadRequest."""
-    try:
-        text = data.decode("latin-1")
-    except UnicodeDecodeError:  # pragma: no cover - latin-1 decodes every byte
-        raise BadRequest(400, "undecodable request") from None
-    lines = text[:-4].split("\r\n") if text.endswith("\r\n\r\n") else text.split("\r\n")
-    request_line = lines[0]
-    if len(request_line) > MAX_REQUEST_LINE:
-        raise BadRequest(414, f"request line longer than {MAX_REQUEST_LINE} bytes")
-    parts = request_line.split(" ")
-    if len(parts) != 3:
-        raise BadRequest(400, "malformed request line")
-    method, target, version = parts
-    if version not in ("HTTP/1.1", "HTTP/1.0"):
-        raise BadRequest(505 if version.startswith("HTTP/") else 400, "HTTP/1.1 or HTTP/1.0 only")
-    if not method.isalpha() or not method.isupper():
-        raise BadRequest(400, "malformed method")
-    if not target.startswith("/") or any(ord(c) <= 32 or ord(c) >= 127 for c in target):
+def parse_target(target: str) -> tuple[str, dict[str, str]]:
+    """The percent-decoded path and the query of a request target; BadRequest if undecodable."""
+    if not target.startswith("/"):
         raise BadRequest(400, "the target must be an absolute path")
-    headers_lines = lines[1:]
-    if len(headers_lines) > MAX_HEADERS:
-        raise BadRequest(431, f"more than {MAX_HEADERS} header fields")
-    headers: dict[str, str] = {}
-    for line in headers_lines:
-        name, sep, value = line.partition(":")
-        if not sep or not name or name != name.strip() or " " in name:
-            raise BadRequest(400, "malformed header field")
-        headers[name.lower()] = value.strip()
-    if version == "HTTP/1.1" and "host" not in headers:
-        raise BadRequest(400, "HTTP/1.1 requests need a Host header")
     raw_path, _, raw_query = target.partition("?")
     try:
         path = unquote(raw_path, errors="strict") if "%" in raw_path else raw_path
         query = dict(parse_qsl(raw_query, keep_blank_values=True, errors="strict"))
     except (UnicodeDecodeError, ValueError):
         raise BadRequest(400, "malformed query string") from None
-    request = Request(method, target, path, query, headers, peer)
-    request.headers[":version"] = version
-    return request
+    return path, query
+
+
+def _common_headers(content_type: str) -> dict[str, str]:
+    return {"Server": SERVER, "Content-Type": content_type, "X-Content-Type-Options": "nosniff"}
+
+
+def _to_aiohttp(response: Response, close: bool) -> web.Response:
+    headers = _common_headers(response.content_type)
+    for name, value in response.headers:
+        headers[name] = value
+    if close:
+        headers["Connection"] = "close"
+    out = web.Response(status=response.status, body=response.body, headers=headers)
+    if close:
+        out.force_close()
+    return out
+
+
+@dataclass
+class _Conn:
+    """One open connection, as the budgets see it."""
+
+    handler: RequestHandler
+    transport: asyncio.Transport
+    peer: str
+    opened: float
+    waiting_since: float | None  # no request in progress since then (None: serving one)
+    requests: int = 0
+    refused: bool = False  # over the budget with nothing to evict: answer 503
+
+
+class _Protocol(RequestHandler):
+    """aiohttp's connection handler, with our error page."""
+
+    def handle_error(
+        self,
+        request: web.BaseRequest,
+        status: int = 500,
+        exc: BaseException | None = None,
+        message: str | None = None,
+    ) -> web.StreamResponse:
+        if status >= 500:
+            text = "internal error (logged by the gateway)"
+        elif isinstance(exc, LineTooLong) or "Too many headers" in str(exc):
+            status, text = (
+                431,
+                f"request head too large (at most {MAX_HEADERS} fields of {MAX_FIELD} bytes)",
+            )
+        else:
+            text = _reason(exc, message)
+        owner = getattr(self._manager, "_owner", None)  # our _Server's HttpServer
+        if owner is not None:
+            owner.responses[status] += 1
+        return _to_aiohttp(text_response(status, text), close=True)
+
+
+def _reason(exc: BaseException | None, message: str | None) -> str:
+    """The parser's reason, without the excerpt of the request it quotes."""
+    text = str(getattr(exc, "message", None) or message or "")
+    for cut in (" b'", ' b"', " bytearray("):
+        text = text.split(cut)[0]
+    return " ".join(text.split()).rstrip(":")[:200]
+
+
+class _Server(web.Server):
+    def __init__(self, owner: HttpServer, **kwargs: Any) -> None:
+        super().__init__(owner._dispatch, handler_cancellation=True, **kwargs)
+        self._owner = owner
+
+    def __call__(self) -> RequestHandler:
+        return _Protocol(self, loop=self._loop, **self._kwargs)
+
+    def connection_made(self, handler: RequestHandler, transport: asyncio.Transport) -> None:
+        super().connection_made(handler, transport)
+        self._owner._opened(handler, transport)
+
+    def connection_lost(self, handler: RequestHandler, exc: BaseException | None = None) -> None:
+        super().connection_lost(handler, exc)
+        self._owner._closed(handler)
 
 
 class HttpServer:
@@ -148,164 +237,199 @@ class HttpServer:
         port: int,
         *,
         max_connections: int = MAX_CONNECTIONS,
+        max_per_peer: int = MAX_PER_PEER,
         head_timeout: float = HEAD_TIMEOUT,
         idle_timeout: float = IDLE_TIMEOUT,
+        ssl_context: ssl.SSLContext | None = None,
     ):
         self.handler = handler
         self.host = host
         self.port = port
         self.max_connections = max_connections
+        self.max_per_peer = max_per_peer
         self.head_timeout = head_timeout
         self.idle_timeout = idle_timeout
+        self.ssl_context = ssl_context
         self.responses: Counter[int] = Counter()  # by status code
-        self.connections = 0
+        self.evicted = 0  # idle or slow connections closed to make room
+        self.timed_out = 0  # connections closed by the head or idle timeout
+        self._conns: dict[RequestHandler, _Conn] = {}
         self._server: asyncio.Server | None = None
-        self._tasks: set[asyncio.Task[None]] = set()
+        self._web: _Server | None = None
+        self._sweeper: asyncio.Task[None] | None = None
         self._handler_errors_logged = False
 
+    @property
+    def connections(self) -> int:
+        return len(self._conns)
+
     async def start(self) -> None:
-        self._server = await asyncio.start_server(
-            self._connected, self.host, self.port, limit=MAX_HEAD, reuse_address=True
+        self._web = _Server(
+            self,
+            max_line_size=MAX_REQUEST_LINE,
+            max_field_size=MAX_FIELD,
+            max_headers=MAX_HEADERS,
+            keepalive_timeout=self.idle_timeout,
+            access_log=None,
         )
-        sock = self._server.sockets[0]
-        self.port = sock.getsockname()[1]
+        loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(
+            self._web, self.host, self.port, ssl=self.ssl_context, reuse_address=True
+        )
+        self.port = self._server.sockets[0].getsockname()[1]
+        self._sweeper = loop.create_task(self._sweep(), name="fieldgate:http-timeouts")
 
     @property
     def url(self) -> str:
         host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"http://{host}:{self.port}/"
+        scheme = "https" if self.ssl_context is not None else "http"
+        return f"{scheme}://{host}:{self.port}/"
 
     async def stop(self) -> None:
+        if self._sweeper is not None:
+            self._sweeper.cancel()
+            await asyncio.gather(self._sweeper, return_exceptions=True)
+            self._sweeper = None
         if self._server is not None:
             self._server.close()
+        if self._web is not None:
+            await self._web.shutdown(timeout=1.0)
+            self._web = None
+        for conn in list(self._conns.values()):
+            conn.transport.close()
+        if self._server is not None:
+            await self._server.wait_closed()
             self._server = None
-        for task in list(self._tasks):
-            task.cancel()
-        if self._tasks:
-            await asyncio.wait(self._tasks, timeout=2.0)
 
-    async def _connected(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        task = asyncio.current_task()
-        assert task is not None
-        self._tasks.add(task)
-        self.connections += 1
+    # -- budgets --------------------------------------------------------------------------
+    def _opened(self, handler: RequestHandler, transport: asyncio.Transport) -> None:
+        peername = transport.get_extra_info("peername")
+        peer = peername[0] if isinstance(peername, tuple) else str(peername)
+        now = time.monotonic()
+        conn = _Conn(handler, transport, peer, now, now)
+        self._conns[handler] = conn
+        if len(self._conns) > self.max_connections:
+            self._make_room(lambda c: c is not conn)
+        if sum(1 for c in self._conns.values() if c.peer == peer) > self.max_per_peer:
+            self._make_room(lambda c: c is not conn and c.peer == peer)
+        if len(self._conns) > self.max_connections:  # nothing to evict: every slot is busy
+            conn.refused = True  # its request gets a 503 (read first: closing on unread data
+            # would reset the connection and the client would never see the answer)
+
+    def _make_room(self, which: Callable[[_Conn], bool]) -> None:
+        """Close the connection that has waited longest without a request in progress."""
+        waiting = [c for c in self._conns.values() if c.waiting_since is not None and which(c)]
+        if waiting:
+            oldest = min(waiting, key=lambda c: c.waiting_since or 0.0)
+            self.evicted += 1
+            self._close(oldest)
+
+    def _refuse(self, conn: _Conn, status: int, text: str) -> None:
+        self.responses[status] += 1
+        body = text_response(status, text).body
+        head = (
+            f"HTTP/1.1 {status} {HTTPStatus(status).phrase}\r\nServer: {SERVER}\r\n"
+            f"Content-Type: text/plain; charset=utf-8\r\nContent-Length: {len(body)}\r\n"
+            "Connection: close\r\n\r\n"
+        )
         try:
-            if self.connections > self.max_connections:
-                # read the request first: closing on unread data would reset the connection
-                # and the client would never see the answer
-                with contextlib.suppress(Exception):
-                    async with asyncio.timeout(1.0):
-                        await reader.readuntil(b"\r\n\r\n")
-                await self._send(writer, text_response(503, "too many connections"), close=True)
-                return
-            await self._serve(reader, writer)
-        except (ConnectionError, TimeoutError, asyncio.IncompleteReadError):
+            conn.transport.write(head.encode("latin-1") + body)
+        except Exception:  # noqa: BLE001  (a connection already going away)
             pass
-        except asyncio.CancelledError:
-            # stop() cancels open connections; ending here keeps asyncio's start_server
-            # callback (Python 3.11) from logging the cancellation as an error
-            pass
-        finally:
-            self.connections -= 1
-            self._tasks.discard(task)
-            writer.close()
+        self._close(conn)
 
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        peer = writer.get_extra_info("peername")
-        peer_text = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else str(peer)
-        first = True
+    def _close(self, conn: _Conn) -> None:
+        self._conns.pop(conn.handler, None)
+        conn.handler.force_close()
+        conn.transport.close()
+
+    def _closed(self, handler: RequestHandler) -> None:
+        self._conns.pop(handler, None)
+
+    async def _sweep(self) -> None:
+        """Close connections past their head or idle timeout (a slowloris is one of them)."""
         while True:
-            try:
-                # the first request must arrive in full within head_timeout; between
-                # keep-alive requests the connection may idle for idle_timeout
-                async with asyncio.timeout(self.head_timeout if first else self.idle_timeout):
-                    data = await reader.readuntil(b"\r\n\r\n")
-            except asyncio.LimitOverrunError:
-                await self._send(
-                    writer, text_response(431, f"request head longer than {MAX_HEAD} bytes"), True
-                )
-                return
-            except TimeoutError:
-                if first:
-                    await self._send(
-                        writer, text_response(408, "request head not received in time"), True
-                    )
-                return
-            except asyncio.IncompleteReadError:
-                return  # the client closed between requests
-            first = False
-            try:
-                request = parse_head(data, peer_text)
-                keep_alive = self._keep_alive(request)
-                if "transfer-encoding" in request.headers or request.headers.get(
-                    "content-length", "0"
-                ) not in ("0", ""):
-                    raise BadRequest(413, "this server accepts no request bodies")
-            except BadRequest as exc:
-                await self._send(writer, text_response(exc.status, exc.text), close=True)
-                return
-            try:
-                result = await self.handler(request)
-            except Exception:
-                if not self._handler_errors_logged:
-                    log.exception("HTTP handler failed on %s %s", request.method, request.path)
-                    self._handler_errors_logged = True
-                result = text_response(500, "internal error (logged by the gateway)")
-            if isinstance(result, Stream):
-                await self._stream(reader, writer, result)
-                return
-            await self._send(writer, result, close=not keep_alive, head=request.method == "HEAD")
-            if not keep_alive:
-                return
+            await asyncio.sleep(SWEEP_S)
+            now = time.monotonic()
+            for conn in list(self._conns.values()):
+                if conn.waiting_since is None:
+                    continue
+                if conn.requests == 0 and now - conn.waiting_since > self.head_timeout:
+                    self.timed_out += 1
+                    self._refuse(conn, 408, "request head not received in time")
+                elif conn.requests and now - conn.waiting_since > self.idle_timeout:
+                    self.timed_out += 1
+                    self._close(conn)
 
-    @staticmethod
-    def _keep_alive(request: Request) -> bool:
-        connection = request.headers.get("connection", "").lower()
-        if request.headers[":version"] == "HTTP/1.0":
-            return connection == "keep-alive"
-        return connection != "close"
-
-    async def _send(
-        self, writer: asyncio.StreamWriter, response: Response, close: bool, head: bool = False
-    ) -> None:
-        self.responses[response.status] += 1
-        lines = [
-            f"HTTP/1.1 {response.status} {HTTPStatus(response.status).phrase}",
-            f"Server: {SERVER}",
-            f"Date: {formatdate(usegmt=True)}",
-            f"Content-Type: {response.content_type}",
-            f"Content-Length: {len(response.body)}",
-            "X-Content-Type-Options: nosniff",
-            *(f"{name}: {value}" for name, value in response.headers),
-        ]
-        if close:
-            lines.append("Connection: close")
-        head_bytes = ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
-        writer.write(head_bytes if head else head_bytes + response.body)
-        async with asyncio.timeout(WRITE_TIMEOUT):
-            await writer.drain()
-
-    async def _stream(
-        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, stream: Stream
-    ) -> None:
-        self.responses[200] += 1
-        lines = [
-            "HTTP/1.1 200 OK",
-            f"Server: {SERVER}",
-            f"Content-Type: {stream.content_type}",
-            "Cache-Control: no-store",
-            "X-Content-Type-Options: nosniff",
-            "Connection: close",
-            *(f"{name}: {value}" for name, value in stream.headers),
-        ]
-        writer.write(("\r\n".join(lines) + "\r\n\r\n").encode("latin-1"))
-        async with asyncio.timeout(WRITE_TIMEOUT):
-            await writer.drain()
-        body = asyncio.ensure_future(stream.body(writer))
-        gone = asyncio.ensure_future(reader.read(1))  # EOF (b"") when the client closes
+    # -- requests -------------------------------------------------------------------------
+    async def _dispatch(self, raw: web.BaseRequest) -> web.StreamResponse:
+        conn = self._conns.get(raw.protocol) if raw.protocol is not None else None
+        if conn is not None:
+            conn.waiting_since = None
+            conn.requests += 1
         try:
-            await asyncio.wait({body, gone}, return_when=asyncio.FIRST_COMPLETED)
+            if conn is not None and conn.refused:
+                return self._count(
+                    _to_aiohttp(text_response(503, "too many connections busy"), close=True)
+                )
+            return await self._answer(raw)
         finally:
-            for task in (body, gone):
-                task.cancel()
-            await asyncio.gather(body, gone, return_exceptions=True)
+            if conn is not None:
+                conn.waiting_since = time.monotonic()
+
+    async def _answer(self, raw: web.BaseRequest) -> web.StreamResponse:
+        try:
+            request = self._request(raw)
+        except BadRequest as exc:
+            return self._count(_to_aiohttp(text_response(exc.status, exc.text), close=True))
+        try:
+            result = await self.handler(request)
+        except asyncio.CancelledError:
+            raise
+        except Exception:
+            if not self._handler_errors_logged:
+                log.exception("HTTP handler failed on %s %s", request.method, request.path)
+                self._handler_errors_logged = True
+            result = text_response(500, "internal error (logged by the gateway)")
+        if isinstance(result, Stream):
+            return await self._stream(raw, result)
+        return self._count(_to_aiohttp(result, close=result.status >= 400 or not raw.keep_alive))
+
+    def _request(self, raw: web.BaseRequest) -> Request:
+        headers: dict[str, str] = {}
+        for name, value in raw.headers.items():
+            headers[name.lower()] = value
+        if raw.version not in ((1, 0), (1, 1)):
+            if raw.version < (1, 0):
+                raise BadRequest(400, "malformed request line (no HTTP version)")
+            raise BadRequest(505, "HTTP/1.1 or HTTP/1.0 only")
+        if raw.version >= (1, 1) and "host" not in headers:
+            raise BadRequest(400, "HTTP/1.1 requests need a Host header")
+        if raw.body_exists or "transfer-encoding" in headers:
+            raise BadRequest(413, "this server accepts no request bodies")
+        if headers.get("content-length", "0") not in ("0", ""):
+            raise BadRequest(413, "this server accepts no request bodies")
+        path, query = parse_target(raw.raw_path)
+        peer = raw.remote or ""
+        return Request(raw.method, raw.raw_path, path, query, headers, peer)
+
+    def _count(self, response: web.Response) -> web.Response:
+        self.responses[response.status] += 1
+        return response
+
+    async def _stream(self, raw: web.BaseRequest, stream: Stream) -> web.StreamResponse:
+        headers = _common_headers(stream.content_type)
+        headers["Cache-Control"] = "no-store"
+        for name, value in stream.headers:
+            headers[name] = value
+        response = web.StreamResponse(status=200, headers=headers)
+        response.force_close()  # an event stream takes no further requests
+        try:
+            self.responses[200] += 1
+            await response.prepare(raw)
+            await stream.body(StreamWriter(response))
+        except (ConnectionError, RuntimeError):
+            pass  # the client went away: nothing more to send
+        finally:
+            stream.release()
+        return response

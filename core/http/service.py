@@ -25,6 +25,7 @@ import hmac
 import json
 import logging
 import os
+import ssl
 import time
 from importlib import resources
 from pathlib import Path
@@ -51,7 +52,7 @@ log = logging.getLogger("fieldgate.http")
 COOKIE = "fieldgate_token"
 LAG_PERIOD_S = 0.25
 LAG_UNHEALTHY_S = 1.0
-SLICE_S = 0.0005  # longest stretch of work for one request before the loop serves others
+SLICE_S = 0.0002  # longest stretch of work for one request before the loop serves others
 PLACES_TTL_S = 2.0
 STATIC = {
     "index.html": "text/html; charset=utf-8",
@@ -103,6 +104,26 @@ def resolve_token(settings: HttpSettings, base_dir: Path) -> str | None:
     return token
 
 
+def tls_context(settings: HttpSettings, base_dir: Path) -> ssl.SSLContext | None:
+    """The server's TLS context from ``tls_cert_file``/``tls_key_file`` (PEM), or None."""
+    if settings.tls_cert_file is None or settings.tls_key_file is None:
+        return None
+    cert, key = (
+        p if p.is_absolute() else base_dir / p
+        for p in (Path(settings.tls_cert_file), Path(settings.tls_key_file))
+    )
+    context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    context.minimum_version = ssl.TLSVersion.TLSv1_2
+    try:
+        context.load_cert_chain(cert, key)
+    except (OSError, ssl.SSLError) as exc:
+        raise HttpConfigError(
+            f"gateway.http.tls_cert_file {cert} / tls_key_file {key}: cannot use them "
+            f"({type(exc).__name__}: {exc.args[-1] if exc.args else exc})"
+        ) from None
+    return context
+
+
 class LoopMonitor:
     """How late the event loop wakes a task that sleeps ``LAG_PERIOD_S`` (for /healthz)."""
 
@@ -136,7 +157,9 @@ class HttpService:
         self.token = resolve_token(settings, gateway.topology.base_dir)
         host, port = split_listen(settings.listen)
         self._hosts = {host.lower(), *(h.lower() for h in settings.allowed_hosts)}
-        self.server = HttpServer(self.handle, host, port)
+        self.server = HttpServer(
+            self.handle, host, port, ssl_context=tls_context(settings, gateway.topology.base_dir)
+        )
         self.metrics = GatewayMetrics(gateway, point_metrics=settings.point_metrics, extra=self)
         self.streams = EventStreams(
             gateway, max_clients=settings.sse_max_clients, rate_hz=settings.sse_point_rate_hz
@@ -147,6 +170,8 @@ class HttpService:
         self.unauthorized = 0
         self._static: dict[str, bytes] = {}
         self._places_cache: tuple[float, dict[str, list[dict[str, str]]]] | None = None
+        self._metrics_cache: tuple[float, bytes] | None = None
+        self._metrics_render: asyncio.Future[bytes] | None = None
         self._routes: dict[str, Handler] = {
             "/healthz": self._healthz,
             "/readyz": self._readyz,
@@ -219,8 +244,8 @@ class HttpService:
         host = request.headers.get("host", "")
         name = host.rsplit(":", 1)[0] if not host.endswith("]") else host
         name = name.strip("[]").lower()
-        if not host or is_loopback(name) or name in self._hosts:
-            return None
+        if name and (is_loopback(name) or name in self._hosts):
+            return None  # an empty or missing Host (HTTP/1.0) names no loopback host
         self.unauthorized += 1
         return text_response(
             421,
@@ -311,8 +336,6 @@ class HttpService:
         return self._json(views.point(self.gateway, self.gateway.image[cid], self._places()))
 
     async def _events(self, request: Request) -> Response | Stream:
-        if self.streams.full:
-            return text_response(503, f"{self.settings.sse_max_clients} event streams open already")
         ids: list[str] | None = None
         wanted = request.query.get("points")
         if wanted is not None:
@@ -329,14 +352,35 @@ class HttpService:
                 rate = None
             if rate is None or not 0 < rate <= 1000:
                 return text_response(400, "rate must be a number of batches per second above 0")
-        return self.streams.open(ids, rate)
+        stream = self.streams.open(ids, rate)  # no await between the check and the slot
+        if stream is None:
+            return text_response(503, f"{self.settings.sse_max_clients} event streams open already")
+        return stream
 
     async def _trends(self, request: Request) -> Response:
         return self._json(self.trends.as_dict())
 
     async def _metrics(self, request: Request) -> Response:
-        body = await self.metrics.render_async()
-        return Response(200, body, CONTENT_TYPE, list(JSON_HEADERS))
+        return Response(200, await self._metrics_text(), CONTENT_TYPE, list(JSON_HEADERS))
+
+    async def _metrics_text(self) -> bytes:
+        """The exposition, rendered at most once per ``metrics_max_age_ms`` (scrapes in between,
+        and scrapes arriving while one renders, share it): a render costs the loop
+        milliseconds in slices, and ten scrapers a second need not pay it ten times."""
+        now = time.monotonic()
+        cached = self._metrics_cache
+        if cached is not None and now - cached[0] < self.settings.metrics_max_age_ms / 1000:
+            return cached[1]
+        if self._metrics_render is None:
+            self._metrics_render = asyncio.ensure_future(self.metrics.render_async(SLICE_S))
+        render = self._metrics_render
+        try:
+            body = await asyncio.shield(render)
+        finally:
+            if render.done() and self._metrics_render is render:
+                self._metrics_render = None
+        self._metrics_cache = (time.monotonic(), body)
+        return body
 
     async def _page(self, request: Request) -> Response:
         return Response(200, self._static["index.html"], STATIC["index.html"], list(PAGE_HEADERS))
@@ -365,6 +409,8 @@ class HttpService:
         return {
             "url": self.url,
             "connections": self.server.connections,
+            "evicted": self.server.evicted,
+            "timed_out": self.server.timed_out,
             "responses": {str(k): v for k, v in sorted(self.server.responses.items())},
             "unauthorized": self.unauthorized,
             "event_streams": len(self.streams.clients),

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..events import Event
 from ..image import Change
-from .server import WRITE_TIMEOUT, Stream
+from .server import WRITE_TIMEOUT, Stream, StreamWriter
 from .views import compact
 
 if TYPE_CHECKING:
@@ -93,24 +93,25 @@ class EventStreams:
     def full(self) -> bool:
         return len(self.clients) >= self.max_clients
 
-    def open(self, ids: Iterable[str] | None, rate_hz: float | None = None) -> Stream:
+    def open(self, ids: Iterable[str] | None, rate_hz: float | None = None) -> Stream | None:
+        """A new client's stream, its slot taken now (check and take in one step: clients
+        connecting at the same moment cannot all pass the limit); None when full."""
+        if self.full:
+            return None
         rate = min(self.rate_hz, rate_hz) if rate_hz else self.rate_hz
         client = SseClient(frozenset(ids) if ids is not None else None, rate, self.queue_size)
+        self._add(client)
 
-        async def body(writer: asyncio.StreamWriter) -> None:
-            self._add(client)
-            try:
-                await self._serve(client, writer)
-            finally:
-                self._remove(client)
+        async def body(writer: StreamWriter) -> None:
+            await self._serve(client, writer)
 
-        return Stream(body)
+        return Stream(body, release=lambda: self._remove(client))
 
     # -- fan-out (on the event loop, inside the write or publish that caused it) ----------
     def _add(self, client: SseClient) -> None:
         self.clients.add(client)
         if self._subscription is None:
-            self._subscription = self.gateway.image.subscribe(self._changed)
+            self._subscription = self.gateway.image.subscribe_batch(self._changed)
             self._unsubscribe_events = self.gateway.context.events.subscribe(self._event)
 
     def _remove(self, client: SseClient) -> None:
@@ -120,10 +121,10 @@ class EventStreams:
             self._unsubscribe_events()
             self._subscription = self._unsubscribe_events = None
 
-    def _changed(self, change: Change) -> None:
-        cid = change.channel.id
+    def _changed(self, changes: list[Change]) -> None:
         for client in self.clients:
-            client.mark(cid)
+            for change in changes:
+                client.mark(change.id)
 
     def _event(self, event: Event) -> None:
         for client in self.clients:
@@ -135,7 +136,7 @@ class EventStreams:
             client.wake.set()
 
     # -- one client ----------------------------------------------------------------------
-    async def _serve(self, client: SseClient, writer: asyncio.StreamWriter) -> None:
+    async def _serve(self, client: SseClient, writer: StreamWriter) -> None:
         loop = asyncio.get_running_loop()
         next_batch = loop.time()
         writer.write(
@@ -173,7 +174,7 @@ class EventStreams:
             if not await self._drain(writer):
                 return
 
-    async def _drain(self, writer: asyncio.StreamWriter) -> bool:
+    async def _drain(self, writer: StreamWriter) -> bool:
         try:
             async with asyncio.timeout(WRITE_TIMEOUT):
                 await writer.drain()

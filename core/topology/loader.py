@@ -36,6 +36,7 @@ from .errors import (
     suggest,
     yaml_problem,
 )
+from .guard import check_structure, read_limited
 from .model import BackConfig, FrontConfig, GatewaySection, StrictModel
 
 
@@ -82,7 +83,17 @@ class Topology:
         for b in self.backs:
             n = sum(1 for s in self.channel_specs if s.source.back == b.name)
             lines.append(f"  back  {b.name} ({b.type}): {len(b.modules)} module(s), {n} channel(s)")
+        lines += [f"warning: {text}" for text in self.warnings()]
         return "\n".join(lines)
+
+    def warnings(self) -> list[str]:
+        """What is valid but will not work as configured (a line booked beyond its poll_ms)."""
+        out: list[str] = []
+        for back in self.backs:
+            check = getattr(back, "timing_warnings", None)
+            if check is not None:
+                out += check()
+        return out
 
 
 class _ComponentType(Protocol):
@@ -115,15 +126,11 @@ def _by_name(items: list[T], name: str, what: str) -> T:
 
 
 def read_yaml(path: str | Path) -> Any:
-    """Parse a YAML file keeping positions; bytes that are not UTF-8, syntax errors and
-    duplicate keys become TopologyError."""
+    """Parse a YAML file keeping positions; a file that is not a regular one or too big,
+    bytes that are not UTF-8, syntax errors, duplicate keys, nesting too deep and aliases
+    that expand too far become TopologyError (``guard.py``)."""
     file = str(path)
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        raise TopologyError(
-            [ConfigIssue(file, None, None, "", f"cannot read file: {exc.strerror or exc}")]
-        ) from None
+    raw = read_limited(file)  # a regular file of sane size (guard.py)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -141,6 +148,7 @@ def read_yaml(path: str | Path) -> Any:
         ) from None
     yaml = YAML(typ="rt")
     try:
+        check_structure(text, file)  # depth, alias expansion, duplicate keys: before building
         return yaml.load(text)
     except MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark

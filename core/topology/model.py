@@ -24,6 +24,7 @@ from pydantic import (
 )
 
 from ..image import ChannelSpec, ErrorMode, Kind
+from ..serial_timing import LineTiming, bits_per_char
 
 Identifier = Annotated[str, StringConstraints(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$")]
 
@@ -123,6 +124,21 @@ class HttpSettings(StrictModel):
         description="also export one series per point on /metrics (value, good); off: counts by quality only",
     )
     sse_max_clients: int = Field(16, ge=1, le=256, description="concurrent event-stream clients")
+    metrics_max_age_ms: int = Field(
+        1000,
+        ge=0,
+        le=60_000,
+        description="/metrics is rendered at most this often; scrapes in between share the text "
+        "(0: every scrape renders)",
+    )
+    tls_cert_file: str | None = Field(
+        None,
+        description="serve HTTPS: the certificate chain (PEM), relative to the topology file; "
+        "with tls_key_file",
+    )
+    tls_key_file: str | None = Field(
+        None, description="the certificate's private key (PEM), relative to the topology file"
+    )
     sse_point_rate_hz: float = Field(
         4.0,
         gt=0,
@@ -141,6 +157,8 @@ class HttpSettings(StrictModel):
         sources = [self.auth_token, self.token_file, self.token_env]
         if sum(s is not None for s in sources) > 1:
             raise ValueError("give one of auth_token, token_file or token_env, not several")
+        if (self.tls_cert_file is None) != (self.tls_key_file is None):
+            raise ValueError("give tls_cert_file and tls_key_file together (HTTPS), or neither")
         host, _ = split_listen(self.listen)
         if not is_loopback(host) and all(s is None for s in sources):
             raise ValueError(
@@ -243,7 +261,26 @@ class SerialBackConfig(BackConfig):
     bytesize: Literal[7, 8] = 8
     parity: Literal["N", "E", "O"] = "N"
     stopbits: Literal[1, 2] = 1
-    timeout_ms: int = Field(200, ge=1, le=60_000, description="reply timeout per transaction")
+    timeout_ms: int = Field(
+        200,
+        ge=1,
+        le=60_000,
+        description="response timeout: from the end of a request to the first byte of its reply "
+        "(a long reply that starts in time is read whole)",
+    )
+    byte_timeout_ms: float | None = Field(
+        None,
+        gt=0,
+        le=10_000,
+        description="silence inside a reply that ends it; default 8 character times, at least 30 ms "
+        "(a USB-RS485 adapter's latency timer never trips it)",
+    )
+    echo: bool | Literal["auto"] = Field(
+        "auto",
+        description="the adapter hears its own requests (2-wire RS-485): true, false, or auto "
+        "(detected at the first exchange that tells); an echo is compared and dropped, never "
+        "taken for the reply",
+    )
     retries: int = Field(
         0,
         ge=0,
@@ -267,3 +304,41 @@ class SerialBackConfig(BackConfig):
         ge=10,
         description="also rewrite outputs cyclically at this period; default: on change only",
     )
+
+    def timing(self) -> LineTiming:
+        """Response timeout, inter-byte timeout and line silence of this line
+        (fieldgate.serial_timing)."""
+        return LineTiming.of(
+            self.baudrate,
+            self.timeout_ms,
+            self.byte_timeout_ms,
+            bits_per_char(self.bytesize, self.parity, self.stopbits),
+        )
+
+    def poll_wire_time(self, module: ModuleConfig) -> float | None:
+        """Worst-case wire time of one poll of ``module`` at this line's baud rate (requests,
+        replies, inter-frame silences); None when the plugin cannot say. Plugins implement it."""
+        return None
+
+    def timing_warnings(self) -> list[str]:
+        """What ``validate`` warns about: modules that cannot be polled within their poll_ms at
+        this baud rate (the sum of their worst-case wire times, each per its own period)."""
+        load, total, periods = 0.0, 0.0, []
+        for module in self.modules:
+            wire = self.poll_wire_time(module)
+            period_ms = module.poll_ms if module.poll_ms is not None else self.poll_ms
+            if wire is None or not period_ms:
+                continue
+            load += wire / (period_ms / 1000)
+            total += wire
+            periods.append(period_ms)
+        if load <= 1.0:
+            return []
+        shortest = min(periods)
+        return [
+            f"backs.{self.name}: one poll of every module takes {total * 1000:.0f} ms on the wire "
+            f"at {self.baudrate} baud (worst case), more than the line has within poll_ms "
+            f"({shortest} ms{' and longer' if len(set(periods)) > 1 else ''}): the line is "
+            f"{load * 100:.0f} % booked, so modules are polled less often than configured; "
+            "raise the baud rate or poll_ms"
+        ]

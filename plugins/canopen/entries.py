@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 
 from .abort import (
@@ -159,10 +160,20 @@ def array(index: int, name: str, items: Iterable[Entry]) -> ObjectDef:
 
 
 class Directory:
-    """All objects of one node's I/O layer, by index and sub-index."""
+    """All objects of one node's I/O layer, by index and sub-index.
 
-    def __init__(self, objects: Iterable[ObjectDef] = ()):
+    ``batch`` makes the context the PDO engine writes one message's entries in (an RPDO,
+    or the RPDOs applied at one SYNC): the CiA 401 objects collect their process-image
+    writes inside it and write them as one batch when it ends. Default: no batching.
+    """
+
+    def __init__(
+        self,
+        objects: Iterable[ObjectDef] = (),
+        batch: Callable[[], AbstractContextManager[object]] = nullcontext,
+    ):
         self._objects: dict[int, ObjectDef] = {}
+        self.batch = batch
         for obj in objects:
             self.add(obj)
 

@@ -180,7 +180,9 @@ class IoDevice(Service):
 
     def _directory(self) -> Directory:
         fnbus = self.fnbus.objects() if self.fnbus is not None else []
-        return Directory(self.profile.objects() + self.manufacturer.objects() + fnbus)
+        return Directory(
+            self.profile.objects() + self.manufacturer.objects() + fnbus, batch=self.profile.batch
+        )
 
     def _new_engine(self, node: NodeHost) -> PdoEngine:
         return PdoEngine(

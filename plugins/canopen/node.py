@@ -265,15 +265,16 @@ class Node:
         return self._deadline_hint
 
     def next_deadline(self) -> float | None:
-        deadlines = [d for d in (self._safe_deadline(s) for s in self._timed) if d is not None]
-        return min(deadlines) if deadlines else None
-
-    def _safe_deadline(self, service: Service) -> float | None:
-        try:
-            return service.deadline()
-        except Exception:
-            self._internal_error(service, "deadline")
-            return None
+        earliest: float | None = None
+        for service in self._timed:  # a plain loop: this runs several times per engine call
+            try:
+                deadline = service.deadline()
+            except Exception:
+                self._internal_error(service, "deadline")
+                continue
+            if deadline is not None and (earliest is None or deadline < earliest):
+                earliest = deadline
+        return earliest
 
     def _run_due(self, now: float) -> None:
         """Poll the services that are due; note the earliest deadline left (one pass)."""

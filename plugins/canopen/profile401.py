@@ -29,7 +29,13 @@ Bit sub-index n is bit (n-1) % 8 of 0x6000/0x6200 sub (n-1) // 8 + 1 (padding bi
 
 Events: a change of a DI value fires ``engine.object_changed(0x6000, byte)`` (and the bit
 object's entry when served); with 0x6423 TRUE an AI change that meets its 0x6421
-trigger fires ``(0x6401, channel)``; a special input byte fires ``(0x3000, byte)``.
+trigger fires ``(0x6401, channel)``; a special input byte fires ``(0x3000, byte)``. One
+process-image batch (a poll reply) fires each object once, however many of its channels
+changed.
+
+Output writes made inside :meth:`Profile401.batch` (the PDO engine writes an RPDO, or the
+RPDOs of one SYNC, in one) are collected and written to the image as one batch when it
+ends; outside it (an SDO download) each object write is its own batch.
 """
 
 from __future__ import annotations
@@ -37,8 +43,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from functools import partial
+from typing import Any
 
-from fieldgate.image import Change, Channel, DataType, ErrorMode, ProcessImage, Subscription
+from fieldgate.image import (
+    Change,
+    Channel,
+    DataType,
+    ErrorMode,
+    ProcessImage,
+    Subscription,
+    Value,
+)
 from fieldgate.layout import byte_value
 
 from .abort import VALUE_RANGE
@@ -169,10 +184,35 @@ class Profile401:
             for bit, ch in enumerate(slots)
             if ch is not None
         }
+        # what a DI change fires: its byte of 0x6000, and its bit object's entry when served
+        self._di_events: dict[str, dict[tuple[int, int], None]] = {}
+        for cid, sub in self._di_sub.items():
+            events = {(DI_OBJECT, sub): None}
+            if bit_objects:
+                offset, bit_sub, _ = bit_position(self._di_bit[cid])
+                events[(DI_BIT_OBJECT + offset, bit_sub)] = None
+            self._di_events[cid] = events
         self._si_sub = {ch.id: n + 1 for n, ch in enumerate(layout.si)}
         self._ai_number = {ch.id: n + 1 for n, ch in enumerate(layout.ai)}
+        self._do_bits = [
+            [(bit, ch.id) for bit, ch in enumerate(slots) if ch is not None]
+            for slots in layout.do_bytes
+        ]
         self._subscriptions: list[Subscription] = []
         self._event: Callable[[int, int, float], None] | None = None
+        self._staged: dict[str, Value] | None = None  # output writes of the open batch
+        self._batch = _OutputBatch(self)
+
+    # -- output batches ---------------------------------------------------------------
+    def batch(self) -> _OutputBatch:
+        """A context: the output writes made inside it reach the image as one batch."""
+        return self._batch
+
+    def _write(self, values: dict[str, Value]) -> None:
+        if self._staged is not None:
+            self._staged.update(values)
+        elif values:
+            self.image.write_outputs(values, self.origin)
 
     # -- events ---------------------------------------------------------------------
     def attach(self, event: Callable[[int, int, float], None]) -> None:
@@ -180,12 +220,9 @@ class Profile401:
         self.detach()
         self._event = event
         self._last_reported = [to_int16(ch) for ch in self.layout.ai]
-        if self._di_sub:
-            self._subscriptions.append(self.image.subscribe(self._di_changed, ids=self._di_sub))
-        if self._ai_number:
-            self._subscriptions.append(self.image.subscribe(self._ai_changed, ids=self._ai_number))
-        if self._si_sub:
-            self._subscriptions.append(self.image.subscribe(self._si_changed, ids=self._si_sub))
+        inputs = [*self._di_sub, *self._ai_number, *self._si_sub]
+        if inputs:
+            self._subscriptions.append(self.image.subscribe_batch(self._inputs_changed, ids=inputs))
 
     def detach(self) -> None:
         for sub in self._subscriptions:
@@ -193,23 +230,35 @@ class Profile401:
         self._subscriptions = []
         self._event = None
 
-    def _di_changed(self, change: Change) -> None:
-        if change.value_changed and self._event is not None:
-            now = self.image.clock()
-            self._event(DI_OBJECT, self._di_sub[change.channel.id], now)
-            if self.bit_objects:
-                offset, sub, _ = bit_position(self._di_bit[change.channel.id])
-                self._event(DI_BIT_OBJECT + offset, sub, now)
-
-    def _si_changed(self, change: Change) -> None:
-        if change.value_changed and self._event is not None:
-            self._event(SI_OBJECT, self._si_sub[change.channel.id], self.image.clock())
-
-    def _ai_changed(self, change: Change) -> None:
-        if not change.value_changed or self._event is None or not self.interrupt_enable:
+    def _inputs_changed(self, changes: list[Change]) -> None:
+        """One batch of input changes: each object that changed fires one event."""
+        event = self._event
+        if event is None:
             return
-        n = self._ai_number[change.channel.id]
-        value = to_int16(change.channel)
+        fired: dict[tuple[int, int], None] = {}
+        di_events = self._di_events
+        for change in changes:
+            if change.old_value == change.value:  # a quality change alone fires nothing
+                continue
+            cid = change.id
+            objects = di_events.get(cid)
+            if objects is not None:
+                fired.update(objects)
+            elif cid in self._si_sub:
+                fired[(SI_OBJECT, self._si_sub[cid])] = None
+            elif self._ai_fires(change):
+                fired[(AI_OBJECT, self._ai_number[cid])] = None
+        if fired:
+            now = self.image.clock()
+            for index, sub in fired:
+                event(index, sub, now)
+
+    def _ai_fires(self, change: Change) -> bool:
+        """0x6423 on and the new value meets the channel's 0x6421 trigger (then it is reported)."""
+        if not self.interrupt_enable:
+            return False
+        n = self._ai_number[change.id]
+        value = to_int16(change.channel, change.value)
         trigger = self.trigger[n - 1]
         fire = (
             (trigger & TRIGGER_UPPER and value > self.upper[n - 1])
@@ -222,7 +271,7 @@ class Profile401:
         if fire:
             self._last_reported[n - 1] = value
             self.interrupt_source[(n - 1) // 32] |= 1 << ((n - 1) % 32)
-            self._event(AI_OBJECT, n, self.image.clock())
+        return bool(fire)
 
     # -- digital ----------------------------------------------------------------------
     def read_di(self, n: int) -> int:
@@ -233,9 +282,9 @@ class Profile401:
 
     def write_do(self, n: int, value: int) -> None:
         mask = self.filter[n]
-        for bit, ch in enumerate(self.layout.do_bytes[n]):
-            if ch is not None and mask >> bit & 1:
-                self.image.write_output(ch.id, bool(value >> bit & 1), self.origin)
+        self._write(
+            {cid: bool(value >> bit & 1) for bit, cid in self._do_bits[n] if mask >> bit & 1}
+        )
 
     def read_di_bit(self, n: int) -> int:
         return self.read_di(n // 8) >> n % 8 & 1
@@ -246,7 +295,7 @@ class Profile401:
     def write_do_bit(self, n: int, value: int) -> None:
         ch = self.layout.do_bytes[n // 8][n % 8]
         if ch is not None and self.filter[n // 8] >> n % 8 & 1:
-            self.image.write_output(ch.id, bool(value), self.origin)
+            self._write({ch.id: bool(value)})
 
     # -- special bytes ----------------------------------------------------------------
     @staticmethod
@@ -254,7 +303,7 @@ class Profile401:
         return int(channels[n].value)
 
     def write_so(self, n: int, value: int) -> None:
-        self.image.write_output(self.layout.so[n].id, value, self.origin)
+        self._write({self.layout.so[n].id: value})
 
     def _write_do_error(self, n: int, value: int, *, mode: bool) -> None:
         for bit, ch in enumerate(self.layout.do_bytes[n]):
@@ -268,7 +317,7 @@ class Profile401:
     # -- analog -----------------------------------------------------------------------
     def write_ao(self, n: int, value: int) -> None:
         ch = self.layout.ao[n]
-        self.image.write_output(ch.id, from_int16(ch, value), self.origin)
+        self._write({ch.id: from_int16(ch, value)})
 
     def _write_ao_mode(self, n: int, value: int) -> None:
         if value > 1:
@@ -675,3 +724,24 @@ class Profile401:
             + [ch.id for ch in self.layout.ao]
             + [ch.id for ch in self.layout.so]
         )
+
+
+class _OutputBatch:
+    """:meth:`Profile401.batch`: collects output writes, writes them as one batch at the end
+    of the outermost one (the RPDOs of a SYNC hold the batches of each RPDO)."""
+
+    def __init__(self, profile: Profile401):
+        self.profile = profile
+        self.depth = 0
+
+    def __enter__(self) -> None:
+        if self.depth == 0:
+            self.profile._staged = {}
+        self.depth += 1
+
+    def __exit__(self, *exc: Any) -> None:
+        self.depth -= 1
+        if self.depth == 0:
+            staged, self.profile._staged = self.profile._staged, None
+            if staged:
+                self.profile.image.write_outputs(staged, self.profile.origin)

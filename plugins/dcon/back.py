@@ -27,6 +27,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
+from fieldgate.host_watchdog import ClearSteps, clear_timeout
 from fieldgate.image import ChannelSpec, Kind
 from fieldgate.plugin import GatewayContext, PluginStartError
 from fieldgate.polling import CommError, LineJob, SerialBack
@@ -65,7 +66,9 @@ class DconBack(SerialBack):
         serial = await AsyncSerial.open(
             cfg.port, cfg.baudrate, cfg.bytesize, cfg.parity, cfg.stopbits
         )
-        self.dcon = DconLink(serial, cfg.checksum, cfg.timeout_ms / 1000)
+        self.dcon = DconLink(
+            serial, cfg.checksum, cfg.timeout_ms / 1000, timing=cfg.timing(), echo=cfg.echo
+        )
         for module in self.modules.values():
             module.link = self.dcon
         return serial
@@ -225,14 +228,33 @@ class DconBack(SerialBack):
         return True
 
     def request_clear_watchdog(self, address: int) -> asyncio.Future[Any]:
-        """Queue ``~AA1`` for the module; returns a future (callers may ignore it)."""
+        """Queue the clear of the module's timeout (core's sequence: ``~**`` when host OK is
+        allowed, ``~AA1``, ``~AA0`` to confirm, the outputs written again); returns a future
+        (callers may ignore it)."""
         module = self.module(address)
 
         async def clear() -> None:
-            await module.clear_watchdog()
-            self._rewrite(module)  # bring the outputs back to what the image says
+            allowed = self._host_ok_allowed()
+            steps = ClearSteps(
+                clear=module.send_clear,
+                expired=module.timeout_flag,
+                rewrite_outputs=lambda: self._rewrite(module),  # back to what the image says
+                host_ok=self._host_ok if allowed else None,
+                without_host_ok="" if allowed else self._host_ok_off_reason(),
+            )
+            try:
+                outcome = await clear_timeout(steps)
+            except CommError as exc:
+                module.last_clear = f"failed: {exc}"
+                raise
+            module.watchdog_cleared(outcome)
 
         return self._submit(clear)
+
+    def _host_ok_off_reason(self) -> str:
+        if not self.host_ok_enabled:
+            return "switched off by the master (host OK attribute)"
+        return "a front's master is lost"
 
     def set_watchdog(
         self, address: int, enabled: bool, timeout_ms: int | None = None
@@ -276,6 +298,8 @@ class DconBack(SerialBack):
             "sending": self._host_ok_running,
             "sent": self.host_ok_sent,
         }
+        if self.dcon is not None:
+            status["echo"] = self.dcon.echo.describe()
         status["dcon_modules"] = [
             m.status() for m in sorted(self.modules.values(), key=lambda m: m.address)
         ]

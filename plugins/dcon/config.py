@@ -150,6 +150,21 @@ class DconBackConfig(SerialBackConfig):
             return self.host_ok_ms / 1000
         return min(timeouts) / 3000 if timeouts else None
 
+    def poll_wire_time(self, module: ModuleConfig) -> float | None:
+        """Worst case on the wire of one poll (``validate``'s poll budget): the digital read
+        (``@AA``: up to ``!AASOOII``), the analog read (``#AA``: 7 characters a value in
+        engineering units) or, for an output-only module, ``~AA0``; checksum and CR each."""
+        assert isinstance(module, DconModuleConfig)
+        p, extra = module.profile, (2 if self.checksum else 0) + 1
+        chars = 0
+        if p.digital:
+            chars += 5 + 8 + 2 * extra
+        if p.ai:
+            chars += 3 + 1 + 7 * p.ai + 2 * extra
+        if not (p.di or p.do or p.ai):
+            chars += 4 + 5 + 2 * extra
+        return self.timing().wire_time(chars)
+
     def host_watchdogs(self) -> dict[int, tuple[bool, int] | None]:
         """The configured host watchdog of every module, None where the module keeps its own
         (``fieldgate.host_watchdog.WatchdogBackConfig``: the fronts' watchdog objects)."""

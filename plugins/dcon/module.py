@@ -50,6 +50,7 @@ class DconModule(PolledModule):
         self.firmware = ""
         self.in_watchdog = False
         self.watchdog_events = 0
+        self.last_clear = ""  # how the last clear went (status)
         self.watch_status = (
             watch_status  # poll ~AA0 with the inputs (set while host OK is suspended)
         )
@@ -261,17 +262,24 @@ class DconModule(PolledModule):
             self.enter_watchdog("module status says so")
         return status
 
-    async def clear_watchdog(self) -> None:
-        """``~AA1``, then check the status really cleared."""
+    async def send_clear(self) -> None:
+        """``~AA1``: reset the host-watchdog timeout flag (the sequence around it is core's:
+        ``fieldgate.host_watchdog.clear_timeout``)."""
         await self._ask("1", "~")
-        status = await self._ask("0", "~")
-        if codec.hex_field(status[:2], "module status") & WATCHDOG_TIMEOUT_BIT:
-            raise CommError(
-                ErrorKind.WATCHDOG, "the module still reports a host-watchdog timeout after ~AA1"
-            )
+
+    async def timeout_flag(self) -> bool:
+        """``~AA0``: whether the host-watchdog timeout flag is set."""
+        body = await self._ask("0", "~")
+        return bool(codec.hex_field(body[:2], "module status") & WATCHDOG_TIMEOUT_BIT)
+
+    def watchdog_cleared(self, outcome: str) -> None:
+        """The clear was confirmed: outputs answer again (their values are being rewritten)."""
         if self.in_watchdog:
-            log.info("%s module %d: host-watchdog timeout cleared", self.link_name, self.address)
+            log.info(
+                "%s module %d: host-watchdog timeout %s", self.link_name, self.address, outcome
+            )
         self.in_watchdog = False
+        self.last_clear = outcome
         self.image.set_quality(self.outputs, Quality.GOOD)
 
     async def configure_watchdog(self) -> None:
@@ -408,6 +416,7 @@ class DconModule(PolledModule):
                 "timeout_ms": self.watchdog_timeout_ms,
                 "timed_out": self.in_watchdog,
                 "events": self.watchdog_events,
+                "last_clear": self.last_clear,
             },
             "resets_seen": self.resets,
             "warnings": list(self.warnings),

@@ -13,6 +13,7 @@ from fieldgate.health import ErrorKind
 from fieldgate.plugin import Scanner, ScanProgress
 from fieldgate.polling import CommError
 from fieldgate.serial_link import AsyncSerial
+from fieldgate.serial_timing import LineTiming
 
 from . import codec
 from .formats import DataFormat
@@ -140,7 +141,11 @@ class DconScanner(Scanner):
         try:
             # every scan reply carries its address, so a late one cannot be mistaken: no settling
             link = DconLink(
-                serial, args.checksum, args.timeout_ms / 1000, settle_after_timeout=False
+                serial,
+                args.checksum,
+                args.timeout_ms / 1000,
+                settle_after_timeout=False,
+                timing=LineTiming.of(baudrate, args.timeout_ms, bits=10),
             )
             await scan_line(link, addresses, baudrate, progress, found)
         finally:

@@ -245,8 +245,9 @@ class SimModule:
                 f"{(0x04 if self.timed_out else 0) | (0x80 if self.watchdog_enabled else 0):02X}"
             )
         if body == "1":
+            # the flag only: the watchdog keeps counting from the last ~** (so a clear
+            # sent while ~** is paused is followed by a new timeout at once)
             self.timed_out = False
-            self.last_host_ok = now
             return self._ok()
         if body == "2":
             return self._ok(f"{1 if self.watchdog_enabled else 0}{self.watchdog_tenths:02X}")

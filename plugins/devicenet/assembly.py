@@ -15,8 +15,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from fieldgate.image import Channel, DataType, Kind, ProcessImage
-from fieldgate.layout import byte_value, of_kind, pack_bits, write_byte
+from fieldgate.image import Channel, DataType, Kind, ProcessImage, Value
+from fieldgate.layout import bit_values, byte_value, of_kind, pack_bits
 
 FIRST_INSTANCE = 0x64
 CATEGORY_ORDER = (Kind.DO, Kind.AO, Kind.DI, Kind.AI)
@@ -64,21 +64,26 @@ class Assembly:
             return bytes(byte_value(group) for group in self.slots)
         return b"".join(word_of(c).to_bytes(2, "little") for c in self.slots)
 
-    def write(self, image: ProcessImage, data: bytes, origin: str) -> list[str]:
-        """Write an output assembly's bytes to its channels (``len(data) == size``)."""
-        changed: list[str] = []
+    def values(self, data: bytes) -> dict[str, Value]:
+        """An output assembly's bytes (``len(data) == size``) as values of its channels; a
+        word that does not fit its channel's type is left out (the channel keeps its value)."""
+        values: dict[str, Value] = {}
         if self.kind.is_digital:
-            for group, value in zip(self.slots, data, strict=True):
-                changed += write_byte(image, group, value, origin)
-        else:
-            for i, channel in enumerate(self.slots):
-                word = int.from_bytes(data[2 * i : 2 * i + 2], "little")
-                try:
-                    if image.write_output(channel.id, value_of_word(channel, word), origin):
-                        changed.append(channel.id)
-                except ValueError:  # the word does not fit the channel's type: leave it
-                    pass
-        return changed
+            for group, byte in zip(self.slots, data, strict=True):
+                values.update(bit_values(group, byte))
+            return values
+        for i, channel in enumerate(self.slots):
+            word = int.from_bytes(data[2 * i : 2 * i + 2], "little")
+            try:
+                values[channel.id] = channel.dtype.check(value_of_word(channel, word))
+            except ValueError:
+                pass
+        return values
+
+    def write(self, image: ProcessImage, data: bytes, origin: str) -> list[str]:
+        """Write an output assembly's bytes to its channels, as one batch; returns the ids
+        that changed."""
+        return [change.id for change in image.write_outputs(self.values(data), origin)]
 
 
 class Assemblies:
@@ -114,14 +119,14 @@ class Assemblies:
         return b"".join(a.data() for a in self.inputs)
 
     def consume(self, data: bytes) -> list[str]:
-        """Write a consumed I/O message (every output assembly, concatenated)."""
-        changed, offset = [], 0
+        """Write a consumed I/O message (every output assembly, concatenated) as one batch;
+        returns the ids that changed."""
+        values: dict[str, Value] = {}
+        offset = 0
         for assembly in self.outputs:
-            changed += assembly.write(
-                self.image, data[offset : offset + assembly.size], self.origin
-            )
+            values.update(assembly.values(data[offset : offset + assembly.size]))
             offset += assembly.size
-        return changed
+        return [change.id for change in self.image.write_outputs(values, self.origin)]
 
     def input_ids(self) -> list[str]:
         return [c.id for a in self.inputs for c in a.channels]

@@ -147,8 +147,8 @@ class DeviceNetFront(Front):
             reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
         )
         self.adapter.start()
-        self._subscription = self.context.image.subscribe(
-            self._input_changed, ids=slave.assemblies.input_ids()
+        self._subscription = self.context.image.subscribe_batch(
+            self._inputs_changed, ids=slave.assemblies.input_ids()
         )
         if not self._health_subscribed:
             self._health_subscribed = True
@@ -177,8 +177,11 @@ class DeviceNetFront(Front):
             self.adapter.close()
             self.adapter = None
 
-    def _input_changed(self, change: Change) -> None:
-        if self.adapter is not None and self.slave is not None and change.value_changed:
+    def _inputs_changed(self, changes: list[Change]) -> None:
+        """One batch of input changes (a poll reply): the slave hears of it once."""
+        if self.adapter is None or self.slave is None:
+            return
+        if any(change.old_value != change.value for change in changes):
             adapter, slave = self.adapter, self.slave
             adapter.pump(lambda: slave.inputs_changed(adapter.now))
 

@@ -20,8 +20,9 @@ from fieldgate.topology import ModuleConfig
 from . import values as regvalues
 from .client import ModbusExceptionError, ModbusLink
 from .codec import ExceptionCode, Function
-from .config import ModbusBackConfig, ModbusModuleConfig, Point, Table, module_points
+from .config import ModbusBackConfig, ModbusModuleConfig, module_points
 from .plan import ReadBlock, decode_block, plan_reads, plan_writes
+from .points import Point, Table
 
 log = logging.getLogger("fieldgate.modbus")
 
@@ -159,6 +160,8 @@ class ModbusModule(PolledModule):
 
     async def _retry_bad(self, now: float) -> dict[str, object]:
         readings: dict[str, object] = {}
+        if not self.bad:
+            return readings
         points = {p.channel: p for p in self._readable}
         recovered = False
         for cid, due in list(self.bad.items()):
@@ -323,6 +326,7 @@ class ModbusBack(SerialBack):
         if self.link is not None:
             status["modbus"] = {
                 **self.link.stats.as_dict(),
+                "echo": self.link.echo.describe(),
                 "refused_points": sorted(cid for m in self.modules.values() for cid in m.bad),
                 "single_writes_only": sorted(
                     a for a, m in self.modules.items() if not m.allow_multiple_writes

@@ -1,46 +1,47 @@
-"""Our thin adapter over pymodbus's async RTU client (pymodbus pinned to 3.16.1).
+"""The Modbus RTU master's link: one transaction at a time on an RS-485 line.
 
-What it adds to pymodbus:
+The wire timing is core's (``fieldgate.serial_timing``, shared with the DCON back):
+``timeout_ms`` is the *response timeout* until the first byte of the reply, an inter-byte
+timeout ends a broken frame, a good frame ends as soon as its length is complete (known
+from its third byte), the line must fall silent after a failure before the next request,
+and an echo of the request (``echo: true|auto``) is compared and dropped, never taken for
+the reply. pymodbus's own client cannot do this: it has one timeout for the whole reply
+(a 266 ms reply at 9600 baud with ``timeout_ms: 200`` was cut, the next request went out
+into it and both modules went offline) and its RTU framer takes the echo of an FC5/FC6
+write for the answer. So the link does the I/O on :class:`fieldgate.serial_link.AsyncSerial`
+and pymodbus (pinned 3.16.1) decodes the reply PDU (``DecodePDU``); our codec builds the
+request ADU and checks the frame (CRC, unit).
+
+What else it adds:
 
 * the RTU inter-frame silence (3.5 character times, 1.75 ms above 19200 baud) kept
-  before every request; pymodbus does not enforce it;
-* precise failure kinds: pymodbus reports a reply with a bad CRC, a reply from another
-  unit and no reply at all as the same timeout. The adapter records the bytes that
-  arrived (pymodbus's ``trace_packet`` hook) and :func:`codec.diagnose` classifies them;
+  before every request;
+* precise failure kinds: :func:`codec.diagnose` classifies the bytes that arrived
+  (timeout, CRC, wrong address, garbage);
 * replies checked against the request (function, quantity), exception responses turned
   into :class:`ModbusExceptionError` with the code;
 * Modbus statistics per line (requests by function, errors by kind, exception codes).
 
-Retries are the line scheduler's business (``retries`` of the back), so pymodbus runs
-with ``retries=0``; its own error log lines are silenced (the scheduler logs once per
-burst).
+Retries are the line scheduler's business (``retries`` of the back).
 """
 
 from __future__ import annotations
 
-import asyncio
 import logging
-import time
 from collections import Counter
-from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-import serial
-from pymodbus import FramerType
-from pymodbus.client import AsyncModbusSerialClient
-from pymodbus.exceptions import ConnectionException, ModbusException
-from pymodbus.pdu import ModbusPDU
+from pymodbus.pdu import DecodePDU
 
 from fieldgate.health import ErrorKind
-from fieldgate.plugin import PluginStartError
 from fieldgate.polling import CommError, LineLost
-from fieldgate.serial_link import char_time
+from fieldgate.serial_link import AsyncSerial
+from fieldgate.serial_timing import EchoSetting, EchoState, Exchange, LineTiming, Outcome, Result
 
-from .codec import Function, diagnose
+from .codec import Function, Request, crc_ok, diagnose, inter_frame_gap, response_length
 
-if TYPE_CHECKING:
-    from .config import ModbusBackConfig
+__all__ = ["ModbusExceptionError", "ModbusLink", "ModbusStats", "inter_frame_gap"]
 
 log = logging.getLogger("fieldgate.modbus")
 logging.getLogger("pymodbus").setLevel(
@@ -55,11 +56,6 @@ class ModbusExceptionError(CommError):
         super().__init__(ErrorKind.EXCEPTION, f"exception code {code} for function {function}")
         self.function = function
         self.code = code
-
-
-def inter_frame_gap(baudrate: int, bits_per_char: int = 11) -> float:
-    """t3.5 of the Modbus serial line spec: 3.5 characters, fixed 1.75 ms above 19200 baud."""
-    return 0.00175 if baudrate > 19200 else 3.5 * char_time(baudrate, bits_per_char)
 
 
 @dataclass
@@ -79,7 +75,7 @@ class ModbusStats:
 
 
 class ModbusLink:
-    """One RS-485 line spoken to through pymodbus. One transaction at a time (the scheduler's rule)."""
+    """One RS-485 line of Modbus RTU modules. One transaction at a time (the scheduler's rule)."""
 
     def __init__(
         self,
@@ -91,10 +87,17 @@ class ModbusLink:
         stopbits: int = 1,
         timeout: float = 0.2,
         inter_frame: float | None = None,
+        byte_timeout: float | None = None,
+        echo: EchoSetting = "auto",
     ):
         self.port = port
         self.timeout = timeout
         self.gap = inter_frame_gap(baudrate) if inter_frame is None else inter_frame
+        bits = 1 + bytesize + (0 if parity == "N" else 1) + stopbits
+        self.timing = LineTiming.of(
+            baudrate, timeout * 1000, None if byte_timeout is None else byte_timeout * 1000, bits
+        )
+        self.echo = EchoState(echo)
         self.stats = ModbusStats()
         self._settings: dict[str, Any] = {
             "baudrate": baudrate,
@@ -102,13 +105,13 @@ class ModbusLink:
             "parity": parity,
             "stopbits": stopbits,
         }
-        self._client: AsyncModbusSerialClient | None = None
-        self._rx = bytearray()
-        self._rx_last = b""
+        self.serial: AsyncSerial | None = None
         self._quiet_since = 0.0
+        self._after_failure = False
+        self._decoder = DecodePDU(False)
 
     @classmethod
-    def from_config(cls, config: ModbusBackConfig) -> ModbusLink:
+    def from_config(cls, config: Any) -> ModbusLink:
         gap = None if config.inter_frame_ms is None else config.inter_frame_ms / 1000
         return cls(
             config.port,
@@ -118,123 +121,85 @@ class ModbusLink:
             stopbits=config.stopbits,
             timeout=config.timeout_ms / 1000,
             inter_frame=gap,
+            byte_timeout=None if config.byte_timeout_ms is None else config.byte_timeout_ms / 1000,
+            echo=config.echo,
         )
 
     async def open(self) -> None:
-        _check_port(self.port, self._settings)
-        self._client = AsyncModbusSerialClient(
-            self.port,
-            framer=FramerType.RTU,
-            timeout=self.timeout,
-            retries=0,
-            reconnect_delay=0,
-            trace_packet=self._trace,
-            **self._settings,
-        )
-        if not await self._client.connect():
-            raise PluginStartError(f"cannot open serial port {self.port}")
+        """Open the port (again, after a loss); PluginStartError with a one-line cause."""
+        self.close()
+        self.serial = await AsyncSerial.open(self.port, **self._settings)
+        self.echo.reset()
+        self._after_failure = True  # whatever the line carries now is not ours
 
     def close(self) -> None:
-        if self._client is not None:
-            self._client.close()
-            self._client = None
-
-    def _trace(self, sending: bool, data: bytes) -> bytes:
-        if not sending:
-            # pymodbus passes its whole receive buffer each time; keep only what is new
-            new = (
-                data[len(self._rx_last) :]
-                if self._rx_last and data.startswith(self._rx_last)
-                else data
-            )
-            self._rx += new
-            self._rx_last = data
-        return data
+        if self.serial is not None:
+            self.serial.close_now()
+            self.serial = None
 
     # -- transactions -----------------------------------------------------------
-    @property
-    def _open_client(self) -> AsyncModbusSerialClient:
-        if self._client is None:
-            raise CommError(ErrorKind.IO, "the port is not open")
-        return self._client
-
     async def read_bits(self, unit: int, function: int, address: int, count: int) -> list[bool]:
-        client = self._open_client
-        call = client.read_coils if function == Function.READ_COILS else client.read_discrete_inputs
-        reply = await self._transact(
-            unit, function, lambda: call(address, count=count, device_id=unit)
-        )
+        reply = await self._transact(Request(unit, function, address, count))
         bits = list(getattr(reply, "bits", []))
         if len(bits) < count:
             raise self._bad(function, f"reply carries {len(bits)} bits, {count} asked")
         return bits[:count]
 
     async def read_registers(self, unit: int, function: int, address: int, count: int) -> list[int]:
-        client = self._open_client
-        call = (
-            client.read_holding_registers
-            if function == Function.READ_HOLDING_REGISTERS
-            else client.read_input_registers
-        )
-        reply = await self._transact(
-            unit, function, lambda: call(address, count=count, device_id=unit)
-        )
+        reply = await self._transact(Request(unit, function, address, count))
         registers = list(getattr(reply, "registers", []))
         if len(registers) != count:
             raise self._bad(function, f"reply carries {len(registers)} registers, {count} asked")
         return registers
 
-    async def write(
-        self, unit: int, function: int, address: int, values: list[bool] | list[int]
-    ) -> None:
-        c = self._open_client
-
-        def request() -> Awaitable[ModbusPDU]:
-            if function == Function.WRITE_SINGLE_COIL:
-                return c.write_coil(address, bool(values[0]), device_id=unit)
-            if function == Function.WRITE_SINGLE_REGISTER:
-                return c.write_register(address, values[0], device_id=unit)
-            if function == Function.WRITE_MULTIPLE_COILS:
-                return c.write_coils(address, [bool(v) for v in values], device_id=unit)
-            return c.write_registers(address, list(values), device_id=unit)
-
-        reply = await self._transact(unit, function, request)
+    async def write(self, unit: int, function: int, address: int, values: list[Any]) -> None:
+        if function in (Function.WRITE_SINGLE_COIL, Function.WRITE_MULTIPLE_COILS):
+            values = [bool(v) for v in values]
+        count = len(values) if function in (15, 16) else 1
+        reply = await self._transact(Request(unit, function, address, count, tuple(values)))
         if getattr(reply, "address", address) != address:
             raise self._bad(function, f"write echo names address {reply.address}, not {address}")
 
-    async def _transact(
-        self, unit: int, function: int, request: Callable[[], Awaitable[ModbusPDU | None]]
-    ) -> ModbusPDU:
-        """Run one pymodbus request with t3.5 silence before it; classify failures."""
-        if self._client is None:
+    async def _transact(self, request: Request) -> Any:
+        """One request and its reply, timed as fieldgate.serial_timing says; failures classified."""
+        serial = self.serial
+        if serial is None:
             raise CommError(ErrorKind.IO, "the port is not open")
-        if not self._client.connected:  # pymodbus saw the port fail (read EIO, hang-up)
-            raise self._lost("the port failed")
-        wait = self._quiet_since + self.gap - time.monotonic()
-        if wait > 0:
-            await asyncio.sleep(wait)
-        self._rx.clear()
-        self._rx_last = b""
-        self.stats.requests[function] += 1
-        started = time.monotonic()
+        unit, function = request.unit, request.function
+        adu = request.encode()
         try:
-            reply: ModbusPDU | None = await request()  # (None: pymodbus gave up without a reply)
-        except ConnectionException as exc:
-            raise self._lost(f"port failed: {exc}") from None
-        except ModbusException:
-            if not self._client.connected:  # the port failed while we waited
-                raise self._lost("the port failed during the request") from None
-            kind = diagnose(unit, function, bytes(self._rx))
-            raise self._fail(kind, _describe(kind, bytes(self._rx))) from None
-        except (OSError, serial.SerialException) as exc:
-            raise self._lost(f"port failed: {exc}") from None
-        finally:
-            self._quiet_since = time.monotonic()
+            await self._quiet_line(serial)
+            self.stats.requests[function] += 1
+            exchange = Exchange(
+                adu,
+                self.timing,
+                lambda data: _frame_end(function, data),
+                echo=self.echo.expect,
+                assume=self.echo.assume,
+                ambiguous=function in (Function.WRITE_SINGLE_COIL, Function.WRITE_SINGLE_REGISTER),
+            )
+            started = serial.now
+            outcome = await serial.exchange(adu, exchange)
+        except LineLost:
+            self.stats.errors[ErrorKind.IO] += 1
+            raise
+        self._quiet_since = serial.now
+        if self.echo.learn(outcome):
+            log.info("%s: %s", self.port, self.echo.describe())
+        if outcome.result is not Result.REPLY or outcome.rest:
+            self._after_failure = True  # a late or unexpected byte may still come
+        if outcome.result is not Result.REPLY:
+            raise self._failed(unit, function, outcome)
         self.stats.last_rtt = self._quiet_since - started
+        frame = outcome.frame
+        if not crc_ok(frame) or frame[0] != unit:
+            self._after_failure = True
+            kind = diagnose(unit, function, frame)
+            raise self._fail(kind, _describe(kind, frame))
+        reply = self._decoder.decode(frame[1:-2])
         if reply is None:
-            if not self._client.connected:
-                raise self._lost("the port failed during the request")
-            raise self._fail(ErrorKind.TIMEOUT, "no reply")
+            self._after_failure = True
+            raise self._fail(ErrorKind.GARBAGE, _describe(ErrorKind.GARBAGE, frame))
         if reply.isError():
             code = getattr(reply, "exception_code", 0)
             self.stats.errors[ErrorKind.EXCEPTION] += 1
@@ -244,37 +209,38 @@ class ModbusLink:
             raise self._bad(function, f"reply has function {reply.function_code}")
         return reply
 
+    async def _quiet_line(self, serial: AsyncSerial) -> None:
+        """Before a request: after a failure, line silence; always the t3.5 inter-frame gap."""
+        if self._after_failure:
+            self._after_failure = False
+            await serial.wait_silence(self.timing.silence, self.timing.silence_limit)
+        wait = max(self._quiet_since, serial.last_rx) + self.gap - serial.now
+        if wait > 0:
+            await serial.sleep(wait)
+
+    def _failed(self, unit: int, function: int, outcome: Outcome) -> CommError:
+        if outcome.result is Result.TIMEOUT:
+            return self._fail(ErrorKind.TIMEOUT, "no reply")
+        if outcome.result is Result.TRUNCATED:
+            kind = diagnose(unit, function, outcome.frame)
+            return self._fail(kind, _describe(kind, outcome.frame))
+        return self._fail(ErrorKind.GARBAGE, outcome.describe())
+
     def _fail(self, kind: ErrorKind, text: str) -> CommError:
         self.stats.errors[kind] += 1
         return CommError(kind, text)
 
-    def _lost(self, text: str) -> LineLost:
-        self.stats.errors[ErrorKind.IO] += 1
-        return LineLost(f"{self.port}: {text}")
-
     def _bad(self, function: int, text: str) -> CommError:
         return self._fail(ErrorKind.GARBAGE, f"FC{function}: {text}")
+
+
+def _frame_end(function: int, data: bytes) -> int | None:
+    """Length of the reply frame to ``function`` at the start of ``data``, once known
+    (from its third byte for a read); anything else ends on the inter-byte timeout."""
+    return response_length(function, data)
 
 
 def _describe(kind: ErrorKind, data: bytes) -> str:
     if kind is ErrorKind.TIMEOUT:
         return "no reply"
     return f"{kind}: received {data[:32].hex(' ')}{' ...' if len(data) > 32 else ''}"
-
-
-def _check_port(port: str, settings: dict[str, Any]) -> None:
-    """Open and close the port once, so a missing device gives a one-line cause."""
-    try:
-        serial.serial_for_url(port, **settings, timeout=0).close()
-    except serial.SerialException as exc:
-        text = str(exc)
-        cause = (
-            "no such device"
-            if "No such file" in text or exc.errno == 2
-            else "permission denied"
-            if exc.errno == 13
-            else text
-        )
-        raise PluginStartError(f"cannot open serial port {port}: {cause}") from None
-    except ValueError as exc:
-        raise PluginStartError(f"invalid serial settings for {port}: {exc}") from None

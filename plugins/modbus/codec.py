@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 from fieldgate.health import ErrorKind
+from fieldgate.serial_timing import char_time
 
 
 class Function(IntEnum):
@@ -223,6 +224,11 @@ def _frames_with_good_crc(data: bytes, function: int) -> Iterator[tuple[int, int
         length = response_length(function, chunk)
         if length is not None and len(chunk) >= length and crc_ok(chunk[:length]):
             yield chunk[0], chunk[1]
+
+
+def inter_frame_gap(baudrate: int, bits_per_char: int = 11) -> float:
+    """t3.5 of the Modbus serial line spec: 3.5 characters, fixed 1.75 ms above 19200 baud."""
+    return 0.00175 if baudrate > 19200 else 3.5 * char_time(baudrate, bits_per_char)
 
 
 # -- bit packing ---------------------------------------------------------------

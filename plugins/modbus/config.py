@@ -8,8 +8,6 @@ channel, saying where it lives on the wire and how to convert it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from enum import StrEnum
 from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -19,28 +17,10 @@ from fieldgate.image import ChannelSpec, DataType, ErrorMode, Kind, Source, chan
 from fieldgate.topology import ModuleConfig, SerialBackConfig, StrictModel
 
 from . import presets
-from .codec import MAX_READ_BITS, MAX_READ_REGISTERS
+from .codec import MAX_READ_BITS, MAX_READ_REGISTERS, inter_frame_gap
+from .plan import plan_reads
+from .points import Point, Table
 from .values import WORDS
-
-
-class Table(StrEnum):
-    COILS = "coils"  # FC1 read, FC5/FC15 write
-    DISCRETE_INPUTS = "discrete_inputs"  # FC2
-    HOLDING_REGISTERS = "holding_registers"  # FC3 read, FC6/FC16 write
-    INPUT_REGISTERS = "input_registers"  # FC4
-
-    @property
-    def is_bits(self) -> bool:
-        return self in (Table.COILS, Table.DISCRETE_INPUTS)
-
-    @property
-    def read_function(self) -> int:
-        return {
-            Table.COILS: 1,
-            Table.DISCRETE_INPUTS: 2,
-            Table.HOLDING_REGISTERS: 3,
-            Table.INPUT_REGISTERS: 4,
-        }[self]
 
 
 def _invalid(message: str, loc: tuple[str | int, ...] = ()) -> PydanticCustomError:
@@ -270,31 +250,6 @@ def _byte_shift(g: ChannelGroup, i: int) -> int:
     return 8 if (i % 2 == 0) == first_high else 0
 
 
-@dataclass(frozen=True)
-class Point:
-    """One channel and where it lives on the wire."""
-
-    channel: str
-    kind: Kind
-    index: int
-    table: Table
-    address: int  # bit address, or first register
-    dtype: DataType
-    word_order: str = "big"
-    bit: int | None = None  # digital channel (or si/so byte: 0 low, 8 high) inside a register
-    write_fc: int | None = None
-    period: float | None = None
-
-    @property
-    def width(self) -> int:
-        """Registers or bits this point occupies."""
-        return 1 if self.table.is_bits or self.bit is not None else WORDS[self.dtype]
-
-    @property
-    def end(self) -> int:
-        return self.address + self.width
-
-
 def _place(g: ChannelGroup, i: int) -> tuple[int, int | None]:
     """(address, bit inside the register or None) of channel ``i`` of a group."""
     if g.table.is_bits:
@@ -365,3 +320,24 @@ class ModbusBackConfig(SerialBackConfig):
 
     def points(self) -> dict[int, list[Point]]:
         return {m.address: module_points(self.name, m) for m in self.modules}
+
+    def poll_wire_time(self, module: ModuleConfig) -> float | None:
+        """Worst case on the wire of one poll (``validate``'s poll budget): every read block
+        due at once, each an 8-byte request, its reply, and the t3.5 silence before each."""
+        assert isinstance(module, ModbusModuleConfig)
+        points = [p for p in module_points(self.name, module) if not p.kind.is_output]
+        if not points:  # an output-only module is read back
+            points = module_points(self.name, module)
+        timing = self.timing()
+        gap = (
+            inter_frame_gap(self.baudrate)
+            if self.inter_frame_ms is None
+            else self.inter_frame_ms / 1000
+        )
+        total = 0.0
+        for block in plan_reads(
+            points, module.max_read_registers, module.max_read_bits, gap=module.coalesce_gap
+        ):
+            data = (block.count + 7) // 8 if block.table.is_bits else 2 * block.count
+            total += timing.wire_time(8 + 5 + data) + 2 * gap
+        return total

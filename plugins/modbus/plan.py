@@ -17,7 +17,7 @@ from fieldgate.image import Quality
 
 from . import values as regvalues
 from .codec import MAX_WRITE_BITS, MAX_WRITE_REGISTERS, Function
-from .config import Point, Table
+from .points import Point, Table
 
 
 @dataclass
@@ -71,9 +71,10 @@ def decode_block(block: ReadBlock, data: Sequence[int]) -> dict[str, object]:
     A register pair that is not a finite float32 gives the point over-range quality.
     """
     readings: dict[str, object] = {}
+    bits, start = block.table.is_bits, block.address
     for p in block.points:
-        offset = p.address - block.address
-        if block.table.is_bits:
+        offset = p.address - start
+        if bits:
             readings[p.channel] = bool(data[offset])
         elif p.bit is not None:
             readings[p.channel] = regvalues.get_field(data[offset], p.bit, p.dtype)

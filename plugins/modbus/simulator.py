@@ -48,7 +48,8 @@ from .codec import (
 from .codec import (
     frame as rtu_frame,
 )
-from .config import ModbusBackConfig, Point, Table
+from .config import ModbusBackConfig
+from .points import Point, Table
 
 log = logging.getLogger("fieldgate.modbus.simulator")
 

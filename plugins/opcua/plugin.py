@@ -195,7 +195,9 @@ class OpcUaFront(Front):
         if self._trust is not None:
             self._trust.guard(server._policies)  # asyncua keeps its channel policies there
         channels = [c for c in ctx.front_channels(cfg)]
-        self._subscription = ctx.image.subscribe(self._on_change, ids=[c.id for c in channels])
+        self._subscription = ctx.image.subscribe_batch(
+            self._on_changes, ids=[c.id for c in channels]
+        )
         if not self._listeners_added:  # health and masters keep listeners for good: add them once
             self._listeners_added = True
             ctx.health.subscribe(self._on_health)
@@ -365,9 +367,11 @@ class OpcUaFront(Front):
             await server.stop()
 
     # -- image -> nodes ----------------------------------------------------------------------
-    def _on_change(self, change: Change) -> None:
-        for nid, var in self._vars.get(change.channel.id, ()):
-            self._pending.append((nid, self._datavalue(var, change.channel)))
+    def _on_changes(self, changes: list[Change]) -> None:
+        """One process-image batch (a poll reply): every changed channel, one wake-up."""
+        for change in changes:
+            for nid, var in self._vars.get(change.id, ()):
+                self._pending.append((nid, self._datavalue(var, change.channel)))
         self._schedule()
 
     def _on_health(self, health: ModuleHealth, event: HealthEvent) -> None:

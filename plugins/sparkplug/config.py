@@ -143,7 +143,13 @@ class SparkplugFrontConfig(FrontConfig):
         65536,
         ge=64,
         le=16 * 1024 * 1024,
-        description="larger NCMD/DCMD payloads are counted and dropped",
+        description="larger NCMD/DCMD payloads are counted and dropped (STATE: 4 KiB)",
+    )
+    rebirth_min_interval_ms: int = Field(
+        1000,
+        ge=0,
+        le=600_000,
+        description="at most one NCMD rebirth this often; requests in between are coalesced into one",
     )
 
     @field_validator("brokers")

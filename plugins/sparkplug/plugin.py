@@ -16,7 +16,7 @@ import time
 from typing import Any
 
 from fieldgate.health import HealthEvent, ModuleHealth
-from fieldgate.image import Change, Quality
+from fieldgate.image import Change, Channel, Quality
 from fieldgate.metric_samples import Sample as MetricSample
 from fieldgate.metric_samples import counter, gauge
 from fieldgate.persist import CorruptStore, read_json, write_json_atomic
@@ -141,14 +141,15 @@ class SparkplugFront(Front):
                 reconnect_min_s=cfg.reconnect_min_s,
                 reconnect_max_s=cfg.reconnect_max_s,
                 max_command_bytes=cfg.max_command_bytes,
+                rebirth_min_interval_s=cfg.rebirth_min_interval_ms / 1000,
             ),
             self.journal,
             last_bdseq=self._load_bdseq(),
             current=[self._sample(c, now) for c in channels],
             online_devices=online,
         )
-        self._subscription = self.context.image.subscribe(
-            self._on_change, ids=[c.id for c in channels]
+        self._subscription = self.context.image.subscribe_batch(
+            self._on_changes, ids=[c.id for c in channels]
         )
         if not self._health_subscribed:
             self._health_subscribed = True
@@ -194,20 +195,24 @@ class SparkplugFront(Front):
             self.journal = None
 
     # -- inputs ----------------------------------------------------------------------------
-    def _sample(self, channel: Any, now: Instant) -> Sample:
-        """A channel's value at its acquisition time: the image's clock plus a fixed offset
-        taken at start, so that two samples are never swapped by a pause between reading
-        two clocks (a busy host). A quality change is stamped when it happened."""
+    def _sample(self, channel: Channel | Change, now: Instant) -> Sample:
+        """A value at its acquisition time (a channel's current one, or the one a change
+        carries): the image's clock plus a fixed offset taken at start, so that two samples
+        are never swapped by a pause between reading two clocks (a busy host). A quality
+        change is stamped when it happened."""
         if channel.quality is Quality.GOOD and channel.timestamp is not None:
             ts = int((channel.timestamp + self._wall_offset) * 1000)
         else:
             ts = int((self.context.image.clock() + self._wall_offset) * 1000)
         return Sample(channel.id, channel.value, channel.quality, ts)
 
-    def _on_change(self, change: Change) -> None:
+    def _on_changes(self, changes: list[Change]) -> None:
+        """One process-image batch (a poll reply): every changed channel, its own value and time."""
         if self.session is None:
             return
-        self.session.on_change(self._sample(change.channel, self._now()))
+        now = self._now()
+        for change in changes:
+            self.session.on_change(self._sample(change, now))
         self._schedule_flush()
 
     def _on_health(self, health: ModuleHealth, event: HealthEvent) -> None:

@@ -21,6 +21,8 @@ Session rules (Sparkplug B 3.0):
   an offline STATE (timestamp not older than the last online one) publishes NDEATH,
   disconnects and moves to the next broker.
 * NCMD ``Node Control/Rebirth``: NBIRTH and every DBIRTH at once, same ``bdSeq``, no DATA
+  (at most one rebirth per ``rebirth_min_interval_s``: requests in between are coalesced
+  into one when it has passed)
   in between. ``Node Control/Next Server``: disconnect and move to the next broker.
 
 Store-and-forward: while the session is not publishing, samples go to the journal; a
@@ -107,6 +109,34 @@ class SaveBdSeq:
 
 Action = Connect | Subscribe | Publish | Disconnect | Write | SaveBdSeq
 
+MAX_STATE_BYTES = 4096
+"""A STATE message is ``{"online": true, "timestamp": ...}``: anything much larger is not one."""
+
+MAX_STATE_DEPTH = 4
+"""Deepest JSON nesting a STATE may have (it has 1)."""
+
+
+def json_depth(data: bytes) -> int:
+    """Deepest nesting of ``[``/``{`` in JSON text, outside strings; linear, no recursion."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for byte in data:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif byte == 0x5C:  # backslash
+                escaped = True
+            elif byte == 0x22:
+                in_string = False
+        elif byte == 0x22:
+            in_string = True
+        elif byte in (0x5B, 0x7B):
+            depth += 1
+            deepest = max(deepest, depth)
+        elif byte in (0x5D, 0x7D):
+            depth -= 1
+    return deepest
+
 
 @dataclass
 class SessionSettings:
@@ -120,6 +150,7 @@ class SessionSettings:
     reconnect_min_s: float = 0.5
     reconnect_max_s: float = 8.0
     max_command_bytes: int = 65536
+    rebirth_min_interval_s: float = 1.0
 
 
 @dataclass
@@ -171,6 +202,8 @@ class Session:
         self.sent: Counter[str] = Counter()
         self.ignored: Counter[str] = Counter()
         self.rebirths: Counter[str] = Counter()
+        self._last_rebirth = -1.0  # monotonic time of the last NCMD rebirth
+        self._rebirth_at: float | None = None  # a coalesced rebirth is due then
         self.dropped = 0
         self.replayed = 0
         self.journaled = 0
@@ -509,11 +542,12 @@ class Session:
     # -- incoming ---------------------------------------------------------------------------
     def on_message(self, t: Instant, topic: str, data: bytes) -> list[Action]:
         parts = topic.split("/")
-        if len(parts) == 3 and parts[:2] == ["spBv1.0", "STATE"]:
-            return self._state(t, parts[2], data)
-        if len(data) > self.settings.max_command_bytes:
+        limit = MAX_STATE_BYTES if parts[1:2] == ["STATE"] else self.settings.max_command_bytes
+        if len(data) > limit:  # every inbound payload, STATE too (it is retained: it comes back)
             self.ignored["oversized"] += 1
             return []
+        if len(parts) == 3 and parts[:2] == ["spBv1.0", "STATE"]:
+            return self._state(t, parts[2], data)
         if len(parts) == 4 and parts[2] == "NCMD" and parts[3] == self.model.edge_node_id:
             return self._ncmd(t, data)
         if len(parts) == 5 and parts[2] == "DCMD" and parts[3] == self.model.edge_node_id:
@@ -524,7 +558,7 @@ class Session:
     def _decode(self, data: bytes) -> list[codec.CommandMetric] | None:
         try:
             return codec.decode_command(data)
-        except codec.PayloadError:
+        except (codec.PayloadError, RecursionError):  # nesting beyond protobuf's own limit
             self.ignored["malformed"] += 1
             return None
 
@@ -538,8 +572,7 @@ class Session:
                 if cmd.field != "boolean_value":
                     self.ignored["bad_value"] += 1
                 elif cmd.raw and self.publishing:
-                    self.rebirths["ncmd"] += 1
-                    actions.extend(self._birth(t))
+                    actions.extend(self._rebirth_request(t))
             elif cmd.name == NEXT_SERVER:
                 if cmd.field != "boolean_value":
                     self.ignored["bad_value"] += 1
@@ -578,16 +611,32 @@ class Session:
             actions.append(Write(m.channel_id, value))
         return actions
 
+    def _rebirth_request(self, t: Instant) -> list[Action]:
+        """NCMD Rebirth: at once, unless one was done less than ``rebirth_min_interval_s``
+        ago; then the requests in between are coalesced into one rebirth when it is over
+        (a host, or a loop of hosts, asking in a burst costs one set of births)."""
+        due = self._last_rebirth + self.settings.rebirth_min_interval_s
+        if self._last_rebirth < 0 or t.mono >= due:
+            self.rebirths["ncmd"] += 1
+            self._last_rebirth = t.mono
+            return self._birth(t)
+        self.rebirths["coalesced"] += 1
+        self._rebirth_at = due
+        return []
+
     def _state(self, t: Instant, host: str, data: bytes) -> list[Action]:
         if host != self.settings.primary_host_id:
             self.ignored["unexpected_topic"] += 1
+            return []
+        if json_depth(data) > MAX_STATE_DEPTH:  # json.loads would recurse into it
+            self.ignored["bad_state"] += 1
             return []
         try:
             doc = json.loads(data)
             online, ts = doc["online"], doc["timestamp"]
             if not isinstance(online, bool) or not isinstance(ts, int) or isinstance(ts, bool):
                 raise ValueError
-        except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError, RecursionError):
             self.ignored["bad_state"] += 1
             return []
         if self._host_ts is not None and ts < self._host_ts:
@@ -618,23 +667,33 @@ class Session:
             self.state = State.DISCONNECTED
             self._schedule_reconnect(t, next_broker=True)
             return [Disconnect("no CONNACK in time")]
+        actions: list[Action] = []
+        if self._rebirth_at is not None and t.mono >= self._rebirth_at:
+            self._rebirth_at = None
+            if self.publishing:
+                self.rebirths["ncmd"] += 1
+                self._last_rebirth = t.mono
+                actions += self._birth(t)
         if self.publishing:
-            return self._replay(t)
-        return []
+            return actions + self._replay(t)
+        return actions
 
     def next_deadline(self) -> float | None:
         if self.state is State.DISCONNECTED:
             return self._reconnect_at
         if self.state is State.CONNECTING:
             return self._connect_deadline
+        due: list[float] = []
+        if self._rebirth_at is not None and self.publishing:
+            due.append(self._rebirth_at)
         if (
             self.publishing
             and not self._replay_blocked
             and self.journal.count() > len(self._replay_ids)
             and self._replay_inflight() < self.settings.replay_window
         ):
-            return self._replay_next_at
-        return None
+            due.append(self._replay_next_at)
+        return min(due, default=None)
 
     # -- status -----------------------------------------------------------------------------
     def status(self, wall_ms: int) -> dict[str, object]:

@@ -3,7 +3,6 @@ and module code, the simulators' valid replies distorted the way a line distorts
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Callable
 from typing import Any
 
@@ -59,72 +58,36 @@ def _end_line(b: Bytes, out: bytes) -> bytes:
     return out
 
 
-class FakeModbusClient:
-    """pymodbus's client calls as ModbusLink makes them, answered from the fuzz buffer.
+class FakeSerial:
+    """AsyncSerial's surface for the backs' links: the request goes to ``answer`` (the
+    simulator's module, its reply distorted from the fuzz buffer) and the reply is fed to
+    the link's real :class:`~fieldgate.serial_timing.Exchange`, all at once, on a clock
+    that stands still (deadlines are reached at once)."""
 
-    The request goes through our codec to the simulator's module (the valid reply), the
-    wire bytes (mutated, usually with a fixed CRC so the mutation reaches the decoders) go
-    through ModbusLink's trace hook and pymodbus's own RTU framer and PDU decoder, exactly
-    the way pymodbus hands a received frame to its caller.
-    """
+    now = 0.0
+    last_rx = 0.0
 
-    connected = True
+    def __init__(self, answer: Callable[[bytes], bytes]):
+        self.answer = answer
 
-    def __init__(self, target: ModbusTarget):
-        from pymodbus.framer import FramerRTU
-        from pymodbus.pdu import DecodePDU
+    def reset_input(self) -> None:
+        pass
 
-        self.target = target
-        self.framer = FramerRTU(DecodePDU(False))
+    async def sleep(self, seconds: float) -> None:
+        pass
 
-    async def _ask(self, unit: int, pdu: bytes) -> Any:
-        from pymodbus.exceptions import ModbusIOException
+    async def wait_silence(self, silence: float, limit: float) -> bool:
+        return True
 
-        from fieldgate.plugins.modbus import codec
+    async def write(self, data: bytes) -> None:
+        self.answer(data)
 
-        request = codec.frame(unit, pdu)
-        module = self.target.sim.get(unit)
-        valid = module.handle(codec.parse_request(request)) if module else b""
-        wire = self.target.reply(valid)
-        self.target.link._trace(False, wire)
-        _, reply = self.framer.handleFrame(wire, unit, 0)
-        if reply is None or reply.dev_id != unit:
-            raise ModbusIOException("no valid reply")  # what pymodbus raises at its timeout
-        return reply
-
-    def _req(self, fc: int, address: int, value: int, device_id: int) -> Any:
-        return self._ask(device_id, struct.pack(">BHH", fc, address, value))
-
-    def read_coils(self, address: int, count: int, device_id: int) -> Any:
-        return self._req(1, address, count, device_id)
-
-    def read_discrete_inputs(self, address: int, count: int, device_id: int) -> Any:
-        return self._req(2, address, count, device_id)
-
-    def read_holding_registers(self, address: int, count: int, device_id: int) -> Any:
-        return self._req(3, address, count, device_id)
-
-    def read_input_registers(self, address: int, count: int, device_id: int) -> Any:
-        return self._req(4, address, count, device_id)
-
-    def write_coil(self, address: int, value: bool, device_id: int) -> Any:
-        return self._req(5, address, 0xFF00 if value else 0, device_id)
-
-    def write_register(self, address: int, value: int, device_id: int) -> Any:
-        return self._req(6, address, value, device_id)
-
-    def write_coils(self, address: int, values: list[bool], device_id: int) -> Any:
-        from fieldgate.plugins.modbus.codec import pack_bits
-
-        data = pack_bits(values)
-        pdu = struct.pack(">BHHB", 15, address, len(values), len(data)) + data
-        return self._ask(device_id, pdu)
-
-    def write_registers(self, address: int, values: list[int], device_id: int) -> Any:
-        pdu = struct.pack(
-            f">BHHB{len(values)}H", 16, address, len(values), 2 * len(values), *values
-        )
-        return self._ask(device_id, pdu)
+    async def exchange(self, request: bytes, exchange: Any) -> Any:
+        exchange.sent(0.0)
+        outcome = exchange.feed(self.answer(request), 0.0)
+        while outcome is None:
+            outcome = exchange.check(exchange.deadline())
+        return outcome
 
 
 class ModbusTarget(Target):
@@ -156,8 +119,8 @@ class ModbusTarget(Target):
             m.address: SimModule(m.address, points[m.address]) for m in config.modules
         }
         self.sim = self.sim_modules
-        self.link = ModbusLink("fuzz", inter_frame=0)
-        self.link._client = FakeModbusClient(self)
+        self.link = ModbusLink("fuzz", inter_frame=0, echo=False)
+        self.link.serial = FakeSerial(self._answer)
         self.modules = [
             ModbusModule(
                 m,
@@ -171,6 +134,12 @@ class ModbusTarget(Target):
         ]
         self.b = Bytes(b"")
         self.valid_only = False
+
+    def _answer(self, request: bytes) -> bytes:
+        """The simulator's valid reply to ``request`` (none for an unknown unit), distorted."""
+        module = self.sim.get(request[0])
+        valid = module.handle(self.codec.parse_request(request)) if module else b""
+        return self.reply(valid)
 
     def reply(self, valid: bytes) -> bytes:
         return distorted(self.b, valid, self._fix_crc, self.valid_only)
@@ -211,31 +180,6 @@ class ModbusTarget(Target):
             self.valid_only = False
 
 
-class FakeDconSerial:
-    """AsyncSerial's surface for DconLink: the command goes to the DCON simulator, its
-    reply comes back mutated from the fuzz buffer."""
-
-    def __init__(self, target: DconTarget):
-        self.target = target
-        self.reply = b""
-        self.pending = 0
-
-    def reset_input(self) -> None:
-        self.pending = 0
-
-    async def write(self, data: bytes) -> None:
-        answers = self.target.bus.feed(data, 0.0)
-        valid = answers[0][0] if answers else b""
-        self.reply = self.target.wire(valid)
-
-    async def read_until(self, terminator: bytes, timeout: float) -> bytes:
-        end = self.reply.find(terminator)
-        if end < 0:
-            self.pending = len(self.reply)
-            raise TimeoutError
-        return self.reply[: end + 1]
-
-
 class DconTarget(Target):
     """DCON replies into the back's real link and module code (DIO, AI, AO, counters)."""
 
@@ -262,8 +206,8 @@ class DconTarget(Target):
         self.bus = SimBus(checksum=False)
         for m in config.modules:
             self.bus.add(SimModule(m.profile, m.address))
-        self.serial = FakeDconSerial(self)
-        self.link = DconLink(self.serial, False, 0.1, settle_after_timeout=False)
+        self.serial = FakeSerial(self._answer)
+        self.link = DconLink(self.serial, False, 0.1, settle_after_timeout=False, echo=False)
         self.modules = [
             DconModule(
                 m, [c.spec for c in self.image.channels(module=m.address)], self.image, self.link
@@ -276,6 +220,10 @@ class DconTarget(Target):
             self.valid_only = True
             run_sync(module.on_online())
         self.valid_only = False
+
+    def _answer(self, request: bytes) -> bytes:
+        answers = self.bus.feed(request, 0.0)
+        return self.wire(answers[0][0] if answers else b"")
 
     def wire(self, valid: bytes) -> bytes:
         return distorted(self.b, valid, _end_line, self.valid_only)

@@ -205,7 +205,7 @@ async def cycle(rig: Rig, fault: str, rng: random.Random, outage_s: float = 0.3)
     except AssertionError:
         if fault != "echo":
             raise
-        detect = None  # pymodbus skips the echoed request and reads the reply behind it
+        detect = None  # echo: auto: the link drops the echo and reads the reply behind it
     devicenet_fault_seen = bool(dnet.slave.module_fault)
     await asyncio.sleep(outage_s)  # the port stays away / keeps failing a while
     failures = {h.address: sum(h.errors.values()) - errors_before[h.address] for h in rig.health}

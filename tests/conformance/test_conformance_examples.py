@@ -18,8 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import can
-import pytest
-from socketcan_timing import SLOWDOWN, scaled
+from socketcan_guest import SLOWDOWN, in_guest, scaled
 
 REPO = Path(__file__).resolve().parents[2]
 NODE_ID = 5
@@ -71,13 +70,7 @@ EXAMPLES = {
     "na9161-style.yaml": NA9161_SKIPS,
 }
 
-pytestmark = [
-    pytest.mark.socketcan,
-    pytest.mark.skipif(
-        not all(Path(f"/sys/class/net/{bus}").exists() for bus in BUSES),
-        reason="no vcan0/vcan1: real SocketCAN runs inside the guest of .ci/socketcan/run",
-    ),
-]
+pytestmark = in_guest(*BUSES)
 
 
 def front_name(example: Path) -> str:

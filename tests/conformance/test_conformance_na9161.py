@@ -103,7 +103,7 @@ def test_with_byte_granularity_the_bit_case_skips_and_the_byte_case_runs(tmp_pat
             "na9161.data_mode_layout",
         ),
         (
-            "fieldgate.plugins.canopen.pdo.PdoEngine",
+            "fieldgate.plugins.canopen.rpdo.RpdoService",
             "_apply",
             lambda self, pdo, payload: None,  # RPDO data dropped
             "sync-pdo.dummy_mapping",

@@ -11,7 +11,6 @@ import subprocess
 import sys
 import time
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import can
 import pytest
@@ -23,17 +22,11 @@ from conformance_gateway import (
     topology,
     write_eds,
 )
-from socketcan_timing import SLOWDOWN, scaled
+from socketcan_guest import SLOWDOWN, in_guest, scaled
 
 CHANNEL = "vcan0"
 
-pytestmark = [
-    pytest.mark.socketcan,
-    pytest.mark.skipif(
-        not Path(f"/sys/class/net/{CHANNEL}").exists(),
-        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/socketcan/run)",
-    ),
-]
+pytestmark = in_guest(CHANNEL)
 
 
 def wait_bootup(timeout: float) -> bool:

@@ -2,8 +2,15 @@
 
 import pytest
 
-from fieldgate import GatewayContext
-from fieldgate.host_watchdog import HostWatchdogs, NoHostWatchdog, WatchdogUnavailable
+from fieldgate import ErrorKind, GatewayContext
+from fieldgate.host_watchdog import (
+    ClearSteps,
+    HostWatchdogs,
+    NoHostWatchdog,
+    WatchdogUnavailable,
+    clear_timeout,
+)
+from fieldgate.polling import CommError
 from fieldgate.topology import load_topology
 
 
@@ -86,3 +93,55 @@ def test_host_ok_switch_goes_to_every_running_capable_back():
     with pytest.raises(NoHostWatchdog):
         HostWatchdogs({}, {"a"}).set_host_ok(1)
     assert HostWatchdogs({}, {"a"}).host_ok() is True
+
+
+class Line:
+    """The steps of a clear, recorded in order, against a module model: its watchdog keeps
+    running while host OK is paused, and ~AA1 clears the flag without restarting it."""
+
+    def __init__(self, expired_after_clear: bool = False):
+        self.sent: list[str] = []
+        self.expired_after_clear = expired_after_clear
+
+    async def host_ok(self):
+        self.sent.append("~**")
+
+    async def clear(self):
+        self.sent.append("~AA1")
+
+    async def expired(self):
+        self.sent.append("~AA0")
+        return self.expired_after_clear
+
+    def steps(self, host_ok: bool, why: str = "") -> ClearSteps:
+        return ClearSteps(
+            clear=self.clear,
+            expired=self.expired,
+            rewrite_outputs=lambda: self.sent.append("outputs"),
+            host_ok=self.host_ok if host_ok else None,
+            without_host_ok=why,
+        )
+
+
+async def test_clear_sends_host_ok_first_then_clears_confirms_and_rewrites_outputs():
+    line = Line()
+    assert await clear_timeout(line.steps(host_ok=True)) == "cleared"
+    assert line.sent == ["~**", "~AA1", "~AA0", "outputs"]
+
+
+async def test_clear_without_host_ok_says_so():
+    line = Line()
+    outcome = await clear_timeout(line.steps(False, "switched off by the master"))
+    assert line.sent == ["~AA1", "~AA0", "outputs"]
+    assert outcome == (
+        "cleared without host OK (switched off by the master): "
+        "the module times out again after its watchdog timeout"
+    )
+
+
+async def test_a_flag_still_set_after_the_clear_is_a_watchdog_error_and_no_output_is_written():
+    line = Line(expired_after_clear=True)
+    with pytest.raises(CommError) as info:
+        await clear_timeout(line.steps(False, "a front's master is lost"))
+    assert info.value.kind is ErrorKind.WATCHDOG and "a front's master is lost" in str(info.value)
+    assert "outputs" not in line.sent

@@ -331,3 +331,41 @@ async def test_a_cancellation_swallowed_inside_a_transaction_still_stops_the_lin
     done, _ = await asyncio.wait({task}, timeout=2.0)
     assert done and task.cancelled()  # without the check the line would poll on
     assert module.swallowed == 1
+
+
+async def test_a_reply_is_one_image_batch_stamped_when_it_arrived():
+    """Every input of one reply is one update_inputs batch: one call per subscriber, each
+    channel its own value, the module-reported quality of one kept, the reply's time."""
+    line, modules, image, health, clock, log = make_line(n_modules=1)
+    module = modules[0]
+    batches = []
+    image.subscribe_batch(batches.append, kinds=[Kind.DI])
+
+    async def reply():
+        clock.t += 0.01  # the reply arrives 10 ms after the request
+        return {"line/m1/di0": True, "line/m1/di1": (True, Quality.OVER_RANGE)}
+
+    module.read_inputs = reply
+    clock.t = 1.0
+    await line.step()
+    assert len(batches) == 1
+    assert [(c.id, c.value, c.quality, c.timestamp) for c in batches[0]] == [
+        ("line/m1/di0", True, Quality.GOOD, 1.01),
+        ("line/m1/di1", True, Quality.OVER_RANGE, None),  # never good: no timestamp
+    ]
+    clock.t = 2.0
+    await line.step()  # the same reply again: nothing changed, no call; the time refreshed
+    assert len(batches) == 1 and image["line/m1/di0"].timestamp == 2.01
+
+
+async def test_an_output_batch_marks_the_changed_outputs_dirty_once():
+    line, modules, image, health, clock, log = make_line()
+    await drain(line)
+    log.clear()
+    image.write_outputs({"line/m1/do0": True, "line/m1/do1": False, "line/m2/do0": True})
+    assert line.pending_writes == 2  # m1/do1 kept its value: not rewritten
+    await drain(line)
+    assert sorted(e for e in log if e[0] == "write") == [
+        ("write", 1, {"line/m1/do0": True}),
+        ("write", 2, {"line/m2/do0": True}),
+    ]

@@ -116,3 +116,48 @@ async def test_i7231d_example_on_simulated_dcon_modules(registry, tmp_path):
     finally:
         master.close()
         await gw.stop()
+
+
+async def test_0x2003_clears_a_watchdog_that_ran_out_while_the_master_was_away(registry, tmp_path):
+    """The simulated modules model a real one: the host watchdog keeps running while ~** is
+    paused, and ~AA1 does not restart it. After the master's return a 0 written to 0x2003
+    sends ~** first, then ~AA1: the flag reads 0 at the next poll and stays 0."""
+    channel = f"fg-7231d-wd-{uuid.uuid4().hex[:8]}"
+    overrides = {
+        "fronts.can.channel": channel,
+        "backs.rs485.poll_ms": 10,
+        "backs.rs485.timeout_ms": 150,
+        "backs.rs485.modules.0.watchdog.timeout_ms": 300,
+        "gateway.state_dir": str(tmp_path),
+    }
+    gw = Gateway.load(EXAMPLE, overrides, registry, simulate=True)
+    await gw.start()
+    master = Master(channel)
+
+    async def sdo_read_2003() -> int:
+        master.send(0x601, "40 03 20 01 00 00 00 00")
+        return (await master.until(0x581, lambda d: d[1:4] == bytes.fromhex("03 20 01")))[4]
+
+    async def poll_until(predicate, timeout=3.0):
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while not predicate():
+            assert loop.time() < deadline, "condition not met in time"
+            await asyncio.sleep(0.02)
+
+    try:
+        sim, back = gw.bench.simulator("rs485"), gw.component("rs485")
+        await poll_until(lambda: sim.module(1).watchdog_enabled and back.host_ok_sent > 2)
+        gw.context.masters.lost("can", "heartbeat timeout")  # as the front reports it
+        await poll_until(lambda: back.watchdog_status(1))
+        assert await sdo_read_2003() == 1
+        gw.context.masters.ok("can")
+        master.send(0x601, "2F 03 20 01 00 00 00 00")  # clear
+        assert await master.until(0x581) == bytes.fromhex("60 03 20 01 00 00 00 00")
+        await poll_until(lambda: not back.watchdog_status(1))
+        assert await sdo_read_2003() == 0
+        await asyncio.sleep(0.7)  # more than two watchdog timeouts
+        assert await sdo_read_2003() == 0 and not sim.module(1).timed_out
+    finally:
+        master.close()
+        await gw.stop()

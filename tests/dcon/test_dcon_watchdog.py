@@ -1,6 +1,11 @@
 """Host watchdog end to end: ~** while masters are healthy, safe values on loss, '!' -> WATCHDOG, ~AA1 recovery."""
 
+import asyncio
+
+import pytest
+
 from fieldgate import ErrorKind, Quality
+from fieldgate.polling import CommError
 
 WD = {"enabled": True, "timeout_ms": 300}
 
@@ -124,3 +129,57 @@ async def test_master_back_resumes_host_ok(gateway, wait_for):
         stopped_at = back.host_ok_sent
         gw.masters.ok("plc")
         await wait_for(lambda: back.host_ok_sent > stopped_at)
+
+
+def test_the_simulated_module_keeps_its_watchdog_running_while_host_ok_is_paused():
+    # as a module does: ~AA1 resets the flag only; the watchdog runs from the last ~**
+    from fieldgate.plugins.dcon.profiles import find_profile
+    from fieldgate.plugins.dcon.simulated import SimBus, SimModule
+
+    bus = SimBus(checksum=False)
+    bus.add(SimModule(find_profile("I-7060"), 1))
+    assert bus.command(b"~013101\r", 0.0) == (b"!01\r", 0.0)  # enabled, 0.1 s
+    assert bus.command(b"~010\r", 0.5) == (b"!0184\r", 0.0)  # timed out (bit 2)
+    assert bus.command(b"~011\r", 0.6) == (b"!01\r", 0.0)
+    assert bus.command(b"~010\r", 0.6) == (b"!0184\r", 0.0)  # at once again: no ~** since
+    assert bus.command(b"~**\r", 0.7) is None
+    assert bus.command(b"~011\r", 0.7) == (b"!01\r", 0.0)
+    assert bus.command(b"~010\r", 0.75) == (b"!0180\r", 0.0)  # cleared, and it holds
+
+
+async def test_a_clear_queued_as_the_master_comes_back_resumes_host_ok_first(gateway, wait_for):
+    # the I-7231D case: the master was lost (~** paused), the module timed out; the master
+    # comes back and 0x2003 is written in the same moment: ~** must go out before ~AA1
+    async with gateway([{"address": 1, "model": "I-7060", "watchdog": WD}]) as gw:
+        sim, back = gw.bench.simulator("rs485"), gw.component("rs485")
+        gw.write("rs485/m1/do1", True)
+        await wait_for(lambda: sim.module(1).watchdog_enabled and sim.get_output("rs485/m1/do1"))
+        gw.context.masters.lost("plc", "heartbeat timeout")
+        await wait_for(lambda: back.watchdog_status(1), timeout=3)
+        assert sim.module(1).do_bits == 0  # the safe value
+        gw.context.masters.ok("plc")
+        cleared = back.request_clear_watchdog(1)  # same loop turn as the master's return
+        await asyncio.wait_for(cleared, 3)
+        status = next(m for m in back.status()["dcon_modules"] if m["address"] == 1)
+        assert status["watchdog"]["last_clear"] == "cleared"
+        await wait_for(lambda: sim.get_output("rs485/m1/do1") is True)  # outputs written again
+        sent = back.host_ok_sent
+        await wait_for(lambda: back.host_ok_sent >= sent + 6, timeout=3)  # two timeouts later
+        assert not back.watchdog_status(1) and not sim.module(1).timed_out
+
+
+async def test_a_clear_while_host_ok_is_off_goes_out_without_it_and_the_status_says_so(
+    gateway, wait_for
+):
+    async with gateway([{"address": 1, "model": "I-7060", "watchdog": WD}]) as gw:
+        sim, back = gw.bench.simulator("rs485"), gw.component("rs485")
+        await wait_for(lambda: sim.module(1).watchdog_enabled)
+        back.set_host_ok(False)  # the master switched host OK off (DeviceNet class attribute 4)
+        await wait_for(lambda: back.watchdog_status(1), timeout=3)
+        sent = back.host_ok_sent
+        with pytest.raises(CommError):
+            await asyncio.wait_for(back.request_clear_watchdog(1), 3)
+        assert back.host_ok_sent == sent  # no ~** while it is off
+        status = next(m for m in back.status()["dcon_modules"] if m["address"] == 1)
+        assert "switched off by the master" in status["watchdog"]["last_clear"]
+        assert back.watchdog_status(1)  # the module timed out again at once: 0x2003 says 1

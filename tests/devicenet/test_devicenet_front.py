@@ -222,3 +222,28 @@ async def test_a_baud_change_at_reset_answers_at_the_old_rate_and_checks_the_mac
     dup_mac_rates = [rate for rate, can_id in sent if can_id == dup_mac]
     assert dup_mac_rates and set(dup_mac_rates) == {125_000}, sent
     assert adapter.counters["bit_timing_switches"] == 1
+
+
+async def test_a_poll_request_is_one_image_batch(rig):
+    """The outputs of one poll request reach the image (and the back) as one batch."""
+    gateway, master = rig
+    batches = []
+    gateway.image.subscribe_batch(batches.append, ids=[f"io/m3/do{i}" for i in range(8)])
+    assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
+    await master.request(bytes.fromhex("10 05 02 09 64 00"))  # poll EPR 100 ms
+    assert await master.poll(bytes.fromhex("81 00 00 00 00")) == bytes.fromhex("81 00 00 00 00")
+    assert [[(c.id, c.value, c.origin) for c in b] for b in batches] == [
+        [("io/m3/do0", True, "dnet:devicenet"), ("io/m3/do7", True, "dnet:devicenet")]
+    ]
+
+
+async def test_a_reply_changing_many_inputs_gives_one_change_of_state_message(rig):
+    """A back's reply that changes several inputs is one batch: one COS message carries
+    them all (per-channel writes produced one message per bit, the first with one bit)."""
+    gateway, master = rig
+    assert await master.allocate(0x51) == bytes.fromhex("0A CB 00")  # explicit + COS, no acks
+    await master.request(bytes.fromhex("10 05 04 09 10 27"))  # EPR 10 s, no inhibit time
+    assert await master.expect(0x340 | SLAVE) == bytes(5)
+    gateway.image.update_inputs({f"io/m3/di{i}": True for i in range(1, 7)})
+    cos = [m for m in await master.frames(0.3) if m.arbitration_id == 0x340 | SLAVE]
+    assert [bytes(m.data) for m in cos] == [bytes.fromhex("7E 00 00 00 00")]

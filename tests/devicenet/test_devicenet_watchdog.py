@@ -261,6 +261,12 @@ async def test_watchdog_through_devicenet_drives_simulated_dcon_modules(tmp_path
             back.host_ok_sent == stopped_at and sim.module(1).do_bits == 0
         )  # the module's safe value
         assert gw.status()["backs"]["rs485"]["host_ok"]["enabled"] is False
+        # a clear while the master keeps host OK off goes out without ~**; the module's
+        # watchdog has run out, so the flag is back at once, and the status says why
+        assert await master.request(bytes.fromhex("10 64 01 0B")) == bytes.fromhex("90")
+        await wait_for(lambda: "switched off by the master" in back.module(1).last_clear, master)
+        assert await master.request(bytes.fromhex("0E 64 01 0A")) == bytes.fromhex("8E 01")
+        assert back.host_ok_sent == stopped_at
         assert await master.request(bytes.fromhex("10 64 00 04 01")) == bytes.fromhex("90")
         assert await master.request(bytes.fromhex("10 64 01 0B")) == bytes.fromhex("90")
         await wait_for(
@@ -271,6 +277,9 @@ async def test_watchdog_through_devicenet_drives_simulated_dcon_modules(tmp_path
             ),
             master,
         )
+        assert await master.request(bytes.fromhex("0E 64 01 0A")) == bytes.fromhex("8E 00")
+        assert back.module(1).last_clear == "cleared"
+        await master.frames(0.7)  # more than two watchdog timeouts: the clear holds
         assert await master.request(bytes.fromhex("0E 64 01 0A")) == bytes.fromhex("8E 00")
     finally:
         master.close()

@@ -40,9 +40,11 @@ async def test_port_loss_garbage_and_echo_are_survived_without_a_restart(back, r
     assert garbage.port_losses == 0 and garbage.detect_s is not None
     assert garbage.emcy_modules == rig.addresses
     assert all(n > 1 for n in garbage.failures_counted.values())
-    assert echo.port_losses == 0
-    if back == "dcon":  # a DCON master reads its own command as the reply: every module fails
-        assert echo.detect_s is not None and echo.devicenet_fault_seen
+    # an adapter that starts echoing: echo: auto drops the echo on every exchange, so no
+    # module goes offline (before, every DCON module did); the exchange under way when the
+    # echo starts may fail once
+    assert echo.port_losses == 0 and echo.detect_s is None
+    assert all(n <= 1 for n in echo.failures_counted.values()), echo.failures_counted
     # recovered every time (cycle() waits for it), in the same run of the back
     assert status["restarts"] == 0
     assert status["port"] == {

@@ -68,3 +68,29 @@ def test_a_filtered_client_ignores_other_points():
 
     client = asyncio.run(run())
     assert list(client.dirty) == ["a"] and client.wake.is_set()
+
+
+def test_a_batch_marks_each_changed_point_of_each_client():
+    """One poll reply (an image batch) marks every changed point once, per client; the
+    point that kept its value is not sent."""
+    from types import SimpleNamespace
+
+    from fieldgate.http.sse import EventStreams
+    from fieldgate.image import ChannelSpec, Kind, ProcessImage, Source
+
+    async def run():
+        image = ProcessImage(clock=lambda: 1.0)
+        for i in range(3):
+            image.add(ChannelSpec(f"io/m1/di{i}", Kind.DI, Source("io", 1, i)))
+        image.update_inputs({"io/m1/di2": True})
+        gateway = SimpleNamespace(image=image, context=SimpleNamespace(events=EventHub()))
+        streams = EventStreams(gateway, max_clients=4, rate_hz=4.0)  # type: ignore[arg-type]
+        every, only_di1 = SseClient(None, 4.0, 10), SseClient(frozenset({"io/m1/di1"}), 4.0, 10)
+        streams._add(every)
+        streams._add(only_di1)
+        image.update_inputs({"io/m1/di0": True, "io/m1/di1": True, "io/m1/di2": True})
+        return every, only_di1
+
+    every, only_di1 = asyncio.run(run())
+    assert list(every.dirty) == ["io/m1/di0", "io/m1/di1"]
+    assert list(only_di1.dirty) == ["io/m1/di1"]

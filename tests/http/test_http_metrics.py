@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import re
 
@@ -96,7 +97,42 @@ async def test_per_point_series_are_opt_in(tmp_path):
         await gw.stop()
 
 
-async def test_a_component_breaking_the_contract_loses_only_its_bad_series(running, caplog):
+async def test_a_component_breaking_the_contract_loses_only_its_bad_series(tmp_path, caplog):
+    gw = load_gateway(tmp_path)  # every scrape renders (the tests' default)
+    running = await start(gw)
+    try:
+        await _breaking_the_contract(running, caplog)
+    finally:
+        await gw.stop()
+
+
+async def test_scrapes_within_metrics_max_age_share_one_render(tmp_path):
+    gw = load_gateway(tmp_path, metrics_max_age_ms=1000)  # the default
+    running = await start(gw)
+    try:
+        await _one_render(running)
+    finally:
+        await gw.stop()
+
+
+async def _one_render(running):
+    service = running.gateway.http
+    renders = []
+    render = service.metrics.render_async
+
+    async def counting(slice_s=0.0005):
+        renders.append(1)
+        return await render(slice_s)
+
+    service.metrics.render_async = counting
+    service._metrics_cache = None
+    replies = await asyncio.gather(*(running.get("/metrics") for _ in range(5)))
+    again = await running.get("/metrics")
+    assert len(renders) == 1  # five at once and one after: one render (max age 1 s)
+    assert {r.body for r in replies} == {again.body}
+
+
+async def _breaking_the_contract(running, caplog):
     front = running.gateway.component("can")
     good = front.metrics
 
@@ -121,7 +157,7 @@ async def test_a_component_breaking_the_contract_loses_only_its_bad_series(runni
     assert [s.value for s in families["fieldgate_extra_ok"].samples] == [2.5]
     assert "fieldgate_canopen_nmt_state" in families
     assert not any(n.startswith(("fieldgate_my_", "fieldgate_fieldgate")) for n in families)
-    warnings = [r.getMessage() for r in caplog.records]
+    warnings = [r.getMessage() for r in caplog.records if r.name == "fieldgate.http.metrics"]
     assert len(warnings) == 8  # each problem once, not once per scrape
     assert any("a counter's name must end in _total" in w for w in warnings)
 

@@ -17,19 +17,12 @@ import textwrap
 from pathlib import Path
 
 import can
-import pytest
-from socketcan_timing import scaled
+from socketcan_guest import in_guest, scaled
 
 CHANNEL = "vcan0"
 REPO = Path(__file__).resolve().parents[2]
 
-pytestmark = [
-    pytest.mark.socketcan,
-    pytest.mark.skipif(
-        not Path(f"/sys/class/net/{CHANNEL}").exists(),
-        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/socketcan/run)",
-    ),
-]
+pytestmark = in_guest(CHANNEL)
 
 ECHO_PEER = textwrap.dedent(
     """

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import can
 import pytest
-from socketcan_timing import scaled
+from socketcan_guest import in_guest, scaled
 
 from fieldgate import Gateway, load_registry
 from fieldgate.can import socketcan_raw
@@ -38,13 +38,7 @@ FLOOD_S = 3.0
 # other nodes' TPDO1s (0x181-0x1FF) without ours (0x185, a TPDO that answers remote requests)
 FOREIGN = "0x181-0x184,0x186-0x1FF"
 
-pytestmark = [
-    pytest.mark.socketcan,
-    pytest.mark.skipif(
-        not Path(f"/sys/class/net/{CHANNEL}").exists(),
-        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/socketcan/run)",
-    ),
-]
+pytestmark = in_guest(CHANNEL)
 
 sys.path.insert(0, str(REPO / "tests" / "devicenet"))
 from dnet_master import Master  # noqa: E402  (tests/devicenet is not a package)

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import can
 import pytest
-from socketcan_timing import scaled
+from socketcan_guest import in_guest, scaled
 
 from fieldgate.conformance import select
 
@@ -54,13 +54,7 @@ REPO = Path(__file__).resolve().parents[2]
 PRODUCT_NAME = "fieldgate DeviceNet on vcan0"  # 27 characters: a fragmented explicit response
 I7241D_EXAMPLE, I7241D_MAC = REPO / "examples" / "i7241d-style.yaml", 1
 
-pytestmark = [
-    pytest.mark.socketcan,
-    pytest.mark.skipif(
-        not Path(f"/sys/class/net/{CHANNEL}").exists(),
-        reason=f"no {CHANNEL}: real SocketCAN runs inside User-Mode Linux (.ci/socketcan/run)",
-    ),
-]
+pytestmark = in_guest(CHANNEL)
 
 sys.path.insert(0, str(REPO / "tests" / "devicenet"))
 from dnet_master import Master  # noqa: E402  (tests/devicenet is not a package)

@@ -410,3 +410,31 @@ async def test_an_offline_primary_host_moves_the_node_to_the_next_broker(tmp_pat
     bdseq_b = {m.name: m.value for m in host_b.of("NBIRTH")[0].decode().metrics}["bdSeq"]
     assert bdseq_b == bdseq_a + 1
     assert status["broker_url"] == f"mqtt://127.0.0.1:{second.port}"
+
+
+async def test_a_batch_of_inputs_publishes_every_changed_metric_with_its_own_value_and_time(
+    broker, subscriber, tmp_path
+):
+    """One poll reply (an update_inputs batch) is one DDATA: each changed channel, its own
+    value, stamped with the reply's acquisition time; the unchanged one is not in it."""
+    gw = Gateway.load(topology(broker.port, tmp_path / "state"))
+    async with gw:
+        await until(lambda: len(subscriber.of("DBIRTH")) == 2, what="the births")
+        front = gw.component("spb")
+        gw.image.update_inputs({"io/m1/ai0": 0, "io/m1/ai1": 0, "io/m1/di0": False})
+        await asyncio.sleep(0.2)  # (nothing changed: the loopback's start values)
+        acquired = gw.image.clock() - 0.5  # the reply came in half a second ago
+        gw.image.update_inputs(
+            {"io/m1/ai0": 111, "io/m1/ai1": 222, "io/m1/di0": False}, timestamp=acquired
+        )
+        await until(lambda: subscriber.of("DDATA"), what="DDATA")
+        await asyncio.sleep(0.2)
+        wall_acquired = int((acquired + front._wall_offset) * 1000)
+    birth = next(m for m in subscriber.of("DBIRTH") if m.device == "io-m1")
+    named = {m.alias: m for m in birth.decode().metrics}
+    (ddata,) = [m for m in subscriber.of("DDATA") if m.device == "io-m1"]
+    metrics = {named[m.alias].name: m for m in ddata.decode().metrics}
+    assert sorted(metrics) == ["ai0", "ai1"]
+    values = [spb.value_of(metrics[n], named[metrics[n].alias].datatype) for n in ("ai0", "ai1")]
+    assert values == [111, 222]
+    assert {metrics[n].timestamp for n in ("ai0", "ai1")} == {wall_acquired}

@@ -583,3 +583,59 @@ def test_special_bytes_are_uint8_metrics_and_a_dcmd_writes_one_byte():
     too_big = spb.command(spb.command_metric(alias=alias, datatype=spb.UINT8, value=256))
     assert session.on_message(clock(), "spBv1.0/plant/DCMD/gw1/io-m4", too_big) == []
     assert session.ignored["bad_value"] == 1
+
+
+def test_a_deeply_nested_state_is_counted_and_ignored_never_a_recursion_error():
+    # a retained STATE comes back at every reconnect: raising on it stopped the node for good
+    clock = Clock()
+    session = make(primary_host_id="scada")
+    online(session, clock)
+    deep = b'{"online": true, "timestamp": 1, "x": ' + b"[" * 100_000 + b"]" * 100_000 + b"}"
+    assert session.on_message(clock(), "spBv1.0/STATE/scada", deep[:4000]) == []
+    assert session.ignored["bad_state"] == 1  # 4000 bytes, 1960 levels deep
+    assert session.on_message(clock(), "spBv1.0/STATE/scada", deep) == []
+    assert session.ignored["oversized"] == 1  # STATE has its own small size limit
+    nested = b'{"online": true, "timestamp": 2, "x": [[[[[[1]]]]]]}'
+    assert session.on_message(clock(), "spBv1.0/STATE/scada", nested) == []
+    assert session.ignored["bad_state"] == 2
+    # and the node still works: a sound STATE births it
+    good = b'{"online": true, "timestamp": 3, "note": "[[[[[[[[ in a string"}'
+    assert kinds(session.on_message(clock(), "spBv1.0/STATE/scada", good))[:1] == ["NBIRTH"]
+
+
+def test_json_depth_counts_brackets_outside_strings():
+    from fieldgate.plugins.sparkplug.session import json_depth
+
+    assert json_depth(b'{"a": [1, {"b": 2}]}') == 3
+    assert json_depth(b'{"a": "[[[[\\"[["}') == 1
+    assert json_depth(b"") == 0
+
+
+def test_a_burst_of_rebirth_requests_is_coalesced_into_one_more_rebirth():
+    clock = Clock()
+    session = make(rebirth_min_interval_s=1.0)
+    online(session, clock)
+    cmd = spb.command(
+        spb.command_metric(name="Node Control/Rebirth", datatype=spb.BOOLEAN, value=True)
+    )
+    assert kinds(session.on_message(clock(), "spBv1.0/plant/NCMD/gw1", cmd))[0] == "NBIRTH"
+    for _ in range(50):  # a host (or a loop of them) asking over and over
+        assert session.on_message(clock(0.01), "spBv1.0/plant/NCMD/gw1", cmd) == []
+    assert session.rebirths["coalesced"] == 50
+    due = session.next_deadline()
+    assert due == pytest.approx(clock().mono - 0.5 + 1.0)  # one interval after the first
+    assert session.tick(clock(0.1)) == []  # not yet
+    actions = session.tick(Instant(due, clock().wall_ms))
+    assert kinds(actions) == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]  # one, for all 50
+    assert session.rebirths["ncmd"] == 2 and session.next_deadline() is None
+    # a request after the interval is served at once again
+    later = session.on_message(clock(2.0), "spBv1.0/plant/NCMD/gw1", cmd)
+    assert kinds(later)[0] == "NBIRTH"
+
+
+def test_an_oversized_ncmd_is_counted_and_dropped():
+    clock = Clock()
+    session = make(max_command_bytes=256)
+    online(session, clock)
+    assert session.on_message(clock(), "spBv1.0/plant/NCMD/gw1", b"\x00" * 257) == []
+    assert session.ignored["oversized"] == 1

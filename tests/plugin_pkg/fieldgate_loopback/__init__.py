@@ -74,10 +74,14 @@ class LoopbackConfig(BackConfig):
         return specs
 
 
+TWIN_KIND = {Kind.DO: Kind.DI, Kind.AO: Kind.AI, Kind.SO: Kind.SI}
+
+
 class LoopbackBack(Back):
     def __init__(self, config: LoopbackConfig, context):
         super().__init__(config, context)
         self._sub = None
+        self._twin: dict[str, str] = {}
         self.starts = 0
 
     async def start(self) -> None:
@@ -85,23 +89,17 @@ class LoopbackBack(Back):
         if self.config.fail_start:
             raise PluginStartError(self.config.fail_start)
         image = self.context.image
-        outputs = [c.id for c in image.channels(back=self.name) if c.kind.is_output]
-        self._sub = image.subscribe(self._echo, ids=outputs)
-        for cid in outputs:
-            self._echo_id(cid)
+        outputs = [c for c in image.channels(back=self.name) if c.kind.is_output]
+        self._twin = {
+            c.id: channel_id(self.name, c.source.module, TWIN_KIND[c.kind], c.source.index)
+            for c in outputs
+        }
+        self._sub = image.subscribe_batch(self._echo, ids=self._twin)
+        image.update_inputs({self._twin[c.id]: c.value for c in outputs})
 
-    def _echo(self, change) -> None:
-        self._echo_id(change.channel.id)
-
-    def _echo_id(self, cid: str) -> None:
-        out = self.context.image[cid]
-        twin = channel_id(
-            self.name,
-            out.source.module,
-            {Kind.DO: Kind.DI, Kind.AO: Kind.AI, Kind.SO: Kind.SI}[out.kind],
-            out.source.index,
-        )
-        self.context.image.update_input(twin, out.value)
+    def _echo(self, changes) -> None:
+        """One batch of outputs (an RPDO's bits) comes back as one batch of inputs."""
+        self.context.image.update_inputs({self._twin[c.id]: c.value for c in changes})
 
     async def run(self) -> None:
         if self.config.fail_after_s is not None:
