@@ -104,8 +104,11 @@ class JsonFileBack(Back):
                 if self.health[m.address].record_success(now=self.context.clock()):
                     outputs = self._module_channels(m, outputs=True)  # back online
                     self.context.image.set_quality(outputs, Quality.GOOD)
-                for cid, value in readings.items():
-                    self._update(cid, value)
+                try:  # the module's inputs in one batch: one call for each batch subscriber
+                    self.context.image.update_inputs(readings)
+                except ValueError:  # a value that does not fit its channel: one by one
+                    for cid, value in readings.items():
+                        self._update(cid, value)
 
     def _update(self, cid: str, value: Any) -> None:
         image = self.context.image
