@@ -84,6 +84,7 @@ class Device:
         self.od = od
         self.timing = timing
         self.sdo_rx, self.sdo_tx = self.sdo_cobs()
+        self.nmt_sent_at = 0.0  # when the last NMT command went out (time.time())
 
     @classmethod
     def from_eds(cls, link: Link, node_id: int, eds: str, timing: Timing) -> Device:
@@ -321,7 +322,10 @@ class Device:
 
     # -- NMT and states -------------------------------------------------------------
     def nmt(self, cs: int, node: int | None = None, dlc: int = 2) -> None:
-        self.link.send(0x000, bytes([cs, self.node_id if node is None else node]).ljust(dlc, b"\0"))
+        frame = self.link.send(
+            0x000, bytes([cs, self.node_id if node is None else node]).ljust(dlc, b"\0")
+        )
+        self.nmt_sent_at = frame.timestamp
 
     def reset(self, cs: int = NMT_RESET_COMM) -> Frame | None:
         """Reset node or communication; the boot-up frame, or None if none came."""
@@ -378,8 +382,17 @@ class StateProbe:
         else:
             dev.link.flush()
             wait = 2 * self.ctx.timing.heartbeat_ms / 1000 + self.ctx.timing.response
+            # a heartbeat received before the last NMT command went out can still be queued
+            # here (a busy tester reads late): it shows the state before the command
+            since = dev.nmt_sent_at
             frame = dev.link.expect(
-                lambda f: f.cob == 0x700 + dev.node_id and not f.rtr and f.data[:1] != b"\0", wait
+                lambda f: (
+                    f.cob == 0x700 + dev.node_id
+                    and not f.rtr
+                    and f.data[:1] != b"\0"
+                    and f.timestamp >= since
+                ),
+                wait,
             )
         if frame is None or not frame.data:
             return None

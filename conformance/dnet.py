@@ -14,11 +14,13 @@ from dataclasses import dataclass
 from .link import Frame, Link
 from .outcome import Fail, Timing
 
-# Group 2 message ids, Group 1 poll response
+# Group 2 message ids, Group 1 messages of the slave
 G2_EXPLICIT_RESPONSE, G2_EXPLICIT_REQUEST, G2_POLL, G2_UNCONNECTED, G2_DUP_MAC = 3, 4, 5, 6, 7
-G1_POLL_RESPONSE = 0xF
+G2_COS_ACK = 2
+G1_COS_CYCLIC, G1_STROBE_RESPONSE, G1_POLL_RESPONSE = 0xD, 0xE, 0xF
 ALLOCATE, RELEASE, GET, SET, RESET, ERROR = 0x4B, 0x4C, 0x0E, 0x10, 0x05, 0x14
 CHOICE_EXPLICIT, CHOICE_POLL, CHOICE_STROBE, CHOICE_COS = 0x01, 0x02, 0x04, 0x10
+CHOICE_CYCLIC, CHOICE_ACK_SUPPRESS = 0x20, 0x40
 FIRST, MIDDLE, LAST, ACK = 0x00, 0x40, 0x80, 0xC0
 
 STATUS_NAMES = {
@@ -33,6 +35,7 @@ STATUS_NAMES = {
     0x14: "attribute not supported",
     0x15: "too much data",
     0x16: "object does not exist",
+    0x20: "invalid parameter",
 }
 
 
@@ -138,7 +141,10 @@ class DnetDevice:
         """One explicit request (service, class, instance, ...); the response, fragments acknowledged
         and reassembled; None if nothing came."""
         self.link.flush()
-        self.link.send(self.g2(G2_EXPLICIT_REQUEST), bytes([self.master_mac]) + body)
+        if len(body) <= 7:
+            self.link.send(self.g2(G2_EXPLICIT_REQUEST), bytes([self.master_mac]) + body)
+        else:
+            self._send_fragmented(body)
         frames: list[Frame] = []
         payload = b""
         expected_count = 0
@@ -184,6 +190,25 @@ class DnetDevice:
                 return Reply(payload[0] if payload else -1, payload[1:], frames)
             if expected_count > 200:
                 raise Fail("fragmented response never ends")
+
+    def _send_fragmented(self, body: bytes) -> None:
+        """A request longer than one frame: acknowledged fragments of 6 bytes, each sent after
+        the device acknowledged the one before (``[hdr|80] C0|n 00``)."""
+        chunks = [body[i : i + 6] for i in range(0, len(body), 6)]
+        for n, chunk in enumerate(chunks):
+            kind = FIRST if n == 0 else LAST if n == len(chunks) - 1 else MIDDLE
+            self.link.send(
+                self.g2(G2_EXPLICIT_REQUEST),
+                bytes([self.master_mac | 0x80, kind | n & 0x3F]) + chunk,
+            )
+            ack = self._explicit_response()
+            want = bytes([self.master_mac | 0x80, ACK | n & 0x3F, 0x00])
+            if ack is None or ack.data != want:
+                raise Fail(
+                    f"fragment {n} of a {len(body)}-byte request not acknowledged",
+                    expected=want.hex(" ").upper(),
+                    seen=str(ack) if ack else "nothing",
+                )
 
     def call(
         self, service: int, class_id: int, instance: int, rest: bytes = b"", what: str = ""
@@ -283,6 +308,40 @@ class DnetDevice:
             if frame.data[0] & 0x3F != count & 0x3F:
                 raise Fail(
                     "I/O fragment out of sequence", expected=f"count {count}", seen=str(frame)
+                )
+            data += frame.data[1:]
+            count += 1
+        return data
+
+    def g1(self, message: int) -> int:
+        return group1_id(message, self.mac_id)
+
+    def send_io(self, can_id: int, data: bytes) -> None:
+        """An I/O message, in unacknowledged fragments of 7 bytes above 8 bytes."""
+        if len(data) <= 8:
+            self.link.send(can_id, data)
+            return
+        chunks = [data[i : i + 7] for i in range(0, len(data), 7)]
+        for n, chunk in enumerate(chunks):
+            kind = FIRST if n == 0 else LAST if n == len(chunks) - 1 else MIDDLE
+            self.link.send(can_id, bytes([kind | n & 0x3F]) + chunk)
+
+    def io_message(self, can_id: int, size: int, timeout: float | None = None) -> bytes | None:
+        """One produced I/O message of ``size`` bytes (reassembled), or None if none came."""
+        wait = self.timing.response if timeout is None else timeout
+        first = self.link.expect(can_id, wait)
+        if first is None:
+            return None
+        if size <= 8:
+            return first.data
+        data, count = first.data[1:], 1
+        while len(data) < size:
+            frame = self.link.expect(can_id, self.timing.response)
+            if frame is None or frame.data[0] & 0x3F != count & 0x3F:
+                raise Fail(
+                    "I/O fragmented message broken",
+                    expected=f"fragment {count} of {size} bytes",
+                    seen=str(frame) if frame else "nothing",
                 )
             data += frame.data[1:]
             count += 1

@@ -13,10 +13,13 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from .cliargs import (  # `X as X`: plugins import these two from here too
+from .cliargs import (  # `X as X`: plugins import these from here too
     add_overrides_argument as add_overrides_argument,
 )
 from .cliargs import invalid_topology, seconds, usage_error
+from .cliargs import (
+    overrides_of as overrides_of,
+)
 from .cliargs import (
     parse_overrides as parse_overrides,
 )
@@ -47,7 +50,7 @@ def setup_logging(level: str, fmt: str = "text") -> None:
 
 def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
     try:
-        topology = load_topology(args.file, registry, parse_overrides(args.set))
+        topology = load_topology(args.file, registry, overrides_of(args, args.file))
     except TopologyError as exc:
         code = invalid_topology(exc)
         print(f"{args.file}: {len(exc.issues)} error(s)", file=sys.stderr)
@@ -84,7 +87,7 @@ def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
 
 
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
-    overrides = parse_overrides(args.set)
+    overrides = overrides_of(args, args.file)
     if args.http is not None:
         overrides["gateway.http.listen"] = args.http
     try:

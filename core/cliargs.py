@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
 from .exitcodes import ExitCode
@@ -66,13 +67,52 @@ def add_overrides_argument(
     parser: argparse.ArgumentParser | argparse._ArgumentGroup,
     example: str = "fronts.can.interface=virtual",
 ) -> None:
-    """``--set PATH=VALUE`` (repeatable), read with :func:`parse_overrides`: every command that loads a topology."""
+    """``--set PATH=VALUE`` and ``--scan-file [BACK=]FILE`` (repeatable), read with
+    :func:`overrides_of`: every command that loads a topology."""
     parser.add_argument(
         "--set",
         action="append",
         default=[],
         metavar="PATH=VALUE",
         help=f"override a topology field before validation, e.g. {example}",
+    )
+    parser.add_argument(
+        "--scan-file",
+        action="append",
+        default=[],
+        metavar="[BACK=]FILE",
+        help="a scan file for a back that finds its modules at start (DCON modules: auto): "
+        "sets backs.BACK.scan.file; BACK may be left out when the topology has one back",
+    )
+
+
+def overrides_of(args: argparse.Namespace, source: str | Path) -> dict[str, Any]:
+    """``--set`` and ``--scan-file`` of a command that loads the topology ``source``."""
+    overrides = parse_overrides(args.set)
+    for item in getattr(args, "scan_file", None) or []:
+        back, sep, file = item.rpartition("=")
+        if not sep:
+            back = _only_back(source, item)
+        if not back or not file:
+            usage_error(f"--scan-file expects [BACK=]FILE, got {item!r}")
+        overrides[f"backs.{back}.scan.file"] = str(Path(file).resolve())
+    return overrides
+
+
+def _only_back(source: str | Path, item: str) -> str:
+    from .topology.loader import read_yaml
+
+    try:
+        data = read_yaml(source)
+    except TopologyError:
+        return "0"  # the topology's own error is reported when it is loaded
+    backs = data.get("backs") if isinstance(data, dict) else None
+    names = [b.get("name") for b in backs if isinstance(b, dict)] if isinstance(backs, list) else []
+    if len(names) == 1 and isinstance(names[0], str):
+        return names[0]
+    usage_error(
+        f"--scan-file {item}: the topology has {len(names)} backs; name one: "
+        f"--scan-file {names[0] if names and isinstance(names[0], str) else 'BACK'}={item}"
     )
 
 

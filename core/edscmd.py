@@ -68,9 +68,9 @@ def choose_front(topology: Topology, registry: Registry, name: str | None) -> Fr
 
 def eds_text(args: argparse.Namespace, registry: Registry) -> tuple[FrontConfig, str]:
     """The front and its EDS, as the command line asks (TopologyError, CommandError)."""
-    from .cliargs import parse_overrides
+    from .cliargs import overrides_of
 
-    topology = load_topology(args.topology, registry, parse_overrides(args.set))
+    topology = load_topology(args.topology, registry, overrides_of(args, args.topology))
     front = choose_front(topology, registry, args.front)
     for dest, owner in getattr(args, "eds_option_owners", {}).items():
         if owner != front.type and getattr(args, dest, None) not in (None, False):

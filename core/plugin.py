@@ -23,7 +23,7 @@ import pluggy
 
 from .events import MASTER_BACK, MASTER_LOST, MODULE_OFFLINE, MODULE_ONLINE, EventHub
 from .health import HealthEvent, HealthRegistry, ModuleHealth
-from .image import ProcessImage
+from .image import ChannelSpec, ProcessImage
 from .masters import MasterMonitor
 from .topology.model import BackConfig, FrontConfig
 
@@ -116,6 +116,18 @@ class GatewayContext:
         for spec in topology.channel_specs:
             image.add(spec)
         return cls(topology, image, HealthRegistry(), MasterMonitor(image))
+
+    def add_channels(self, back: str, specs: list[ChannelSpec]) -> None:
+        """A back that finds its modules at start (``BackConfig.finds_modules_at_start``) adds
+        their channels: to the image (new ids only, so a restart keeps them) and to the
+        topology's list, replacing what the back had there. Backs start before fronts, so
+        every front builds on them."""
+        self.topology.channel_specs[:] = [
+            s for s in self.topology.channel_specs if s.source.back != back
+        ] + list(specs)
+        for spec in specs:
+            if spec.id not in self.image:
+                self.image.add(spec)
 
     @property
     def clock(self) -> Callable[[], float]:
@@ -341,6 +353,10 @@ class Scanner(ABC):
     @abstractmethod
     def topology(self, found: list[Any], args: argparse.Namespace) -> str:
         """A ready-to-paste ``backs:`` section for what was found (every baud rate)."""
+
+    def save(self, found: list[Any], args: argparse.Namespace, bauds: list[int]) -> None:  # noqa: B027  (optional)
+        """After a complete scan: keep the result where the back's options say (DCON's
+        ``-o FILE`` scan file); raise :class:`CommandError` (one line) when it cannot."""
 
 
 @dataclass

@@ -443,9 +443,13 @@ class SerialBack(Back):
         }
         self.health: dict[int, ModuleHealth] = {}
         for module in config.modules:
-            self.health[module.address] = context.health.add(
-                ModuleHealth(self.name, module.address, module.model or "", config.fail_threshold)
-            )
+            self.register_health(module)
+
+    def register_health(self, module: ModuleConfig) -> None:
+        """The module's health entry (a back that finds its modules at start calls it then)."""
+        self.health[module.address] = self.context.health.add(
+            ModuleHealth(self.name, module.address, module.model or "", self.config.fail_threshold)
+        )
 
     @abstractmethod
     async def open_link(self) -> Any:

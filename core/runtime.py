@@ -74,6 +74,12 @@ class Gateway:
         self.topology = topology
         self.bench = SimulationBench(topology, registry, animate) if simulate else None
         self.registry = registry
+        # a back that finds its modules at start adds their channels then (what the topology
+        # knew of them, a scan file's, is for offline tools)
+        found_later = {b.name for b in topology.backs if b.finds_modules_at_start()}
+        topology.channel_specs[:] = [
+            s for s in topology.channel_specs if s.source.back not in found_later
+        ]
         self.context = GatewayContext.build(topology, clock)
         self.image = self.context.image
         self.health = self.context.health

@@ -15,7 +15,7 @@ import sys
 from typing import Any, TextIO
 
 from .exitcodes import ExitCode
-from .plugin import PluginStartError, Registry, Scanner, ScanProgress
+from .plugin import CommandError, PluginStartError, Registry, Scanner, ScanProgress
 
 
 def configure(parser: argparse.ArgumentParser, scanner: Scanner, back_type: str) -> None:
@@ -104,6 +104,11 @@ def run(args: argparse.Namespace, registry: Registry, back_type: str) -> int:
     sys.stdout.write(scanner.topology(found, args))
     if interrupted:
         return ExitCode.INTERRUPTED
+    try:
+        scanner.save(found, args, bauds)
+    except CommandError as exc:
+        print(f"{command}: {exc}", file=sys.stderr)
+        return ExitCode.CANNOT_RUN
     return ExitCode.OK if found else ExitCode.FAILED
 
 

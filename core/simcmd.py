@@ -109,15 +109,20 @@ def build_config(args: argparse.Namespace, registry: Registry, back_type: str) -
     TopologyError: the topology file is invalid (exit 1); UsageError: the command line does
     not describe a valid back (exit 2).
     """
-    from .cliargs import parse_overrides
+    from .cliargs import overrides_of
     from .topology import load_topology
 
     serial = is_serial(registry, back_type)
     cli = registry.simulate_cli[back_type]
+    changes: dict[str, Any] = dict(cli.fields(args)) if cli.fields is not None else {}
+    if serial:
+        changes["port"] = args.port or "pty"  # a --pty pair replaces it when serving
+        if args.baudrate:
+            changes["baudrate"] = args.baudrate
     if args.topology:
         if args.module:
             raise UsageError("give --topology or --module, not both")
-        topology = load_topology(args.topology, registry, parse_overrides(args.set))
+        topology = load_topology(args.topology, registry, overrides_of(args, args.topology))
         backs = [
             b
             for b in topology.backs
@@ -126,39 +131,41 @@ def build_config(args: argparse.Namespace, registry: Registry, back_type: str) -
         if not backs:
             named = f" named {args.back}" if args.back else ""
             raise UsageError(f"{args.topology} has no {back_type} back{named}")
-        data = backs[0].model_dump(exclude_unset=True)
-    elif args.module:
+        # the validated back as it is (what validation derived stays: a DCON scan file),
+        # with the command line's changes validated one by one
+        config = backs[0].model_copy(deep=True)
         try:
-            data = {
-                "name": args.name,
-                "type": back_type,
-                "modules": [cli.module(spec) for spec in args.module],
-            }
-        except ValueError as exc:
-            raise UsageError(str(exc)) from None
-        if serial:
-            data["port"] = "pty"  # replaced below
-    else:
+            for key, value in changes.items():
+                setattr(config, key, value)
+        except ValidationError as exc:
+            raise UsageError(_one_line(exc)) from None
+        return config
+    if not args.module:
         raise UsageError("give --topology FILE or at least one --module " + cli.module_metavar)
-    if cli.fields is not None:
-        data.update(cli.fields(args))
-    if serial:
-        data["port"] = args.port or "pty"
-        if args.baudrate:
-            data["baudrate"] = args.baudrate
+    try:
+        data = {
+            "name": args.name,
+            "type": back_type,
+            "modules": [cli.module(spec) for spec in args.module],
+            **changes,
+        }
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     model = registry.lookup("back", back_type)
     assert model is not None  # a simulator is registered only beside its back type
     try:
-        config = model.model.model_validate(data)
+        built = model.model.model_validate(data)
     except ValidationError as exc:
-        raise UsageError(
-            "; ".join(
-                f"{'.'.join(map(str, e['loc']))}: {e['msg'].removeprefix('Value error, ')}"
-                for e in exc.errors()
-            )
-        ) from None
-    assert isinstance(config, BackConfig)
-    return config
+        raise UsageError(_one_line(exc)) from None
+    assert isinstance(built, BackConfig)
+    return built
+
+
+def _one_line(exc: ValidationError) -> str:
+    return "; ".join(
+        f"{'.'.join(map(str, e['loc']))}: {e['msg'].removeprefix('Value error, ')}"
+        for e in exc.errors()
+    )
 
 
 def run(args: argparse.Namespace, registry: Registry, back_type: str) -> int:
@@ -245,8 +252,12 @@ async def _serve_until(
 
 def banner(config: BackConfig, before: dict[str, Any], port: str | None, pty: bool) -> str:
     """The line that says what is simulated and where the gateway finds it (the ready line)."""
+    listed = {m.address: m.model for m in config.modules}
+    for spec in config.channel_specs():  # modules no list names (found at start: a scan file's)
+        listed.setdefault(spec.source.module, None)
     modules = ", ".join(
-        f"{m.address}{' (' + m.model + ')' if m.model else ''}" for m in config.modules
+        f"{address}{' (' + model + ')' if model else ''}"
+        for address, model in sorted(listed.items())
     )
     head = f"simulating back {config.name} ({config.type}): modules {modules or '-'}"
     if isinstance(config, SerialBackConfig):

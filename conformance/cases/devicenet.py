@@ -8,9 +8,16 @@ import time
 
 from ..dnet import (
     ALLOCATE,
+    CHOICE_COS,
+    CHOICE_CYCLIC,
     CHOICE_EXPLICIT,
     CHOICE_POLL,
+    CHOICE_STROBE,
+    G1_COS_CYCLIC,
+    G1_POLL_RESPONSE,
+    G2_COS_ACK,
     G2_DUP_MAC,
+    G2_POLL,
     GET,
     RESET,
     SET,
@@ -572,3 +579,295 @@ def release(ctx: Context) -> None:
             expected=f"{other:02X} CB 00",
             seen=str(err.frame),
         ) from None
+
+
+# -- I/O connection paths, change of state / cyclic both ways, the I-7241D's object 0x64 ------
+STROBE_INSTANCE, COS_INSTANCE = 3, 4
+ASSEMBLY = 0x04
+APPLICATION = 0x64
+
+
+def number(data: bytes) -> int:
+    return int.from_bytes(data, "little")
+
+
+def assembly_of(path: bytes, what: str) -> int | None:
+    """The Assembly instance a connection path names (``20 04 24 nn 30 03``), None if empty."""
+    if not path:
+        return None
+    if path[:3] == b"\x20\x04\x24" and len(path) >= 4 and path[4:] in (b"", b"\x30\x03"):
+        return path[3]
+    if path[:4] == b"\x20\x04\x25\x00" and len(path) >= 6 and path[6:] in (b"", b"\x30\x03"):
+        return number(path[4:6])
+    raise Fail(
+        f"{what} is not a path to an Assembly's data",
+        expected="20 04 24 <instance> 30 03 (or 20 04 25 00 <instance LE16> 30 03)",
+        seen=path.hex(" ").upper(),
+    )
+
+
+def check_path(
+    d: DnetDevice, instance: int, path_attr: int, size_attr: int, what: str
+) -> int | None:
+    """The path attribute names an assembly whose data has the connection's size; its instance."""
+    path = d.get(CONNECTION, instance, path_attr)
+    length = number(d.get(CONNECTION, instance, path_attr - 1))
+    if length != len(path):
+        raise Fail(
+            f"{what}: path length attribute {path_attr - 1} disagrees with the path",
+            expected=str(len(path)),
+            seen=str(length),
+        )
+    size = number(d.get(CONNECTION, instance, size_attr))
+    assembly = assembly_of(path, f"{what} (attribute {path_attr})")
+    if assembly is None:
+        return None
+    data = d.get(ASSEMBLY, assembly, 3)
+    fits = size == len(data) or (instance == STROBE_INSTANCE and size == min(len(data), 8))
+    if not fits:
+        raise Fail(
+            f"{what}: the connection's size is not its assembly's",
+            expected=f"attribute {size_attr} = {len(data)} (assembly 0x{assembly:02X} data)",
+            seen=str(size),
+        )
+    return assembly
+
+
+@case(
+    P,
+    "io_paths",
+    "the I/O connections' path attributes (14/16) name the assembly each carries, of the "
+    "connection's size; a path set while Configuring selects another assembly, the size follows",
+)
+def io_paths(ctx: Context) -> None:
+    d = dev(ctx)
+    try:
+        d.allocate(CHOICE_EXPLICIT | CHOICE_POLL | CHOICE_STROBE)
+    except CipErrorSeen as err:
+        raise Skip(f"poll + bit-strobe refused ({status_text(err.general)})") from None
+    produced = check_path(d, POLL_INSTANCE, 14, 7, "poll produced path")
+    check_path(d, POLL_INSTANCE, 16, 8, "poll consumed path")
+    check_path(d, STROBE_INSTANCE, 14, 7, "bit-strobe produced path")
+    if produced is None:
+        return
+    # another input assembly: each instance up to the class's maximum whose Set is accepted
+    highest = number(d.get(ASSEMBLY, 0, 2))
+    others = [n for n in range(1, highest + 1) if n != produced]
+    selected = None
+    for n in others:
+        reply = d.request(
+            bytes([SET, CONNECTION, POLL_INSTANCE, 14, 0x20, 0x04, 0x24, n, 0x30, 0x03])
+        )
+        if reply is None:
+            raise Fail("no response to Set of the poll's produced path")
+        if reply.service == SET | 0x80:
+            selected = n
+            break
+        if reply.data[:1] == b"\x0e":
+            raise Skip(
+                "the paths are Get only here: selection is by the device's own configuration"
+            )
+    if selected is None:
+        return  # one input assembly: nothing else to select
+    check_path(d, POLL_INSTANCE, 14, 7, f"poll produced path set to 0x{selected:02X}")
+    size = number(d.get(CONNECTION, POLL_INSTANCE, 7))
+    set_epr(d, POLL_INSTANCE, 1000)
+    _, consumed = io_sizes(d, POLL_INSTANCE)
+    first = d.poll(b"")  # idle: the produced data only
+    if first is None:
+        raise Fail("no poll response after selecting a path", expected=f"{size} bytes")
+    answer = d.poll_fragments(first, size)
+    if len(answer) != size:
+        raise Fail(
+            "the poll answers another size than its selected path",
+            expected=f"{size} bytes (assembly 0x{selected:02X})",
+            seen=f"{len(answer)} bytes",
+        )
+    reply = d.request(
+        bytes([SET, CONNECTION, POLL_INSTANCE, 14, 0x20, 0x04, 0x24, produced, 0x30, 0x03])
+    )
+    if reply is None or reply.data[:1] != b"\x0c":
+        raise Fail(
+            "a path Set on an Established connection was not refused",
+            expected="error 0x0C (object state conflict)",
+            seen=str(reply.frames[-1]) if reply else "nothing",
+        )
+
+
+def allocate_cos_only(d: DnetDevice, choice: int) -> int:
+    """Explicit + COS or cyclic without poll; the master-data connection's consumed size
+    (instance 2), or Skip when the device has none."""
+    try:
+        d.allocate(CHOICE_EXPLICIT | choice)
+    except CipErrorSeen as err:
+        raise Skip(f"allocation 0x{choice:02X} refused ({status_text(err.general)})") from None
+    try:
+        consumed = number(d.get(CONNECTION, POLL_INSTANCE, 8))
+    except CipErrorSeen as err:
+        if err.general != 0x16:
+            raise
+        raise Skip(
+            "no instance 2 with COS/cyclic alone: the device consumes no data from the master that way"
+        ) from None
+    expected = {4: d.g1(G1_POLL_RESPONSE), 5: d.g2(G2_POLL)}
+    for attribute, can_id in expected.items():
+        value = number(d.get(CONNECTION, POLL_INSTANCE, attribute))
+        if value != can_id:
+            raise Fail(
+                f"the master's COS/cyclic data connection: attribute {attribute} (connection ID)",
+                expected=f"0x{can_id:03X} (the predefined set's poll identifiers)",
+                seen=f"0x{value:03X}",
+            )
+    if not consumed:
+        raise Fail("instance 2 exists for COS/cyclic data but consumes nothing", seen="size 0")
+    return consumed
+
+
+def expect_ack(d: DnetDevice, what: str) -> None:
+    frame = d.link.expect(d.g1(G1_POLL_RESPONSE), d.timing.response)
+    if frame is None or frame.data:
+        raise Fail(
+            f"{what} was not acknowledged",
+            expected=f"{d.g1(G1_POLL_RESPONSE):03X} [0] (an empty acknowledge)",
+            seen=str(frame) if frame else "nothing",
+        )
+
+
+@case(
+    P,
+    "cos_consume",
+    "change of state alone consumes the master's data on instance 2 (G2/5), acknowledged with "
+    "an empty G1/15 message; a poll allocated after it is refused (02/04); released with COS",
+)
+def cos_consume(ctx: Context) -> None:
+    d = dev(ctx)
+    consumed = allocate_cos_only(d, CHOICE_COS)
+    set_epr(d, COS_INSTANCE, 1000)
+    if d.get(CONNECTION, POLL_INSTANCE, 1) != bytes([STATE_ESTABLISHED]):
+        set_epr(d, POLL_INSTANCE, 1000)
+    d.link.flush()
+    d.send_io(d.g2(G2_POLL), bytes(consumed))  # all-zero outputs: the safe value
+    expect_ack(d, "the master's change-of-state data")
+    frame = d.unconnected(ALLOCATE, bytes([CHOICE_POLL, d.master_mac]))
+    if frame is None or frame.data[1:4] != bytes([0x94, 0x02, 0x04]):
+        raise Fail(
+            "a poll allocated while instance 2 carries the master's COS data was not refused",
+            expected="[hdr] 94 02 04 (resource unavailable: poll after COS/cyclic)",
+            seen=str(frame) if frame else "nothing",
+        )
+    d.release(CHOICE_COS)
+    try:
+        d.get(CONNECTION, POLL_INSTANCE, 1)
+    except CipErrorSeen as err:
+        if err.general == 0x16:
+            return
+        raise
+    raise Fail("instance 2 stayed after COS was released", expected="error 0x16 for it")
+
+
+@case(
+    P,
+    "cyclic_both_ways",
+    "cyclic alone: the slave produces every expected packet rate (acknowledged), the master's "
+    "cyclic data is consumed and acknowledged; both stay Established while the traffic goes on",
+)
+def cyclic_both_ways(ctx: Context) -> None:
+    d = dev(ctx)
+    consumed = allocate_cos_only(d, CHOICE_CYCLIC)
+    produced = number(d.get(CONNECTION, COS_INSTANCE, 7))
+    epr = set_epr(d, COS_INSTANCE, ctx.timing.heartbeat_ms)
+    if d.get(CONNECTION, POLL_INSTANCE, 1) != bytes([STATE_ESTABLISHED]):
+        set_epr(d, POLL_INSTANCE, epr)
+    messages = 0
+    end = time.monotonic() + 6 * epr / 1000
+    while time.monotonic() < end:
+        # within two periods: a message is late under load, never missing
+        data = d.io_message(
+            d.g1(G1_COS_CYCLIC), produced, 2 * epr / 1000 + ctx.timing.slack(epr / 1000)
+        )
+        if data is None:
+            raise Fail(
+                "no cyclic message within two expected packet rates", expected=f"every {epr} ms"
+            )
+        if len(data) != produced:
+            raise Fail(
+                "cyclic message of the wrong size", expected=str(produced), seen=str(len(data))
+            )
+        messages += 1
+        d.link.send(d.g2(G2_COS_ACK), b"")  # the master's acknowledge
+        d.send_io(d.g2(G2_POLL), bytes(consumed))
+        expect_ack(d, "the master's cyclic data")
+    for instance in (COS_INSTANCE, POLL_INSTANCE):
+        state = d.get(CONNECTION, instance, 1)
+        if state != bytes([STATE_ESTABLISHED]):
+            raise Fail(
+                f"instance {instance} left Established although both sides kept to the rate",
+                expected="state 3",
+                seen=state.hex(),
+            )
+    if messages < 3:
+        raise Fail(
+            "too few cyclic messages", expected="one per expected packet rate", seen=str(messages)
+        )
+
+
+APPLICATION_SIZES = {1: 4, 2: 1, 3: 1, 4: 4, 5: 1, 6: 1, 7: 4, 8: 1, 9: 1, 0x0A: 1}
+
+
+@case(
+    P,
+    "application_object",
+    "the I-7241D's Application object 0x64: class attributes 1-4 and every instance attribute "
+    "of its manual (0x01-0x17) readable, with lengths and data that agree",
+)
+def application_object(ctx: Context) -> None:
+    d = explicit(ctx)
+    try:
+        revision = d.get(APPLICATION, 0, 1)
+    except CipErrorSeen as err:
+        if err.general in (0x05, 0x08, 0x16):
+            raise Skip(
+                f"no class 0x64 ({status_text(err.general)}): not an I-7241D-style device"
+            ) from None
+        raise
+    count = number(d.get(APPLICATION, 0, 2))
+    if len(revision) != 2 or not count:
+        raise Fail(
+            "class attributes 1/2",
+            expected="UINT revision, UINT instances > 0",
+            seen=f"{revision.hex()} / {count}",
+        )
+    for attribute in (3, 4):  # COM timeout (UINT), Host OK (BYTE)
+        value = d.get(APPLICATION, 0, attribute)
+        if len(value) != (2 if attribute == 3 else 1):
+            raise Fail(f"class attribute {attribute} has the wrong size", seen=value.hex(" "))
+    for instance in range(1, count + 1):
+        for attribute, size in APPLICATION_SIZES.items():
+            value = d.get(APPLICATION, instance, attribute)
+            if len(value) != size:
+                raise Fail(
+                    f"instance {instance} attribute 0x{attribute:02X} has the wrong size",
+                    expected=f"{size} byte(s)",
+                    seen=value.hex(" ").upper() or "empty",
+                )
+        lengths = [number(d.get(APPLICATION, instance, 0x0C + n)) for n in range(4)]
+        counts = [number(d.get(APPLICATION, instance, 0x10 + n)) for n in range(4)]
+        for n, kind in enumerate(("DO", "AO", "DI", "AI")):
+            data = d.get(APPLICATION, instance, 0x14 + n)
+            if len(data) != lengths[n]:
+                raise Fail(
+                    f"instance {instance}: {kind} data (0x{0x14 + n:02X}) and its length (0x{0x0C + n:02X}) disagree",
+                    expected=f"{lengths[n]} bytes",
+                    seen=f"{len(data)} bytes",
+                )
+            analog = kind in ("AO", "AI")
+            wanted = 2 * counts[n] if analog else (counts[n] + 7) // 8
+            if lengths[n] != wanted:
+                raise Fail(
+                    f"instance {instance}: {kind} length for {counts[n]} channels",
+                    expected=f"{wanted} bytes",
+                    seen=f"{lengths[n]}",
+                )
+        d.expect_error(
+            bytes([SET, APPLICATION, instance, 0x16, 0x00]), (0x0E, 0x15), "Set of DI data"
+        )

@@ -189,8 +189,8 @@ def _unwrap(annotation: Any) -> list[Any]:
     return []
 
 
-def allowed_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
-    """Field names accepted at the mapping that holds the last element of ``loc``."""
+def _holders(model: type[BaseModel], loc: tuple[Any, ...]) -> list[type[BaseModel]]:
+    """The models that may hold the last element of ``loc``."""
     candidates: list[type[BaseModel]] = [model]
     for part in loc[:-1]:
         nxt: list[type[BaseModel]] = []
@@ -202,8 +202,13 @@ def allowed_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
         if nxt:
             candidates = nxt
         # ints (list indexes) and dict keys keep the candidates already unwrapped
+    return candidates
+
+
+def allowed_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str]:
+    """Field names accepted at the mapping that holds the last element of ``loc``."""
     keys: list[str] = []
-    for cls in candidates:
+    for cls in _holders(model, loc):
         for name, info in cls.model_fields.items():
             keys.append(info.alias or name)
     return sorted(set(keys))
@@ -236,7 +241,15 @@ def describe_pydantic_error(
             else f"unknown field '{field_name}'{hint}"
         )
     if kind == "missing":
-        return "required field is missing"
+        descriptions = {
+            info.description
+            for cls in _holders(model, raw_loc)
+            for name, info in cls.model_fields.items()
+            if raw_loc and (info.alias or name) == raw_loc[-1] and info.description
+        }
+        return "required field is missing" + (
+            f" ({descriptions.pop()})" if len(descriptions) == 1 else ""
+        )
     message: str = err["msg"]
     if (
         kind == "value_error"

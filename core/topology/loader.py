@@ -69,7 +69,10 @@ class Topology:
         from ..image import Kind
 
         counts = {k: sum(1 for s in self.channel_specs if s.kind is k) for k in Kind}
-        modules = sum(len(b.modules) for b in self.backs)
+        modules = len(
+            {(b.name, m.address) for b in self.backs for m in b.modules}
+            | {(s.source.back, s.source.module) for s in self.channel_specs}
+        )
         lines = [
             f"gateway {self.gateway.name}: {len(self.fronts)} front(s), {len(self.backs)} back(s), {modules} module(s), {len(self.channel_specs)} channel(s)",
             "  channels: "
@@ -82,7 +85,9 @@ class Topology:
             lines += [f"    warning: {text}" for text in f.validation_warnings()]
         for b in self.backs:
             n = sum(1 for s in self.channel_specs if s.source.back == b.name)
-            lines.append(f"  back  {b.name} ({b.type}): {len(b.modules)} module(s), {n} channel(s)")
+            note = b.modules_note()
+            count = f"{len(b.modules)} module(s)" if not note else f"modules {note}"
+            lines.append(f"  back  {b.name} ({b.type}): {count}, {n} channel(s)")
         lines += [f"warning: {text}" for text in self.warnings()]
         return "\n".join(lines)
 
@@ -356,7 +361,10 @@ def validate(
                 )
                 continue
             try:
-                config = ctype.model.model_validate(dict(entry))
+                # base_dir: plugin configs resolve their own relative paths (a DCON scan file)
+                config = ctype.model.model_validate(
+                    dict(entry), context={"base_dir": base_dir or Path.cwd()}
+                )
             except ValidationError as exc:
                 found = _issues_from(exc, ctype.model, data, base, file)
                 issues.extend(found)
@@ -490,9 +498,18 @@ def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]
     if issues:
         return issues  # channel ids are incomplete: checking expose would only add noise
     ids = {s.id for s in topology.channel_specs}
+    # a back that finds its modules at start and has no scan file: its channel ids come later
+    unknown = [
+        b.name
+        for b in topology.backs
+        if b.finds_modules_at_start()
+        and not any(s.source.back == b.name for s in topology.channel_specs)
+    ]
     for f_index, front in enumerate(topology.fronts):
         for e_index, pattern in enumerate(front.expose or []):
-            if not fnmatch.filter(ids, pattern):
+            if not fnmatch.filter(ids, pattern) and not any(
+                fnmatch.fnmatchcase(name, pattern.split("/", 1)[0]) for name in unknown
+            ):
                 close = suggest(pattern, sorted(ids))
                 issue(
                     ("fronts", f_index, "expose", e_index),

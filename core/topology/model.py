@@ -250,6 +250,16 @@ class BackConfig(ComponentConfig):
         """Every channel this back provides. Plugins implement it."""
         raise NotImplementedError(f"{type(self).__name__} must implement channel_specs()")
 
+    def finds_modules_at_start(self) -> bool:
+        """True for a back that finds its modules when it starts (DCON ``modules: auto``):
+        the gateway's image gets its channels from :meth:`GatewayContext.add_channels`, before
+        any front starts; :meth:`channel_specs` gives what offline tools use (a scan file's)."""
+        return False
+
+    def modules_note(self) -> str:
+        """Where the modules come from, when not from the file (``fieldgate validate``)."""
+        return ""
+
 
 class SerialBackConfig(BackConfig):
     """Settings every RS-485 poller shares; the line scheduler in core reads them."""

@@ -23,24 +23,36 @@ protocols this back (``watchdog_settings``, ``watchdog_status``, ``set_watchdog`
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
 from fieldgate.host_watchdog import ClearSteps, clear_timeout
 from fieldgate.image import ChannelSpec, Kind
+from fieldgate.module_info import ModuleIdentity
 from fieldgate.plugin import GatewayContext, PluginStartError
 from fieldgate.polling import CommError, LineJob, SerialBack
 from fieldgate.serial_link import AsyncSerial
 from fieldgate.topology import ModuleConfig
 
-from .codec import HOST_OK
-from .config import DconBackConfig, DconModuleConfig
+from .autoscan import StartScan, find_modules
+from .codec import BAUD_CODES, HOST_OK
+from .config import DconBackConfig, DconModuleConfig, parse_addresses
 from .link import DconLink
 from .module import DconModule
 from .profiles import AIDIO, AO_SINGLE
+from .scan import scan_line, scanned
 
 log = logging.getLogger("fieldgate.dcon")
+SURVEY_PERIOD_S = 1.0  # listed modules: one other address probed a second
+
+
+def configured_fields(
+    identity: ModuleIdentity,
+) -> tuple[int | None, bool | None, int | None, int | None]:
+    return identity.baudrate, identity.checksum, identity.type_code, identity.data_format
+
 
 Request = tuple[Callable[[], Awaitable[Any]], "asyncio.Future[Any]"]
 
@@ -58,16 +70,44 @@ class DconBack(SerialBack):
         )
         self._requests: list[Request] = []
         self._host_ok_running = False
+        self.reply_timeout_ms = config.timeout_ms  # the I-7241D's Application class attribute 3
+        self.start_scan: StartScan | None = None  # modules: auto, once per process
+        # listed modules: the other addresses of scan.addresses, probed once after start
+        self.survey: list[str] = []
+        self._survey_left: list[int] | None = None
+        self.survey_done = False
         context.masters.subscribe(self._on_master)
 
     # -- SerialBack -------------------------------------------------------------------
+    async def start(self) -> None:
+        if self.config.auto and self.start_scan is None:
+            await self._find_modules()
+        await super().start()
+
+    async def _find_modules(self) -> None:
+        """``modules: auto``: the line's modules become the back's (a restart of the back
+        keeps them: the fronts built on them)."""
+        cfg = self.config
+        result = await find_modules(cfg, self.context.state_dir, self.reply_timeout_ms)
+        cfg.baudrate, cfg.checksum = result.baudrate, result.checksum
+        cfg.modules[:] = result.configs()
+        for module in cfg.modules:
+            self.register_health(module)
+        self.context.add_channels(self.name, cfg.channel_specs())
+        self.start_scan = result
+
     async def open_link(self) -> AsyncSerial:
         cfg = self.config
         serial = await AsyncSerial.open(
             cfg.port, cfg.baudrate, cfg.bytesize, cfg.parity, cfg.stopbits
         )
+        timeout = self.reply_timeout_ms / 1000  # the topology's, or a front's since
         self.dcon = DconLink(
-            serial, cfg.checksum, cfg.timeout_ms / 1000, timing=cfg.timing(), echo=cfg.echo
+            serial,
+            cfg.checksum,
+            timeout,
+            timing=dataclasses.replace(cfg.timing(), response=timeout),
+            echo=cfg.echo,
         )
         for module in self.modules.values():
             module.link = self.dcon
@@ -130,7 +170,46 @@ class DconBack(SerialBack):
         period = self.host_ok_period()
         jobs = [LineJob("requests", 0.0, self._run_request, lambda: bool(self._requests))]
         jobs.append(LineJob("host-ok", period or 1.0, self._host_ok, self._host_ok_wanted))
+        cfg = self.config
+        if self._survey_left is None:  # once per process, not at each restart of the back
+            listed = {m.address for m in cfg.modules}
+            wanted = not cfg.auto and cfg.scan.survey
+            self._survey_left = (
+                [a for a in parse_addresses(cfg.scan.addresses) if a not in listed]
+                if wanted
+                else []
+            )
+            self.survey_done = not self._survey_left
+        if self._survey_left:
+            start = self.context.clock() + SURVEY_PERIOD_S  # the listed modules' polls first
+            jobs.append(
+                LineJob("survey", SURVEY_PERIOD_S, self._survey_one, self._survey_wanted, start)
+            )
         return jobs
+
+    def _survey_wanted(self) -> bool:
+        """Addresses left, and no host watchdog on: an empty address holds the line for a reply
+        timeout and its silence, which may be longer than the keep-alive (~**) may wait."""
+        return bool(self._survey_left) and not any(
+            m.watchdog_enabled for m in self.modules.values()
+        )
+
+    async def _survey_one(self) -> None:
+        """Probe one address the topology does not list; after the last, warn about what answered."""
+        assert self.dcon is not None and self._survey_left
+        address = self._survey_left.pop(0)
+        found = await scan_line(
+            self.dcon, [address], self.config.baudrate, report=lambda text: None
+        )
+        self.survey += [scanned(f, self.config.checksum).describe() for f in found]
+        if not self._survey_left:
+            self.survey_done = True
+            if self.survey:
+                log.warning(
+                    "%s: modules answer but are not in the topology: %s (list them, or use modules: auto)",
+                    self.name,
+                    ", ".join(self.survey),
+                )
 
     # -- host OK ---------------------------------------------------------------------
     def host_ok_period(self) -> float | None:
@@ -280,6 +359,50 @@ class DconBack(SerialBack):
                 job.period = period
                 job.due = min(job.due, self.context.clock() + period)
 
+    # -- what fronts learn of a module and may ask of it (fieldgate.module_info) -------------
+    def module_identity(self, address: int) -> ModuleIdentity:
+        """What ``$AAM`` and ``$AA2`` said, else what the topology says. KeyError if unknown."""
+        module = self.module(address)
+        reply = module.config_reply
+        configured = self.config.module_identities()[address]
+        if reply is None:
+            return ModuleIdentity(configured.model, module.name, *configured_fields(configured))
+        return ModuleIdentity(
+            configured.model,
+            module.name,
+            BAUD_CODES.get(reply.baud_code, self.config.baudrate),
+            reply.checksum,
+            reply.type_code,
+            reply.data_format,
+        )
+
+    def set_reply_timeout_ms(self, ms: int) -> None:
+        """The reply timeout of every transaction from now on (the I-7241D's "DCON COM port
+        timeout value"); ValueError outside the topology's range, 1..60000 ms."""
+        if not 1 <= ms <= 60_000:
+            raise ValueError(f"reply timeout {ms} ms outside 1..60000")
+        if ms != self.reply_timeout_ms:
+            log.info(
+                "%s: reply timeout %d ms (was %d), set by a front",
+                self.name,
+                ms,
+                self.reply_timeout_ms,
+            )
+        self.reply_timeout_ms = ms
+        if self.dcon is not None:
+            self.dcon.timeout = ms / 1000
+            self.dcon.timing = dataclasses.replace(self.dcon.timing, response=ms / 1000)
+
+    def can_latch_safe_value(self, address: int) -> bool:
+        return self.module(address).has_outputs
+
+    def request_latch_safe_value(self, address: int) -> asyncio.Future[Any]:
+        """Queue the latch of the module's current outputs as its safe values."""
+        module = self.module(address)
+        if not module.has_outputs:
+            raise ValueError(f"module {address} ({module.profile.model}) has no outputs")
+        return self._submit(module.latch_safe_value)
+
     def watchdog_settings(self, address: int) -> tuple[bool, int]:
         """The module's host watchdog now: (enabled, timeout ms; 0 = not set). KeyError if unknown."""
         module = self.module(address)
@@ -291,6 +414,11 @@ class DconBack(SerialBack):
 
     def status(self) -> dict[str, Any]:
         status = super().status()
+        status["reply_timeout_ms"] = self.reply_timeout_ms
+        if self.start_scan is not None:
+            status["start_scan"] = self.start_scan.status()
+        if not self.config.auto and self.config.scan.survey:
+            status["survey"] = list(self.survey)
         period = self.host_ok_period()
         status["host_ok"] = {
             "enabled": self.host_ok_enabled,

@@ -44,12 +44,14 @@ class DconModule(PolledModule):
         }
         self.range: TypeRange | None = None
         self.data_format: DataFormat | None = None
+        self.config_reply: codec.ModuleConfigReply | None = None  # the last $AA2
         self.config_error = ""
         self.warnings: list[str] = []
         self.name = ""
         self.firmware = ""
         self.in_watchdog = False
         self.watchdog_events = 0
+        self.safe_values_latched = 0
         self.last_clear = ""  # how the last clear went (status)
         self.watch_status = (
             watch_status  # poll ~AA0 with the inputs (set while host OK is suspended)
@@ -80,6 +82,7 @@ class DconModule(PolledModule):
             await self.link.transact(codec.command("$", self.address, "2")), self.address
         )
         self._adopt(reply)
+        self.config_reply = reply
         return reply
 
     def _adopt(self, reply: codec.ModuleConfigReply) -> None:
@@ -402,6 +405,33 @@ class DconModule(PolledModule):
         for index, raw in enumerate(before):
             await self._write_analog(index, raw)
 
+    # -- safe values -------------------------------------------------------------------
+    @property
+    def has_outputs(self) -> bool:
+        return bool(self.profile.do or self.profile.ao)
+
+    async def latch_safe_value(self) -> None:
+        """The module's current outputs become its safe values (what its host watchdog applies):
+        ``~AA5S`` (I-7000 digital), ``~AA5PPSS`` with the current DO (I-7011 family, power-on
+        value kept), ``~AA5`` / ``~AA5N`` (analog outputs)."""
+        p = self.profile
+        if p.digital == AIDIO and p.do:
+            current = await self._ask("4", "~")  # !AAPPSS
+            outputs = codec.hex_field((await self._ask("DI", "@"))[1:3], "DO")  # !AASOOII
+            await self._ask(f"5{current[0:2]}{outputs:02X}", "~")
+        elif p.do:
+            await self._ask("5S", "~")
+        if p.ao:
+            for channel in [""] if p.ao_style == AO_SINGLE else [str(i) for i in range(p.ao)]:
+                await self._ask("5" + channel, "~")
+        self.safe_values_latched += 1
+        log.info(
+            "%s module %d (%s): current outputs latched as the safe values",
+            self.link_name,
+            self.address,
+            p.model,
+        )
+
     def status(self) -> dict[str, Any]:
         return {
             "address": self.address,
@@ -419,6 +449,7 @@ class DconModule(PolledModule):
                 "last_clear": self.last_clear,
             },
             "resets_seen": self.resets,
+            "safe_values_latched": self.safe_values_latched,
             "warnings": list(self.warnings),
             "config_error": self.config_error,
         }

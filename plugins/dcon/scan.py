@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from fieldgate.health import ErrorKind
-from fieldgate.plugin import Scanner, ScanProgress
+from fieldgate.plugin import CommandError, Scanner, ScanProgress
 from fieldgate.polling import CommError
 from fieldgate.serial_link import AsyncSerial
 from fieldgate.serial_timing import LineTiming
@@ -19,7 +20,10 @@ from . import codec
 from .formats import DataFormat
 from .link import DconLink
 from .profiles import Profile, find_profile
+from .scanfile import ScanFile, ScannedModule
 from .tables import TABLES
+
+__all__ = ["DconScanner", "Found", "scan_line", "scanned", "topology_yaml"]
 
 
 @dataclass(frozen=True)
@@ -40,12 +44,32 @@ class Found:
         return rng.label if rng else "unknown type code"
 
 
+def scanned(found: Found, line_checksum: bool) -> ScannedModule:
+    """A module found on the line as a scan file records it (the line's checksum setting when
+    the module's own $AA2 format byte does not say: it always does)."""
+    return ScannedModule(
+        found.address,
+        found.baudrate,
+        found.config.checksum if found.config is not None else line_checksum,
+        found.name,
+        found.firmware,
+        found.profile.model if found.profile else None,
+        found.config.type_code,
+        DataFormat(found.config.data_format).label,
+    )
+
+
+def _to_stderr(text: str) -> None:
+    print(f"\n{text}", file=sys.stderr)
+
+
 async def scan_line(
     link: DconLink,
     addresses: Iterable[int],
     baudrate: int,
     progress: ScanProgress | None = None,
     found: list[Found] | None = None,
+    report: Callable[[str], None] = _to_stderr,
 ) -> list[Found]:
     """Probe each address; modules that answer ``$AA2`` are identified. Silence = nobody there.
 
@@ -57,17 +81,23 @@ async def scan_line(
     found = [] if found is None else found
     count = len(found)
     for done, address in enumerate(addresses, 1):
-        try:
-            config = codec.parse_config(
-                await link.transact(codec.command("$", address, "2")), address
-            )
-            name = codec.addressed(await link.transact(codec.command("$", address, "M")), address)
-            firmware = _optional(await _try(link, address, "F"))
-        except CommError as exc:
-            if exc.kind is not ErrorKind.TIMEOUT:
-                print(f"\naddress {address}: answered but {exc.kind}: {exc}", file=sys.stderr)
-        else:
-            found.append(Found(address, baudrate, name, firmware, config, find_profile(name)))
+        for attempt in (1, 2):  # an answer that is not one (noise, a late reply) is tried again
+            try:
+                config = codec.parse_config(
+                    await link.transact(codec.command("$", address, "2")), address
+                )
+                name = codec.addressed(
+                    await link.transact(codec.command("$", address, "M")), address
+                )
+                firmware = _optional(await _try(link, address, "F"))
+            except CommError as exc:
+                if exc.kind is ErrorKind.TIMEOUT:
+                    break
+                if attempt == 2:
+                    report(f"address {address}: answered but {exc.kind}: {exc}")
+            else:
+                found.append(Found(address, baudrate, name, firmware, config, find_profile(name)))
+                break
         if progress is not None:
             progress(done, len(addresses), len(found) - count)
     return found
@@ -127,6 +157,12 @@ class DconScanner(Scanner):
 
     def configure(self, group: argparse._ArgumentGroup) -> None:
         group.add_argument("--checksum", action="store_true", help="send and expect DCON checksums")
+        group.add_argument(
+            "-o",
+            "--output",
+            metavar="FILE",
+            help="also write a scan file (JSON) for modules: auto, the EDS generators and --simulate",
+        )
 
     async def scan(
         self,
@@ -153,3 +189,24 @@ class DconScanner(Scanner):
 
     def topology(self, found: list[Any], args: argparse.Namespace) -> str:
         return topology_yaml(found, args.port, args.checksum, args.name)
+
+    def save(self, found: list[Any], args: argparse.Namespace, bauds: list[int]) -> None:
+        """``-o FILE``: what the scan found, as ``modules: auto`` and the EDS generators read it."""
+        if args.output is None:
+            return
+        scan = ScanFile(
+            args.port,
+            [scanned(f, args.checksum) for f in found],
+            args.addresses,
+            bauds,
+            [args.checksum],
+        )
+        try:
+            scan.write(Path(args.output))
+        except OSError as exc:
+            raise CommandError(
+                f"{args.output}: cannot write the scan file: {exc.strerror or exc}"
+            ) from None
+        print(
+            f"fieldgate scan dcon: {len(found)} module(s) written to {args.output}", file=sys.stderr
+        )

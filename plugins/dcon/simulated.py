@@ -48,6 +48,7 @@ class SimModule:
         self.data_format = data_format
         self.checksum = checksum
         self.baud_code = baud_code
+        self.name = profile.model[2:]  # what $AAM answers: "7017" for an I-7017
         self.di_bits = 0
         self.do_bits = 0
         self.ai_raw = [0] * profile.ai
@@ -121,7 +122,7 @@ class SimModule:
             fmt = (self.data_format.value if (p.ai or p.ao) else 0) | (0x40 if self.checksum else 0)
             return self._ok(f"{self.type_code:02X}{self.baud_code:02X}{fmt:02X}")
         if body == "M":
-            return self._ok(p.model[2:])
+            return self._ok(self.name)
         if body == "F":
             return self._ok(FIRMWARE)
         if body == "5":
@@ -358,10 +359,20 @@ class SimBus:
             self.dropped += 1
         return replies
 
+    def _checksum_of(self, raw: bytes) -> bool:
+        """The checksum setting of the module a frame addresses (each module has its own, as
+        on a real line; the bus's for a broadcast or an unknown address)."""
+        try:
+            module = self.modules.get(int(raw[1:3], 16))
+        except ValueError:
+            module = None
+        return self.checksum if module is None else module.checksum
+
     def command(self, raw: bytes, now: float) -> tuple[bytes, float] | None:
         self.tick(now)
+        checksum = self._checksum_of(raw)
         try:
-            text = codec.unframe(raw, self.checksum)
+            text = codec.unframe(raw, checksum)
         except CommError:
             self.dropped += 1
             return None  # bad checksum or noise: silence
@@ -387,7 +398,7 @@ class SimBus:
         self.propagate()
         if reply is None:
             return None
-        return self._spoil(module.address, codec.frame(reply, self.checksum))
+        return self._spoil(module.address, codec.frame(reply, checksum))
 
     def _spoil(self, address: int, frame: bytes) -> tuple[bytes, float] | None:
         for fault in list(self.faults):

@@ -21,7 +21,7 @@ import logging
 import re
 from typing import Any
 
-from fieldgate.plugin import SimulateCli, Simulator
+from fieldgate.plugin import PluginStartError, SimulateCli, Simulator
 from fieldgate.serial_link import PortServer, cancel_task
 
 from .codec import BAUD_TO_CODE
@@ -53,9 +53,20 @@ class DconSimulator(Simulator):
     # -- construction -------------------------------------------------------------------
     @classmethod
     def from_config(cls, config: DconBackConfig, port: str, animate: bool = False) -> DconSimulator:
-        """The modules a topology's ``dcon`` back declares, with its type codes and formats (hex by default)."""
-        bus = SimBus(checksum=config.checksum)
-        for m in config.modules:
+        """The modules a topology's ``dcon`` back declares, with its type codes and formats (hex
+        by default); for ``modules: auto``, the modules of its scan file, with their checksum
+        setting (a back without one cannot be simulated: nothing says what is on the line)."""
+        checksum, modules = config.checksum, config.module_list()
+        if config.auto:
+            if config.scan_file is None:
+                raise PluginStartError(
+                    f"back {config.name}: modules: auto can be simulated only from a scan file "
+                    f"(scan.file in the topology, or --scan-file {config.name}=FILE)"
+                )
+            found = config.scan_file.supported()
+            checksum = found[0].checksum if found else checksum
+        bus = SimBus(checksum=checksum)
+        for m in modules:
             fmt = DataFormat.HEX if m.data_format == "auto" else FORMAT_NAMES[m.data_format]
             module = SimModule(
                 m.profile,

@@ -2,8 +2,15 @@
 
 Validation order as anchors §2.4 (DEVNET.CPP): another owner 0x0C/01; choice 0, ack
 suppression without COS/cyclic, COS with cyclic 0x09/02; unsupported bits (multicast
-poll, bit 7) 0x02/02; explicit neither requested nor held 0x09/02; a connection already
-allocated 0x0B/02. A connection that timed out may be allocated again (it re-opens).
+poll, bit 7) 0x02/02; explicit neither requested nor held 0x09/02; poll while instance 2
+carries the master's change-of-state / cyclic data 0x02/04 (the seed's "poll after
+COS/cyclic"); a connection already allocated 0x0B/02. A connection that timed out may be
+allocated again (it re-opens).
+
+Change of state or cyclic allocated without poll, with a path that consumes outputs, also
+opens instance 2 for the master's data (ODVA's predefined set: the master's COS/cyclic
+message uses the poll connection's identifiers); allocated together with poll, the outputs
+come by poll.
 """
 
 from __future__ import annotations
@@ -12,7 +19,7 @@ from typing import Protocol
 
 from . import cip
 from .cip import CipError
-from .connection import COS_CYCLIC, EXPLICIT, POLL, STROBE, Connection, State
+from .connection import COS_CYCLIC, COS_DATA_ROLE, EXPLICIT, POLL, STROBE, Connection, State
 
 BIT_EXPLICIT, BIT_POLL, BIT_STROBE, BIT_MULTICAST, BIT_COS, BIT_CYCLIC, BIT_ACK_SUPPRESS = (
     0x01,
@@ -42,6 +49,9 @@ class AllocationHost(Protocol):
     connections: dict[int, Connection]
 
     def open_connection(self, instance: int, now: float) -> None: ...
+
+    def open_cos_data(self, now: float) -> bool:
+        """Open instance 2 for the master's COS/cyclic data if the path consumes; whether it did."""
 
     def close_connection(self, instance: int, reason: str) -> None: ...
 
@@ -79,12 +89,13 @@ class Allocation:
         if not choice & BIT_EXPLICIT and not slave.connections[EXPLICIT].exists:
             raise CipError(*invalid)
         wanted = self._requested(choice)
+        poll = slave.connections[POLL]
+        if choice & BIT_POLL and poll.exists and poll.role == COS_DATA_ROLE:
+            raise CipError(cip.RESOURCE_UNAVAILABLE, cip.POLL_AFTER_COS_CYCLIC)
         if any(
             slave.connections[i].exists and slave.connections[i].state is not State.TIMED_OUT
             for i in wanted
         ):
-            raise CipError(cip.ALREADY_IN_STATE, cip.INVALID_ALLOCATION_CHOICE)
-        if choice & (BIT_COS | BIT_CYCLIC) and slave.allocation_choice & (BIT_COS | BIT_CYCLIC):
             raise CipError(cip.ALREADY_IN_STATE, cip.INVALID_ALLOCATION_CHOICE)
         slave.master_mac = master
         keep = (
@@ -95,6 +106,9 @@ class Allocation:
         slave.allocation_choice = keep | choice
         for instance in wanted:
             slave.open_connection(instance, now)
+        reopen = not poll.exists or (poll.role == COS_DATA_ROLE and poll.state is State.TIMED_OUT)
+        if choice & (BIT_COS | BIT_CYCLIC) and not choice & BIT_POLL and reopen:
+            slave.open_cos_data(now)
         slave.master_back("connection set allocated")
         return bytes([BODY_FORMAT_8_8])
 
@@ -103,8 +117,13 @@ class Allocation:
         if choice == 0 or choice & (UNSUPPORTED | BIT_ACK_SUPPRESS):
             raise CipError(cip.INVALID_ATTRIBUTE_VALUE, cip.INVALID_ALLOCATION_CHOICE)
         wanted = self._requested(choice)
-        if any(not slave.connections[i].exists for i in wanted):
+        poll = slave.connections[POLL]
+        if any(not slave.connections[i].exists for i in wanted) or (
+            choice & BIT_POLL and poll.role == COS_DATA_ROLE
+        ):
             raise CipError(cip.ALREADY_IN_STATE, cip.INVALID_ALLOCATION_CHOICE)
+        if choice & (BIT_COS | BIT_CYCLIC) and poll.exists and poll.role == COS_DATA_ROLE:
+            wanted.append(POLL)  # the master's COS/cyclic data goes with its connection
         for instance in wanted:
             slave.close_connection(instance, "connection released")
         return b""

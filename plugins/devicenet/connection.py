@@ -11,7 +11,12 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum
 
+from .assembly import AnyAssembly
+
 EXPLICIT, POLL, STROBE, COS_CYCLIC = 1, 2, 3, 4
+# what instance 2 carries: the poll, or the master's change-of-state / cyclic data (when COS or
+# cyclic is allocated without poll and its path consumes an assembly; ODVA's predefined set)
+POLL_ROLE, COS_DATA_ROLE = "poll", "cos-data"
 CHOICE_BITS = {EXPLICIT: 0x01, POLL: 0x02, STROBE: 0x04, COS_CYCLIC: 0x30}
 EXPLICIT_DEFAULT_EPR_MS = 2500
 EPR_RESOLUTION_MS = 10
@@ -53,7 +58,10 @@ class Connection:
     comm_characteristics: int = 0x01
     inhibit_ms: int = 0
     watchdog_at: float | None = None
-    acked: bool = True  # COS/cyclic: the master acknowledges
+    acked: bool = True  # COS/cyclic: the acknowledged variant (no suppression)
+    produces: AnyAssembly | None = None  # the produced connection path's assembly
+    consumes: AnyAssembly | None = None  # the consumed connection path's assembly
+    role: str = POLL_ROLE  # instance 2 only
 
     @property
     def exists(self) -> bool:

@@ -7,19 +7,16 @@ bus, and reads what the EDS states from the slave's own CIP objects:
 * ``[Device]``: Identity attributes 1-4 and 7 through the Identity object's getters, so
   the EDS names the device a scanner finds on the bus (VendCode, ProdType, ProdCode,
   MajRev/MinRev, ProdName);
-* ``[IO_Info]``: the produced/consumed sizes of the poll, bit-strobe and COS/cyclic
-  connections as the engine sets them when it opens them (Connection attributes 7/8);
-  the combination masks follow the Allocate rules (COS and cyclic exclude each other);
+* ``[IO_Info]``: one InputN / OutputN per assembly an I/O connection may carry, with its
+  path ``20 04 24 <instance> 30 03`` (what Connection attributes 14/16 answer and take), so
+  a configurator offers the selectable paths; the ``PollInfo``/``StrobeInfo``/``COSInfo``/
+  ``CyclicInfo`` defaults are the topology's ``io_paths``; the combination masks follow the
+  Allocate rules (COS and cyclic exclude each other);
 * ``[ParamClass]``/``[Params]``: the attributes a configurator may set (heartbeat, BOI,
   and with DCON modules Host OK and each module's host watchdog), with their paths.
 
-The poll produces every input assembly and consumes every output assembly, concatenated
-(docs/devicenet.md, "Assembly layout"). With one assembly on a side, Input1/Output1 carry
-its path ``20 04 24 <instance> 30 03``; with several, no single instance holds the
-connection's data, so the path is empty (as the Connection object's produced/consumed
-connection path attributes 14/16 answer) and the help string lists the member instances.
-The I-7241D utility "creates the EDS file to match the setting result" (seed-003 §6):
-so does this command, from the topology.
+The I-7241D utility lists the I/O connection paths and "creates the EDS file to match the
+setting result" (seed-003 §6): so does this command, from the topology.
 """
 
 from __future__ import annotations
@@ -37,9 +34,9 @@ from fieldgate.plugin import CommandError, EdsRequest, GatewayContext, Registry,
 from fieldgate.topology import FrontConfig, Topology, TopologyError, load_topology
 
 from .application import HOST_OK, WATCHDOG_ENABLE, WATCHDOG_TIME, ApplicationObject
-from .assembly import Assembly
-from .connection import COS_CYCLIC, POLL, STROBE
+from .assembly import AnyAssembly, Assembly
 from .engine import DeviceNetSlave
+from .paths import STROBE_MAX, epath
 
 IDENTITY, DEVICENET, ASSEMBLY, CONNECTION, APPLICATION = 0x01, 0x03, 0x04, 0x05, 0x64
 # I/O type mask bits (PollInfo, Input/Output entries)
@@ -121,81 +118,80 @@ def number(data: bytes) -> int:
     return int.from_bytes(data, "little")
 
 
-def assembly_path(instance: int) -> bytes:
-    return bytes([0x20, ASSEMBLY, 0x24, instance, 0x30, 0x03])
-
-
 def attribute_path(class_id: int, instance: int, attr: int) -> bytes:
     return bytes([0x20, class_id, 0x24, instance, 0x30, attr])
 
 
-def members(assemblies: Sequence[Assembly]) -> str:
-    return " + ".join(
-        f"{a.kind.value.upper()} assembly 0x{a.instance:02X} ({a.size} byte{'s' if a.size != 1 else ''})"
-        for a in assemblies
+def io_entry(assembly: AnyAssembly, mask: int, name: str, size: int | None = None) -> IoEntry:
+    """The data of one assembly (its first ``size`` bytes for a bit-strobe entry)."""
+    whole = assembly.size
+    note = "" if size is None or size == whole else f": the first {size} bytes"
+    return IoEntry(
+        whole if size is None else size, mask, name, epath(assembly), assembly.label + note
     )
 
 
-def io_entry(
-    assemblies: Sequence[Assembly], size: int, mask: int, name: str, note: str = ""
-) -> IoEntry:
-    """The data of ``assemblies`` concatenated (its first ``size`` bytes)."""
-    whole = sum(a.size for a in assemblies)
-    path = assembly_path(assemblies[0].instance) if len(assemblies) == 1 and size == whole else b""
-    return IoEntry(size, mask, name, path, members(assemblies) + note)
+def entry_name(assembly: AnyAssembly) -> str:
+    if isinstance(assembly, Assembly):
+        return f"{assembly.kind.value.upper()} data"
+    return "All outputs" if assembly.is_output else "All inputs"
 
 
-def connection_sizes(slave: DeviceNetSlave) -> dict[int, tuple[int, int]]:
-    """(produced, consumed) of each I/O connection, as the engine sets them when it opens it.
-
-    ``slave`` is a throwaway slave that never saw a bus; the connections are opened on it only
-    to read Connection attributes 7 and 8.
-    """
-    sizes = {}
-    for instance in (POLL, STROBE, COS_CYCLIC):
-        slave.open_connection(instance, 0.0)
-        sizes[instance] = (
-            number(attribute(slave, CONNECTION, instance, 7)),
-            number(attribute(slave, CONNECTION, instance, 8)),
-        )
-    return sizes
+def ordered(first: AnyAssembly | None, assemblies: Sequence[AnyAssembly]) -> list[AnyAssembly]:
+    """The poll's assembly first (Input1/Output1 as before paths could be chosen), then the
+    others in instance order."""
+    rest = [a for a in assemblies if a is not first]
+    return ([first] if first is not None else []) + rest
 
 
 def io_entries(
     slave: DeviceNetSlave,
 ) -> tuple[list[IoEntry], list[IoEntry], dict[str, tuple[int, int]]]:
-    sizes = connection_sizes(slave)
-    ins, outs = slave.assemblies.inputs, slave.assemblies.outputs
-    (poll_in, poll_out), (strobe_in, _), (cos_in, _) = sizes[POLL], sizes[STROBE], sizes[COS_CYCLIC]
+    """One InputN / OutputN per assembly a connection may carry, with its path, so a
+    configurator offers them; the ``<type>Info`` defaults are the topology's ``io_paths``.
+
+    Every input assembly serves poll, change of state and cyclic, and the bit-strobe when it
+    fits its 8 bytes; a strobe path to a larger one gets its own entry (its first 8 bytes)."""
+    paths = slave.paths
+    everything = list(slave.assemblies.instances.values())
     inputs: list[IoEntry] = []
     outputs: list[IoEntry] = []
+    in_index: dict[int, int] = {}
+    out_index: dict[int, int] = {}
+    for assembly in ordered(paths["poll"].produce, [a for a in everything if not a.is_output]):
+        mask = POLL_BIT | COS_BIT | CYCLIC_BIT | (STROBE_BIT if assembly.size <= STROBE_MAX else 0)
+        inputs.append(io_entry(assembly, mask, entry_name(assembly)))
+        in_index[assembly.instance] = len(inputs)
+    for assembly in ordered(paths["poll"].consume, [a for a in everything if a.is_output]):
+        outputs.append(io_entry(assembly, POLL_BIT | COS_BIT | CYCLIC_BIT, entry_name(assembly)))
+        out_index[assembly.instance] = len(outputs)
+    strobe = paths["strobe"].produce
     strobe_input = 0
-    if poll_in:
-        mask = (
-            POLL_BIT
-            | (COS_BIT | CYCLIC_BIT if cos_in == poll_in else 0)
-            | (STROBE_BIT if strobe_in == poll_in else 0)
+    if strobe is not None:
+        if strobe.size <= STROBE_MAX:
+            strobe_input = in_index[strobe.instance]
+        else:
+            name = f"{entry_name(strobe)}, first {STROBE_MAX} bytes"
+            inputs.append(io_entry(strobe, STROBE_BIT, name, STROBE_MAX))
+            strobe_input = len(inputs)
+
+    def defaults(kind: str) -> tuple[int, int]:
+        path = paths[kind]
+        return (
+            in_index[path.produce.instance] if path.produce else 0,
+            out_index[path.consume.instance] if path.consume else 0,
         )
-        inputs.append(io_entry(ins, poll_in, mask, "Input data"))
-        strobe_input = 1 if strobe_in == poll_in else 0
-    if strobe_in and not strobe_input:
-        inputs.append(
-            io_entry(
-                ins, strobe_in, STROBE_BIT, "Strobe input data", f": the first {strobe_in} bytes"
-            )
-        )
-        strobe_input = len(inputs)
-    if poll_out:
-        outputs.append(io_entry(outs, poll_out, POLL_BIT, "Output data"))
-    first_in, first_out = (1 if inputs else 0), (1 if outputs else 0)
-    cos_input = first_in if cos_in else 0
-    defaults = {
-        "Poll": (first_in, first_out),
-        "Strobe": (strobe_input, 0),
-        "COS": (cos_input, 0),
-        "Cyclic": (cos_input, 0),
-    }
-    return inputs, outputs, defaults
+
+    return (
+        inputs,
+        outputs,
+        {
+            "Poll": defaults("poll"),
+            "Strobe": (strobe_input, 0),
+            "COS": defaults("cos"),
+            "Cyclic": defaults("cyclic"),
+        },
+    )
 
 
 def parameters(slave: DeviceNetSlave) -> tuple[list[Param], list[tuple[str, list[int]]]]:
@@ -338,7 +334,7 @@ def io_lines(key: str, io: IoEntry) -> list[str]:
             (f"0x{io.mask:04X}", "I/O type mask"),
             (quoted(io.name), "name"),
             (str(len(io.path)), "path size"),
-            (hex_path(io.path), "path" if io.path else "path: none (several assemblies)"),
+            (hex_path(io.path), "path"),
             (quoted(io.help), "help"),
         ],
     )
@@ -551,7 +547,7 @@ def to_stderr(*lines: str, code: int = ExitCode.FAILED) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fieldgate.cliargs import deprecated, parse_overrides
+    from fieldgate.cliargs import deprecated, overrides_of
 
     deprecated("fieldgate devicenet eds", "fieldgate eds TOPOLOGY [--front NAME]")
     try:
@@ -560,7 +556,7 @@ def run(args: argparse.Namespace) -> int:
             args.front,
             args.output,
             vendor_name=args.vendor_name,
-            overrides=parse_overrides(args.set),
+            overrides=overrides_of(args, args.topology),
         )
     except TopologyError as exc:
         return to_stderr(*map(str, exc.issues))

@@ -1,4 +1,5 @@
-"""The CIP objects the slave serves: Identity (1), DeviceNet (3), Assembly (4), Connection (5).
+"""The CIP objects the slave serves: Identity (1), DeviceNet (3), Assembly (4), Connection (5),
+Acknowledge Handler (0x2B).
 
 Each object maps ``(instance, attribute)`` to an :class:`Attribute` (a getter returning
 bytes, None for a Set-only attribute, and an optional setter taking bytes and returning
@@ -14,12 +15,22 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from fieldgate.host_watchdog import HostWatchdogs
+from fieldgate.module_info import ModuleInfo
 
 from . import cip
 from .allocation import Allocation
-from .assembly import Assemblies, Assembly
+from .assembly import AnyAssembly, Assemblies
 from .cip import CipError
-from .connection import Connection, TimeoutAction
+from .connection import (
+    COS_CYCLIC,
+    COS_DATA_ROLE,
+    EXPLICIT,
+    STROBE,
+    Connection,
+    State,
+    TimeoutAction,
+)
+from .paths import IoPath, epath, parse_epath
 from .settings import Settings
 
 Getter = Callable[[], bytes]
@@ -47,9 +58,11 @@ class SlaveHost(Protocol):
 
     settings: Settings
     assemblies: Assemblies
+    paths: dict[str, IoPath]
     allocation: Allocation
     connections: dict[int, Connection]
     host_watchdogs: HostWatchdogs
+    module_info: ModuleInfo
     mac_id: int
     baud_code: int
     pending_baud_code: int | None
@@ -57,7 +70,11 @@ class SlaveHost(Protocol):
     allocation_choice: int
     bus_off_interrupt: int
     bus_off_count: int
-    heartbeat_s: int
+    ack_timer_ms: int
+    ack_retry_limit: int
+
+    @property
+    def heartbeat_s(self) -> int: ...
 
     @property
     def identity_status(self) -> int: ...
@@ -70,9 +87,13 @@ class SlaveHost(Protocol):
 
     def settings_changed(self) -> None: ...
 
-    def write_assembly(self, assembly: Assembly, data: bytes) -> None: ...
+    def write_assembly(self, assembly: AnyAssembly, data: bytes) -> None: ...
 
     def set_epr(self, connection: Connection, ms: int) -> int: ...
+
+    def select_path(
+        self, connection: Connection, produces: AnyAssembly | None, consumes: AnyAssembly | None
+    ) -> None: ...
 
 
 def u8(v: int) -> bytes:
@@ -184,7 +205,7 @@ class IdentityObject(CipObject):
         if len(body) > 1:
             raise CipError(cip.TOO_MUCH_DATA)
         if body and body[0] != 0:
-            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)  # type 1 (factory defaults) is not offered
+            raise CipError(cip.INVALID_PARAMETER)  # type 1 (factory defaults) is not offered
         self.slave.schedule_restart(self.class_id)
         return b""
 
@@ -267,6 +288,11 @@ class AssemblyObject(CipObject):
 
 
 class ConnectionObject(CipObject):
+    """Connection instances 1-4 while they exist. The I/O connections' path attributes 14/16
+    name the assembly they produce / consume (``20 04 24 <instance> 30 03``) and may be set
+    while the connection is Configuring (ODVA; the I-7241D's tables mark them Get): the
+    sizes (7/8) follow."""
+
     class_id, revision = 0x05, 1
 
     def instances(self) -> list[int]:
@@ -277,10 +303,16 @@ class ConnectionObject(CipObject):
 
     def instance_attributes(self, instance: int) -> dict[int, Attribute]:
         c = self.slave.connections[instance]
-        path_in = b"\x20\x2b\x24\x01" if instance == 4 and c.acked else b""
+
+        def produced_path() -> bytes:
+            return epath(c.produces)
+
+        def consumed_path() -> bytes:
+            return ACK_HANDLER_PATH if self._acks_path(c) else epath(c.consumes)
+
         return {
             1: Attribute(lambda: u8(c.state)),
-            2: Attribute(const(u8(0 if instance == 1 else 1))),
+            2: Attribute(const(u8(0 if instance == EXPLICIT else 1))),
             3: Attribute(lambda: u8(c.transport)),
             4: Attribute(lambda: u16(c.produced_id)),
             5: Attribute(lambda: u16(c.consumed_id)),
@@ -289,12 +321,41 @@ class ConnectionObject(CipObject):
             8: Attribute(lambda: u16(c.consumed_size)),
             9: Attribute(lambda: u16(c.epr_ms), lambda data: self._set_epr(c, data)),
             12: Attribute(lambda: u8(c.action), lambda data: self._set_action(c, data)),
-            13: Attribute(const(u16(0))),
-            14: Attribute(const(b"")),
-            15: Attribute(const(u16(len(path_in)))),
-            16: Attribute(const(path_in)),
+            13: Attribute(lambda: u16(len(produced_path()))),
+            14: Attribute(produced_path, self._path_setter(c, produced=True)),
+            15: Attribute(lambda: u16(len(consumed_path()))),
+            16: Attribute(consumed_path, self._path_setter(c, produced=False)),
             17: Attribute(lambda: u16(c.inhibit_ms), lambda data: self._set_inhibit(c, data)),
         }
+
+    @staticmethod
+    def _acks_path(c: Connection) -> bool:
+        """Instance 4 acknowledged consumes the master's acks: its path is the Acknowledge Handler."""
+        return c.instance == COS_CYCLIC and c.acked
+
+    def _path_setter(self, c: Connection, produced: bool) -> Setter | None:
+        if c.instance == EXPLICIT or (not produced and (c.instance in (STROBE, COS_CYCLIC))):
+            return None  # explicit: no paths; strobe consumes the strobe bits; 4 consumes acks
+        if produced and c.role == COS_DATA_ROLE:
+            return None  # the master's COS/cyclic data: the slave produces only acks
+
+        def write(data: bytes) -> bytes:
+            if c.state is not State.CONFIGURING:
+                raise CipError(cip.OBJECT_STATE_CONFLICT)
+            try:
+                instance = parse_epath(data)
+            except ValueError:
+                raise CipError(cip.INVALID_ATTRIBUTE_VALUE) from None
+            assembly = None if instance is None else self.slave.assemblies.instances.get(instance)
+            if instance is not None and (assembly is None or assembly.is_output == produced):
+                raise CipError(cip.INVALID_ATTRIBUTE_VALUE)  # no such assembly, or the wrong way
+            if produced:
+                self.slave.select_path(c, assembly, c.consumes)
+            else:
+                self.slave.select_path(c, c.produces, assembly)
+            return b""
+
+        return write
 
     def _set_epr(self, c: Connection, data: bytes) -> bytes:
         granted = self.slave.set_epr(c, self.sized.take(data, 2))
@@ -308,7 +369,38 @@ class ConnectionObject(CipObject):
         return b""
 
     def _set_inhibit(self, c: Connection, data: bytes) -> bytes:
-        if c.instance != 4:
+        if c.instance != COS_CYCLIC:
             raise CipError(cip.ATTRIBUTE_NOT_SETTABLE)
         c.inhibit_ms = self.sized.take(data, 2)
+        return b""
+
+
+ACK_HANDLER_PATH = bytes([0x20, 0x2B, 0x24, 0x01])
+
+
+class AcknowledgeHandlerObject(CipObject):
+    """Acknowledge Handler (class 0x2B) instance 1, what the acknowledged change-of-state /
+    cyclic connection's consumed path names (seed-003 §3.5: ``20 2B 24 01``): 1 acknowledge
+    timer (ms before a production is sent again), 2 retry limit, 3 the producing connection
+    instance (4)."""
+
+    class_id, revision = 0x2B, 1
+
+    def instance_attributes(self, instance: int) -> dict[int, Attribute]:
+        slave = self.slave
+        return {
+            1: Attribute(lambda: u16(slave.ack_timer_ms), self._set_timer),
+            2: Attribute(lambda: u8(slave.ack_retry_limit), self._set_retries),
+            3: Attribute(const(u16(COS_CYCLIC))),
+        }
+
+    def _set_timer(self, data: bytes) -> bytes:
+        value = self.sized.take(data, 2)
+        if value == 0:
+            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
+        self.slave.ack_timer_ms = value
+        return b""
+
+    def _set_retries(self, data: bytes) -> bytes:
+        self.slave.ack_retry_limit = self.sized.take(data, 1)
         return b""

@@ -15,7 +15,7 @@ import asyncio
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.can.busmetrics import can_bus_samples
@@ -24,17 +24,23 @@ from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Change, Subscription
 from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
-from fieldgate.plugin import Front, GatewayContext, Registry, hookimpl
+from fieldgate.module_info import ModuleInfo
+from fieldgate.plugin import Front, GatewayContext, PluginStartError, Registry, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
-from .assembly import Assemblies
+from .assembly import Assemblies, plural
 from .engine import DeviceNetSlave
+from .paths import DEFAULT_PATHS, check_selector
 from .settings import BAUD_RATES, Settings
 from .store import NetworkStore
 
 DEVICE_STATES = ("offline", "dup-mac-check", "online", "comm-fault")  # DeviceNetSlave.state
-CONNECTION_NAMES = ("explicit", "poll", "bit-strobe", "cos-cyclic")
+# receive counters of frames that were served (the other rx_ counters are frames dropped)
+SERVED_COUNTERS = frozenset(
+    {"rx_poll_outputs", "rx_poll_idle", "rx_cos_cyclic_outputs", "rx_cos_cyclic_idle"}
+)
+CONNECTION_NAMES = ("explicit", "poll", "bit-strobe", "cos-cyclic", "cos-cyclic-data")
 
 
 class DeviceNetIdentity(StrictModel):
@@ -59,6 +65,64 @@ class DeviceNetIdentity(StrictModel):
     )
 
 
+Selector = str | int
+
+
+class ConnectionPath(StrictModel):
+    """The assemblies one I/O connection type carries: ``di``, ``ai``, ``inputs`` (produce),
+    ``do``, ``ao``, ``outputs`` (consume), an assembly instance number, or ``none``."""
+
+    produce: Selector = Field("inputs", description="assembly the slave produces")
+    consume: Selector = Field("none", description="assembly the slave consumes (outputs)")
+
+    @field_validator("produce")
+    @classmethod
+    def _produce(cls, value: Selector) -> Selector:
+        check_selector(value, output=False)
+        return value
+
+    @field_validator("consume")
+    @classmethod
+    def _consume(cls, value: Selector) -> Selector:
+        check_selector(value, output=True)
+        return value
+
+
+class StrobePath(StrictModel):
+    produce: Selector = Field(
+        "inputs", description="assembly whose first 8 bytes answer the bit-strobe"
+    )
+
+    @field_validator("produce")
+    @classmethod
+    def _produce(cls, value: Selector) -> Selector:
+        check_selector(value, output=False)
+        return value
+
+
+def _path(kind: str) -> ConnectionPath:
+    produce, consume = DEFAULT_PATHS[kind]
+    return ConnectionPath(produce=produce, consume=consume)
+
+
+class IoPathsConfig(StrictModel):
+    """Which assembly each I/O connection produces and consumes (the I-7241D utility's
+    "I/O connection path"); docs/devicenet.md, "I/O connection paths"."""
+
+    poll: ConnectionPath = Field(default_factory=lambda: _path("poll"))
+    strobe: StrobePath = Field(default_factory=StrobePath)
+    cos: ConnectionPath = Field(default_factory=lambda: _path("cos"))
+    cyclic: ConnectionPath = Field(default_factory=lambda: _path("cyclic"))
+
+    def selection(self) -> dict[str, tuple[Selector, Selector]]:
+        return {
+            "poll": (self.poll.produce, self.poll.consume),
+            "strobe": (self.strobe.produce, "none"),
+            "cos": (self.cos.produce, self.cos.consume),
+            "cyclic": (self.cyclic.produce, self.cyclic.consume),
+        }
+
+
 class DeviceNetFrontConfig(FrontConfig):
     type: Literal["devicenet"] = "devicenet"
     interface: str = Field(
@@ -69,7 +133,11 @@ class DeviceNetFrontConfig(FrontConfig):
     baudrate: Literal[125_000, 250_000, 500_000] = Field(
         125_000, description="DeviceNet bit rate in bit/s"
     )
-    mac_id: int = Field(63, ge=0, le=63, description="MAC ID 0..63")
+    mac_id: int = Field(
+        ge=0,
+        le=63,
+        description="MAC ID 0..63, required: the I-7241D ships at 1, ODVA's default is 63",
+    )
     bus_options: dict[str, Any] = Field(
         default_factory=dict, description="extra keyword arguments for can.Bus"
     )
@@ -88,6 +156,10 @@ class DeviceNetFrontConfig(FrontConfig):
         description="refuse Set requests with trailing bytes (0x15); default tolerates them as the I-7241D does",
     )
     identity: DeviceNetIdentity = Field(default_factory=DeviceNetIdentity)
+    io_paths: IoPathsConfig = Field(
+        default_factory=IoPathsConfig,
+        description="assembly each I/O connection produces and consumes: poll, strobe, cos, cyclic",
+    )
 
 
 class DeviceNetFront(Front):
@@ -123,12 +195,17 @@ class DeviceNetFront(Front):
             product_name=ident.product_name,
             tolerate_trailing_bytes=not cfg.strict_lengths,
             dup_mac_interval_s=cfg.dup_mac_timeout_ms / 1000.0,
+            io_paths=cfg.io_paths.selection(),
         )
-        slave = DeviceNetSlave(settings, assemblies)
+        try:
+            slave = DeviceNetSlave(settings, assemblies)
+        except ValueError as exc:  # a path that names an assembly this front does not serve
+            raise PluginStartError(str(exc)) from None
         self.outputs = assemblies.output_ids()
         self._modules = {(c.source.back, c.source.module) for c in channels}
         slave.module_errors = self._module_errors
         slave.host_watchdogs = HostWatchdogs.from_context(self.context)
+        slave.module_info = ModuleInfo.from_context(self.context)
         slave.on_master(self._master_state)
         slave.on_settings(store.save)
         slave.on_fault(self._fault)
@@ -154,13 +231,21 @@ class DeviceNetFront(Front):
             self._health_subscribed = True
             self.context.health.subscribe(self._module_health)
         self.log.info(
-            "DeviceNet MAC %d on %s/%s at %d bit/s: %d bytes produced, %d consumed",
+            "DeviceNet MAC %d on %s/%s at %d bit/s: %s",
             slave.mac_id,
             cfg.interface,
             cfg.channel,
             slave.bitrate,
-            slave.assemblies.produced_size,
-            slave.assemblies.consumed_size,
+            "; ".join(
+                f"{kind} {plural(path.produced_size)} in"
+                + (f" (0x{path.produce.instance:02X})" if path.produce else "")
+                + (
+                    f", {plural(path.consumed_size)} out (0x{path.consume.instance:02X})"
+                    if path.consume
+                    else ""
+                )
+                for kind, path in slave.paths.items()
+            ),
         )
 
     async def run(self) -> None:
@@ -219,31 +304,53 @@ class DeviceNetFront(Front):
         self.slave.module_fault = bool(self._offline)
 
     def point_locations(self) -> dict[str, list[str]]:
-        """Where each point is served: assembly instance, byte and bit, and its byte in the
-        I/O message (the poll response for inputs, the poll request for outputs)."""
+        """Where each point is served: assembly instance, byte and bit, and its place in the
+        I/O messages whose path carries that assembly (poll response / request, ...)."""
         if self.slave is None:
             return {}
+        # category assembly instance -> [(message, offset)] for every path through it: the
+        # poll's, and another connection's where its path differs from the poll's
+        names = {
+            "poll": ("poll response", "poll request"),
+            "strobe": ("bit-strobe response", ""),
+            "cos": ("COS message", "COS data from the master"),
+            "cyclic": ("cyclic message", "cyclic data from the master"),
+        }
+        poll = self.slave.paths["poll"]
+        carried: dict[int, list[tuple[str, int]]] = {}
+        for kind, path in self.slave.paths.items():
+            for assembly, polled, name in (
+                (path.produce, poll.produce, names[kind][0]),
+                (path.consume, poll.consume, names[kind][1]),
+            ):
+                if assembly is None or (kind != "poll" and assembly is polled):
+                    continue
+                offset = 0
+                for part in assembly.members:
+                    carried.setdefault(part.instance, []).append((name, offset))
+                    offset += part.size
         out: dict[str, list[str]] = {}
-        assemblies = self.slave.assemblies
-        for group in (assemblies.inputs, assemblies.outputs):
-            message = "poll response" if group is assemblies.inputs else "poll request"
-            offset = 0
-            for assembly in group:
-                if assembly.kind.is_digital:
-                    for byte, slots in enumerate(assembly.slots):
-                        for bit, ch in enumerate(slots):
-                            if ch is not None:
-                                out[ch.id] = [
-                                    f"assembly {assembly.instance} byte {byte} bit {bit} "
-                                    f"({message} byte {offset + byte})"
-                                ]
-                else:
-                    for n, ch in enumerate(assembly.slots):
-                        out[ch.id] = [
-                            f"assembly {assembly.instance} bytes {2 * n}-{2 * n + 1} "
-                            f"({message} bytes {offset + 2 * n}-{offset + 2 * n + 1}, little-endian)"
-                        ]
-                offset += assembly.size
+        for assembly in self.slave.assemblies.categories:
+            where = carried.get(assembly.instance, [])
+            if assembly.kind.is_digital:
+                for byte, slots in enumerate(assembly.slots):
+                    at = ", ".join(f"{name} byte {offset + byte}" for name, offset in where)
+                    for bit, ch in enumerate(slots):
+                        if ch is not None:
+                            out[ch.id] = [
+                                f"assembly {assembly.instance} byte {byte} bit {bit}"
+                                + (f" ({at})" if at else "")
+                            ]
+            else:
+                for n, ch in enumerate(assembly.slots):
+                    at = ", ".join(
+                        f"{name} bytes {offset + 2 * n}-{offset + 2 * n + 1}"
+                        for name, offset in where
+                    )
+                    out[ch.id] = [
+                        f"assembly {assembly.instance} bytes {2 * n}-{2 * n + 1}"
+                        + (f" ({at}, little-endian)" if at else " (little-endian)")
+                    ]
         return out
 
     def metrics(self) -> list[Sample]:
@@ -279,11 +386,11 @@ class DeviceNetFront(Front):
         ignored = sum(
             v
             for k, v in st.items()
-            if k.startswith("rx_") and isinstance(v, int) and k != "rx_poll_outputs"
+            if k.startswith("rx_") and isinstance(v, int) and k not in SERVED_COUNTERS
         )
         return [
             *samples,
-            master_output_writes(st.get("rx_poll_outputs", 0)),
+            master_output_writes(st.get("rx_poll_outputs", 0) + st.get("rx_cos_cyclic_outputs", 0)),
             counter(
                 "devicenet_cos_cyclic_produced_total",
                 "change-of-state / cyclic productions sent",

@@ -5,7 +5,7 @@ Below the engine and the objects (both read it), so neither imports the other fo
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 BAUD_RATES = (125_000, 250_000, 500_000)
 DUP_MAC_INTERVAL_S = 1.0
@@ -26,3 +26,6 @@ class Settings:
         True  # the seed's Set requests carry a stray byte (extract §9.2)
     )
     dup_mac_interval_s: float = DUP_MAC_INTERVAL_S
+    # connection type (poll, strobe, cos, cyclic) -> (produce, consume) assembly selectors
+    # (fieldgate.plugins.devicenet.paths); missing types keep the defaults
+    io_paths: dict[str, tuple[str | int, str | int]] = field(default_factory=dict)

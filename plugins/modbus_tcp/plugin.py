@@ -400,10 +400,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fieldgate.cli import parse_overrides
+    from fieldgate.cli import overrides_of
 
     try:
-        name, modbus_map = front_map(args.topology, args.front, overrides=parse_overrides(args.set))
+        name, modbus_map = front_map(
+            args.topology, args.front, overrides=overrides_of(args, args.topology)
+        )
     except TopologyError as exc:
         for issue in exc.issues:
             print(issue, file=sys.stderr)

@@ -27,7 +27,8 @@ from fieldgate.plugins.devicenet import cip
 from fieldgate.plugins.devicenet.allocation import Allocation
 from fieldgate.plugins.devicenet.cip import CipError
 from fieldgate.plugins.devicenet.connection import Connection
-from fieldgate.plugins.devicenet.engine import DeviceNetSlave
+from fieldgate.plugins.devicenet.explicit import ExplicitServer
+from fieldgate.plugins.devicenet.netaccess import NetworkAccess
 
 MAC_ID = 5
 TIMING = Timing(response=0.3, silence=0.15, bootup=1.0, heartbeat_ms=100)
@@ -51,6 +52,11 @@ def topology(state_dir, channel: str) -> dict:
                     "vendor_id": 803,
                     "serial": 42,
                     "product_name": "fieldgate conformance",
+                },
+                # COS and cyclic carry outputs too (the cos_consume / cyclic_both_ways cases)
+                "io_paths": {
+                    "cos": {"produce": "inputs", "consume": "outputs"},
+                    "cyclic": {"produce": "inputs", "consume": "outputs"},
                 },
             }
         ],
@@ -100,7 +106,7 @@ def test_every_case_passes_on_fieldgates_front(device):
 
 
 def test_wrong_cip_error_fails_only_its_case(device, monkeypatch):
-    original = DeviceNetSlave._error
+    original = ExplicitServer.error
 
     def wrong_code(self, header, err):  # answers "object does not exist" for an unknown attribute
         return original(
@@ -111,7 +117,7 @@ def test_wrong_cip_error_fails_only_its_case(device, monkeypatch):
             else err,
         )
 
-    monkeypatch.setattr(DeviceNetSlave, "_error", wrong_code)
+    monkeypatch.setattr(ExplicitServer, "error", wrong_code)
     results = run(device)
     assert failed(results) == ["devicenet.error_unknown_attribute"]
     bad = next(r for r in results if r.verdict is Verdict.FAIL)
@@ -134,7 +140,7 @@ def test_loopback_case_skips_without_the_bench_and_fails_on_a_broken_loop(device
     from fieldgate.plugins.devicenet.assembly import Assemblies
 
     monkeypatch.setattr(
-        Assemblies, "consume", lambda self, data: None
+        Assemblies, "consume", lambda self, assembly, data: []
     )  # polled outputs are dropped
     assert failed(run(device, ["loopback"])) == ["devicenet.loopback_poll"]
 
@@ -162,13 +168,13 @@ def test_no_inactivity_timeout_fails(device, monkeypatch):
 
 
 def test_silent_on_duplicate_mac_requests_fails(device, monkeypatch):
-    original = DeviceNetSlave._dup_mac_frame
+    original = NetworkAccess.dup_mac_frame
 
     def ignore_requests_online(self, data):
-        if self.state != "online":
+        if self.slave.state != "online":
             original(self, data)
 
-    monkeypatch.setattr(DeviceNetSlave, "_dup_mac_frame", ignore_requests_online)
+    monkeypatch.setattr(NetworkAccess, "dup_mac_frame", ignore_requests_online)
     results = run(device, ["dup_mac"])
     assert {r.case.id: r.verdict for r in results} == {
         "devicenet.dup_mac_answer": Verdict.FAIL,
@@ -177,11 +183,11 @@ def test_silent_on_duplicate_mac_requests_fails(device, monkeypatch):
 
 
 def test_fragments_with_wrong_counts_fail(device, monkeypatch):
-    from fieldgate.plugins.devicenet import engine
+    from fieldgate.plugins.devicenet import explicit
 
-    real_split = engine.split
+    real_split = explicit.split
     monkeypatch.setattr(
-        engine,
+        explicit,
         "split",
         lambda payload, chunk: [(frag & 0xC0, data) for frag, data in real_split(payload, chunk)],
     )  # count stuck at 0
@@ -262,3 +268,41 @@ def test_cli_devicenet_list_and_arguments():
         conformance_main(["--profile", "devicenet", "--list"]) == 2
     )  # a DeviceNet profile needs --protocol devicenet
     assert conformance_main(["--protocol", "devicenet", "--profile", "sdo", "--list"]) == 2
+
+
+def test_a_path_that_does_not_match_its_size_fails_io_paths(device, monkeypatch):
+    from fieldgate.plugins.devicenet.connection_set import ConnectionSet
+
+    original = ConnectionSet.select
+
+    def one_byte_short(c, produces, consumes):
+        original(c, produces, consumes)
+        c.produced_size = max(0, c.produced_size - 1)
+
+    monkeypatch.setattr(ConnectionSet, "select", staticmethod(one_byte_short))
+    assert failed(run(device, ["io_paths"])) == ["devicenet.io_paths"]
+
+
+def test_unacknowledged_master_data_fails_cos_and_cyclic(device, monkeypatch):
+    from fieldgate.plugins.devicenet.io_messaging import IoMessaging
+
+    original = IoMessaging.send
+
+    def no_empty_acks(self, message, payload):
+        if payload:
+            original(self, message, payload)
+
+    monkeypatch.setattr(IoMessaging, "send", no_empty_acks)
+    results = run(device, ["cos_consume", "cyclic_both_ways", "poll_io"])
+    assert {r.case.id: r.verdict for r in results} == {
+        "devicenet.poll_io": Verdict.PASS,
+        "devicenet.cos_consume": Verdict.FAIL,
+        "devicenet.cyclic_both_ways": Verdict.FAIL,
+    }
+
+
+def test_application_lengths_that_disagree_with_the_data_fail(device, monkeypatch):
+    from fieldgate.plugins.devicenet import application
+
+    monkeypatch.setattr(application, "LENGTH_ATTR", 0x10)  # counts where lengths belong
+    assert failed(run(device, ["application_object"])) == ["devicenet.application_object"]

@@ -5,7 +5,8 @@ Each example runs as shipped, on its simulated modules (`fieldgate run --simulat
 the bus and the node-ID set on the command line, as a test engineer grading it would run it;
 the suite runs as its own process with the EDS `fieldgate eds` writes. Every case must pass or
 be skipped with the reason documented below (docs/conformance.md, "Against the examples").
-Two examples run at a time, on vcan0 and vcan1: LSS addresses every slave of a bus at once.
+The examples run one after the other (the guest may have one CPU, which the stage shares with
+the host suite running beside it); the tolerance on periods is the SocketCAN stage's 40 ms.
 """
 
 from __future__ import annotations
@@ -14,15 +15,15 @@ import subprocess
 import sys
 import time
 import xml.etree.ElementTree as ET
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import can
+import pytest
 from socketcan_guest import SLOWDOWN, in_guest, scaled
 
 REPO = Path(__file__).resolve().parents[2]
 NODE_ID = 5
-BUSES = ("vcan0", "vcan1")
+BUSES = ("vcan0",)
 
 # case id -> a substring of its SKIP reason, for every example
 SKIPS = {
@@ -127,7 +128,7 @@ def grade(example: str, bus: str, workdir: Path) -> tuple[ET.Element, str]:
                 f"--eds={eds}",
                 "--profile=all",
                 f"--junit={junit}",
-                f"--tolerance-ms={25 * SLOWDOWN:.0f}",
+                f"--tolerance-ms={40 * SLOWDOWN:.0f}",
                 f"--timeout={0.5 * SLOWDOWN:.2f}",
                 f"--silence={0.3 * SLOWDOWN:.2f}",
             ],
@@ -160,19 +161,13 @@ def failure_blocks(report: str) -> str:
     return "\n".join(blocks)
 
 
+@pytest.mark.timeout(900)  # four examples, one after the other: 3-4 minutes, more on a busy host
 def test_every_canopen_example_passes_the_whole_suite(tmp_path):
-    examples = list(EXAMPLES)
-    pairs = [examples[i : i + len(BUSES)] for i in range(0, len(examples), len(BUSES))]
     results: dict[str, tuple[ET.Element, str]] = {}
-    for pair in pairs:
-        with ThreadPoolExecutor(len(pair)) as pool:
-            futures = {}
-            for example, bus in zip(pair, BUSES, strict=False):
-                workdir = tmp_path / example.removesuffix(".yaml")
-                workdir.mkdir()
-                futures[example] = pool.submit(grade, example, bus, workdir)
-            for example, future in futures.items():
-                results[example] = future.result()
+    for example in EXAMPLES:
+        workdir = tmp_path / example.removesuffix(".yaml")
+        workdir.mkdir()
+        results[example] = grade(example, BUSES[0], workdir)
     for example, (suite, report) in results.items():
         expected_skips = {**SKIPS, **EXAMPLES[example]}
         failures = [

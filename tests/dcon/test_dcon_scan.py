@@ -7,12 +7,14 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from ruamel.yaml import YAML
 
 from fieldgate.plugins.dcon.link import DconLink
 from fieldgate.plugins.dcon.scan import scan_line, topology_yaml
+from fieldgate.plugins.dcon.scanfile import ScanFile
 from fieldgate.plugins.dcon.simulator import DconSimulator
 from fieldgate.serial_link import AsyncSerial, PtyPair
 from fieldgate.topology import load_topology
@@ -86,7 +88,7 @@ def test_yaml_for_several_baud_rates_and_unknown_modules():
     assert "NOT SUPPORTED" in text and "module checksum is on" in text
 
 
-def test_simulate_and_scan_commands_together():
+def test_simulate_and_scan_commands_together(tmp_path):
     exe = os.path.join(os.path.dirname(sys.executable), "fieldgate")
     sim = subprocess.Popen(
         [
@@ -127,12 +129,15 @@ def test_simulate_and_scan_commands_together():
                 "100",
                 "--baudrate",
                 "19200",
+                "-o",
+                str(tmp_path / "line.json"),
             ],
             capture_output=True,
             text=True,
             timeout=30,
         )
         assert scan.returncode == 0, scan.stderr
+        assert f"2 module(s) written to {tmp_path / 'line.json'}" in scan.stderr
         assert "10/10 addresses, 2 module(s) found" in scan.stderr
         backs = YAML(typ="safe").load(scan.stdout)["backs"]
         assert [(m["address"], m["model"]) for m in backs[0]["modules"]] == [
@@ -143,6 +148,14 @@ def test_simulate_and_scan_commands_together():
             backs[0]["modules"][1]["type_code"] == 0x0A
             and backs[0]["modules"][1]["data_format"] == "percent"
         )
+        # the scan file: what modules: auto and the EDS generators read
+        written = ScanFile.read(tmp_path / "line.json")
+        assert (written.port, written.addresses, written.baudrates) == (port, "0-9", [19200])
+        assert [m.describe() for m in written.supported()] == [
+            "I-7060 at 3",
+            "I-7012 at 7 (type 0x0A +/-1 V, percent)",
+        ]
+        assert [m.baudrate for m in written.modules] == [19200, 19200]
     finally:
         sim.terminate()
         sim.wait(timeout=10)
@@ -262,3 +275,21 @@ def test_ctrl_c_during_a_scan_prints_what_it_found_and_where_it_stopped():
             if proc is not None and proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+def test_simulate_takes_the_modules_of_an_auto_back_from_its_scan_file():
+    """``modules: auto`` has no list: ``fieldgate simulate dcon --topology`` serves the modules
+    of the back's scan file (the I-7241D example's)."""
+    example = Path(__file__).resolve().parents[2] / "examples" / "i7241d-style.yaml"
+    result = subprocess.run(
+        [sys.executable, "-m", "fieldgate", "simulate", "dcon", "--topology", str(example)]
+        + ["--pty", "--duration", "20"],
+        input="get rs485/m2/ai0\nquit\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 0, result.stderr
+    banner = next(line for line in result.stdout.splitlines() if line.startswith("simulating"))
+    assert banner.startswith("simulating back rs485 (dcon): modules 1, 2, 3; point the gateway at")
+    assert "rs485/m2/ai0 = 0" in result.stdout.splitlines()

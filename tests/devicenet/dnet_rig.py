@@ -85,10 +85,26 @@ class Rig:
         return out + show(self.slave.tick(end))
 
     def explicit(self, body: str) -> str:
-        """One unfragmented request from master 0x0A on G2/4 -> the response data."""
+        """One request from master 0x0A on G2/4 (in fragments when longer than a frame) -> the
+        response data."""
+        if len(bytes.fromhex(body)) > 7:
+            return self.explicit_long(body)
         out = self.send(f"44C 0A {body}")
         assert len(out) == 1 and out[0].startswith("44B "), out
         return out[0][4:]
+
+    def explicit_long(self, body: str) -> str:
+        """A request longer than one frame, in acknowledged fragments of 6 bytes (each
+        acknowledged ``44B 8A C<n> 00``) -> the response data."""
+        data = bytes.fromhex(body)
+        chunks = [data[i : i + 6] for i in range(0, len(data), 6)]
+        out: list[str] = []
+        for n, chunk in enumerate(chunks):
+            kind = 0x00 if n == 0 else 0x80 if n == len(chunks) - 1 else 0x40
+            out = self.send(f"44C 8A {kind | n:02X} {chunk.hex(' ')}")
+            assert out[0] == f"44B 8A {0xC0 | n:02X} 00", out
+        assert len(out) == 2, out
+        return out[1][4:]
 
     def allocate(self, choice: int) -> str:
         out = self.send(f"44E 0A 4B 03 01 {choice:02X} 0A")

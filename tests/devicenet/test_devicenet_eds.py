@@ -125,6 +125,11 @@ def number(data: bytes) -> int:
     return int.from_bytes(data, "little")
 
 
+def path_of(eds, key: str) -> int:
+    """The assembly instance an InputN / OutputN entry's path names."""
+    return bytes.fromhex(value(eds, "IO_Info", key, 5))[3]
+
+
 @pytest.mark.parametrize(
     "example, mac, sizes",
     [("i7241d-style.yaml", 1, (17, 9)), ("devicenet-modbus.yaml", 5, (17, 1))],
@@ -173,33 +178,48 @@ async def test_eds_states_what_the_running_front_answers(
         strobe_in, cos_in = number(await get(master, 5, 3, 7)), number(await get(master, 5, 4, 7))
         assert (poll_in, poll_out) == sizes
         assert value(eds, "IO_Info", "Output1", 5) == (
-            "20 04 24 64 30 03" if poll_out == 1 else ""
-        )  # DO 0x64 alone
+            "20 04 24 64 30 03" if poll_out == 1 else "20 04 24 68 30 03"
+        )  # DO 0x64 alone, or fieldgate's all-outputs instance 0x68 (DO 0x64 + AO 0x65)
         assert (
             value(eds, "IO_Info", "PollInfo", 1) == 1 and value(eds, "IO_Info", "PollInfo", 2) == 1
         )
-        assert (
-            value(eds, "IO_Info", "Input1") == poll_in == cos_in
-            and value(eds, "IO_Info", "Output1") == poll_out
+        assert value(eds, "IO_Info", "Input1") == poll_in and value(eds, "IO_Info", "Output1") == (
+            poll_out
         )
         assert (
             value(eds, "IO_Info", "Input1", 2) == 0x000D
         )  # poll, COS, cyclic: the strobe answers fewer bytes
-        strobe = value(eds, "IO_Info", "StrobeInfo", 1)
-        assert strobe == 2 and value(eds, "IO_Info", f"Input{strobe}") == strobe_in == 8
-        assert value(eds, "IO_Info", f"Input{strobe}", 2) == 0x0002
-        assert (
-            value(eds, "IO_Info", "COSInfo", 1) == 1 and value(eds, "IO_Info", "COSInfo", 2) == 0
-        )  # COS consumes nothing
-        for key in (
-            "Input1",
-            "Input2",
-            "Output1",
-        ):  # a path names the one assembly that holds the data
-            if value(eds, "IO_Info", key, 4):
-                path = bytes.fromhex(value(eds, "IO_Info", key, 5))
-                assert path[:2] == b"\x20\x04" and path[4:] == b"\x30\x03"
-                assert len(await get(master, 4, path[3], 3)) == value(eds, "IO_Info", key)
+        # the defaults are the topology's paths: each names an entry of the connection's size
+        strobe, cos = value(eds, "IO_Info", "StrobeInfo", 1), value(eds, "IO_Info", "COSInfo", 1)
+        assert value(eds, "IO_Info", f"Input{strobe}") == strobe_in
+        assert value(eds, "IO_Info", f"Input{strobe}", 2) & 0x0002
+        assert value(eds, "IO_Info", f"Input{cos}") == cos_in
+        assert value(eds, "IO_Info", f"Input{cos}", 2) & 0x0004
+        cos_out = value(eds, "IO_Info", "COSInfo", 2)
+        if example == "i7241d-style.yaml":  # strobe DI (1 byte), COS DI in and DO out
+            assert (strobe_in, cos_in, cos_out) == (1, 1, 2) and path_of(eds, "Output2") == 0x64
+        else:  # the defaults: the first 8 bytes of all inputs, COS all inputs and no outputs
+            assert (strobe, strobe_in, cos, cos_out) == (4, 8, 1, 0)
+        entries = [
+            key for key in eds.get_section("IO_Info").entries if key.startswith(("Input", "Output"))
+        ]
+        assert len(entries) == (6 if poll_out == 9 else 5)
+        for key in entries:  # every path names the assembly that holds its data
+            path = bytes.fromhex(value(eds, "IO_Info", key, 5))
+            assert value(eds, "IO_Info", key, 4) == 6 and path[:3] == b"\x20\x04\x24"
+            assert path[4:] == b"\x30\x03"
+            size = len(await get(master, 4, path[3], 3))
+            assert size == value(eds, "IO_Info", key) or (key == f"Input{strobe}" and size > 8)
+        # a configurator selects an entry by setting the connection's path: the size follows
+        for key, attribute in (("Input2", 0x0E), ("Input3", 0x0E), ("Output1", 0x10)):
+            path = bytes.fromhex(value(eds, "IO_Info", key, 5))
+            reply = await master.request(bytes([0x10, 5, 2, attribute]) + path)
+            assert reply == b"\x90"
+            size = number(await get(master, 5, 2, 7 if attribute == 0x0E else 8))
+            assert size == value(eds, "IO_Info", key)
+            assert await get(master, 5, 2, attribute) == path
+        input1 = bytes.fromhex(value(eds, "IO_Info", "Input1", 5))
+        assert await master.request(bytes.fromhex("10 05 02 0E") + input1) == b"\x90"  # back
         # a poll of Output1's size is answered with Input1's size
         assert await master.request(bytes.fromhex("10 05 02 09 F4 01")) == bytes.fromhex("90 F4 01")
         assert len(await master.poll_fragmented_reply(bytes(poll_out), 17)) == poll_in
@@ -308,19 +328,46 @@ def test_one_assembly_per_side_names_its_path_and_small_inputs_serve_every_conne
     )
 
 
-def test_several_assemblies_leave_the_path_empty_and_list_them(tmp_path, caplog):
+def test_several_assemblies_have_a_combined_instance_and_each_its_entry(tmp_path, caplog):
     eds = parse(generate(tmp_path, write_topology(tmp_path, [dnet_front()])), caplog)
-    # loopback module: DO 0x64 (1), AO 0x65 (4), DI 0x66 (1), AI 0x67 (4)
-    assert value(eds, "IO_Info", "Input1") == 5 and value(eds, "IO_Info", "Output1") == 5
-    assert (value(eds, "IO_Info", "Input1", 4), value(eds, "IO_Info", "Input1", 5)) == (0, "")
+    # loopback module: DO 0x64 (1), AO 0x65 (4), DI 0x66 (1), AI 0x67 (4); all outputs 0x68,
+    # all inputs 0x69 (5 bytes each: the strobe answers them whole)
+    assert [
+        (value(eds, "IO_Info", key), value(eds, "IO_Info", key, 2), path_of(eds, key))
+        for key in ("Input1", "Input2", "Input3", "Output1", "Output2", "Output3")
+    ] == [
+        (5, 0x000F, 0x69),
+        (1, 0x000F, 0x66),
+        (4, 0x000F, 0x67),
+        (5, 0x000D, 0x68),
+        (1, 0x000D, 0x64),
+        (4, 0x000D, 0x65),
+    ]
+    assert not eds.has_entry("IO_Info", "Input4") and value(eds, "IO_Info", "StrobeInfo", 1) == 1
     assert (
         value(eds, "IO_Info", "Input1", 6)
-        == "DI assembly 0x66 (1 byte) + AI assembly 0x67 (4 bytes)"
+        == "all inputs assembly 0x69: DI 0x66 (1 byte) + AI 0x67 (4 bytes)"
     )
-    assert (
-        value(eds, "IO_Info", "Output1", 6)
-        == "DO assembly 0x64 (1 byte) + AO assembly 0x65 (4 bytes)"
-    )
+    assert value(eds, "IO_Info", "Output3", 6) == "AO assembly 0x65 (4 bytes)"
+
+
+def test_the_topologys_paths_are_the_eds_defaults(tmp_path, caplog):
+    paths = {
+        "poll": {"produce": "di", "consume": "do"},
+        "strobe": {"produce": "ai"},
+        "cos": {"produce": "ai", "consume": "ao"},
+        "cyclic": {"produce": 0x66, "consume": "outputs"},
+    }
+    eds = parse(generate(tmp_path, write_topology(tmp_path, [dnet_front(io_paths=paths)])), caplog)
+    # the poll's assemblies come first: Input1 DI 0x66, Input2 AI 0x67, Input3 all inputs 0x69;
+    # Output1 DO 0x64, Output2 AO 0x65, Output3 all outputs 0x68
+    assert [path_of(eds, f"Input{n}") for n in (1, 2, 3)] == [0x66, 0x67, 0x69]
+    assert [path_of(eds, f"Output{n}") for n in (1, 2, 3)] == [0x64, 0x65, 0x68]
+    defaults = {
+        kind: (value(eds, "IO_Info", f"{kind}Info", 1), value(eds, "IO_Info", f"{kind}Info", 2))
+        for kind in ("Poll", "Strobe", "COS", "Cyclic")
+    }
+    assert defaults == {"Poll": (1, 1), "Strobe": (2, 0), "COS": (2, 2), "Cyclic": (1, 3)}
 
 
 def test_a_topology_without_outputs_has_no_output_entry(tmp_path, caplog):

@@ -218,8 +218,12 @@ def test_application_object_serves_each_module():
     assert image.value("io/m4/do1") is True and image.value("io/m4/ao0") == 1000
     assert rig.explicit("10 64 01 16 FF") == "0A 94 0E FF"  # DI data is Get only
     assert rig.explicit("10 64 03 14 03 00") == "0A 94 15 FF"
-    assert rig.explicit("0E 64 01 15") == "0A 94 14 FF"  # module 1 has no AO
-    assert rig.explicit("0E 64 01 08") == "0A 94 14 FF"  # DCON watchdog attributes: not served
+    assert rig.explicit("0E 64 01 15") == "0A 8E"  # module 1 has no AO: empty data
+    assert rig.explicit("10 64 01 15") == "0A 90" and rig.explicit("10 64 01 15 00") == (
+        "0A 94 15 FF"
+    )
+    assert rig.explicit("0E 64 01 08") == "0A 8E 00"  # no DCON watchdog here: off
+    assert rig.explicit("0E 64 01 01") == "0A 8E 00 00 00 00"  # no module identity here: 0
     assert rig.explicit("0E 64 04 02") == "0A 94 16 FF"
 
 

@@ -85,6 +85,10 @@ async def test_allocate_identity_poll_loopback_and_timeout(rig):
     assert gateway.component("dnet").status()["connections"]["poll"] == {
         "state": "timed_out",
         "epr_ms": 100,
+        "produced": 0x69,  # all inputs: DI 0x66 + AI 0x67
+        "produced_size": 5,
+        "consumed": 0x68,  # all outputs: DO 0x64 + AO 0x65
+        "consumed_size": 5,
     }
     assert await master.allocate(0x02) == bytes.fromhex("0A CB 00")  # re-allocation
     assert gateway.masters.is_ok("dnet")
@@ -152,6 +156,21 @@ async def test_mac_id_set_over_the_network_survives_a_restart_until_the_yaml_cha
     finally:
         await edited.stop()
         master.close()
+
+
+def test_mac_id_is_required_with_one_line_naming_the_two_defaults(tmp_path, registry):
+    """The I-7241D ships at MAC 1, ODVA's default is 63: no silent choice between them."""
+    from fieldgate.topology import TopologyError, load_topology
+
+    source = topology(tmp_path, "x")
+    del source["fronts"][0]["mac_id"]
+    with pytest.raises(TopologyError) as err:
+        load_topology(source, registry)
+    (issue,) = err.value.issues
+    assert issue.path == "fronts[0].mac_id"
+    assert issue.message.startswith("required field is missing") and "I-7241D ships at 1" in (
+        issue.message
+    )
 
 
 def test_store_ignores_corrupt_and_out_of_range_files(tmp_path):

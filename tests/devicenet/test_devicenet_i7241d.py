@@ -41,8 +41,8 @@ async def test_i7241d_example_polls_simulated_dcon_modules(tmp_path):
         await master.wait_online()
         assert await master.allocate(0x03) == bytes.fromhex("0A CB 00")
         assert await master.request(bytes.fromhex("0E 04 00 02")) == bytes.fromhex(
-            "8E 67 00"
-        )  # 0x64 DO, 0x65 AO, 0x66 DI, 0x67 AI
+            "8E 69 00"
+        )  # 0x64 DO, 0x65 AO, 0x66 DI, 0x67 AI, 0x68 all outputs, 0x69 all inputs
         assert await master.request(bytes.fromhex("0E 05 02 07")) == bytes.fromhex(
             "8E 11 00"
         )  # produced 17

@@ -54,3 +54,21 @@ def test_identity_get_attributes_all_errors():
     assert rig.explicit("01 01 02") == "0A 94 16 FF"  # no instance 2
     assert rig.explicit("05 01 02 00") == "0A 94 16 FF"
     assert rig.explicit("01 03 01") == "0A 94 08 FF"  # other objects: not offered
+
+
+def test_every_response_fits_the_explicit_connection_and_a_larger_one_is_0x11(monkeypatch):
+    rig = Rig(product_name="x" * 32)  # Get_Attributes_All: 1 + 14 + 1 + 32 = 48 bytes
+    rig.allocate(0x01)
+    assert rig.explicit("0E 05 01 07") == "0A 8E 30 00"  # produced size 48, not 32
+    from fieldgate.plugins.devicenet.objects import IdentityObject
+
+    original = IdentityObject.instance_attributes
+
+    def with_a_huge_attribute(self, instance):
+        table = original(self, instance)
+        table[0x70] = type(table[1])(lambda: bytes(48))  # 1 + 48 > 48
+        return table
+
+    monkeypatch.setattr(IdentityObject, "instance_attributes", with_a_huge_attribute)
+    assert rig.explicit("0E 01 01 70") == "0A 94 11 FF"  # reply data too large
+    assert rig.explicit("05 01 01 01") == "0A 94 20 FF"  # Reset type 1: invalid parameter

@@ -86,11 +86,15 @@ def test_seed_cyclic_with_acknowledge():
     set_inputs(rig, 0xDFFF)
     assert rig.send("44C 0A 10 05 04 09 0A 0E") == ["44B 0A 90 10 0E", "349 FF DF"]  # TV-13..15
     assert rig.explicit("0E 05 04 05") == "0A 8E 4A 04"  # consumes the ack on 0x44A
+    rig.send("44A")  # TV-16, within the Acknowledge Handler's 16 ms
     for _ in range(3):
         assert rig.advance(3.6) == ["349 FF DF"]
         rig.send("44A")  # TV-16
     assert rig.master_events == []
     assert rig.advance(3.6 * 4 + 0.01)[-1] == "349 FF DF"  # no more acks: the watchdog fires
+    assert (
+        rig.slave.counters["cos_cyclic_retries"] == 3
+    )  # the 3 unacked ones once more, 16 ms later
     assert rig.master_events == [(False, "cos-cyclic connection timed out (3600 ms x 4)")]
     assert rig.advance(10) == []  # timed out: production stops
 

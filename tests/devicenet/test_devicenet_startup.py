@@ -58,6 +58,25 @@ def test_seed_offline_connection_set_identifies_and_moves_a_faulted_node():
     assert rig.send("7ED 3F 4B 02") == []  # only faulted nodes answer
 
 
+def test_the_identify_request_matches_a_mac_and_staggers_the_answers_by_serial():
+    """Byte 0 of the identify request: bit 6 set asks only the faulted node at MAC ``value``;
+    byte 2 names the serial number byte whose value is the answer's delay in ms."""
+    rig = Rig(online=False, vendor_id=803, serial=0x0A1E3205)
+    rig.send("44F 80 23 03 02 00 00 00")
+    assert rig.slave.state == "comm-fault"
+    assert rig.send("7ED 48 4B") == []  # match MAC 8: not us (9)
+    assert rig.send("7ED 49 4B") == ["7EC 00 23 03 05 32 1E 0A"]  # match MAC 9, no delay
+    assert rig.send("7ED 3F 4B 01") == []  # serial byte 1 = 0x32: 50 ms
+    assert rig.advance(0.049) == []
+    assert rig.advance(0.002) == ["7EC 00 23 03 05 32 1E 0A"]
+    assert rig.send("7ED 3F 4B 06") == [] and rig.advance(0.031) == [
+        "7EC 00 23 03 05 32 1E 0A"
+    ]  # offset 6 = byte 2 (modulo 4): 0x1E = 30 ms
+    assert rig.send("7ED BF 4B 02") == [] and rig.advance(1.0) == []  # bit 7 set: not a request
+    assert rig.slave.counters["rx_offline_ignored"] == 2
+    assert rig.send("7EE 0A 00") == [] and rig.send("7EF 0A 00") == []  # ownership: among tools
+
+
 def test_online_node_ignores_the_offline_connection_set():
     rig = Rig(serial=1, vendor_id=803)
     assert rig.send("7ED 07 4D 23 03 01 00 00 00") == [] and rig.slave.mac_id == 9

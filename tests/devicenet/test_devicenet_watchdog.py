@@ -89,7 +89,8 @@ def test_seed_host_ok_class_attribute():
     assert back.requests == [("host ok", False), ("host ok", True)]
     assert rig.explicit("10 64 00 04 02") == "0A 94 09 FF"
     assert rig.explicit("10 64 00 04") == "0A 94 13 FF"
-    assert rig.explicit("0E 64 00 03") == "0A 94 14 FF"  # COM timeout: not served
+    assert rig.explicit("0E 64 00 03") == "0A 8E 00 00"  # COM timeout: no back with one runs
+    assert rig.explicit("10 64 00 03 C8 00") == "0A 94 10 FF"
     assert rig.explicit("0E 64 00 02") == "0A 8E 04 00"
     assert len(back.requests) == 2
 
@@ -118,10 +119,10 @@ def test_period_and_enable_are_independent():
         ("10 64 01 0A 01", "0A 94 0E FF"),
         ("0E 64 01 0B", "0A 94 2C FF"),  # clear is Set only (NULL)
         ("0E 64 01 08 00", "0A 94 15 FF"),  # Get with data
-        ("0E 64 04 08", "0A 94 14 FF"),  # the Modbus module has no DCON watchdog
-        ("0E 64 04 0A", "0A 94 14 FF"),
-        ("10 64 04 08 01", "0A 94 14 FF"),
-        ("10 64 04 0B", "0A 94 14 FF"),
+        ("0E 64 04 08", "0A 8E 00"),  # the Modbus module has no DCON watchdog: reads off
+        ("0E 64 04 0A", "0A 8E 00"),
+        ("10 64 04 08 01", "0A 94 0E FF"),  # and cannot be switched on
+        ("10 64 04 0B", "0A 94 0E FF"),
         ("10 64 05 08 01", "0A 94 16 FF"),  # no fifth module
     ],
 )
@@ -166,14 +167,20 @@ def test_module_unknown_to_the_back_is_a_device_state_conflict():
     assert rig.explicit("10 64 03 0B") == "0A 94 10 FF"
 
 
-def test_without_dcon_backs_the_attributes_are_not_served():
+def test_without_dcon_backs_the_attributes_read_as_off_and_cannot_be_set():
     rig = Rig(image_with([(1, {Kind.DO: 8})]))  # the engine's default: no host watchdogs
     rig.allocate(0x01)
     assert [rig.explicit(f"0E 64 01 {a:02X}") for a in (0x08, 0x09, 0x0A, 0x0B)] == [
-        "0A 94 14 FF"
-    ] * 4
-    assert rig.explicit("0E 64 00 04") == "0A 94 14 FF"
-    assert rig.explicit("10 64 00 04 01") == "0A 94 14 FF"
+        "0A 8E 00",
+        "0A 8E 00",
+        "0A 8E 00",
+        "0A 94 2C FF",  # clear: Set only
+    ]
+    assert rig.explicit("10 64 01 08 01") == "0A 94 0E FF"
+    assert rig.explicit("10 64 01 18") == "0A 94 14 FF"  # no safe-value latch either
+    assert rig.explicit("0E 64 00 04") == "0A 8E 01"  # host OK: nothing stops it
+    assert rig.explicit("10 64 00 04 01") == "0A 94 10 FF"  # no back to tell
+    assert rig.explicit("10 64 00 03 C8 00") == "0A 94 10 FF"
 
 
 # -- end to end ----------------------------------------------------------------------------------

@@ -183,3 +183,25 @@ def check_page(driver, running: Running, loop: asyncio.AbstractEventLoop) -> Non
 
 async def _call(action) -> None:
     action()
+
+
+async def test_the_page_shows_what_a_back_found_on_its_line(driver, tmp_path):
+    """examples/i7241d-style.yaml (modules: auto) on its scan file's simulated modules."""
+    gw = load_gateway(tmp_path, "i7241d-style.yaml")
+    running: Running = await start(gw)
+    try:
+        url = f"http://127.0.0.1:{running.port}/"
+        await asyncio.to_thread(driver.get, url)
+        script = "document.querySelector('#line-notes li[data-back=\"rs485\"]')?.textContent"
+        text = await asyncio.to_thread(wait_js, driver, f"return {script}", 10)
+        assert text == (
+            "rs485: found at start (9600 bit/s, checksum off): I-7055 at 1, "
+            "I-7017 at 2 (type 0x08 +/-10 V, hex), I-7024 at 3 (type 0x33 +/-10 V, hex)"
+        )
+        rows = await asyncio.to_thread(
+            driver.execute_script,
+            "return [...document.querySelectorAll('#modules tbody tr')].map(r => r.dataset.module)",
+        )
+        assert rows == ["rs485/m1", "rs485/m2", "rs485/m3"]
+    finally:
+        await gw.stop()

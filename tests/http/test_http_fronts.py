@@ -71,10 +71,15 @@ async def test_devicenet_front_state_locations_and_fault_events(tmp_path):
             "poll",
             "bit-strobe",
             "cos-cyclic",
+            "cos-cyclic-data",
         }
         point = (await running.get("/api/v1/points/rs485/m1/di3")).json()
         assert point["served_by"] == [
-            {"component": "dnet", "at": "assembly 102 byte 0 bit 3 (poll response byte 0)"}
+            {
+                "component": "dnet",
+                "at": "assembly 102 byte 0 bit 3 (poll response byte 0, bit-strobe response byte 0, "
+                "COS message byte 0)",
+            }
         ]
         assert point["source"]["at"] == ["@01 reply bit 3"]
         front._fault("duplicate MAC ID 1 on the network")

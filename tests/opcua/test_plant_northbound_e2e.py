@@ -32,7 +32,11 @@ from fieldgate.plugins.modbus_tcp.map import (
 from .uaclient import UaClient, require_node_opcua
 
 EXAMPLE = Path(__file__).parents[2] / "examples" / "plant-northbound.yaml"
-POLL_MS, TIMEOUT_MS, PUBLISH_MS = 50, 50, 100
+POLL_MS, TIMEOUT_MS, PUBLISH_MS = (
+    50,
+    150,
+    100,
+)  # a 150 ms reply timeout: a loaded CI host delays the simulator
 
 
 @pytest.fixture

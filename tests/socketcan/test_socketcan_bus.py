@@ -17,6 +17,7 @@ import textwrap
 from pathlib import Path
 
 import can
+import pytest
 from socketcan_guest import in_guest, scaled
 
 CHANNEL = "vcan0"
@@ -139,6 +140,7 @@ async def test_socketcan_is_read_by_the_event_loop_without_a_thread():
 CANOPEN_TESTS = REPO / "tests" / "canopen"
 
 
+@pytest.mark.timeout(420)  # a child pytest of every canopen_dut test: minutes on a busy host
 def test_canopen_integration_suite_passes_over_vcan0_with_gateway_as_a_process():
     """The same integration tests as in-process, over vcan0, the gateway run from the CLI."""
     # Every test module that starts its device through the shared DUT fixture.
@@ -163,7 +165,7 @@ def test_canopen_integration_suite_passes_over_vcan0_with_gateway_as_a_process()
         env=env,
         capture_output=True,
         text=True,
-        timeout=scaled(240),
+        timeout=scaled(400),
     )
     summary = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else ""
     assert proc.returncode == 0, proc.stdout[-6000:] + proc.stderr[-2000:]

@@ -8,8 +8,8 @@ slaves on vcan0:
   DI module and the AO module to the AI module, so the poll consumes DO (1 byte) + AO (4 x 2) =
   9 bytes and produces DI (1) + AI (4 x 2) = 9 bytes, laid out alike: a bench whose outputs
   come back as its inputs, through the real RS-485 code.
-* MAC 1, ``examples/i7241d-style.yaml`` as shipped (simulated DCON modules), only its channel
-  set to vcan0.
+* MAC 1, ``examples/i7241d-style.yaml`` as shipped (``modules: auto``: the DCON back finds the
+  simulated modules of its scan file on the line at start), only its channel set to vcan0.
 
 Against them:
 
@@ -20,6 +20,9 @@ Against them:
   polls the master is lost and the outputs go to their error value 0, on the modules too.
 * The conformance tool's DeviceNet profile runs against MAC 5 as a separate process
   (``python -m fieldgate.conformance --protocol devicenet ... --loopback``): every case passes.
+* A scanner configured only from the I-7241D manual (assembly numbers and sizes worked out
+  from the module list, the utility's paths) reads object 0x64, the paths and sizes, and runs
+  cyclic and change of state both ways, poll and bit-strobe against MAC 1.
 * A baud rate set over the network and an Identity Reset reopen the front's socket.
 * A third gateway at the same MAC faults and is moved by the Offline Connection Set.
 * SIGINT stops the gateways with exit code 0 (a known intermittent hang of the Modbus one is xfail).
@@ -82,6 +85,12 @@ def topology(state_dir: Path, serial: int = 7241) -> dict:
                 "baudrate": 125000,
                 "dup_mac_timeout_ms": 50,  # 125 kbit/s as the i7241d example beside it
                 "identity": {"vendor_id": 803, "serial": serial, "product_name": PRODUCT_NAME},
+                # COS and cyclic carry the outputs too: the conformance profile's cos_consume and
+                # cyclic_both_ways cases run (not skipped)
+                "io_paths": {
+                    "cos": {"produce": "inputs", "consume": "outputs"},
+                    "cyclic": {"produce": "inputs", "consume": "outputs"},
+                },
             }
         ],
         # poll_ms 50: at 10 ms this process alone takes half the guest's one CPU, and the conformance
@@ -211,6 +220,8 @@ def network(tmp_path_factory):
         f"fronts.dnet.channel={CHANNEL}",
         "--set",
         "fronts.dnet.dup_mac_timeout_ms=50",
+        "--set",  # the simulated line answers within milliseconds: its start scan of 15 addresses
+        "backs.rs485.timeout_ms=100",  # takes 1.5 s, not 3 s
         "--set",
         f"gateway.state_dir={example_dir / 'state'}",
     )
@@ -435,6 +446,115 @@ async def test_i7241d_example_serves_its_dcon_modules_beside_the_other_slave(net
     assert network.bench.proc.poll() is None and example.proc.poll() is None
 
 
+# -- a scanner configured only from the I-7241D manual ------------------------------------
+# The line of examples/i7241d-style.scan.json, and what the manual (seed-003 §4, §3.6) makes of
+# it: one assembly per I/O category with channels, numbered from 0x64 in the order DO, AO, DI,
+# AI; digital channels 8 a byte, each module starting a byte; analog channels 2 bytes each;
+# one Application instance per module in address order. Computed here, not read from fieldgate.
+LINE = [  # address, model, channels, type code, data format
+    (1, "I-7055", {"di": 8, "do": 8}, 0x40, 0),
+    (2, "I-7017", {"ai": 8}, 0x08, 2),
+    (3, "I-7024", {"ao": 4}, 0x33, 2),
+]
+
+
+def manual_assemblies() -> dict[str, tuple[int, int]]:
+    """kind -> (instance, size) as the I-7241D manual numbers and sizes them."""
+    out, number = {}, 0x64
+    for kind in ("do", "ao", "di", "ai"):
+        counts = [channels[kind] for _, _, channels, _, _ in LINE if channels.get(kind)]
+        if counts:
+            analog = kind in ("ao", "ai")
+            out[kind] = (number, sum(2 * n if analog else (n + 7) // 8 for n in counts))
+            number += 1
+    return out
+
+
+def path(instance: int) -> bytes:
+    return bytes([0x20, 0x04, 0x24, instance, 0x30, 0x03])
+
+
+async def test_a_scanner_configured_from_the_manual_runs_the_i7241d_example(network):
+    """examples/i7241d-style.yaml as shipped (modules: auto: the back found the simulated modules
+    of its scan file on its line at start), its paths as the utility would set them (COS DI in /
+    DO out, cyclic AI in / AO out, strobe DI): object 0x64, the assemblies, the connection
+    paths and sizes, cyclic and change of state both ways, poll and bit-strobe."""
+    example, asm = network.i7241d, manual_assemblies()
+    assert asm == {"do": (0x64, 1), "ao": (0x65, 8), "di": (0x66, 1), "ai": (0x67, 16)}
+    master = VcanMaster(I7241D_MAC)
+    try:
+        for choice in (0x02, 0x04, 0x10, 0x01):  # what an earlier test may have left allocated
+            await master.release(choice)
+        assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
+        # object 0x64 (§3.6): class attributes, then every attribute of every module
+        assert await master.get(0x64, 0, 1) == bytes.fromhex("02 00")
+        assert await master.number(0x64, 0, 2) == len(LINE)
+        assert await master.number(0x64, 0, 3) == 100  # the DCON reply timeout, ms (as set above)
+        assert await master.get(0x64, 0, 4) == b"\x01"
+        for instance, (address, model, channels, type_code, data_format) in enumerate(LINE, 1):
+            digits = int(model[2:], 16)  # fieldgate's module ID: the model number's digits in hex
+            assert await master.number(0x64, instance, 1) == digits
+            assert await master.number(0x64, instance, 2) == address
+            assert await master.number(0x64, instance, 3) == 0  # checksum off
+            assert await master.number(0x64, instance, 4) == 9600
+            assert await master.number(0x64, instance, 5) == type_code
+            assert await master.number(0x64, instance, 6) == data_format
+            assert len(await master.get(0x64, instance, 7)) == 4  # data error counter
+            for n, kind in enumerate(("do", "ao", "di", "ai")):
+                count = channels.get(kind, 0)
+                size = 2 * count if kind in ("ao", "ai") else (count + 7) // 8
+                assert await master.number(0x64, instance, 0x0C + n) == size
+                assert await master.number(0x64, instance, 0x10 + n) == count
+                assert len(await master.get(0x64, instance, 0x14 + n)) == size
+        for kind, (instance, size) in asm.items():
+            assert len(await master.get(0x04, instance, 3)) == size, kind
+        # cyclic both ways: AI 16 bytes every expected packet rate, AO 8 bytes from the master
+        assert await master.allocate(0x20) == bytes.fromhex("0A CB 00")
+        assert await master.get(0x05, 4, 14) == path(asm["ai"][0])
+        assert await master.number(0x05, 4, 7) == asm["ai"][1]
+        assert await master.get(0x05, 2, 16) == path(asm["ao"][0])
+        assert await master.number(0x05, 2, 8) == asm["ao"][1]
+        assert await master.set(0x05, 4, 9, (200).to_bytes(2, "little")) == bytes.fromhex(
+            "90 C8 00"
+        )
+        outputs = [1000, 2000, 3000, 4000]
+        for _ in range(3):
+            assert len(await master.produced(asm["ai"][1], timeout=scaled(3))) == 16
+            await master.master_data(b"".join(v.to_bytes(2, "little") for v in outputs))
+        assert await master.release(0x20) == bytes.fromhex("0A CC")  # outputs hold (error mode)
+        shown = "[" + ",".join(map(str, outputs)) + "]"
+        image = await wait_for_image(example, {"rs485/m3 ao": shown})
+        assert image.get("rs485/m3 ao") == shown, image
+        # change of state both ways: DI in on change (and every EPR), DO from the master
+        assert await master.allocate(0x10) == bytes.fromhex("0A CB 00")
+        assert await master.get(0x05, 4, 14) == path(asm["di"][0])
+        assert await master.get(0x05, 2, 16) == path(asm["do"][0])
+        assert await master.set(0x05, 4, 9, (1000).to_bytes(2, "little")) == bytes.fromhex(
+            "90 E8 03"
+        )
+        assert len(await master.produced(1, timeout=scaled(3))) == 1
+        await master.master_data(bytes([0xA5]))
+        assert len(await master.produced(1, timeout=scaled(3))) == 1  # DI walks (or the EPR)
+        assert await master.allocate(0x02) == bytes.fromhex("0A 94 02 04")  # poll after COS
+        assert await master.release(0x10) == bytes.fromhex("0A CC")
+        image = await wait_for_image(example, {"rs485/m1 do": bits(0xA5)})
+        assert image.get("rs485/m1 do") == bits(0xA5), image
+        # poll (all inputs, all outputs) and bit-strobe (DI)
+        assert await master.allocate(0x06) == bytes.fromhex("0A CB 00")
+        assert (await master.number(0x05, 2, 7), await master.number(0x05, 2, 8)) == (17, 9)
+        assert await master.number(0x05, 3, 7) == asm["di"][1]
+        assert await master.set(0x05, 3, 9, (500).to_bytes(2, "little")) == bytes.fromhex(
+            "90 F4 01"
+        )
+        master.send(0x400 | master.mac << 3, bytes(8))  # the strobe, from the master's MAC
+        assert len(await master.expect(master.g1(0xE))) == 1
+        assert await master.release(0x07) == bytes.fromhex("0A CC")
+    finally:
+        master.close()
+    assert example.proc.poll() is None, example.log()
+    assert "rs485: 3 DCON module(s) at 9600 bit/s" in example.log()  # found at start
+
+
 def collect(bus: can.BusABC, seconds: float, until=lambda frame: False) -> list[tuple[int, bytes]]:
     """Frames ``(id, data)`` seen for ``seconds``, or up to the first one ``until`` accepts."""
     seen, end = [], time.monotonic() + seconds
@@ -563,6 +683,8 @@ def test_the_front_hears_the_bus_again_after_the_interface_restarts(tmp_path, lo
         f"fronts.dnet.channel={CHANNEL}",
         "--set",
         "fronts.dnet.dup_mac_timeout_ms=50",
+        "--set",  # the simulated line answers within milliseconds: its start scan of 15 addresses
+        "backs.rs485.timeout_ms=100",  # takes 1.5 s, not 3 s
         "--set",
         f"gateway.state_dir={tmp_path / 'state'}",
         "--loop",

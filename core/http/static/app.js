@@ -138,6 +138,24 @@ function renderModules(st) {
     if (box) box.classList.toggle("offline", health !== "online");
   }
   if (!st.modules.length) body.append(el("tr", {}, el("td", { class: "empty", colspan: "7", text: "no modules" })));
+  renderLineNotes(st);
+}
+
+// what a back found on its line: a start scan (modules: auto), modules it does not list
+function renderLineNotes(st) {
+  const notes = $("#line-notes");
+  notes.replaceChildren();
+  for (const [name, b] of Object.entries(st.backs || {})) {
+    const scan = b.start_scan;
+    if (scan) {
+      const cs = scan.checksum ? "on" : "off";
+      notes.append(el("li", { "data-back": name, text: `${name}: found at start (${scan.baudrate} bit/s, checksum ${cs}): ${scan.modules.join(", ")}` }));
+      for (const line of scan.left_out) notes.append(el("li", { class: "warn", text: `${name}: ${line}` }));
+      if (scan.changed_since_last_start.length) notes.append(el("li", { class: "warn", text: `${name}: changed since the last start: ${scan.changed_since_last_start.join("; ")}` }));
+      if (scan.differs_from_scan_file.length) notes.append(el("li", { class: "warn", text: `${name}: differs from its scan file: ${scan.differs_from_scan_file.join("; ")}` }));
+    }
+    if (b.survey && b.survey.length) notes.append(el("li", { class: "warn", text: `${name}: answer but not in the topology: ${b.survey.join(", ")}` }));
+  }
 }
 
 // -- process image -------------------------------------------------------------------
