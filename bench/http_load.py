@@ -45,7 +45,7 @@ import can  # noqa: E402
 from fieldgate.cli import loop_factory, loop_name  # noqa: E402
 from fieldgate.runtime import Gateway  # noqa: E402
 
-NODE_ID = 1
+NODE_ID = 2  # examples/i7232d-style.yaml's node-ID
 SCRAPES_PER_S = 10
 SSE_CLIENTS = 2
 TARGET = 1.05

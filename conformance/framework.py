@@ -47,11 +47,14 @@ PROFILES = (
     "store",
     "cia401",
     "seed",
+    "icpdas",
     "na9161",
+    "delta-as300",
 )
-# run only when asked for by name (or "all"): the seed vectors concern devices that claim
-# I-7232D / I-7231D compatibility, na9161 those that claim CREVIS NA-9161 compatibility
-OPT_IN = ("seed", "na9161")
+# run only when asked for by name (or "all"): the seed vectors and icpdas concern devices that
+# claim I-7232D / I-7231D compatibility, na9161 those that claim CREVIS NA-9161 compatibility,
+# delta-as300 slaves meant to run under a Delta AS300 master without extra set-up
+OPT_IN = ("seed", "icpdas", "na9161", "delta-as300")
 # DeviceNet devices get their own profiles, selected with protocol="devicenet" (no EDS needed)
 DEVICENET_PROFILES = ("devicenet",)
 PROTOCOL_PROFILES = {"canopen": PROFILES, "devicenet": DEVICENET_PROFILES}

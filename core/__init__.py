@@ -22,7 +22,16 @@ from .image import (
     channel_id,
 )
 from .masters import MasterMonitor
-from .plugin import Back, Front, GatewayContext, PluginStartError, Registry, hookimpl, load_registry
+from .plugin import (
+    Back,
+    Front,
+    GatewayContext,
+    PluginStartError,
+    PortUnavailable,
+    Registry,
+    hookimpl,
+    load_registry,
+)
 from .runtime import Gateway, GatewayStartError
 from .version import __version__
 
@@ -44,6 +53,7 @@ __all__ = [
     "MasterMonitor",
     "ModuleHealth",
     "PluginStartError",
+    "PortUnavailable",
     "ProcessImage",
     "Quality",
     "Reading",

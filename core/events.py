@@ -30,11 +30,17 @@ NMT_STATE = "nmt-state"
 EMCY_SENT = "emcy-sent"
 BUS_OFF = "bus-off"
 BUS_ON = "bus-recovered"
+CAN_STATE = "can-state"  # the CAN controller's error state: error-active, warning, passive
+CAN_OVERRUN = "can-overrun"  # frames lost: a receive, transmit or controller queue overran
+PORT_LOST = "port-lost"  # a back's serial port is missing or failed: its modules are offline
+PORT_BACK = "port-back"
 FAULT = "fault"  # a front stopped communicating by itself (DeviceNet duplicate MAC ID, ...)
 COMPONENT_FAILED = "component-failed"
 COMPONENT_RESTARTED = "component-restarted"
 
-WARNING_KINDS = frozenset({MODULE_OFFLINE, MASTER_LOST, BUS_OFF, COMPONENT_FAILED, FAULT})
+WARNING_KINDS = frozenset(
+    {MODULE_OFFLINE, MASTER_LOST, BUS_OFF, CAN_OVERRUN, PORT_LOST, COMPONENT_FAILED, FAULT}
+)
 
 
 @dataclass(frozen=True)

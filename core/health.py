@@ -163,6 +163,28 @@ class HealthRegistry:
     def __init__(self) -> None:
         self._modules: dict[tuple[str, int], ModuleHealth] = {}
         self._listeners: list[Callable[[ModuleHealth, HealthEvent], None]] = []
+        self.ports_lost: dict[str, str] = {}  # back -> why its serial port is missing
+        self._port_listeners: list[Callable[[str, bool, str], None]] = []
+
+    # -- serial ports: a back's whole line, missing at start or lost at run time -------------
+    def port_state(self, back: str, ok: bool, text: str = "") -> None:
+        """A back's port is missing (``ok`` False, ``text`` why) or open again; listeners
+        (``subscribe_ports``) hear each change once."""
+        if ok == (back not in self.ports_lost):
+            return
+        if ok:
+            del self.ports_lost[back]
+        else:
+            self.ports_lost[back] = text
+        for listener in list(self._port_listeners):
+            try:
+                listener(back, ok, text)
+            except Exception:
+                log.exception("port listener failed for %s", back)
+
+    def subscribe_ports(self, listener: Callable[[str, bool, str], None]) -> None:
+        """``listener(back, ok, text)`` on every change of a back's port state."""
+        self._port_listeners.append(listener)
 
     def add(self, health: ModuleHealth) -> ModuleHealth:
         if health.key in self._modules:

@@ -52,6 +52,12 @@ class CommandError(Exception):
     exits with :attr:`~fieldgate.exitcodes.ExitCode.FAILED`."""
 
 
+class PortUnavailable(PluginStartError):
+    """A serial port that may come later (no such device, busy, a USB adapter not plugged in):
+    a serial back starts without it, its modules offline, and keeps trying to open it
+    (:class:`fieldgate.polling.SerialBack`). Wrong settings are a plain PluginStartError."""
+
+
 class GatewayContext:
     """What a front or back may use: the process image, module health, master state, events.
 

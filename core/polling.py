@@ -22,6 +22,13 @@ time out ``fail_threshold`` times, and :class:`SerialBack` closes the port and r
 the same path with back-off (:data:`REOPEN_FIRST_S` doubling up to the back's
 ``offline_probe_ms``); once open, every module is probed at once and comes back online
 with its first good answer. No gateway restart, no component restart.
+
+A port missing at start (:class:`~fieldgate.plugin.PortUnavailable`: no such device, busy)
+is the same loss, from the start: the back starts without it (its modules offline,
+COMM_FAULT), so the fronts start and the CAN node boots; the port is re-opened with the
+same back-off. While a port is missing the back reports it in ``context.health``'s port
+state (``port_state``, a CANopen front's EMCY "COM port access error") and publishes
+``port-lost`` / ``port-back`` events.
 """
 
 from __future__ import annotations
@@ -35,9 +42,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from .cancellation import raise_if_cancelled
+from .events import PORT_BACK, PORT_LOST
 from .health import ErrorKind, LineStats, ModuleHealth
 from .image import Change, ChannelSpec, ProcessImage, Quality, Subscription
-from .plugin import Back, GatewayContext
+from .plugin import Back, GatewayContext, PortUnavailable
 from .topology.model import ModuleConfig, SerialBackConfig
 
 log = logging.getLogger("fieldgate.polling")
@@ -442,6 +450,7 @@ class SerialBack(Back):
             "last_outage_s": None,
         }
         self.health: dict[int, ModuleHealth] = {}
+        self._missing_at_start: str | None = None
         for module in config.modules:
             self.register_health(module)
 
@@ -465,8 +474,17 @@ class SerialBack(Back):
         """Periodic line-level transactions (host watchdog...). Default: none."""
         return []
 
+    def unopened_link(self) -> Any:
+        """The link while the port is missing at start, for :meth:`make_module` (a back whose
+        modules keep a link object returns one to open later). Default: None."""
+        return None
+
     async def start(self) -> None:
-        self.link = await self.open_link()
+        try:
+            self.link = await self.open_link()
+        except PortUnavailable as exc:  # start anyway: the modules offline, the port re-tried
+            self._missing_at_start = str(exc)
+            self.link = self.unopened_link()
         specs = [s for s in self.context.topology.channel_specs if s.source.back == self.name]
         modules = [
             self.make_module(m, [s for s in specs if s.source.module == m.address])
@@ -487,6 +505,17 @@ class SerialBack(Back):
         for job in self.line_jobs():
             self.scheduler.add_job(job)
         self.scheduler.attach()  # outputs written by fronts from now on are queued
+        if self._missing_at_start is not None:
+            log.warning(
+                "line %s: %s; started without it: its modules are offline until it opens "
+                "(re-tried every %.1f s at most)",
+                self.name,
+                self._missing_at_start,
+                max(REOPEN_FIRST_S, cfg.offline_probe_ms / 1000),
+            )
+            self.port["lost"] = True
+            self.scheduler.line_lost(self._missing_at_start)
+            self._report_port(False, self._missing_at_start)
 
     async def reopen_link(self) -> None:
         """Open the port again after a loss (the link was closed). Default: a new
@@ -496,22 +525,37 @@ class SerialBack(Back):
 
     async def run(self) -> None:
         assert self.scheduler is not None
+        if self._missing_at_start is not None:
+            cause, self._missing_at_start = self._missing_at_start, None
+            await self._recover_line(cause, opened=False)
         while True:
             try:
                 await self.scheduler.run()
             except LineLost as exc:
                 await self._recover_line(str(exc))
 
-    async def _recover_line(self, cause: str) -> None:
-        """Close the lost port, re-open the same path with back-off, then probe every module."""
+    def _report_port(self, ok: bool, text: str) -> None:
+        self.context.health.port_state(self.name, ok, text)
+        self.context.events.publish(
+            PORT_BACK if ok else PORT_LOST,
+            self.name,
+            f"port {self.config.port} {'open again' if ok else 'missing'}: {text}",
+            port=self.config.port,
+        )
+
+    async def _recover_line(self, cause: str, opened: bool = True) -> None:
+        """Close the lost port (``opened``), re-open the same path with back-off, then probe
+        every module."""
         assert self.scheduler is not None
         lost_at = self.context.clock()
         self.port["losses"] += 1
         self.port["lost"] = True
-        try:
-            await self.close_link()
-        except Exception as exc:  # a port that is gone may fail to close: it is closed anyway
-            log.debug("line %s: closing the lost port: %s", self.name, exc)
+        if opened:
+            self._report_port(False, cause)
+            try:
+                await self.close_link()
+            except Exception as exc:  # a port that is gone may fail to close: it is closed anyway
+                log.debug("line %s: closing the lost port: %s", self.name, exc)
         delay, cap = REOPEN_FIRST_S, max(REOPEN_FIRST_S, self.config.offline_probe_ms / 1000)
         while True:
             await self.sleep(delay)
@@ -526,6 +570,7 @@ class SerialBack(Back):
                 delay = min(delay * 2, cap)
         self.port["lost"] = False
         self.port["last_outage_s"] = round(self.context.clock() - lost_at, 3)
+        self._report_port(True, f"after {self.port['last_outage_s']:.1f} s")
         log.warning(
             "line %s: port %s re-opened after %.1f s (%s)",
             self.name,

@@ -25,7 +25,7 @@ from typing import Any
 
 import serial
 
-from .plugin import PluginStartError
+from .plugin import PluginStartError, PortUnavailable
 from .polling import LineLost
 from .serial_timing import Exchange, Outcome, char_time
 
@@ -62,7 +62,7 @@ class AsyncSerial:
                 write_timeout=2,
             )
         except serial.SerialException as exc:
-            raise PluginStartError(f"cannot open serial port {url}: {_cause(exc)}") from None
+            raise PortUnavailable(f"cannot open serial port {url}: {_cause(exc)}") from None
         except ValueError as exc:
             raise PluginStartError(f"invalid serial settings for {url}: {exc}") from None
         return cls(port)

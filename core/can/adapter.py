@@ -20,6 +20,15 @@
 * Bus-off: SocketCAN error frames (``CAN_ERR_BUSOFF`` / ``CAN_ERR_RESTARTED``) and
   interfaces that report ``bus.state == ERROR`` (checked once a second) are passed to
   ``on_bus_state``. Send failures are counted, never raised.
+* Controller health, passed to ``on_controller(event, now)``: the error state
+  (``error-active``, ``warning``, ``passive``) from SocketCAN's controller error frames
+  (``CAN_ERR_CRTL``: warning, passive, back to active; ``CAN_ERR_CNT``'s error counters
+  where the driver gives no state) and from ``bus.state`` (ACTIVE / PASSIVE) where
+  python-can reports it; overruns: ``controller-overrun`` (``CAN_ERR_CRTL_RX/TX_OVERFLOW``:
+  the controller lost frames), ``rx-overrun`` (the gateway's receive queue: SocketCAN's
+  socket buffer dropped frames, ``SO_RXQ_OVFL``, or the receive thread's hand-over queue
+  was full), ``tx-overrun`` (the driver's transmit queue was full: ENOBUFS). Overruns are
+  events; the front decides how long one stays an error.
 * Receiving that has died (the receive thread ended on a driver exception, or the
   reader failed ``RX_ERRORS_FATAL`` times within one poll) sets :attr:`CanAdapter.failed`;
   the front's ``run()`` raises and the runtime restarts the front with back-off.
@@ -86,8 +95,18 @@ class QuickAnswering(Protocol):
     def quick_answer(self, can_id: int, data: bytes | bytearray, now: float) -> Frame | None: ...
 
 
+CAN_ERR_CRTL = 0x04  # controller problems, details in data[1]
 CAN_ERR_BUSOFF = 0x40
 CAN_ERR_RESTARTED = 0x100
+CAN_ERR_CNT = 0x200  # data[6] / data[7]: TX / RX error counters (Linux 6.3+)
+CRTL_RX_OVERFLOW, CRTL_TX_OVERFLOW = 0x01, 0x02
+CRTL_WARNING = 0x04 | 0x08  # RX / TX error counter reached the warning level (96)
+CRTL_PASSIVE = 0x10 | 0x20  # RX / TX error counter reached the error-passive level (128)
+CRTL_ACTIVE = 0x40  # back to error-active
+WARNING_LEVEL, PASSIVE_LEVEL = 96, 128
+CONTROLLER_STATES = ("error-active", "warning", "passive")
+OVERRUNS = ("rx", "tx", "controller")
+ENOBUFS = 105
 STATE_POLL_S = 1.0
 RX_ERRORS_FATAL = 100  # receive errors within one state poll that count as a dead bus
 
@@ -113,6 +132,12 @@ def open_bus(
         raise PluginStartError(
             f"cannot open CAN {interface} channel {channel!r}: {_one_line(exc)}"
         ) from None
+
+
+def _no_buffer_space(exc: BaseException) -> bool:
+    """A send refused because the driver's transmit queue is full (ENOBUFS)."""
+    code = getattr(exc, "errno", None) or getattr(exc, "error_code", None)
+    return code == ENOBUFS or "No buffer space" in str(exc)
 
 
 def _one_line(exc: BaseException) -> str:
@@ -154,11 +179,17 @@ class CanAdapter:
         on_bus_state: Callable[[bool, float], None] | None = None,
         transmit_allowed: Callable[[float], bool] | None = None,
         reopen: Callable[[int], can.BusABC] | None = None,
+        on_controller: Callable[[str, float], None] | None = None,
     ):
         self.node = node
         self.bus = bus
         self.loop = loop
         self.on_bus_state = on_bus_state
+        self.on_controller = on_controller
+        self.controller_state = "error-active"
+        self._state_passive = False  # set from bus.state (not from error frames)
+        self.overruns: Counter[str] = Counter()
+        self._rx_overruns_seen = 0
         self.transmit_allowed = transmit_allowed
         self._reopen = reopen
         self.counters: Counter[str] = Counter()
@@ -331,10 +362,51 @@ class CanAdapter:
 
     def _error_frame(self, msg: can.Message) -> None:
         self.counters["rx_error_frames"] += 1
-        if msg.arbitration_id & CAN_ERR_BUSOFF:
+        err, data = msg.arbitration_id, bytes(msg.data).ljust(8, b"\0")
+        if err & CAN_ERR_BUSOFF:
             self._set_bus_off(True)
-        elif msg.arbitration_id & CAN_ERR_RESTARTED:
+        elif err & CAN_ERR_RESTARTED:
             self._set_bus_off(False)
+            self._set_controller_state("error-active")
+        if err & CAN_ERR_CRTL:
+            crtl = data[1]
+            if crtl & (CRTL_RX_OVERFLOW | CRTL_TX_OVERFLOW):
+                self.overrun("controller")
+            if crtl & CRTL_PASSIVE:
+                self._set_controller_state("passive")
+            elif crtl & CRTL_WARNING:
+                self._set_controller_state("warning")
+            elif crtl & CRTL_ACTIVE:
+                self._set_controller_state("error-active")
+        elif err & CAN_ERR_CNT:  # no state from the driver: the counters say it
+            worst = max(data[6], data[7])
+            self._set_controller_state(
+                "passive"
+                if worst >= PASSIVE_LEVEL
+                else ("warning" if worst >= WARNING_LEVEL else "error-active")
+            )
+
+    def _set_controller_state(self, state: str) -> None:
+        if state == self.controller_state:
+            return
+        self.controller_state = state
+        self.counters[f"controller_{state}"] += 1
+        if self.on_controller is not None:
+            self.on_controller(state, self.now)
+            self._send(self.node.flush())
+
+    def overrun(self, kind: str) -> None:
+        """Frames were lost: ``rx`` (the gateway's receive queue), ``tx`` (the driver's transmit
+        queue) or ``controller`` (the CAN controller's own buffers)."""
+        self.overruns[kind] += 1
+        if self.on_controller is not None:
+            self.on_controller(f"{kind}-overrun", self.now)
+            # what the engine queued (an EMCY) goes out from the loop, never from inside a
+            # send that just failed (a full transmit queue would fail it again, and again)
+            try:
+                self.loop.call_soon_threadsafe(self._pump_unless_closed)
+            except RuntimeError:  # the loop is closed: the gateway is stopping
+                pass
 
     def _poll_bus_state(self) -> None:
         if self.closed:
@@ -350,6 +422,16 @@ class CanAdapter:
             elif state is not None and self._state_bus_off:
                 self._state_bus_off = False
                 self._set_bus_off(False)
+            if state is can.BusState.PASSIVE:
+                self._state_passive = True
+                self._set_controller_state("passive")
+            elif state is can.BusState.ACTIVE and self._state_passive:
+                self._state_passive = False
+                self._set_controller_state("error-active")
+            dropped = getattr(self._receiver, "dropped", 0)
+            if isinstance(dropped, int) and dropped > self._rx_overruns_seen:
+                self._rx_overruns_seen = dropped
+                self.overrun("rx")
         self._check_receiver()
         self._state_timer = self.loop.call_later(STATE_POLL_S, self._poll_bus_state)
 
@@ -410,6 +492,8 @@ class CanAdapter:
                 self.tx_frames += 1
             except (can.CanError, OSError, ValueError, struct.error) as exc:
                 self.counters["tx_errors"] += 1
+                if _no_buffer_space(exc):
+                    self.overrun("tx")
                 if self.counters["tx_errors"] == 1 or self.counters["tx_errors"] % 1000 == 0:
                     log.warning(
                         "CAN send failed (%d so far): %s",
@@ -427,6 +511,10 @@ class CanAdapter:
             self._refresh_filters()
             self._send(frames)
             self._arm(self.node.deadline_after_call, known=True)
+
+    def _pump_unless_closed(self) -> None:
+        if not self.closed:
+            self.pump()
 
     def run_engine(self) -> None:
         """Let the engine act now (a process-image event changed its inputs): tick, send, re-arm."""
@@ -532,4 +620,7 @@ class CanAdapter:
             **self.counters,
             "filters": None if self.filters is None else acceptance.describe(self.filters),
             "bus_off": self._bus_off,
+            "controller": "bus-off" if self._bus_off else self.controller_state,
+            "overruns": {kind: self.overruns[kind] for kind in OVERRUNS},
+            "rx_dropped": getattr(self._receiver, "dropped", 0),
         }

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from ..metric_samples import Sample, counter, gauge
+from ..metric_samples import Sample, counter, gauge, state_gauges
 
+CONTROLLER_STATES = ("error-active", "warning", "passive", "bus-off")
 # adapter counters that count frames that were received or meant to be sent but not used
 _DROPPED = {
     "rx_extended_dropped": "extended-id",
@@ -51,5 +52,21 @@ def can_bus_samples(status: dict[str, Any] | None, ignored: int = 0) -> list[Sam
         *(
             counter("can_frames_dropped_total", dropped, status.get(key, 0), reason=reason)
             for key, reason in _DROPPED.items()
+        ),
+        *state_gauges(
+            "can_controller_state",
+            "1 for the CAN controller's error state now",
+            CONTROLLER_STATES,
+            status.get("controller", "error-active"),
+        ),
+        *(
+            counter(
+                "can_overruns_total",
+                "times frames were lost: rx = the gateway's receive queue, tx = the driver's "
+                "transmit queue, controller = the CAN controller's buffers",
+                value,
+                kind=kind,
+            )
+            for kind, value in (status.get("overruns") or {}).items()
         ),
     ]

@@ -34,6 +34,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
+import sys
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -49,14 +50,27 @@ OnRaw = Callable[[int, int, bytes], None]  # (can_id | CAN_*_FLAGs, dlc, 8 data 
 RAW_BATCH = 256  # frames read per wake-up at most on the raw path
 Quick = Callable[[can.Message], bool]
 RECV_TIMEOUT_S = 0.1  # how often the receive thread looks at whether it should stop
+HANDOVER_LIMIT = 10_000  # frames waiting for the loop; more are dropped (an rx overrun)
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: frames the socket buffer dropped
+# room for the drop counter (u32) beside the timestamp python-can asks for (SO_TIMESTAMPNS)
+ANCILLARY = (
+    socket.CMSG_SPACE(4) + socket.CMSG_SPACE(16) + 32 if hasattr(socket, "CMSG_SPACE") else 0
+)
 
 
 class Receiver:
-    """A running receive path; :meth:`stop` before shutting the bus down."""
+    """A running receive path; :meth:`stop` before shutting the bus down.
+
+    ``dropped`` counts frames lost before the loop saw them (the gateway's own receive
+    queue overran): the receive thread's hand-over queue full (:data:`HANDOVER_LIMIT`, the
+    loop far behind), or SocketCAN's socket buffer full (the kernel's ``SO_RXQ_OVFL``
+    count). The adapter reports a rise as an rx overrun.
+    """
 
     mode = "thread"
     handed_over = 0  # messages handed to the loop, counted by the receiving thread only
     handled = 0  # ... and handled there, counted by the loop only
+    dropped = 0
 
     def __init__(
         self,
@@ -101,6 +115,9 @@ class Receiver:
             return
         quick = self.quick
         if quick is not None and self.idle and quick(msg):
+            return
+        if self.handed_over - self.handled >= HANDOVER_LIMIT:
+            self.dropped += 1  # the loop is that far behind: an overrun, not unbounded memory
             return
         self.handed_over += 1
         self._queue.append(msg)  # before the flag is read: the loop clears it before draining
@@ -150,14 +167,18 @@ class ReaderReceiver(Receiver):
             try:
                 msg = self.bus.recv(0)
             except (can.CanError, OSError) as exc:
-                self.errors += 1
-                if self.errors == 1 or self.errors % 1000 == 0:
-                    log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
-                self._watch_again()
+                self._receive_failed(exc)
                 return
             if msg is None:
                 return
             self.on_message(msg)
+
+    def _receive_failed(self, exc: BaseException) -> None:
+        """Count and log (the first, then every 1000th) a failed read; watch the socket again."""
+        self.errors += 1
+        if self.errors == 1 or self.errors % 1000 == 0:
+            log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
+        self._watch_again()
 
     def _watch_again(self) -> None:
         """Register the socket again after a receive error (ENETDOWN: the interface went down).
@@ -191,10 +212,36 @@ class RawSocketReceiver(ReaderReceiver):
     ):
         self.on_raw = on_raw
         self._sock = sock
+        try:  # the kernel then tells, with each frame, how many the socket buffer dropped
+            sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+            self._counts_drops = True
+        except OSError:
+            self._counts_drops = False
         super().__init__(bus, loop, lambda msg: None, sock.fileno())
+
+    def _drop_count(self) -> None:
+        """The first frame of a wake-up read with ``recvmsg``: its ancillary data carries the
+        socket's drop counter as it was when the frame was queued (one ``recvmsg`` per wake-up,
+        not per frame; frames dropped while the loop was away show on the first frame queued
+        after them, at a later wake-up)."""
+        try:
+            raw, ancillary, _, _ = self._sock.recvmsg(FRAME.size, ANCILLARY, socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            return
+        for level, kind, value in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                self.dropped = int.from_bytes(value[:4], sys.byteorder)
+        if len(raw) == FRAME.size:
+            self.on_raw(*FRAME.unpack(raw))
 
     def _readable(self) -> None:
         recv, unpack, on_raw = self._sock.recv, FRAME.unpack, self.on_raw
+        if self._counts_drops and self.active:
+            try:
+                self._drop_count()
+            except OSError as exc:
+                self._receive_failed(exc)
+                return
         for _ in range(RAW_BATCH):
             if not self.active:
                 return
@@ -203,10 +250,7 @@ class RawSocketReceiver(ReaderReceiver):
             except BlockingIOError:
                 return
             except OSError as exc:
-                self.errors += 1
-                if self.errors == 1 or self.errors % 1000 == 0:
-                    log.warning("CAN receive failed (%d so far): %s", self.errors, exc)
-                self._watch_again()
+                self._receive_failed(exc)
                 return
             if len(raw) == FRAME.size:
                 word, dlc, data = unpack(raw)

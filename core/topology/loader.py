@@ -516,6 +516,11 @@ def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]
                     f"'{pattern}' matches no channel{close or ''} (channel ids look like <back>/m<address>/<kind><index>, e.g. {next(iter(sorted(ids)), 'rs485/m1/di0')})",
                 )
     _one_writer_checks(topology, issue)
+    if issues:
+        return issues
+    for f_index, front in enumerate(topology.fronts):
+        for loc, message in front.check(topology):
+            issue(("fronts", f_index, *loc), message)
     return issues
 
 

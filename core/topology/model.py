@@ -211,6 +211,13 @@ class FrontConfig(ComponentConfig):
         """
         return self.expose
 
+    def check(self, topology: Any) -> list[tuple[tuple[Any, ...], str]]:
+        """What this front can only check with the whole topology (its channels known), as
+        ``(path below this front, message)`` pairs: the limits ``run`` would refuse at start
+        (a CANopen head's image size, its default PDOs). Called by the loader for ``validate``,
+        ``run`` and every other command alike. Default: nothing."""
+        return []
+
     def validation_warnings(self) -> list[str]:
         """What ``fieldgate validate`` should point out although the section is valid
         (a listener that accepts clients without authenticating them)."""

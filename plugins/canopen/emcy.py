@@ -16,9 +16,12 @@ is sent; when the last clears, the all-zero reset; errors cleared together by
 clears the history, any other write aborts 0609 0030.
 
 0x1015 inhibit time is in units of 100 us (CiA 301): EMCYs produced within the
-inhibit time are queued (at most ``QUEUE_LIMIT``) and sent when it elapses. EMCYs are
-sent only in pre-operational and operational (CiA 301); 0x1014 bit 31 set disables
-them. Errors and history are kept in every state.
+inhibit time are queued (at most ``queue_limit``, 16 by default, 20 in the NA-9161
+style) and sent when it elapses. A full queue drops its oldest EMCY and calls
+``on_overflow(now)``: the front's CAN health reports a software Tx overrun with an EMCY
+sent at once, ahead of the queue (``raise_error(..., urgent=True)``; the NA-9161's "an
+overflow EMCY is sent at once"). EMCYs are sent only in pre-operational and operational
+(CiA 301); 0x1014 bit 31 set disables them. Errors and history are kept in every state.
 """
 
 from __future__ import annotations
@@ -53,11 +56,15 @@ class EmcyProducer(Service):
     is_emcy_producer = True
     active_states = ALL_STATES
 
-    def __init__(self, history_depth: int = 5):
+    def __init__(self, history_depth: int = 5, queue_limit: int = QUEUE_LIMIT):
         super().__init__()
         if history_depth < 1 or history_depth > 254:
             raise ValueError("EMCY history depth must be 1..254")
+        if queue_limit < 1:
+            raise ValueError("the EMCY queue holds at least one EMCY")
         self.depth = history_depth
+        self.queue_limit = queue_limit
+        self.on_overflow: Callable[[float], None] | None = None  # the queue dropped an EMCY
         self.active: dict[tuple[int, bytes], int] = {}  # (code, manufacturer) -> register bits
         self.history: deque[int] = deque(maxlen=history_depth)
         self._queue: deque[Frame] = deque()
@@ -107,15 +114,18 @@ class EmcyProducer(Service):
         register_bits: int = GENERIC,
         manufacturer: bytes = b"",
         now: float | None = None,
+        *,
+        urgent: bool = False,
     ) -> bool:
-        """Record a new error and send its EMCY. False (and no frame) if already active."""
+        """Record a new error and send its EMCY. False (and no frame) if already active.
+        ``urgent``: sent at once, ahead of the queue and the inhibit time (an overflow report)."""
         manufacturer = bytes(manufacturer[:5])
         key = (code & 0xFFFF, manufacturer)
         if key in self.active:
             self.counters["repeated"] += 1
             return False
         self.active[key] = register_bits & 0xFF
-        self._produce(code, manufacturer, now)
+        self._produce(code, manufacturer, now, urgent=urgent)
         return True
 
     def clear_error(
@@ -158,7 +168,13 @@ class EmcyProducer(Service):
 
     # -- producing ------------------------------------------------------------------------
     def _produce(
-        self, code: int, manufacturer: bytes, now: float | None, register: int | None = None
+        self,
+        code: int,
+        manufacturer: bytes,
+        now: float | None,
+        register: int | None = None,
+        *,
+        urgent: bool = False,
     ) -> None:
         now = self.node.now if now is None else now
         self.history.appendleft(history_value(code, manufacturer))
@@ -171,23 +187,36 @@ class EmcyProducer(Service):
         if self.node.state not in COMMUNICATING:
             self.counters["suppressed_by_state"] += 1
             return
-        if len(self._queue) >= QUEUE_LIMIT:
+        frame = Frame(cob & 0x7FF, data)
+        if urgent:
+            self._transmit(frame, now)
+            return
+        overflow = len(self._queue) >= self.queue_limit
+        if overflow:
             self._queue.popleft()
             self.counters["queue_overflow"] += 1
-        self._queue.append(Frame(cob & 0x7FF, data))
+        self._queue.append(frame)
+        if overflow and self.on_overflow is not None:
+            self.on_overflow(now)
         self._flush(now)
+
+    @property
+    def queued(self) -> int:
+        return len(self._queue)
 
     def _inhibit(self) -> float:
         return self.node.od.integer(0x1015) * 100e-6
 
     def _flush(self, now: float) -> None:
         while self._queue and (self._last_sent is None or now >= self._last_sent + self._inhibit()):
-            frame = self._queue.popleft()
-            self.node.send(frame)
-            self.counters["sent"] += 1
-            self._last_sent = now
-            if self.on_sent is not None:
-                self.on_sent(frame)
+            self._transmit(self._queue.popleft(), now)
+
+    def _transmit(self, frame: Frame, now: float) -> None:
+        self.node.send(frame)
+        self.counters["sent"] += 1
+        self._last_sent = now
+        if self.on_sent is not None:
+            self.on_sent(frame)
 
     def deadline(self) -> float | None:
         if not self._queue or self._last_sent is None:
@@ -227,6 +256,8 @@ class EmcyProducer(Service):
     def status(self) -> dict[str, Any]:
         return {
             **self.counters,
+            "queued": len(self._queue),
+            "queue_limit": self.queue_limit,
             "error_register": self.register,
             "active": [f"{c:04X}:{m.hex()}" for c, m in self.active],
         }

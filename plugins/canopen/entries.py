@@ -18,6 +18,7 @@ import struct
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
+from typing import Any
 
 from .abort import (
     LENGTH_TOO_HIGH,
@@ -42,6 +43,8 @@ BOOLEAN, INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32 = (
     0x07,
 )
 VISIBLE_STRING = 0x09
+DOMAIN = 0x0F  # a block of bytes of any length (the NA-9161's slot memory and parameters)
+Value = int | str | bytes
 
 _FORMATS = {
     BOOLEAN: "<?",
@@ -70,15 +73,19 @@ def bits_of(dtype: int) -> int:
     return 8 * struct.calcsize(_FORMATS[dtype]) if dtype in _FORMATS else 0
 
 
-def encode(dtype: int, value: int | str) -> bytes:
+def encode(dtype: int, value: Value) -> bytes:
     if dtype == VISIBLE_STRING:
         return str(value).encode("latin-1", "replace")
+    if dtype == DOMAIN:
+        return bytes(value) if isinstance(value, (bytes, bytearray)) else b""
     return struct.pack(_FORMATS[dtype], value)
 
 
-def decode(dtype: int, data: bytes) -> int | str:
+def decode(dtype: int, data: bytes) -> Value:
     if dtype == VISIBLE_STRING:
         return data.decode("latin-1")
+    if dtype == DOMAIN:
+        return bytes(data)
     size = struct.calcsize(_FORMATS[dtype])
     if len(data) > size:
         raise Abort(LENGTH_TOO_HIGH, "data too long")
@@ -106,9 +113,9 @@ class Entry:
     name: str
     dtype: int
     access: str
-    get: Callable[[], int | str]
-    set: Callable[[int], None] | None = None
-    default: int | str | None = None  # EDS DefaultValue; None: the value at build time
+    get: Callable[[], Value]
+    set: Callable[[Any], None] | None = None
+    default: Value | None = None  # EDS DefaultValue; None: the value at build time
     default_expr: str | None = None  # e.g. "$NODEID+0x180"
     mappable: bool = False
     low: int | None = None
@@ -127,9 +134,15 @@ class Entry:
         return bits_of(self.dtype)
 
     def write(self, value: int) -> None:
+        self.store(value)
+
+    def store(self, value: Value) -> None:
+        """Take a written value of any type: integers are range-checked, blocks (DOMAIN) and
+        strings go to the setter, which checks their length."""
         if not self.writable or self.set is None:
             raise Abort(READ_ONLY, f"{self.name} is read-only")
-        check_range(self.dtype, value, self.low, self.high)
+        if isinstance(value, int):
+            check_range(self.dtype, value, self.low, self.high)
         self.set(value)
 
 
@@ -211,8 +224,7 @@ class Directory:
         entry = self.entry(index, sub)
         if not entry.writable:
             raise Abort(READ_ONLY, f"0x{index:04X}:{sub} is read-only")
-        value = decode(entry.dtype, data)
-        entry.write(value)  # type: ignore[arg-type]
+        entry.store(decode(entry.dtype, data))
 
-    def value(self, index: int, sub: int) -> int | str:
+    def value(self, index: int, sub: int) -> Value:
         return self.entry(index, sub).get()

@@ -80,14 +80,17 @@ class ErrorControl(Service):
         self,
         guard_time_ms: int = 0,
         life_time_factor: int = 0,
-        heartbeat_ms: int = 0,
+        heartbeat_ms: int | None = 0,
         consumers: int = 1,
         error_behaviour: int = ERROR_NO_CHANGE,
+        consumer_defaults: Iterable[int] = (),
     ):
         super().__init__()
         self.defaults = (guard_time_ms, life_time_factor, heartbeat_ms)
         self.error_behaviour = error_behaviour
-        self.consumers = consumers
+        self.consumer_defaults = list(consumer_defaults)  # 0x1016:1.. defaults (node << 16 | ms)
+        self.consumers = max(consumers, len(self.consumer_defaults))
+        self.producer = heartbeat_ms is not None  # 0x1017 served (an I-7232D has guarding only)
         self.toggle = 0
         self.life_deadline: float | None = None
         self.heartbeat_due: float | None = None
@@ -98,6 +101,7 @@ class ErrorControl(Service):
             int, float | None
         ] = {}  # producer node-ID -> deadline (None: not yet heard)
         # what the master monitoring says now (each an active EMCY error, bus-off aside)
+        self.sync_lost = False  # SYNC loss reported as an error event (the NA-9161's)
         self.guard_lost = False
         self.heartbeat_lost: set[int] = set()
         self.bus_off = False
@@ -116,7 +120,8 @@ class ErrorControl(Service):
         guard, factor, heartbeat = self.defaults
         od.add_variable(0x100C, "Guard time", dt.UNSIGNED16, "rw", guard, maximum=32767)
         od.add_variable(0x100D, "Life time factor", dt.UNSIGNED8, "rw", factor)
-        od.add_variable(0x1017, "Producer heartbeat time", dt.UNSIGNED16, "rw", heartbeat)
+        if heartbeat is not None:
+            od.add_variable(0x1017, "Producer heartbeat time", dt.UNSIGNED16, "rw", heartbeat)
         od.add_array(
             0x1029,
             "Error behaviour",
@@ -141,7 +146,7 @@ class ErrorControl(Service):
                         f"Consumer heartbeat time {i}",
                         dt.UNSIGNED32,
                         "rw",
-                        0,
+                        self.consumer_defaults[i - 1] if i <= len(self.consumer_defaults) else 0,
                         {"maximum": 0x00FFFFFF},
                     )
                     for i in range(1, self.consumers + 1)
@@ -149,7 +154,8 @@ class ErrorControl(Service):
             )
             od.add_validator(0x1016, self._check_consumer)
             od.on_write(0x1016, lambda *_: self._consumers_written(node.now))
-        od.on_write(0x1017, lambda *_: self._heartbeat_time_written(node.now))
+        if heartbeat is not None:
+            od.on_write(0x1017, lambda *_: self._heartbeat_time_written(node.now))
         od.on_write(0x100C, lambda *_: self._guarding_written(node.now))
         od.on_write(0x100D, lambda *_: self._guarding_written(node.now))
 
@@ -233,8 +239,12 @@ class ErrorControl(Service):
             return True
         return False
 
+    def producer_time_ms(self) -> int:
+        """0x1017 now; 0 when the node has no heartbeat producer."""
+        return self.node.od.integer(0x1017) if self.producer else 0
+
     def _guard_request(self, now: float) -> None:
-        if self.node.od.integer(0x1017):
+        if self.producer_time_ms():
             self.counters["guard_rtr_ignored_heartbeat_on"] += 1
             return
         self.counters["guard_requests"] += 1
@@ -249,7 +259,7 @@ class ErrorControl(Service):
 
     def guarding_enabled(self) -> bool:
         """Life guarding configured: guard time and life time factor set, heartbeat producer off."""
-        return self._life_time_s() > 0 and not self.node.od.integer(0x1017)
+        return self._life_time_s() > 0 and not self.producer_time_ms()
 
     def monitoring(self) -> bool:
         """Whether anything here can hear the master: life guarding or a heartbeat consumer entry."""
@@ -293,7 +303,7 @@ class ErrorControl(Service):
         if self.heartbeat_due is not None and now >= self.heartbeat_due:
             self.node.send(Frame(self.cob_id, bytes([int(self.node.state)])))
             self.counters["heartbeats_sent"] += 1
-            period = self.node.od.integer(0x1017) / 1000.0
+            period = self.producer_time_ms() / 1000.0
             self.heartbeat_due = (
                 (self.heartbeat_due + period) if self.heartbeat_due + period > now else now + period
             )
@@ -312,7 +322,7 @@ class ErrorControl(Service):
                 )
 
     def _restart_heartbeat(self, now: float) -> None:
-        period = self.node.od.integer(0x1017)
+        period = self.producer_time_ms()
         if period and self.node.state is not NmtState.INITIALISING and self.node.configured:
             self.heartbeat_due = now + period / 1000.0
         else:
@@ -386,6 +396,18 @@ class ErrorControl(Service):
             # with nothing to hear the master by, the recovery EMCY is an event: reset at once
             self._end(now, "recovered from bus-off", bus_off_recovered=not self.monitoring())
 
+    def sync_state(self, lost: bool, now: float) -> None:
+        """SYNC loss as an error event (the NA-9161: outputs to their error values, 0x1029);
+        the SYNC service raises and clears its own EMCY. Called only when the style says so."""
+        if lost and not self.sync_lost:
+            self.sync_lost = True
+            self.counters["sync_error_events"] += 1
+            self._report_master("SYNC lost")
+            self._apply_error_behaviour(now)
+        elif not lost and self.sync_lost:
+            self.sync_lost = False
+            self._report_master("SYNC back")
+
     def _master_lost(self, error: Error, reason: str, now: float) -> None:
         if self.node.emcy is not None:
             self.node.emcy.raise_error(error[0], COMM_REGISTER, error[1], now)
@@ -430,7 +452,13 @@ class ErrorControl(Service):
 
     def _report_master(self, reason: str) -> None:
         """Tell the node's master listeners when "master lost" changes, and only then."""
-        lost = self.guard_lost or bool(self.heartbeat_lost) or self.bus_off or self.unheard
+        lost = (
+            self.guard_lost
+            or bool(self.heartbeat_lost)
+            or self.bus_off
+            or self.unheard
+            or self.sync_lost
+        )
         if lost != self.master_lost:
             self.master_lost = lost
             self.node.master_state(not lost, reason)
@@ -449,6 +477,7 @@ class ErrorControl(Service):
             "heartbeat_lost": sorted(self.heartbeat_lost),
             "bus_off": self.bus_off,
             "bus_off_recovered": self.bus_off_recovered,
+            "sync_error_event": self.sync_lost,
             "master_unheard": self.unheard,
             "master": "lost" if self.master_lost else "ok",
         }

@@ -35,7 +35,7 @@ Frames produced between node calls (a DI change from a back) are queued with
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from fieldgate.health import HealthRegistry
@@ -43,17 +43,29 @@ from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
 
-from .entries import BOOLEAN, Directory, Entry, ObjectDef
+from .cobid import check_cob_id
+from .entries import BOOLEAN, Abort, Directory, Entry, ObjectDef, Value
 from .fnbus import FnBusRegister
 from .frame import Frame, NmtState
 from .iostore import IoStore
-from .layouts import STYLE_PDO_COUNT, IoLayout, Style, build_layout, default_pdos
+from .layouts import (
+    STYLE_PDO_COUNT,
+    IoLayout,
+    PdoDefaults,
+    PdoSetting,
+    Style,
+    build_layout,
+    default_pdos,
+)
 from .manufacturer import ManufacturerObjects
 from .master_state import MasterState
 from .od import Dictionary
 from .pdo import PdoEngine
-from .profile401 import Profile401
+from .pdo_mapping import Pdo, PdoMapping
+from .profile401 import SHORT_WRITES, Profile401
+from .profiles import STYLES
 from .service import NodeHost, Service
+from .slots import SlotObjects
 
 LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES = 0x8210, 0x10, b"\x09"
 
@@ -72,6 +84,22 @@ class IoSettings:
         None  # (0x6206, 0x6207) for outputs without a configured mode
     )
     bit_mapping: bool = False  # 0x6020-/0x6220- bit objects, 1-bit mapping, dummy 0x0001
+    analog_events: Literal["change", "interrupt"] | None = None  # default: the style's
+    short_ao_error_writes: tuple[int, ...] | None = None  # 2-byte writes taken (0x6443/0x6444)
+    empty_pdos_invalid: bool = False  # default PDOs without data start invalid (master profile)
+    tpdo_settings: dict[int, PdoSetting] = field(default_factory=dict)  # the topology's tpdos:
+    rpdo_settings: dict[int, PdoSetting] = field(default_factory=dict)  # the topology's rpdos:
+
+    @property
+    def analog(self) -> Literal["change", "interrupt"]:
+        """AI changes: every one a TPDO event (na9161) or only through 0x6423/0x6421."""
+        return self.analog_events or STYLES[self.style].analog_events
+
+    @property
+    def short_writes(self) -> tuple[int, ...]:
+        if self.short_ao_error_writes is not None:
+            return self.short_ao_error_writes
+        return STYLES[self.style].short_ao_error_writes
 
     @property
     def granularity(self) -> int:
@@ -93,6 +121,9 @@ class IoSettings:
 class IoDevice(Service):
     name = "io"
     active_states = frozenset({NmtState.OPERATIONAL})
+    layout: IoLayout
+    defaults: PdoDefaults
+    profile: Profile401
 
     def __init__(
         self,
@@ -134,6 +165,13 @@ class IoDevice(Service):
             if settings.style == "na9161"
             else None
         )
+        # the NA-9161's per-slot objects (0x2000/0x2200 memory, 0x4501, 0x4502, 0x4504): every
+        # slot keeps its number, deactivated or not, so they are built once
+        self.slots = (
+            SlotObjects(image, self.layout.modules, self.channels, origin)
+            if settings.style == "na9161"
+            else None
+        )
         self.manufacturer = ManufacturerObjects(
             self.layout,
             health,
@@ -160,28 +198,22 @@ class IoDevice(Service):
 
     def _build_layout(self, compressed: bool, inactive: frozenset[int]) -> None:
         """The layout-dependent parts: layout, default PDOs, CiA 401 objects."""
-        settings = self.settings
-        self.layout: IoLayout = build_layout(
+        self.layout, self.defaults, self.profile = build_io(
+            self.settings,
+            self.image,
             self.channels,
-            settings.style,
-            compressed=compressed,
+            self.origin,
             models=self.models,
+            compressed=compressed,
             inactive=inactive,
-        )
-        self.defaults = default_pdos(
-            self.layout,
-            settings.style,
-            count=settings.count,
-            mapping_closed=settings.mapping_closed,
-        )
-        self.profile = Profile401(
-            self.image, self.layout, self.origin, bit_objects=settings.bit_mapping
         )
 
     def _directory(self) -> Directory:
         fnbus = self.fnbus.objects() if self.fnbus is not None else []
+        slots = self.slots.objects() if self.slots is not None else []
         return Directory(
-            self.profile.objects() + self.manufacturer.objects() + fnbus, batch=self.profile.batch
+            self.profile.objects() + self.manufacturer.objects() + fnbus + slots,
+            batch=self.profile.batch,
         )
 
     def _new_engine(self, node: NodeHost) -> PdoEngine:
@@ -233,6 +265,8 @@ class IoDevice(Service):
         self.engine = self._new_engine(node)
         for obj in self.objects():
             bind_object(node.od, obj)
+        for index in self.settings.short_writes:
+            node.od.accept_short_writes(index, 2, SHORT_WRITES[index])
         self.store.attach(node)
         self.profile.attach(self.engine.object_changed)
         emcy = node.emcy
@@ -321,6 +355,109 @@ class IoDevice(Service):
             emcy.clear_error(LENGTH_ERROR_CODE)
 
 
+def build_io(
+    settings: IoSettings,
+    image: ProcessImage,
+    channels: Sequence[Channel],
+    origin: str,
+    *,
+    models: dict[tuple[str, int], str] | None = None,
+    compressed: bool | None = None,
+    inactive: frozenset[int] = frozenset(),
+) -> tuple[IoLayout, PdoDefaults, Profile401]:
+    """The layout, the default PDOs and the CiA 401 objects of a front's channels: what a
+    running front builds, and what ``fieldgate validate`` checks (:class:`LayoutError` when
+    the channels do not fit the style: 32 slots and 64 bytes of the NA-9161, the PDOs)."""
+    layout = build_layout(
+        channels,
+        settings.style,
+        compressed=settings.compressed if compressed is None else compressed,
+        models=models or {},
+        inactive=inactive,
+    )
+    defaults = default_pdos(
+        layout,
+        settings.style,
+        count=settings.count,
+        mapping_closed=settings.mapping_closed,
+        empty_invalid=settings.empty_pdos_invalid,
+        tpdo_settings=settings.tpdo_settings,
+        rpdo_settings=settings.rpdo_settings,
+    )
+    profile = Profile401(
+        image,
+        layout,
+        origin,
+        bit_objects=settings.bit_mapping,
+        analog_events=settings.analog,
+    )
+    return layout, defaults, profile
+
+
+def check_pdo_settings(io: IoDevice, node_id: int) -> list[tuple[str, int, str]]:
+    """What the PDO engine would refuse of the topology's ``tpdos:`` / ``rpdos:`` (the CiA 301
+    rules a master's SDO writes meet: mapping entries, COB-IDs, transmission types, the
+    RPDOs' sub 3/5), as ``(field, PDO number, message)``; the engine itself takes its
+    defaults unchecked."""
+    settings, defaults = io.settings, io.defaults
+    mapping = PdoMapping(io.directory, settings.granularity)
+    problems: list[tuple[str, int, str]] = []
+    valid_ids: dict[int, str] = {}
+    for field_name, transmit, given, pdos in (
+        ("tpdos", True, settings.tpdo_settings, defaults.tpdo),
+        ("rpdos", False, settings.rpdo_settings, defaults.rpdo),
+    ):
+        for number, default in enumerate(pdos, 1):
+            pdo = Pdo(number, transmit, default)
+            setting = given.get(number)
+            if setting is not None:
+                problem = _pdo_setting_problem(setting, pdo, mapping, settings.style)
+                if problem:
+                    problems.append((field_name, number, problem))
+                    continue
+            if default.valid and default.cob_base is not None and (node_id or default.absolute):
+                can_id = default.cob_id(node_id) & 0x7FF
+                if can_id in valid_ids and setting is not None:
+                    problems.append(
+                        (field_name, number, f"COB-ID 0x{can_id:03X} is {valid_ids[can_id]}'s too")
+                    )
+                valid_ids.setdefault(can_id, f"{'T' if transmit else 'R'}PDO{number}")
+    return problems
+
+
+def _pdo_setting_problem(
+    setting: PdoSetting, pdo: Pdo, mapping: PdoMapping, style: str
+) -> str | None:
+    if setting.trans_type is not None and 252 <= setting.trans_type <= 253 and not pdo.transmit:
+        return f"transmission type {setting.trans_type} is for TPDOs (RTR)"
+    if (
+        not pdo.transmit
+        and style != "na9161"
+        and (setting.inhibit is not None or setting.event_timer is not None)
+    ):
+        return "RPDOs of the icpdas style have no inhibit time or event timer (subs 1 and 2 only)"
+    if setting.cob_id is not None:
+        try:
+            check_cob_id(setting.cob_id, "PDO", in_use=setting.valid is not False)
+        except Abort as exc:
+            return f"cob_id 0x{setting.cob_id:03X}: {_reason(exc)}"
+    if pdo.default.valid and pdo.default.cob_base is None:
+        return (
+            f"{'T' if pdo.transmit else 'R'}PDO{pdo.number} has no predefined COB-ID: give cob_id"
+        )
+    if pdo.default.entries:
+        try:
+            mapping.compile(pdo, list(pdo.default.entries))
+        except Abort as exc:
+            return f"mapping: {_reason(exc)} (abort 0x{exc.code:08X})"
+    return None
+
+
+def _reason(exc: Abort) -> str:
+    """An abort's text without its "SDO abort 0x..." prefix (a topology has no SDO)."""
+    return str(exc).split(": ", 1)[-1]
+
+
 def bind_object(od: Dictionary, obj: ObjectDef) -> None:
     """Add one :class:`ObjectDef` to the node's dictionary with its getters and setters."""
     if obj.kind == "var":
@@ -362,10 +499,10 @@ def bind_object(od: Dictionary, obj: ObjectDef) -> None:
     for e in obj.entries:
         if e.sub == 0 and obj.kind != "var" and not e.writable:
             continue  # the dictionary's own "highest sub-index" entry
-        od.bind(obj.index, e.sub, getter=e.get, setter=e.write if e.writable else None)
+        od.bind(obj.index, e.sub, getter=e.get, setter=e.store if e.writable else None)
 
 
-def _model_default(e: Entry) -> int | str:
+def _model_default(e: Entry) -> Value:
     """The EDS default: relative COB-IDs keep their base (the dictionary adds the node-ID)."""
     if e.default_expr is not None:
         return int(e.default_expr.split("+", 1)[1], 0)

@@ -210,11 +210,46 @@ class PdoDefault:
     inhibit: int = 0
     event_timer: int = 0
     entries: list[int] = field(default_factory=list)
+    absolute: bool = False  # cob_base is the whole CAN-ID (set by the topology), no node-ID added
 
     def cob_id(self, node_id: int) -> int:
         if self.cob_base is None:
             return COB_INVALID
-        return (self.cob_base + node_id) | (0 if self.valid else COB_INVALID)
+        base = self.cob_base if self.absolute else self.cob_base + node_id
+        return base | (0 if self.valid else COB_INVALID)
+
+
+@dataclass(frozen=True)
+class PdoSetting:
+    """What the topology sets for one PDO (``tpdos:`` / ``rpdos:``); None: the style's default."""
+
+    cob_id: int | None = None  # the CAN-ID itself, not counted from the node-ID
+    valid: bool | None = None
+    trans_type: int | None = None
+    inhibit: int | None = None  # 100 us
+    event_timer: int | None = None  # ms
+    entries: tuple[int, ...] | None = None  # index << 16 | sub << 8 | bits
+
+    def apply(self, pdo: PdoDefault) -> PdoDefault:
+        """``pdo`` with this setting's values; a COB-ID given, or data mapped on a PDO that has
+        a COB-ID, makes the PDO valid unless ``valid`` says otherwise."""
+        cob_base, absolute = pdo.cob_base, pdo.absolute
+        valid = pdo.valid
+        if self.cob_id is not None:
+            cob_base, absolute, valid = self.cob_id, True, True
+        elif self.entries:
+            valid = cob_base is not None
+        if self.valid is not None:
+            valid = self.valid
+        return PdoDefault(
+            cob_base,
+            valid,
+            pdo.trans_type if self.trans_type is None else self.trans_type,
+            pdo.inhibit if self.inhibit is None else self.inhibit,
+            pdo.event_timer if self.event_timer is None else self.event_timer,
+            list(pdo.entries) if self.entries is None else list(self.entries),
+            absolute,
+        )
 
 
 @dataclass
@@ -265,7 +300,15 @@ def default_pdos(
     *,
     count: int | None = None,
     mapping_closed: bool = False,
+    empty_invalid: bool = False,
+    tpdo_settings: dict[int, PdoSetting] | None = None,
+    rpdo_settings: dict[int, PdoSetting] | None = None,
 ) -> PdoDefaults:
+    """``empty_invalid`` (a master that waits for every valid PDO, the Delta AS300): a PDO
+    with nothing mapped starts invalid whatever the style says. ``tpdo_settings`` /
+    ``rpdo_settings`` (PDO number -> :class:`PdoSetting`, the topology's ``tpdos:`` /
+    ``rpdos:``) replace the style's values last; a number beyond ``count`` is a
+    :class:`LayoutError`."""
     count = count or STYLE_PDO_COUNT[style]
     result = PdoDefaults([], [])
     for direction, bases, digital, analog, d_obj, a_obj in (
@@ -282,7 +325,8 @@ def default_pdos(
             ]
             base = bases[n] if n < len(bases) else None
             if style == "icpdas":
-                pdo = PdoDefault(base, base is not None, 255, entries=entries)
+                valid = base is not None and (bool(entries) or not empty_invalid)
+                pdo = PdoDefault(base, valid, 255, entries=entries)
             else:
                 pdo = PdoDefault(
                     base if n < 2 else None,
@@ -292,4 +336,11 @@ def default_pdos(
                     entries=entries,
                 )
             pdos.append(pdo)
+        given = (tpdo_settings if direction == "t" else rpdo_settings) or {}
+        for number, setting in sorted(given.items()):
+            if not 1 <= number <= count:
+                raise LayoutError(
+                    f"{'T' if direction == 't' else 'R'}PDO{number}: this front has PDOs 1..{count} (pdo_count)"
+                )
+            pdos[number - 1] = setting.apply(pdos[number - 1])
     return result

@@ -5,7 +5,7 @@ address); sub 0 = number of modules.
 
 | Object | Type | Meaning |
 |---|---|---|
-| 0x2000 | U16 rw | error counter: +1 per failed access, wraps 65535 -> 0; write 0 to clear |
+| 0x2000 | U16 rw | error counter: +1 per failed access, wraps 65535 -> 0; write 0 to clear (``na9161`` style: 0x2030, as 0x2000 is the NA-9161's slot memory, :mod:`.slots`) |
 | 0x2001 | U8 rw | DCON host watchdog enable (0/1); only with DCON modules |
 | 0x2002 | U8 rw | DCON host watchdog timeout, 0.1 s (1..255); only with DCON modules |
 | 0x2003 | U8 rw | DCON host watchdog expired (1); write 0 sends ``~AA1`` |
@@ -49,6 +49,7 @@ from .layouts import IoLayout, ModuleRef
 log = logging.getLogger("fieldgate.canopen.manufacturer")
 
 ERROR_COUNTERS = 0x2000
+NA9161_ERROR_COUNTERS = 0x2030  # the na9161 style: 0x2000 is the NA-9161's read memory
 WATCHDOG_ENABLE, WATCHDOG_TIME, WATCHDOG_STATUS = 0x2001, 0x2002, 0x2003
 MODULE_ADDRESS, MODULE_MODEL = 0x2010, 0x2011
 MODULE_COUNTS = {0x2012: "di", 0x2013: "do", 0x2014: "ai", 0x2015: "ao"}
@@ -199,7 +200,7 @@ class ManufacturerObjects:
 
         objs = [
             per_module(
-                ERROR_COUNTERS,
+                NA9161_ERROR_COUNTERS if self.style == "na9161" else ERROR_COUNTERS,
                 "Module error counter",
                 UNSIGNED16,
                 "rw",

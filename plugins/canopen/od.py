@@ -97,6 +97,8 @@ class Dictionary:
         self._setters: dict[tuple[int, int], Setter] = {}
         self._thread_safe: set[tuple[int, int]] = set()  # getters read_quick may call
         self._validators: dict[int, list[Validator]] = {}
+        # index -> (length, converter): writes of that length taken in the device's own width
+        self._short_writes: dict[int, tuple[int, Callable[[bytes], bytes]]] = {}
         self._listeners: dict[int, list[WriteListener]] = {}
         self.generation = 0  # +1 on every change of entries, bindings or values: caches compare it
         self._sources: dict[
@@ -271,6 +273,15 @@ class Dictionary:
             self._setters[(index, subindex)] = setter
         self.generation += 1
 
+    def accept_short_writes(
+        self, index: int, length: int, convert: Callable[[bytes], bytes]
+    ) -> None:
+        """Take downloads of ``length`` bytes to the sub-indices 1.. of ``index`` (where a
+        device manual prints a narrower type than CiA 401, e.g. the ICP DAS manuals' U16
+        0x6443/0x6444): ``convert`` turns them into the entry's own width (or raises
+        :class:`SdoAbort`); every other length is checked as usual."""
+        self._short_writes[index] = (length, convert)
+
     def add_validator(self, index: int, validator: Validator) -> None:
         self._validators.setdefault(index, []).append(validator)
 
@@ -352,6 +363,10 @@ class Dictionary:
 
     def write(self, index: int, subindex: int, data: bytes) -> None:
         """SDO download: check everything, then take effect, then notify."""
+        short = self._short_writes.get(index)
+        if short is not None and subindex and len(data) == short[0]:
+            self.variable(index, subindex)  # 0602 0000 / 0609 0011 before the conversion
+            data = short[1](data)
         var = self.check_download(index, subindex, len(data))
         value = decode(var, data)
         check_range(var, value)

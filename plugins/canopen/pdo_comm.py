@@ -92,6 +92,8 @@ class PdoCommParameters:
         d = pdo.default
         if d.cob_base is None:
             return COB_INVALID, None
+        if d.absolute:  # the topology's own CAN-ID: the same for every node-ID
+            return d.cob_id(self.node_id()), None
         return d.cob_id(
             self.node_id()
         ), f"$NODEID+0x{d.cob_base | (0 if d.valid else COB_INVALID):X}"

@@ -33,6 +33,7 @@ from .entries import (
     Directory,
     Entry,
     ObjectDef,
+    Value,
     decode,
     encode,
 )
@@ -246,7 +247,7 @@ class PdoMapping:
         return packed.to_bytes(pdo.length, "little")
 
     @staticmethod
-    def unpack(pdo: Pdo, payload: bytes) -> Iterator[tuple[Slot, Entry, int | str]]:
+    def unpack(pdo: Pdo, payload: bytes) -> Iterator[tuple[Slot, Entry, Value]]:
         """An RPDO's data (at least ``pdo.length`` bytes) as (slot, entry, value) per mapped
         entry, in mapping order; dummy entries are skipped."""
         packed = None if pdo.aligned else int.from_bytes(payload, "little")

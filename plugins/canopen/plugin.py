@@ -18,12 +18,13 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from fieldgate import __version__
 from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.can.busmetrics import can_bus_samples
-from fieldgate.events import BUS_OFF, BUS_ON, EMCY_SENT, NMT_STATE
+from fieldgate.events import BUS_OFF, BUS_ON, CAN_OVERRUN, CAN_STATE, EMCY_SENT, NMT_STATE
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.image import Channel
 from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
@@ -34,17 +35,29 @@ from fieldgate.topology.model import StrictModel
 from .cobid import restricted
 from .eds import eds_for
 from .frame import Frame, NmtState
-from .front401 import IoFrontOptions, io_settings
+from .front401 import IoFrontOptions, check_io, io_settings
 from .front401 import install as install_io_device
 from .layouts import device_type as io_device_type
 from .locations import point_locations
 from .lss import BIT_TIMING_TABLES, LssService, LssStore
 from .master_state import MasterState
 from .node import Node
+from .profiles import (
+    AnalogEvents,
+    MasterLost,
+    MasterName,
+    Resolved,
+    SyncLoss,
+    node_id_problem,
+    resolve,
+)
 from .slave import Identity, NodeSettings, build_node
 
 MODULE_FAILURE_CODE = 0xFF00
 MODULE_FAILURE_REGISTER = 0x81
+# seed-000 §2.5: "COM port access error" (the I-7232D's RS-485 port); both styles, as the
+# NA-9161's table is missing from its manual
+COM_PORT_ERROR = (0x5000, 0x81, b"\x03")
 
 NodeExtension = Callable[["CanopenFront", Node], None]
 _node_extensions: list[NodeExtension] = []
@@ -58,6 +71,20 @@ def add_node_extension(extension: NodeExtension) -> None:
     """
     if extension not in _node_extensions:
         _node_extensions.append(extension)
+
+
+def _invalid(message: str, loc: tuple[str, ...]) -> PydanticCustomError:
+    """A validation error reported at ``loc`` below the front, with our message alone."""
+    return PydanticCustomError(
+        "canopen_config", message.replace("{", "{{").replace("}", "}}"), {"loc": loc}
+    )
+
+
+class ConsumerHeartbeat(StrictModel):
+    node: int = Field(ge=1, le=127, description="node-ID whose heartbeat is watched")
+    time_ms: int = Field(
+        ge=1, le=65535, description="consumer time: longer than that node's producer time"
+    )
 
 
 class IdentitySettings(StrictModel):
@@ -99,35 +126,89 @@ class CanopenFrontConfig(FrontConfig, IoFrontOptions):
         default_factory=dict, description="extra keyword arguments for can.Bus"
     )
     node_id: int | None = Field(
-        1, ge=1, le=127, description="node-ID 1..127; null = unconfigured, wait for LSS"
+        ...,
+        ge=1,
+        le=127,
+        description="node-ID 1..127, required (a real device has a switch; no value is safe on every bus); null = unconfigured, wait for LSS",
     )
-    heartbeat_ms: int = Field(
-        0, ge=0, le=65535, description="0x1017 producer heartbeat time (0 = off)"
+    master: MasterName = Field(
+        "generic",
+        description="master profile: what the PLC requires of its slaves; delta-as300 = heartbeat only, a 0x1016 entry watching the master, node-ID 1..64 and not the master's",
     )
-    guard_time_ms: int = Field(0, ge=0, le=32767, description="0x100C guard time default")
-    life_time_factor: int = Field(0, ge=0, le=255, description="0x100D life time factor default")
-    heartbeat_consumers: int = Field(
-        1, ge=0, le=127, description="number of 0x1016 heartbeat consumer entries"
+    master_node_id: int | None = Field(
+        None,
+        ge=1,
+        le=127,
+        description="the master's node-ID; default: the master profile's (delta-as300: 1, generic: none)",
     )
-    on_master_lost: Literal["pre-operational", "no-change", "stopped"] = Field(
-        "no-change",
-        description="0x1029:1 default: NMT state change on life guarding / heartbeat timeout / bus-off (NA-9161: pre-operational)",
+    heartbeat_ms: int | None = Field(
+        None,
+        ge=0,
+        le=65535,
+        description="0x1017 producer heartbeat time default (0 = off); default: the style's (na9161 0, icpdas no 0x1017: guarding only), 1000 with master delta-as300; null = no 0x1017",
+    )
+    guard_time_ms: int | None = Field(
+        None,
+        ge=0,
+        le=32767,
+        description="0x100C guard time default; default 0 (icpdas), 200 (na9161)",
+    )
+    life_time_factor: int | None = Field(
+        None,
+        ge=0,
+        le=255,
+        description="0x100D life time factor default; default 0 (icpdas), 2 (na9161)",
+    )
+    heartbeat_consumers: int | None = Field(
+        None,
+        ge=0,
+        le=127,
+        description="number of 0x1016 heartbeat consumer entries; default: the style's (icpdas 0, na9161 1), at least the consumer_heartbeats given",
+    )
+    consumer_heartbeats: list[ConsumerHeartbeat] = Field(
+        default_factory=list,
+        description="0x1016 defaults, in order: the heartbeats this node watches; default: the master's heartbeat with master delta-as300 (node 1, 500 ms)",
+    )
+    on_master_lost: MasterLost | None = Field(
+        None,
+        description="0x1029:1 default: NMT state change on life guarding / heartbeat timeout / bus-off; default no-change (icpdas), pre-operational (na9161)",
+    )
+    error_mode_default: Literal["hold", "zero"] | None = Field(
+        None,
+        description="outputs whose module sets no error_mode: hold (icpdas: 0x6206/0x6443 = 0) or go to 0 (na9161: 0x6206 = 0xFF, 0x6207 = 0, 0x6443 = 1, 0x6444 = 0)",
+    )
+    analog_events: AnalogEvents | None = Field(
+        None,
+        description="change: every AI change is a TPDO event, no 0x6421-0x6426 (na9161); interrupt: only with 0x6423 and 0x6421 (icpdas, default FALSE: analog changes send no TPDO)",
+    )
+    sync_loss: SyncLoss | None = Field(
+        None,
+        description="SYNC lost (0x1006): emcy = EMCY 0x8100 only (icpdas); error-event = also outputs to their error values and 0x1029 (na9161)",
     )
     sync_cob_id: int = Field(0x80, ge=1, le=0x7FF, description="0x1005 default SYNC COB-ID")
-    emcy_on_nmt_reset: bool = Field(
-        False,
-        description="send EMCY 00 FF 80 0A 00 00 00 00 before an NMT reset node/communication, as the I-7232D/I-7231D do",
+    emcy_on_nmt_reset: bool | None = Field(
+        None,
+        description="send EMCY 00 FF 80 0A 00 00 00 00 before an NMT reset node/communication; default true (icpdas, as the I-7232D/I-7231D), false (na9161)",
     )
-    emcy_history: int = Field(
-        5, ge=5, le=254, description="depth of the 0x1003 pre-defined error field"
+    emcy_history: int | None = Field(
+        None,
+        ge=5,
+        le=254,
+        description="depth of the 0x1003 pre-defined error field; default 5 (icpdas), 20 (na9161)",
+    )
+    emcy_queue: int | None = Field(
+        None,
+        ge=1,
+        le=254,
+        description="EMCYs held back by the 0x1015 inhibit time; an overflow sends the overrun EMCY at once; default 16 (icpdas), 20 (na9161)",
     )
     sdo_timeout_ms: int = Field(
         1000, ge=10, le=60_000, description="server-side SDO transfer timeout"
     )
     sdo_block_size: int = Field(127, ge=1, le=127, description="block size the SDO server offers")
-    sdo_zero_extend: bool = Field(
-        False,
-        description="accept expedited writes shorter than an unsigned object and zero-extend them (NA-9161 masters); default: abort 0607 0013",
+    sdo_zero_extend: bool | None = Field(
+        None,
+        description="accept expedited writes shorter than an unsigned object and zero-extend them; default true (na9161: its examples write U32 with 2 bytes), false (icpdas: abort 0607 0013)",
     )
     sdo_servers: int = Field(
         1,
@@ -161,6 +242,38 @@ class CanopenFrontConfig(FrontConfig, IoFrontOptions):
             )
         return value
 
+    @model_validator(mode="after")
+    def _profile_checks(self) -> CanopenFrontConfig:
+        problem = node_id_problem(self)
+        if problem is not None:
+            raise _invalid(problem, ("node_id",))
+        entries = [e.node for e in self.consumer_heartbeats]
+        if len(set(entries)) != len(entries):
+            raise _invalid(
+                "each node-ID once: CiA 301 refuses two 0x1016 entries for one node",
+                ("consumer_heartbeats",),
+            )
+        if self.heartbeat_consumers is not None and len(entries) > self.heartbeat_consumers:
+            raise _invalid(
+                f"{len(entries)} consumer_heartbeats need at least {len(entries)} entries",
+                ("heartbeat_consumers",),
+            )
+        return self
+
+    @property
+    def profile(self) -> Resolved:
+        """The style's defaults, the master profile's requirements and this topology's keys."""
+        return resolve(self)
+
+    def validation_warnings(self) -> list[str]:
+        """What ``fieldgate validate`` says beside "valid": where the master profile overrode the style."""
+        return list(self.profile.notes)
+
+    def check(self, topology: Any) -> list[tuple[tuple[Any, ...], str]]:
+        """The limits ``run`` applies when the front starts, at validation: the style's image
+        (the NA-9161's 32 slots and 64 bytes per direction), the default PDOs, bit objects."""
+        return check_io(self, GatewayContext.build(topology))
+
     @field_validator("sync_cob_id")
     @classmethod
     def _sync_cob_id_not_restricted(cls, value: int) -> int:
@@ -180,6 +293,7 @@ class CanopenFront(Front):
         self.master: MasterState | None = None
         self._modules: set[tuple[str, int]] = set()
         self._health_subscribed = False
+        self._ports_subscribed = False
         self._failed: asyncio.Future[None] | None = None
 
     # -- assembling ---------------------------------------------------------------------
@@ -193,6 +307,7 @@ class CanopenFront(Front):
 
     def build(self) -> Node:
         cfg = self.config
+        profile = cfg.profile
         channels = self.context.front_channels(cfg)
         device_type = cfg.identity.device_type
         if device_type is None:
@@ -210,16 +325,22 @@ class CanopenFront(Front):
                 ident.hardware_version,
                 ident.software_version,
             ),
-            heartbeat_ms=cfg.heartbeat_ms,
-            guard_time_ms=cfg.guard_time_ms,
-            life_time_factor=cfg.life_time_factor,
-            heartbeat_consumers=cfg.heartbeat_consumers,
-            emcy_history=cfg.emcy_history,
-            emcy_on_nmt_reset=cfg.emcy_on_nmt_reset,
-            error_behaviour=("pre-operational", "no-change", "stopped").index(cfg.on_master_lost),
+            heartbeat_ms=profile.heartbeat_ms,
+            guard_time_ms=profile.guard_time_ms,
+            life_time_factor=profile.life_time_factor,
+            heartbeat_consumers=profile.heartbeat_consumers,
+            consumer_heartbeats=tuple(e.value for e in profile.consumer_entries),
+            emcy_history=profile.emcy_history,
+            emcy_queue=profile.emcy_queue,
+            emcy_on_nmt_reset=profile.emcy_on_nmt_reset,
+            error_behaviour=("pre-operational", "no-change", "stopped").index(
+                profile.on_master_lost
+            ),
+            sync_loss_error_event=profile.sync_loss == "error-event",
+            controller_emcy=profile.style.controller_emcy,
             sdo_timeout_s=cfg.sdo_timeout_ms / 1000.0,
             sdo_block_size=cfg.sdo_block_size,
-            sdo_zero_extend=cfg.sdo_zero_extend,
+            sdo_zero_extend=profile.sdo_zero_extend,
             sdo_servers=cfg.sdo_servers,
             sync_cob_id=cfg.sync_cob_id,
             store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),
@@ -268,6 +389,23 @@ class CanopenFront(Front):
             data=data[3:].hex(),
         )
 
+    def _controller(self, event: str, now: float) -> None:
+        """The adapter saw the CAN controller's error state change, or frames lost."""
+        if self.node is None:
+            return
+        health = self.node.service("can_health")
+        if event.endswith("-overrun"):
+            kind = event.removesuffix("-overrun")
+            if health.overrun(kind, now):  # an event per overrun error, not per lost frame
+                self.context.events.publish(
+                    CAN_OVERRUN, self.name, f"CAN {kind} overrun: frames lost", overrun=kind
+                )
+        else:
+            self.context.events.publish(
+                CAN_STATE, self.name, f"CAN controller {event}", state=event
+            )
+            health.controller(event, now)
+
     def _bus_state(self, off: bool, now: float) -> None:
         if off:
             self.context.events.publish(BUS_OFF, self.name, "CAN bus-off")
@@ -289,6 +427,7 @@ class CanopenFront(Front):
             bus,
             loop,
             on_bus_state=self._bus_state,
+            on_controller=self._controller,
             transmit_allowed=lss.transmit_allowed,
             reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
         )
@@ -296,6 +435,14 @@ class CanopenFront(Front):
         if cfg.module_emcy and not self._health_subscribed:
             self._health_subscribed = True
             self.context.health.subscribe(self._module_health)
+        if cfg.module_emcy:  # modules offline before this node booted (a port missing at start)
+            for health in self.context.health.modules():
+                if health.key in self._modules and not health.online:
+                    self._module_health(health, HealthEvent.OFFLINE)
+        if not self._ports_subscribed:
+            self._ports_subscribed = True
+            self.context.health.subscribe_ports(lambda *_: self._ports_changed())
+        self._ports_changed()  # a port already missing (the front restarted meanwhile)
         self.log.info(
             "CANopen node %s on %s/%s at %s bit/s",
             self.node.node_id if self.node.configured else "unconfigured",
@@ -333,6 +480,25 @@ class CanopenFront(Front):
             action = partial(emcy.clear_error, MODULE_FAILURE_CODE, manufacturer)
         else:
             return
+        if self.adapter is not None:
+            self.adapter.pump(action)
+        else:
+            action()
+
+    # -- serial ports of the backs behind this front ------------------------------------------
+    def _ports_changed(self) -> None:
+        """EMCY "COM port access error" (00 50 81 03) while a port of a back whose modules
+        this front serves is missing; its error reset when every such port is open again."""
+        if self.node is None or self.node.emcy is None:
+            return
+        emcy = self.node.emcy
+        backs = {back for back, _ in self._modules}
+        missing = sorted(b for b in backs if b in self.context.health.ports_lost)
+        code, register, manufacturer = COM_PORT_ERROR
+        if missing:
+            action = partial(emcy.raise_error, code, register, manufacturer)
+        else:
+            action = partial(emcy.clear_error, code, manufacturer)
         if self.adapter is not None:
             self.adapter.pump(action)
         else:

@@ -29,7 +29,9 @@ Bit sub-index n is bit (n-1) % 8 of 0x6000/0x6200 sub (n-1) // 8 + 1 (padding bi
 
 Events: a change of a DI value fires ``engine.object_changed(0x6000, byte)`` (and the bit
 object's entry when served); with 0x6423 TRUE an AI change that meets its 0x6421
-trigger fires ``(0x6401, channel)``; a special input byte fires ``(0x3000, byte)``. One
+trigger fires ``(0x6401, channel)`` (``analog_events="interrupt"``, the ICP DAS style); with
+``analog_events="change"`` (the NA-9161, which has no 0x6421-0x6426: they are not served)
+every AI change fires it; a special input byte fires ``(0x3000, byte)``. One
 process-image batch (a poll reply) fires each object once, however many of its channels
 changed.
 
@@ -93,6 +95,22 @@ TRIGGER_UPPER, TRIGGER_LOWER, TRIGGER_DELTA = 0x01, 0x02, 0x04
 DI_BIT_OBJECT, DO_BIT_OBJECT, BITS_PER_OBJECT, BIT_OBJECTS = 0x6020, 0x6220, 128, 8
 
 
+def _u16_to_u8(data: bytes) -> bytes:
+    """A 2-byte write to 0x6443 (the ICP DAS manuals print it UNSIGNED16; CiA 401: UNSIGNED8)."""
+    if data[1]:
+        raise Abort(VALUE_RANGE, "0x6443: 0 = keep the value, 1 = go to the error value")
+    return data[:1]
+
+
+def _i16_to_i32(data: bytes) -> bytes:
+    """A 2-byte write to 0x6444 (printed U16 by the ICP DAS and NA-9161 manuals; CiA 401:
+    INTEGER32): the 16-bit raw value, sign-extended as 0x6411's INTEGER16 is."""
+    return int.from_bytes(data, "little", signed=True).to_bytes(4, "little", signed=True)
+
+
+SHORT_WRITES = {0x6443: _u16_to_u8, 0x6444: _i16_to_i32}  # 2-byte downloads a style may take
+
+
 def bit_position(n: int) -> tuple[int, int, int]:
     """Digital channel n (0-based) -> (bit object offset, its sub-index, 8-bit byte index)."""
     return n // BITS_PER_OBJECT, n % BITS_PER_OBJECT + 1, n // 8
@@ -151,11 +169,16 @@ class Profile401:
         filter_default: int = 0xFF,
         trigger_default: int = 0x07,
         bit_objects: bool = False,
+        analog_events: str = "interrupt",
     ):
         self.image = image
         self.layout = layout
         self.origin = origin
         self.bit_objects = bit_objects
+        # "change": every AI change is an event, no 0x6421-0x6426 (the NA-9161 has none);
+        # "interrupt": only through 0x6423 and 0x6421 (CiA 401; default FALSE, the I-7232D's
+        # "analog changes do not trigger a TPDO")
+        self.analog_events = analog_events
         if bit_objects and 8 * max(len(layout.di_bytes), len(layout.do_bytes)) > (
             BITS_PER_OBJECT * BIT_OBJECTS
         ):
@@ -254,7 +277,10 @@ class Profile401:
                 event(index, sub, now)
 
     def _ai_fires(self, change: Change) -> bool:
-        """0x6423 on and the new value meets the channel's 0x6421 trigger (then it is reported)."""
+        """``analog_events`` "change": every change; "interrupt": 0x6423 on and the new value
+        meets the channel's 0x6421 trigger (then it is reported)."""
+        if self.analog_events == "change":
+            return True
         if not self.interrupt_enable:
             return False
         n = self._ai_number[change.id]
@@ -488,6 +514,9 @@ class Profile401:
                         for n in ai
                     ),
                 ),
+            ]
+        if lay.ai and self.analog_events == "interrupt":
+            objs += [
                 array(
                     AI_TRIGGER,
                     "Analog input interrupt trigger selection",

@@ -105,7 +105,7 @@ class RpdoService:
         with self.mapping.directory.batch():
             for slot, entry, value in self.mapping.unpack(pdo, payload):
                 try:
-                    entry.write(value)  # type: ignore[arg-type]
+                    entry.store(value)
                 except Abort as exc:
                     self.counters.rpdo_write_refused += 1
                     log.debug(

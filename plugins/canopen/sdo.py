@@ -259,7 +259,8 @@ class SdoServer(Service):
     def _zero_extended(self, data: bytes) -> bytes:
         var = self.node.od.check_download(self.index, self.subindex)
         size = size_of(var)
-        if size is not None and len(data) < size and var.data_type in UNSIGNED_TYPES:
+        # the NA-9161 manual's form: a 2-byte (or longer) write to a wider unsigned entry
+        if size is not None and 2 <= len(data) < size and var.data_type in UNSIGNED_TYPES:
             self.counters["zero_extended_writes"] += 1
             return data.ljust(size, b"\x00")
         return data

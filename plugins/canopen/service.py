@@ -94,6 +94,7 @@ class EmcyProducer(Protocol):
     """What services use of the node's EMCY producer (:class:`.emcy.Emcy`)."""
 
     on_sent: Callable[[Frame], None] | None  # the front publishes an event per EMCY sent
+    on_overflow: Callable[[float], None] | None  # the queue dropped an EMCY (CAN health reports it)
 
     def raise_error(
         self,
@@ -101,6 +102,8 @@ class EmcyProducer(Protocol):
         register_bits: int = ...,
         manufacturer: bytes = b"",
         now: float | None = None,
+        *,
+        urgent: bool = False,
     ) -> bool: ...
 
     def clear_error(

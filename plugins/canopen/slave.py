@@ -14,9 +14,11 @@ from pathlib import Path
 
 from canopen.objectdictionary import datatypes as dt
 
+from .canhealth import CanHealth
 from .emcy import EmcyProducer
 from .errctl import ErrorControl
 from .node import Node
+from .profiles import ControllerEmcy
 from .sdo import SdoServer
 from .sdo_channel import SdoChannel, channel_indices
 from .service import ALL_STATES, NodeHost, Service
@@ -39,14 +41,18 @@ class Identity:
 
 @dataclass
 class NodeSettings:
-    node_id: int | None = 1
+    node_id: int | None  # 1..127, or None: unconfigured (LSS); no default, as no node-ID is safe
     identity: Identity = field(default_factory=Identity)
-    heartbeat_ms: int = 0
+    heartbeat_ms: int | None = 0  # None: no 0x1017 (guarding only, the I-7232D)
     guard_time_ms: int = 0
     life_time_factor: int = 0
     heartbeat_consumers: int = 1
+    consumer_heartbeats: tuple[int, ...] = ()  # 0x1016:1.. defaults, node << 16 | ms
     error_behaviour: int = 1  # 0x1029:1: 0 pre-operational, 1 no change, 2 stopped
+    sync_loss_error_event: bool = False  # SYNC loss drives outputs to error values (NA-9161)
     emcy_history: int = 5
+    emcy_queue: int = 16
+    controller_emcy: dict[str, ControllerEmcy] = field(default_factory=dict)  # CAN health EMCYs
     sdo_timeout_s: float = 1.0
     sdo_block_size: int = 127
     sdo_zero_extend: bool = False
@@ -104,7 +110,7 @@ def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
     node = Node(settings.node_id, name=name)
     node.reset_emcy = settings.emcy_on_nmt_reset
     node.add_service(IdentityObjects(settings.identity))
-    node.add_service(EmcyProducer(settings.emcy_history))
+    node.add_service(EmcyProducer(settings.emcy_history, settings.emcy_queue))
     node.add_service(
         ErrorControl(
             settings.guard_time_ms,
@@ -112,14 +118,17 @@ def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
             settings.heartbeat_ms,
             settings.heartbeat_consumers,
             settings.error_behaviour,
+            settings.consumer_heartbeats,
         )
     )
-    node.add_service(SyncService(settings.sync_cob_id))
+    node.add_service(SyncService(settings.sync_cob_id, settings.sync_loss_error_event))
     node.add_service(
         SdoServer(settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend)
     )
     node.add_service(StoreService(settings.store_path, settings.fingerprint))
     node.add_service(TimeConsumer())
+    if settings.controller_emcy:
+        node.add_service(CanHealth(settings.controller_emcy))
     for index in channel_indices(settings.sdo_servers):
         node.add_service(
             SdoChannel(

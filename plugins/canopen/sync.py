@@ -17,6 +17,10 @@
 
   A new non-zero period or a new COB-ID keeps it: supervision restarts at the first
   SYNC, which ends it. NMT Stopped keeps it too (no SYNC is consumed there).
+  With ``loss_is_error_event`` (the ``na9161`` style, seed-004 §4.8 "outputs go to the
+  fault state, the adapter goes to PRE-OPERATIONAL") the loss is also an error event:
+  error control reports it as master lost (outputs to their error values) and applies
+  0x1029:1, until the loss ends.
 * Producer (test benches): 0x1005 bit 30 set and 0x1006 non-zero sends SYNC every
   period, with a counter 1..0x1019 when 0x1019 > 1; the node consumes its own SYNC.
 * 0x1019 may be written only while 0x1006 is 0 (else 0800 0022); values 1 and
@@ -47,9 +51,12 @@ class SyncService(Service):
     name = "sync"
     active_states = COMMUNICATING
 
-    def __init__(self, cob_id: int = 0x80):
+    def __init__(self, cob_id: int = 0x80, loss_is_error_event: bool = False):
         super().__init__()
         self.default_cob_id = cob_id
+        # SYNC loss is also an error event (the NA-9161, seed-004 §4.8): error control
+        # reports it like a master loss (outputs to their error values, 0x1029)
+        self.loss_is_error_event = loss_is_error_event
         self.loss_deadline: float | None = None
         self.produce_due: float | None = None
         self.counter = 0
@@ -112,6 +119,7 @@ class SyncService(Service):
         if not self.lost:
             return []
         self.lost = False
+        self._error_event(False, self.node.now)
         return [SYNC_LOSS_ERROR]
 
     def _end_loss(self, now: float) -> None:
@@ -119,6 +127,16 @@ class SyncService(Service):
             self.lost = False
             if self.node.emcy is not None:
                 self.node.emcy.clear_errors([SYNC_LOSS_ERROR], now)
+            self._error_event(False, now)
+
+    def _error_event(self, lost: bool, now: float) -> None:
+        if not self.loss_is_error_event:
+            return
+        try:
+            errctl = self.node.service("error_control")
+        except KeyError:
+            return
+        errctl.sync_state(lost, now)
 
     # -- consumer --------------------------------------------------------------------------
     def listen_ids(self) -> tuple[int, ...]:
@@ -172,6 +190,7 @@ class SyncService(Service):
                     self.node.emcy.raise_error(
                         SYNC_LOSS_CODE, SYNC_LOSS_REGISTER, SYNC_LOSS_ERROR[1], now
                     )
+                self._error_event(True, now)
 
     # -- validators --------------------------------------------------------------------------
     def _check_cob_id(self, sub: int, value: int) -> None:

@@ -142,7 +142,7 @@ class DconBack(SerialBack):
 
     def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> DconModule:
         assert isinstance(config, DconModuleConfig)  # (the modules of a dcon back)
-        assert self.dcon is not None
+        # self.dcon is None while the port is missing at start: open_link sets module.link
         module = DconModule(
             config, specs, self.context.image, self.dcon, watch_status=not self._host_ok_allowed()
         )

@@ -276,6 +276,10 @@ class ModbusBack(SerialBack):
         await link.open()
         return link
 
+    def unopened_link(self) -> ModbusLink:
+        """The modules hold the link; it is opened when the port is there (:meth:`reopen_link`)."""
+        return ModbusLink.from_config(self.config)
+
     async def close_link(self) -> None:
         self.link.close()
 

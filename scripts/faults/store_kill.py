@@ -58,7 +58,13 @@ def topology(state_dir: Path) -> dict[str, Any]:
     return {
         "gateway": {"name": "store-kill", "state_dir": str(state_dir)},
         "fronts": [
-            {"name": CO, "type": "canopen", "interface": "virtual", "node_id": CO_NODE_ID},
+            {
+                "name": CO,
+                "type": "canopen",
+                "interface": "virtual",
+                "node_id": CO_NODE_ID,
+                "heartbeat_ms": 0,  # 0x1017 is among the settings stored (icpdas: guarding only)
+            },
             {
                 "name": DN,
                 "type": "devicenet",

@@ -74,6 +74,7 @@ class InProcessDut(GatewayThread):
         loop_factory=asyncio.new_event_loop,
         *,
         simulate: bool = False,
+        animate: bool = False,
     ):
         from fieldgate import load_registry
 
@@ -81,9 +82,14 @@ class InProcessDut(GatewayThread):
             **topo,
             "fronts": [{**topo["fronts"][0], "interface": interface, "channel": channel}],
         }
-        # loop_factory: what ``fieldgate run --loop`` would run
+        # loop_factory: what ``fieldgate run --loop`` would run; simulate/animate: as
+        # ``fieldgate run --simulate`` (simulated modules, moving inputs, outputs wired to inputs)
         super().__init__(
-            topo, registry=load_registry(), simulate=simulate, loop_factory=loop_factory
+            topo,
+            registry=load_registry(),
+            simulate=simulate,
+            animate=animate,
+            loop_factory=loop_factory,
         )
 
 
@@ -92,10 +98,13 @@ class ProcessDut:
 
     gateway = None
 
-    def __init__(self, topo: dict, interface: str, channel: str, workdir: Path):
+    def __init__(
+        self, topo: dict, interface: str, channel: str, workdir: Path, *, simulate: bool = False
+    ):
         self.path = workdir / "topology.yaml"
         self.path.write_text(json.dumps(topo, indent=1))  # JSON is YAML
         self.interface, self.channel = interface, channel
+        self.simulate = simulate  # --simulate: animated simulated modules behind the front
         self.proc: subprocess.Popen | None = None
 
     def start(self) -> None:
@@ -109,6 +118,7 @@ class ProcessDut:
             f"fronts.{FRONT}.interface={self.interface}",
             "--set",
             f"fronts.{FRONT}.channel={self.channel}",
+            *(["--simulate"] if self.simulate else []),
         ]
         self.proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
@@ -143,9 +153,19 @@ def write_eds(topo: dict, workdir: Path, name: str = "dut.eds") -> Path:
     return eds
 
 
-def make_dut(topo: dict, interface: str, channel: str, external: bool, workdir: Path):
+def make_dut(
+    topo: dict,
+    interface: str,
+    channel: str,
+    external: bool,
+    workdir: Path,
+    *,
+    simulate: bool = False,
+):
+    """The gateway under test; ``simulate``: its backs served by animated simulated modules,
+    as ``fieldgate run --simulate`` does."""
     return (
-        ProcessDut(topo, interface, channel, workdir)
+        ProcessDut(topo, interface, channel, workdir, simulate=simulate)
         if external
-        else InProcessDut(topo, interface, channel)
+        else InProcessDut(topo, interface, channel, simulate=simulate, animate=simulate)
     )

@@ -23,8 +23,8 @@ def show(frames) -> list[str]:
     ]
 
 
-def seed_node(node_id: int = 1, **settings):
-    """A node with the I-7232D examples' objects: 0x1008 = "CPS_DCON\\0", an 0x1400 stand-in."""
+def seed_node(node_id: int | None, **settings):
+    """A node (``node_id`` given: the manuals' vectors use 1) with the I-7232D examples' objects: 0x1008 = "CPS_DCON\\0", an 0x1400 stand-in."""
     identity = settings.pop(
         "identity", Identity(device_type=0x000F0191, device_name="CPS_DCON\x00", vendor_id=0x1234)
     )

@@ -31,7 +31,7 @@ async def _recv(bus: can.BusABC, can_id: int, timeout: float = 2.0) -> can.Messa
 async def setup():
     channel = f"adapter-{uuid.uuid4().hex[:8]}"
     peer = can.Bus(interface="virtual", channel=channel)
-    node = seed_node(heartbeat_ms=20)
+    node = seed_node(1, heartbeat_ms=20)
     lost = []
     adapter = CanAdapter(
         node,

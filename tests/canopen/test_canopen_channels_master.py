@@ -28,7 +28,11 @@ def master(tmp_path):
     booted = threading.Event()
     network.subscribe(0x700 + NODE, lambda *_: booted.set())
     dut = make_dut(
-        topology(tmp_path / "state", NODE, sdo_servers=2), interface, channel, external, tmp_path
+        topology(tmp_path / "state", NODE, sdo_servers=2, heartbeat_ms=0),
+        interface,
+        channel,
+        external,
+        tmp_path,
     )
     dut.start()
     assert booted.wait(10), "no boot-up"

@@ -6,7 +6,7 @@ from canopen_rig import Rig, seed_node
 
 @pytest.fixture
 def rig():
-    return Rig(seed_node())
+    return Rig(seed_node(1))
 
 
 def emit(rig, fn, *args):
@@ -61,7 +61,7 @@ def test_history_depth_newest_first_and_clear(rig):
 
 
 def test_configurable_depth():
-    rig = Rig(seed_node(emcy_history=8))
+    rig = Rig(seed_node(1, emcy_history=8))
     for i in range(10):
         rig.node.emcy.raise_error(0x1000 + i)
     assert len(rig.node.flush()) == 10
@@ -96,9 +96,9 @@ def test_no_emcy_in_stopped_but_history_kept(rig):
 
 
 def test_emcy_on_nmt_reset_option():
-    plain = Rig(seed_node())
+    plain = Rig(seed_node(1))
     assert plain.send("000 82 01") == ["701 00"]
-    icpdas = Rig(seed_node(emcy_on_nmt_reset=True))
+    icpdas = Rig(seed_node(1, emcy_on_nmt_reset=True))
     assert icpdas.send("000 81 00") == ["081 00 FF 80 0A 00 00 00 00", "701 00"]
     assert icpdas.sdo("40 01 10 00 00 00 00 00") == "4F 01 10 00 00 00 00 00"  # not an active error
     assert icpdas.sdo("40 03 10 01 00 00 00 00") == "43 03 10 01 00 FF 0A 00"

@@ -16,7 +16,7 @@ LIFE_GUARD = "081 30 81 11 07 00 00 00 00"  # TV-20
 
 
 def make_rig(**settings) -> Rig:
-    r = Rig(seed_node(**settings))
+    r = Rig(seed_node(1, **settings))
     r.master = []
     r.node.on_master(lambda ok, reason: r.master.append((ok, reason)))
     return r

@@ -18,7 +18,13 @@ EMCY = 0x80 + NODE
 def rig(tmp_path):
     interface, channel, external = bus_under_test()
     master = Master(interface, channel)
-    dut = make_dut(topology(tmp_path / "state", NODE), interface, channel, external, tmp_path)
+    dut = make_dut(
+        topology(tmp_path / "state", NODE, heartbeat_consumers=1),
+        interface,
+        channel,
+        external,
+        tmp_path,
+    )
     dut.start()
     assert master.wait_frame(0x700 + NODE, 1, 10.0)[0] == b"\x00", "no boot-up"
     yield master, dut
@@ -59,8 +65,10 @@ def test_reset_communication_ends_the_heartbeat_consumer_error(rig):
     master.clear()
     master.node.nmt.send_command(0x82)
     assert master.wait_frame(0x700 + NODE, 1, 1.0)[0] == b"\x00"
-    assert master.wait_frame(EMCY, 1, 1.0)[0] == bytes(8)  # after the boot-up
+    # the icpdas style announces the reset request first (I-7232D: 00 FF 80 0A), then the
+    # reset ends the heartbeat error after the boot-up
+    assert master.wait_frame(EMCY, 2, 1.0) == [bytes.fromhex("00FF800A00000000"), bytes(8)]
     assert master.node.sdo.upload(0x1001, 0) == b"\x00"
     assert master_ok(dut) in (True, None)
     time.sleep(0.4)  # 0x1016 reloaded (0): nothing watched, no new error
-    assert master.frames.get(EMCY, []) == [bytes(8)]
+    assert master.frames.get(EMCY, []) == [bytes.fromhex("00FF800A00000000"), bytes(8)]

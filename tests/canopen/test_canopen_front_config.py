@@ -14,7 +14,7 @@ def topology(tmp_path, front: str):
     path = tmp_path / "t.yaml"
     path.write_text(
         "gateway: {name: t}\n"
-        f"fronts:\n  - {{name: plc, type: canopen, interface: virtual, channel: x, {front}}}\n"
+        f"fronts:\n  - {{name: plc, type: canopen, interface: virtual, channel: x, node_id: 5, {front}}}\n"
         "backs:\n  - {name: io, type: loopback, modules: [{address: 1, digital: 8}]}\n"
     )
     return path

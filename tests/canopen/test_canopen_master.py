@@ -70,7 +70,9 @@ def bus():
 def rig(bus, tmp_path):
     interface, channel, external = bus
     master = Master(interface, channel)
-    topo = topology(tmp_path / "state", NODE, guard_time_ms=0)
+    topo = topology(
+        tmp_path / "state", NODE, guard_time_ms=0, heartbeat_ms=0, heartbeat_consumers=1
+    )
     dut = make_dut(topo, interface, channel, external, tmp_path)
     dut.start()
     assert master.wait_frame(0x700 + NODE, 1, 10.0)[0] == b"\x00", "no boot-up"

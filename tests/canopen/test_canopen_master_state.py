@@ -34,7 +34,7 @@ def monitor(lost_before: bool = False) -> tuple[MasterMonitor, list]:
 def make_rig(
     stopped_is_error: bool = True, lost_before: bool = False, stored=None, **settings
 ) -> Rig:
-    node = seed_node(**settings)
+    node = seed_node(1, **settings)
     if stored:
         node.od.set_stored(stored)
     masters, events = monitor(lost_before)

@@ -8,7 +8,7 @@ from fieldgate.plugins.canopen.frame import NmtState
 
 @pytest.fixture
 def rig():
-    r = Rig(seed_node())
+    r = Rig(seed_node(1))
     r.master = []
     r.node.on_master(lambda ok, reason: r.master.append((ok, reason)))
     return r
@@ -120,7 +120,7 @@ def test_heartbeat_consumer_timeout_is_master_lost(rig):
 
 
 def test_heartbeat_consumer_duplicate_node_aborts():
-    r = Rig(seed_node(heartbeat_consumers=2))
+    r = Rig(seed_node(1, heartbeat_consumers=2))
     r.sdo("23 16 10 01 C8 00 7F 00")
     assert r.sdo("23 16 10 02 C8 00 7F 00") == "80 16 10 02 43 00 04 06"
 
@@ -171,7 +171,7 @@ def test_frame_helper_round_trip():
     [(0, NmtState.PRE_OPERATIONAL), (1, NmtState.OPERATIONAL), (2, NmtState.STOPPED)],
 )
 def test_error_behaviour_1029_on_life_guarding(behaviour, state):
-    r = Rig(seed_node(guard_time_ms=100, life_time_factor=2))
+    r = Rig(seed_node(1, guard_time_ms=100, life_time_factor=2))
     assert r.sdo(f"2F 29 10 01 {behaviour:02X} 00 00 00") == "60 29 10 01 00 00 00 00"
     r.send("000 01 01")
     r.send("701 RTR")
@@ -180,6 +180,6 @@ def test_error_behaviour_1029_on_life_guarding(behaviour, state):
 
 
 def test_error_behaviour_range():
-    r = Rig(seed_node(error_behaviour=0))
+    r = Rig(seed_node(1, error_behaviour=0))
     assert r.sdo("40 29 10 01 00 00 00 00") == "4F 29 10 01 00 00 00 00"
     assert r.sdo("2F 29 10 01 03 00 00 00") == "80 29 10 01 31 00 09 06"

@@ -21,7 +21,7 @@ def quick(rig: Rig, text: str) -> list[str] | None:
 
 @pytest.fixture
 def rig():
-    rig = Rig(seed_node(heartbeat_ms=100))
+    rig = Rig(seed_node(1, heartbeat_ms=100))
     assert quick(rig, UPLOAD_1000) is None  # the COB-ID is not routed yet: the loop's path first
     assert rig.send(UPLOAD_1000) == [ANSWER_1000]
     return rig
@@ -117,7 +117,7 @@ def test_a_failing_getter_is_declined_and_the_loop_path_aborts(rig):
 
 
 def test_extra_sdo_channels_answer_quickly_too():
-    rig = Rig(seed_node(sdo_servers=2))
+    rig = Rig(seed_node(1, sdo_servers=2))
     for sub, value in ((1, 0x690), (2, 0x6A0)):
         request = f"601 23 01 12 {sub:02X} " + value.to_bytes(4, "little").hex(" ").upper()
         assert rig.send(request) == [f"581 60 01 12 {sub:02X} 00 00 00 00"]

@@ -17,7 +17,7 @@ ANSWER_1000 = "581 43 00 10 00 91 01 0F 00"
 
 @pytest.fixture
 def rig():
-    return Rig(seed_node(heartbeat_ms=100))
+    return Rig(seed_node(1, heartbeat_ms=100))
 
 
 def test_a_read_before_any_timer_is_due_sends_only_its_answer_and_keeps_the_deadline(rig):
@@ -92,7 +92,7 @@ def test_an_emcy_raised_from_outside_is_not_held_back_by_quiet_reads(rig):
 
 
 def test_without_any_timer_a_read_skips_the_timer_pass_and_a_later_timer_still_runs():
-    rig = Rig(seed_node())  # no heartbeat, no guarding: no deadline at all
+    rig = Rig(seed_node(1))  # no heartbeat, no guarding: no deadline at all
     assert rig.node.deadline_after_call is None
     assert rig.send(UPLOAD_1000) == [ANSWER_1000]
     assert rig.send("601 2B 17 10 00 64 00 00 00") == [

@@ -12,7 +12,7 @@ IDS = [0x000, 0x080, 0x081, 0x100, 0x201, 0x601, 0x602, 0x701, 0x77F, 0x7E5, 0x7
 
 def test_random_frames_never_raise_and_answers_are_well_formed():
     rng = random.Random(20261122)
-    rig = Rig(seed_node(heartbeat_consumers=2))
+    rig = Rig(seed_node(1, heartbeat_consumers=2))
     rig.sdo("23 16 10 01 20 00 7F 00")
     for i in range(20_000):
         can_id = rng.choice(IDS) if rng.random() < 0.9 else rng.randrange(0x800)
@@ -70,7 +70,7 @@ def test_random_frames_never_raise_and_answers_are_well_formed():
 
 
 def test_dictionary_exports_as_eds_and_reimports(tmp_path):
-    node = seed_node()
+    node = seed_node(1)
     path = tmp_path / "node.eds"
     canopen.export_od(node.od.model, str(path))
     od = canopen.import_od(str(path), node_id=1)
@@ -97,7 +97,7 @@ def test_a_failing_service_is_counted_not_raised(caplog):
         def poll(self, now):
             raise ValueError("bug in a timer")
 
-    rig = Rig(seed_node())
+    rig = Rig(seed_node(1))
     rig.node.add_service(Broken())
     assert rig.send("123 01") == []
     assert rig.node.counters["internal_errors"] == 2  # on_frame, then its overdue poll
@@ -109,7 +109,7 @@ def test_dictionary_serves_an_imported_eds(tmp_path):
     from fieldgate.plugins.canopen.od import Dictionary
 
     path = tmp_path / "node.eds"
-    canopen.export_od(seed_node().od.model, str(path))
+    canopen.export_od(seed_node(1).od.model, str(path))
     served = Dictionary(canopen.import_od(str(path), node_id=7), node_id=7)
     assert served.get(0x1014) == 0x87 and served.get(0x1200, 2) == 0x587
     assert served.read(0x1008, 0) == b"CPS_DCON\x00"
@@ -119,7 +119,7 @@ def test_dictionary_serves_an_imported_eds(tmp_path):
 
 
 def test_frame_routes_follow_cob_id_changes():
-    rig = Rig(seed_node())
+    rig = Rig(seed_node(1))
     assert rig.sdo("40 00 14 00 00 00 00 00") == "4F 00 14 00 02 00 00 00"  # 0x601 routed to SDO
     seen = []
     rig.node.service("sync").on_sync = lambda counter, now: seen.append(counter)

@@ -10,7 +10,7 @@ from fieldgate.plugins.canopen.sdo import crc16
 
 @pytest.fixture
 def rig():
-    r = Rig(seed_node())
+    r = Rig(seed_node(1))
     assert r.boot == ["701 00"]
     return r
 
@@ -256,9 +256,9 @@ def test_a_failing_listener_gets_a_general_error_abort(rig):
 
 
 def test_short_expedited_write_zero_extended_only_when_enabled():
-    strict = Rig(seed_node())
+    strict = Rig(seed_node(1))
     assert abort_of(strict.sdo("2B 16 10 01 C8 00 00 00")) == 0x06070013
-    lenient = Rig(seed_node(sdo_zero_extend=True))
+    lenient = Rig(seed_node(1, sdo_zero_extend=True))
     assert lenient.sdo("2B 16 10 01 C8 00 00 00") == "60 16 10 01 00 00 00 00"
     assert lenient.node.od.get(0x1016, 1) == 200
     assert abort_of(lenient.sdo("2F 02 21 00 05 00 00 00")) == 0x06070013  # signed: not extended

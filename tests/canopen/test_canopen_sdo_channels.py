@@ -16,7 +16,7 @@ OPEN_1201 = ["23 01 12 01 81 06 00 00", "23 01 12 02 A1 06 00 00"]  # 0x1201:1 =
 
 
 def configured(**settings) -> Rig:
-    r = Rig(seed_node(sdo_servers=3, **settings))
+    r = Rig(seed_node(1, sdo_servers=3, **settings))
     for request in OPEN_1201:
         assert r.sdo(request) == "60" + request[2:11] + " 00 00 00 00"
     return r
@@ -27,8 +27,10 @@ def second(r: Rig, text: str) -> list[str]:
 
 
 def test_default_is_one_server_and_extra_channels_start_invalid():
-    assert Rig(seed_node()).sdo("40 01 12 01 00 00 00 00") == "80 01 12 01 00 00 02 06"  # no 0x1201
-    r = Rig(seed_node(sdo_servers=3))
+    assert (
+        Rig(seed_node(1)).sdo("40 01 12 01 00 00 00 00") == "80 01 12 01 00 00 02 06"
+    )  # no 0x1201
+    r = Rig(seed_node(1, sdo_servers=3))
     assert r.sdo("40 01 12 00 00 00 00 00") == "4F 01 12 00 03 00 00 00"
     assert r.sdo("40 01 12 01 00 00 00 00") == "43 01 12 01 00 00 00 80"
     assert r.sdo("40 02 12 02 00 00 00 00") == "43 02 12 02 00 00 00 80"
@@ -50,7 +52,7 @@ def test_channel_count_limits():
 
 
 def test_invalid_channel_is_silent_until_both_cob_ids_are_valid():
-    r = Rig(seed_node(sdo_servers=2))
+    r = Rig(seed_node(1, sdo_servers=2))
     assert second(r, "40 00 10 00 00 00 00 00") == []
     assert r.sdo("23 01 12 01 81 06 00 00") == "60 01 12 01 00 00 00 00"
     assert second(r, "40 00 10 00 00 00 00 00") == []  # server -> client still invalid
@@ -136,7 +138,7 @@ def test_cob_id_moves_through_invalid():
     ],
 )
 def test_restricted_can_ids(value, ok):
-    r = Rig(seed_node(sdo_servers=2))
+    r = Rig(seed_node(1, sdo_servers=2))
     assert r.sdo("23 01 12 01 " + value) == (
         "60 01 12 01 00 00 00 00" if ok else "80 01 12 01 30 00 09 06"
     )
@@ -198,7 +200,7 @@ def test_reset_communication_reloads_stored_channel_parameters(tmp_path):
     assert r.send("000 82 01") == ["701 00"]
     assert second(r, "40 00 10 00 00 00 00 00") == ["6A1 43 00 10 00 91 01 0F 00"]
     # a fresh node (power-on) loads the store
-    node = seed_node(sdo_servers=3, store_path=path)
+    node = seed_node(1, sdo_servers=3, store_path=path)
     node.service("store").load()
     fresh = Rig(node)
     assert fresh.send("681 40 00 10 00 00 00 00 00") == ["6A1 43 00 10 00 91 01 0F 00"]

@@ -31,7 +31,7 @@ def sync_lost(rig) -> None:
 
 @pytest.fixture
 def rig():
-    return Rig(seed_node())
+    return Rig(seed_node(1))
 
 
 # -- the SYNC comes back ----------------------------------------------------------------------
@@ -117,7 +117,7 @@ def test_reset_ends_the_loss_after_the_boot_up(rig, command):
 
 
 def test_reset_with_a_stored_period_supervises_again_from_the_first_sync():
-    rig = Rig(seed_node())
+    rig = Rig(seed_node(1))
     rig.node.od.set_stored({(0x1006, 0): 100_000})  # as if saved with 0x1010
     rig.send("000 82 01")
     rig.send("080")
@@ -129,7 +129,7 @@ def test_reset_with_a_stored_period_supervises_again_from_the_first_sync():
 
 
 def test_reset_ends_sync_loss_and_life_guarding_error_with_one_emcy():
-    rig = Rig(seed_node(guard_time_ms=100, life_time_factor=2))
+    rig = Rig(seed_node(1, guard_time_ms=100, life_time_factor=2))
     sync_lost(rig)
     assert rig.send("701 RTR") == ["701 7F"]
     assert rig.advance(0.25) == ["081 30 81 11 07 00 00 00 00"]

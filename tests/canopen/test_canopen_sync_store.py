@@ -21,7 +21,7 @@ class SyncRecorder(Service):
 
 @pytest.fixture
 def rig():
-    node = seed_node()
+    node = seed_node(1)
     node.recorder = node.add_service(SyncRecorder())
     return Rig(node)
 
@@ -65,7 +65,7 @@ def test_sync_producer(rig):
 
 def test_store_restart_restore(tmp_path):
     path = tmp_path / "node.json"
-    r = Rig(seed_node(store_path=path, fingerprint="set-A"))
+    r = Rig(seed_node(1, store_path=path, fingerprint="set-A"))
     r.node.service("store").load()
     r.sdo("2B 17 10 00 F4 01 00 00")  # heartbeat 500
     r.sdo("2B 02 21 00 2A 00 00 00")  # application value 42
@@ -74,7 +74,7 @@ def test_store_restart_restore(tmp_path):
     doc = json.loads(path.read_text())
     assert doc["fingerprint"] == "set-A" and doc["values"] == {"1017.00": 500, "2102.00": 42}
     # power cycle
-    node = seed_node(store_path=path, fingerprint="set-A")
+    node = seed_node(1, store_path=path, fingerprint="set-A")
     node.service("store").load()
     r2 = Rig(node)
     assert node.od.get(0x1017) == 500 and node.od.get(0x2102) == 42
@@ -89,7 +89,7 @@ def test_store_restart_restore(tmp_path):
 
 def test_store_communication_area_only(tmp_path):
     path = tmp_path / "node.json"
-    r = Rig(seed_node(store_path=path))
+    r = Rig(seed_node(1, store_path=path))
     r.sdo("2B 17 10 00 F4 01 00 00")
     r.sdo("2B 02 21 00 2A 00 00 00")
     r.sdo("23 10 10 02 73 61 76 65")
@@ -116,7 +116,7 @@ def test_store_communication_area_only(tmp_path):
 def test_bad_store_falls_back_to_defaults_with_emcy(tmp_path, caplog, content, emcy):
     path = tmp_path / "node.json"
     path.write_bytes(content)
-    node = seed_node(store_path=path, fingerprint="set-A")
+    node = seed_node(1, store_path=path, fingerprint="set-A")
     node.service("store").load()
     r = Rig(node)
     assert r.boot == ["701 00", emcy]
@@ -130,13 +130,13 @@ def test_bad_store_falls_back_to_defaults_with_emcy(tmp_path, caplog, content, e
 
 
 def test_store_without_file_aborts():
-    r = Rig(seed_node())
+    r = Rig(seed_node(1))
     assert r.sdo("23 10 10 01 73 61 76 65") == "80 10 10 01 20 00 00 08"
 
 
 def test_store_write_failure_keeps_previous_copy(tmp_path, monkeypatch):
     path = tmp_path / "node.json"
-    r = Rig(seed_node(store_path=path))
+    r = Rig(seed_node(1, store_path=path))
     r.sdo("2B 17 10 00 F4 01 00 00")
     r.sdo("23 10 10 01 73 61 76 65")
     before = path.read_bytes()
@@ -152,7 +152,7 @@ def test_store_write_failure_keeps_previous_copy(tmp_path, monkeypatch):
 
 def test_store_path_that_cannot_be_read_falls_back(tmp_path):
     (tmp_path / "blocker").write_text("a file, not a directory")
-    node = seed_node(store_path=tmp_path / "blocker" / "node.json")
+    node = seed_node(1, store_path=tmp_path / "blocker" / "node.json")
     node.service("store").load()
     r = Rig(node)
     assert r.boot == ["701 00", "081 00 50 81 02 00 00 00 00"]
@@ -182,7 +182,7 @@ def test_store_of_another_module_set_drops_its_sections_too(tmp_path, caplog):
             }
         )
     )
-    node = seed_node(store_path=path, fingerprint="set-A")
+    node = seed_node(1, store_path=path, fingerprint="set-A")
     store = node.service("store")
     store.load()
     r = Rig(node)
@@ -199,7 +199,7 @@ def test_store_fingerprint_covers_contributed_parts(tmp_path):
     path = tmp_path / "node.json"
 
     def node_with(part):
-        node = seed_node(store_path=path, fingerprint="set-A")
+        node = seed_node(1, store_path=path, fingerprint="set-A")
         node.service("store").add_fingerprint(part)
         node.service("store").load()
         Rig(node)  # boot: stored values become the current ones
@@ -213,7 +213,7 @@ def test_store_fingerprint_covers_contributed_parts(tmp_path):
 
 
 def test_resets_reload_values_without_calling_write_listeners():
-    node = seed_node()
+    node = seed_node(1)
     seen = []
     for index in (0x1010, 0x1011, 0x1017, 0x2102):
         node.od.on_write(index, lambda index, sub, value: seen.append((index, sub, value)))

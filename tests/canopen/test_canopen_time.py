@@ -15,7 +15,7 @@ NOON_2000 = (
 
 @pytest.fixture
 def rig():
-    return Rig(seed_node())
+    return Rig(seed_node(1))
 
 
 def time_of(r: Rig):
@@ -98,7 +98,7 @@ def test_moving_the_cob_id_through_not_consumed(rig):
 
 
 def test_stored_cob_id_survives_reset_communication(tmp_path):
-    r = Rig(seed_node(store_path=tmp_path / "node.json"))
+    r = Rig(seed_node(1, store_path=tmp_path / "node.json"))
     r.sdo("23 12 10 00 00 01 00 00")
     assert r.sdo("23 12 10 00 90 01 00 80") == "60 12 10 00 00 00 00 00"
     r.sdo("23 10 10 02 73 61 76 65")

@@ -100,7 +100,19 @@ def test_eds_imports_with_canopen_and_describes_the_layout(tmp_path, style):
 
 
 @pytest.mark.parametrize(
-    "options", [{"style": "icpdas", "pdo_count": 64}, {"style": "na9161", "compressed": False}]
+    "options",
+    [
+        {"style": "icpdas", "pdo_count": 64},
+        {"style": "na9161", "compressed": False},
+        # the profiles' defaults and the topology's PDO keys are EDS defaults too
+        {
+            "style": "icpdas",
+            "master": "delta-as300",
+            "tpdos": {2: {"transmission_type": 1}, 5: {"cob_id": 0x1A5, "mapping": ["0x6000:1/8"]}},
+            "rpdos": {1: {"transmission_type": 0}},
+        },
+        {"style": "na9161", "consumer_heartbeats": [{"node": 1, "time_ms": 300}]},
+    ],
 )
 def test_eds_passes_lely_dcfchk(tmp_path, options):
     assert Path(DCFCHK).exists(), "dcf-tools is in the test extra"
@@ -179,6 +191,8 @@ def assert_served_as_described(eds: canopen.ObjectDictionary, node) -> None:
             )
             if var.index == 0x1003 and var.subindex:
                 continue  # empty error history answers 0800 0024
+            if var.data_type == canopen.objectdictionary.DOMAIN:
+                continue  # a live block of bytes (NA-9161 slot memory, parameters): no default
             assert decode(served, node.od.read(var.index, var.subindex)) == var.default, (
                 f"0x{var.index:04X}:{var.subindex}"
             )
@@ -244,3 +258,23 @@ def test_cli_on_a_devicenet_topology_writes_the_devicenet_eds(capsys):
     assert cli_main(["eds", str(example)]) == 0
     out = capsys.readouterr().out
     assert "\n[IO_Info]\n" in out and "[DeviceInfo]" not in out
+
+
+@pytest.mark.parametrize(
+    "example",
+    ["i7232d-style.yaml", "i7231d-style.yaml", "na9161-style.yaml", "canopen-sparkplug.yaml"],
+)
+def test_every_canopen_examples_eds_passes_dcfchk(tmp_path, example):
+    """The EDS states each example's profile defaults (style, master, keys) and dcfchk is clean."""
+    source = Path(__file__).resolve().parents[2] / "examples" / example
+    out = tmp_path / "example.eds"
+    assert cli_main(["eds", str(source), "-o", str(out)]) == 0
+    result = dcfchk(out)
+    assert result.returncode == 0 and "Warning" not in result.stderr, result.stderr
+    od = canopen.import_od(str(out), node_id=5)
+    if example == "canopen-sparkplug.yaml":  # master: delta-as300
+        assert od[0x1016][1].default == 1 << 16 | 500 and od[0x1017].default == 1000
+    elif example == "na9161-style.yaml":
+        assert od[0x100C].default == 200 and od[0x6206][1].default == 0xFF
+    else:  # an I-7232D / I-7231D: guarding only
+        assert 0x1017 not in od and 0x1016 not in od

@@ -13,7 +13,7 @@ import pytest
 from ruamel.yaml import YAML
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "na9161-style.yaml"
-NODE = 1
+NODE = 5  # the example's node-ID
 
 
 def until(predicate, timeout: float = 5.0) -> bool:

@@ -55,7 +55,14 @@ async def test_loopback_di_change_rpdo_and_master_lost(tmp_path):
     topology = {
         "gateway": {"name": "e2e", "state_dir": str(tmp_path)},
         "fronts": [
-            {"name": "can", "type": "canopen", "interface": "virtual", "channel": ch, "node_id": 3}
+            {
+                "name": "can",
+                "type": "canopen",
+                "interface": "virtual",
+                "channel": ch,
+                "node_id": 3,
+                "heartbeat_consumers": 1,  # the icpdas style has none: the master writes 0x1016
+            }
         ],
         "backs": [
             {

@@ -19,10 +19,13 @@ from fieldgate.conformance.report import text_report
 FAULTS = {
     "wrong_abort_missing_sub": {"od.missing_subindex", "seed.tv06_abort"},
     "no_toggle_check": {"sdo.upload_toggle_error"},
-    "late_heartbeat": {"errctl.heartbeat_period"},
+    "late_heartbeat": {"errctl.heartbeat_period", "delta-as300.heartbeat_producer"},
     "stuck_guard_toggle": {"errctl.guarding_toggle"},
     "sdo_in_stopped": {"nmt.sdo_gated"},
 }
+# the tiny slave has no heartbeat consumer (0x1016): not an AS300 slave out of the box, healthy
+# or not, which the delta-as300 profile grades
+NOT_FOR_AN_AS300 = {"delta-as300.master_heartbeat_watched"}
 TIMING = dict(response=0.2, silence=0.1, heartbeat_ms=50, bootup=0.5, sdo_server_timeout=1.0)
 
 
@@ -64,7 +67,7 @@ def broken(runs):
 
 def test_healthy_slave_passes_every_applicable_case(healthy):
     report = text_report(list(healthy.values()))
-    assert failed(list(healthy.values())) == [], report
+    assert set(failed(list(healthy.values()))) == NOT_FOR_AN_AS300, report
     must_pass = {
         "od.eds_check",
         "od.read_all",
@@ -110,7 +113,7 @@ def test_features_the_eds_lacks_are_skipped_with_a_reason(healthy):
 
 
 def test_broken_slave_fails_exactly_the_cases_for_its_faults(healthy, broken):
-    expected = set().union(*FAULTS.values())
+    expected = set().union(NOT_FOR_AN_AS300, *FAULTS.values())
     assert set(failed(list(broken.values()))) == expected, text_report(list(broken.values()))
     for cid, result in broken.items():
         if cid not in expected:

@@ -16,6 +16,7 @@ from conformance_gateway import (
     NODE_ID,
     GatewayThread,
     front_unavailable,
+    patch_out,
     topology,
     write_eds,
 )
@@ -103,3 +104,44 @@ def test_na9161_layout_passes_the_layout_sensitive_cases(tmp_path):
     results = run_gateway(tmp_path, style="na9161", patterns=patterns)
     assert len(results) >= 12
     assert [r.case.id for r in results if r.verdict is not Verdict.PASS] == [], text_report(results)
+
+
+def refuse_short_writes(self, index, length, convert):
+    """A Dictionary that takes no 2-byte writes (CiA 401's widths only)."""
+
+
+@pytest.mark.parametrize(
+    "target, attribute, broken, case_id",
+    [
+        (
+            "fieldgate.plugins.canopen.emcy.EmcyProducer",
+            "signal",
+            lambda self, *args, **kwargs: None,  # no EMCY for the reset request
+            "icpdas.nmt_reset_emcy",
+        ),
+        (
+            "fieldgate.plugins.canopen.od.Dictionary",
+            "accept_short_writes",
+            refuse_short_writes,
+            "icpdas.ao_error_two_byte_writes",
+        ),
+        (
+            "fieldgate.plugins.canopen.profile401.Profile401",
+            "_ai_fires",
+            lambda self, change: True,  # every analog change an event
+            "icpdas.analog_change_no_tpdo",
+        ),
+        (
+            "fieldgate.plugins.canopen.errctl.ErrorControl",
+            "_master_lost",
+            lambda self, error, reason, now: None,  # a consumer timeout reported nowhere
+            "delta-as300.master_heartbeat_watched",
+        ),
+    ],
+)
+def test_a_broken_front_fails_the_profile_case_that_checks_it(
+    tmp_path, monkeypatch, target, attribute, broken, case_id
+):
+    patch_out(monkeypatch, target, attribute, broken)
+    results = run_gateway(tmp_path, profiles=["all"], patterns=[case_id])
+    assert {r.case.id: r.verdict for r in results} == {case_id: Verdict.FAIL}, text_report(results)

@@ -8,7 +8,14 @@ import uuid
 
 import can
 import pytest
-from conformance_gateway import NODE_ID, GatewayThread, front_unavailable, topology, write_eds
+from conformance_gateway import (
+    NODE_ID,
+    GatewayThread,
+    front_unavailable,
+    patch_out,
+    topology,
+    write_eds,
+)
 
 from fieldgate.conformance import Options, SuiteConfig, Timing, Verdict, run_suite
 from fieldgate.conformance.report import text_report
@@ -71,7 +78,7 @@ def test_the_na9161_front_passes_the_na9161_and_granularity_cases(tmp_path):
         "sync-pdo.granularity_whole_bytes",  # SKIP: this front maps single bits
         "sync-pdo.dummy_undeclared",  # SKIP: with bit mapping every dummy entry is declared
     }, text_report(results)
-    assert len(seen) == 10
+    assert len(seen) == 17
 
 
 def test_with_byte_granularity_the_bit_case_skips_and_the_byte_case_runs(tmp_path):
@@ -108,13 +115,47 @@ def test_with_byte_granularity_the_bit_case_skips_and_the_byte_case_runs(tmp_pat
             lambda self, pdo, payload: None,  # RPDO data dropped
             "sync-pdo.dummy_mapping",
         ),
+        (
+            "fieldgate.plugins.canopen.profile401.Profile401",
+            "_ai_fires",
+            lambda self, change: False,  # analog changes are no events
+            "na9161.analog_change_tpdo",
+        ),
+        (
+            "fieldgate.image.ProcessImage",
+            "apply_error_modes",
+            lambda self, *args, **kwargs: [],  # outputs keep their values on an error event
+            "na9161.heartbeat_loss_outputs",
+        ),
+        (
+            "fieldgate.plugins.canopen.sync.SyncService",
+            "_error_event",
+            lambda self, lost, now: None,  # SYNC loss only an EMCY (the CiA 301 way)
+            "na9161.sync_loss_outputs",
+        ),
+        (
+            "fieldgate.plugins.canopen.canhealth.CanHealth",
+            "_emcy_queue_overflow",
+            lambda self, now: None,  # the overflow counted, not reported
+            "na9161.emcy_queue_overflow",
+        ),
+        (
+            "fieldgate.plugins.canopen.slots.SlotObjects",
+            "read_memory",
+            lambda self, slot: b"\x00",  # one byte whatever 0x4501 says
+            "na9161.slot_objects",
+        ),
+        (
+            "fieldgate.plugins.canopen.sdo.SdoServer",
+            "_zero_extended",
+            lambda self, data: data,  # CiA 301-strict: short writes aborted
+            "na9161.short_expedited_write",
+        ),
     ],
 )
 def test_a_broken_front_fails_the_case_that_checks_it(
     tmp_path, monkeypatch, target, attribute, broken, case_id
 ):
-    module_name, class_name = target.rsplit(".", 1)
-    module = __import__(module_name, fromlist=[class_name])
-    monkeypatch.setattr(getattr(module, class_name), attribute, broken)
+    patch_out(monkeypatch, target, attribute, broken)
     results = run(tmp_path, patterns=[case_id])
     assert verdicts(results) == {case_id: Verdict.FAIL}, text_report(results)

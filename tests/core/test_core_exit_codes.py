@@ -65,11 +65,11 @@ def test_0_valid_and_1_invalid(tmp_path):
     assert fieldgate("validate", str(bad)).returncode == ExitCode.FAILED
 
 
-def test_2_a_back_that_cannot_start_and_a_wrong_command_line():
-    port = "--set=backs.rs485.port=/dev/fieldgate-no-such-port"
-    run = fieldgate("run", str(EXAMPLE), port, "--duration", "5")
+def test_2_a_front_that_cannot_start_and_a_wrong_command_line():
+    bus = ["--set=fronts.can.interface=socketcan", "--set=fronts.can.channel=fgcan9"]
+    run = fieldgate("run", str(EXAMPLE), *bus, "--duration", "5")
     assert run.returncode == ExitCode.CANNOT_RUN, run.stderr
-    assert "cannot start: back rs485 (modbus)" in run.stderr
+    assert "cannot start: front can (canopen)" in run.stderr
     assert fieldgate("run").returncode == ExitCode.CANNOT_RUN  # argparse: FILE missing
     malformed = fieldgate("validate", str(EXAMPLE), "--set", "no-equals-sign")
     assert malformed.returncode == ExitCode.CANNOT_RUN

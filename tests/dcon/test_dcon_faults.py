@@ -137,8 +137,16 @@ async def test_module_reset_between_polls_gets_its_outputs_back(gateway, wait_fo
         sim, back = gw.bench.simulator("rs485"), gw.component("rs485")
         gw.write("rs485/m1/do2", True)
         gw.write("rs485/m2/ao1", 0x800)
+        # written, and each module's first contact done: a power glitch before it would be
+        # the module's power-up, which on_online meets (outputs written, no reset counted)
         await wait_for(
-            lambda: sim.get_output("rs485/m1/do2") and sim.get_output("rs485/m2/ao1") == 0x800
+            lambda: (
+                sim.get_output("rs485/m1/do2")
+                and sim.get_output("rs485/m2/ao1") == 0x800
+                and back.module(1).polls > 0
+                and back.module(2).polls > 0
+            ),
+            timeout=10,
         )
         for address in (1, 2):
             sim.module(address).power_cycle(

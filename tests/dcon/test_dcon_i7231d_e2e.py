@@ -63,6 +63,7 @@ async def test_i7231d_example_on_simulated_dcon_modules(registry, tmp_path):
     channel = f"fg-7231d-{uuid.uuid4().hex[:8]}"
     overrides = {
         "fronts.can.channel": channel,
+        "fronts.can.node_id": 1,  # the manual's walk-through talks to node 1
         "backs.rs485.poll_ms": 10,
         "backs.rs485.timeout_ms": 150,
         "gateway.state_dir": str(tmp_path),
@@ -125,6 +126,7 @@ async def test_0x2003_clears_a_watchdog_that_ran_out_while_the_master_was_away(r
     channel = f"fg-7231d-wd-{uuid.uuid4().hex[:8]}"
     overrides = {
         "fronts.can.channel": channel,
+        "fronts.can.node_id": 1,  # the frames below address node 1, as the manual's
         "backs.rs485.poll_ms": 10,
         "backs.rs485.timeout_ms": 150,
         "backs.rs485.modules.0.watchdog.timeout_ms": 300,

@@ -73,9 +73,9 @@ async def test_points_explain_value_quality_source_and_where_fronts_serve_them(r
         "at": ["input register 0 (FC4)"],
     }
     assert {"component": "can", "at": "0x6401:1"} in ai["served_by"]
-    assert {"component": "can", "at": "TPDO2 (0x281) bytes 0-1"} in ai["served_by"]
+    assert {"component": "can", "at": "TPDO2 (0x282) bytes 0-1"} in ai["served_by"]
     do = next(p for p in points if p["id"] == "rs485/m3/do4")
-    assert {"component": "can", "at": "RPDO1 (0x201) byte 0 bit 4"} in do["served_by"]
+    assert {"component": "can", "at": "RPDO1 (0x202) byte 0 bit 4"} in do["served_by"]
     assert do["error_mode"] == "value True" and "written_by" in do
     only_ai = (await running.get("/api/v1/points?kind=ai")).json()["points"]
     assert [p["id"] for p in only_ai] == ["rs485/m5/ai0"]

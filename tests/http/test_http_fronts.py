@@ -19,7 +19,8 @@ async def test_canopen_nmt_start_and_rpdo_show_up_as_event_metrics_and_written_b
     gw = running.gateway
     bus = can.Bus(interface="virtual", channel=running.channel)
     try:
-        bus.send(can.Message(arbitration_id=0x000, data=[0x01, 0x01], is_extended_id=False))
+        # the example's node 2
+        bus.send(can.Message(arbitration_id=0x000, data=[0x01, 0x02], is_extended_id=False))
         await wait_for(lambda: any(e.kind == NMT_STATE for e in running.events))
         event = next(e for e in running.events if e.kind == NMT_STATE)
         assert (event.source, event.data) == (
@@ -32,7 +33,7 @@ async def test_canopen_nmt_start_and_rpdo_show_up_as_event_metrics_and_written_b
         }
         assert nmt["OPERATIONAL"] == 1.0 and nmt["PRE-OPERATIONAL"] == 0.0
         bus.send(
-            can.Message(arbitration_id=0x201, data=[0x05], is_extended_id=False)
+            can.Message(arbitration_id=0x202, data=[0x05], is_extended_id=False)
         )  # RPDO1: DO bits 0, 2
         await wait_for(lambda: gw.image.value("rs485/m3/do2") is True)
     finally:

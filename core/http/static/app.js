@@ -96,7 +96,11 @@ function frontFacts(name, f) {
     const shown = Object.entries(f.counters).map(([k, v]) => `${k.replace(/_/g, " ")} ${v}`);
     if (shown.length) facts.push(["counters", shown.join(" · ")]);
   }
-  if (f.bus) facts.push(["CAN", `${f.bus.bus_off ? "BUS-OFF" : "ok"} · rx ${f.bus.rx} · tx ${f.bus.tx}`]);
+  if (f.bus) {
+    const state = f.bus.controller || (f.bus.bus_off ? "bus-off" : "error-active");
+    const lost = Object.entries(f.bus.overruns || {}).filter(([, n]) => n > 0).map(([k, n]) => `${k} overrun ${n}`);
+    facts.push(["CAN", [state === "error-active" ? "ok" : state.toUpperCase(), `rx ${f.bus.rx}`, `tx ${f.bus.tx}`, ...lost].join(" · ")]);
+  }
   const services = f.services || {};
   if (services.emcy) facts.push(["EMCY", services.emcy.active.length ? `active ${services.emcy.active.join(", ")}` : "none active"]);
   if (services.io) facts.push(["PDO", `TPDOs sent ${services.io.tpdo_sent} · RPDOs ${services.io.rpdo_received}`]);
