@@ -27,7 +27,15 @@ from .cases import (
     seed,
     store,
 )
-from .framework import CASES, DEVICENET_PROFILES, OPT_IN, PROFILES, PROTOCOL_PROFILES, Case
+from .framework import (
+    CASES,
+    DEVICENET_PROFILES,
+    MASTER_PROFILES,
+    OPT_IN,
+    PROFILES,
+    PROTOCOL_PROFILES,
+    Case,
+)
 
 CASE_MODULES = (
     cia401,
@@ -52,12 +60,13 @@ def select(
     profiles: list[str] | None = None, patterns: list[str] | None = None, protocol: str = "canopen"
 ) -> list[Case]:
     """Cases of the given profiles whose id matches any -k pattern. No profiles: every profile
-    of the protocol but the opt-in ones (``seed``); ``"all"``: every profile of the protocol."""
+    of the protocol but the opt-in ones (``seed``); ``"all"``: every profile of the protocol
+    but the master-fit ones (``delta-as300``), which run only when named (beside ``all`` too)."""
     available = PROTOCOL_PROFILES[protocol]
     if not profiles:
         wanted = set(available) - set(OPT_IN)
     elif "all" in profiles:
-        wanted = set(available)
+        wanted = (set(available) - set(MASTER_PROFILES)) | (set(profiles) & set(available))
     else:
         wanted = set(profiles) & set(available)
     chosen = []

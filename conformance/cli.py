@@ -11,6 +11,7 @@ from fieldgate.plugin import PluginStartError, Registry, hookimpl
 
 from .framework import (
     DEVICENET_PROFILES,
+    MASTER_PROFILES,
     OPT_IN,
     PROFILES,
     PROTOCOL_PROFILES,
@@ -72,7 +73,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         action="append",
         choices=PROFILES + DEVICENET_PROFILES + ("all",),
         default=[],
-        help=f"run only these profiles (repeatable): {', '.join(PROFILES)} (canopen), {', '.join(DEVICENET_PROFILES)} (devicenet); default: all of the protocol's but {', '.join(OPT_IN)}; 'all': every profile of the protocol",
+        help=f"run only these profiles (repeatable): {', '.join(PROFILES)} (canopen), {', '.join(DEVICENET_PROFILES)} (devicenet); default: all of the protocol's but {', '.join(OPT_IN)}; 'all': every profile of the protocol but the master-fit {', '.join(MASTER_PROFILES)}, which runs only when named",
     )
     p.add_argument(
         "-k",

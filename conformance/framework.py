@@ -55,6 +55,8 @@ PROFILES = (
 # claim I-7232D / I-7231D compatibility, na9161 those that claim CREVIS NA-9161 compatibility,
 # delta-as300 slaves meant to run under a Delta AS300 master without extra set-up
 OPT_IN = ("seed", "icpdas", "na9161", "delta-as300")
+# not even in "all": whether a slave fits one master is not conformance; named alone it runs
+MASTER_PROFILES = ("delta-as300",)
 # DeviceNet devices get their own profiles, selected with protocol="devicenet" (no EDS needed)
 DEVICENET_PROFILES = ("devicenet",)
 PROTOCOL_PROFILES = {"canopen": PROFILES, "devicenet": DEVICENET_PROFILES}

@@ -41,7 +41,7 @@ def run_against(eds: str, faults: set[str], **select):
     with TinySlave(channel, 5, faults):
         bus = can.Bus(interface="virtual", channel=channel)
         try:
-            select.setdefault("profiles", ["all"])
+            select.setdefault("profiles", ["all", "delta-as300"])  # the master-fit one by name
             return run_suite(SuiteConfig(5, eds, timing=Timing(**TIMING), **select), bus=bus)
         finally:
             bus.shutdown()
