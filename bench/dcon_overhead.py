@@ -173,9 +173,9 @@ async def start_child_simulator(port_args: list[str]):
         line = (await asyncio.wait_for(proc.stdout.readline(), 20)).decode()
         if not line:
             raise RuntimeError("the simulator exited")
-        match = re.match(r"serving on (\S+)", line)
-        if match:
-            return proc, match.group(1)
+        if line.startswith("simulating back "):  # the banner: the gateway's end of a --pty pair
+            match = re.search(r"point the gateway at (\S+)", line)
+            return proc, match.group(1) if match else None
 
 
 async def cycle_time(baud: int | None, cycles: int) -> tuple[float, float, list[float]]:

@@ -1,4 +1,4 @@
-"""``fieldgate conformance`` and ``python -m fieldgate.conformance``."""
+"""The conformance test tool for CANopen and DeviceNet devices: ``fieldgate conformance`` (also ``python -m fieldgate.conformance``)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import argparse
 import sys
 from typing import TYPE_CHECKING
 
-from fieldgate.plugin import PluginStartError, hookimpl
+from fieldgate.exitcodes import ExitCode
+from fieldgate.plugin import PluginStartError, Registry, hookimpl
 
 from .framework import (
     DEVICENET_PROFILES,
@@ -22,6 +23,9 @@ from .outcome import DeviceSilent
 from .report import details, line, summary, write_junit
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from .framework import CaseResult
     from .runner import SuiteConfig
 
 HELP = "run the CANopen conformance suite against a device (black box: bus + EDS)"
@@ -170,19 +174,19 @@ def run(args: argparse.Namespace) -> int:
             f"conformance: profile {', '.join(foreign)} is not a {args.protocol} profile (see --protocol)",
             file=sys.stderr,
         )
-        return 2
+        return ExitCode.CANNOT_RUN
     if args.list:
         for c in select(args.profile, args.patterns, protocol=args.protocol):
             print(f"{c.id:<34} {c.title}")
-        return 0
+        return ExitCode.OK
     if args.protocol == "devicenet":
         return run_devicenet(args)
     if args.node_id is None or args.eds is None:
         print("conformance: --node-id and --eds are required", file=sys.stderr)
-        return 2
+        return ExitCode.CANNOT_RUN
     if not 1 <= args.node_id <= 127:
         print("conformance: --node-id must be 1..127", file=sys.stderr)
-        return 2
+        return ExitCode.CANNOT_RUN
     config = config_from_args(args)
     print(
         f"fieldgate conformance: node {args.node_id} on {args.interface}:{args.channel}, EDS {args.eds}",
@@ -208,10 +212,16 @@ def run(args: argparse.Namespace) -> int:
     )
 
 
-def _run_and_report(args: argparse.Namespace, properties: dict[str, str], start) -> int:
+def _run_and_report(
+    args: argparse.Namespace,
+    properties: dict[str, str],
+    start: Callable[
+        [Callable[[CaseResult], None], Callable[[dict[str, str]], None]], list[CaseResult]
+    ],
+) -> int:
     """Run ``start(progress, on_start)``, print the report, write JUnit; the exit code."""
 
-    def progress(result):
+    def progress(result: CaseResult) -> None:
         print(line(result), flush=True)
         if result.verdict is Verdict.FAIL:
             print("\n".join(details(result)), flush=True)
@@ -228,19 +238,19 @@ def _run_and_report(args: argparse.Namespace, properties: dict[str, str], start)
             f"conformance: cannot start: {exc}{VIRTUAL_HINT if args.interface == 'virtual' else ''}",
             file=sys.stderr,
         )
-        return 2
+        return ExitCode.CANNOT_RUN
     except (
         OSError,
         ValueError,
         PluginStartError,
     ) as exc:  # the bus (one line from open_bus) or the EDS
         print(f"conformance: cannot start: {exc}", file=sys.stderr)
-        return 2
+        return ExitCode.CANNOT_RUN
     print()
     print(summary(results))
     if args.junit:
         write_junit(results, args.junit, properties)
-    return 1 if any(r.verdict is Verdict.FAIL for r in results) else 0
+    return ExitCode.FAILED if any(r.verdict is Verdict.FAIL for r in results) else ExitCode.OK
 
 
 def run_devicenet(args: argparse.Namespace) -> int:
@@ -256,7 +266,7 @@ def run_devicenet(args: argparse.Namespace) -> int:
             "conformance: --protocol devicenet needs --mac-id 0..63 (and a different --master-mac 0..63)",
             file=sys.stderr,
         )
-        return 2
+        return ExitCode.CANNOT_RUN
     base = config_from_args(args)
     config = DnetSuiteConfig(
         args.mac_id, args.master_mac, args.profile, args.patterns, base.timing, base.options
@@ -287,5 +297,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 @hookimpl
-def fieldgate_register(registry) -> None:
+def fieldgate_register(registry: Registry) -> None:
     registry.add_command(("conformance",), HELP, configure, run)

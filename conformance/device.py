@@ -8,10 +8,11 @@ from __future__ import annotations
 import struct
 import time
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol, overload
 
 import canopen
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
+from canopen.sdo.client import SdoClient
 
 from .link import Frame, Link
 from .outcome import Fail, Skip, Timing
@@ -101,15 +102,17 @@ class Device:
         obj = self.od[index]
         if isinstance(obj, ODVariable):
             return obj if sub == 0 else None
+        entry: ODVariable | None
         if isinstance(obj, ODRecord):
-            return obj.get(sub) if sub in obj else None
-        if isinstance(obj, ODArray):
-            if sub in obj.subindices:
-                return obj.subindices[sub]
-            top = obj.subindices.get(0)
-            limit = top.default if top is not None and isinstance(top.default, int) else 0
-            return obj[sub] if 0 < sub <= limit else None
-        return None
+            entry = obj.get(sub) if sub in obj else None
+            return entry
+        assert isinstance(obj, ODArray)  # (the third kind of object)
+        if sub in obj.subindices:
+            entry = obj.subindices[sub]
+            return entry
+        top = obj.subindices.get(0)
+        limit = top.default if top is not None and isinstance(top.default, int) else 0
+        return obj[sub] if 0 < sub <= limit else None
 
     def variables(self) -> list[ODVariable]:
         """Every entry the EDS lists; not the data types [DummyUsage] declares (0x0001-0x0007:
@@ -123,11 +126,20 @@ class Device:
                 out.extend(obj.subindices[s] for s in sorted(obj.subindices))
         return out
 
+    @overload
+    def require(self, index: int, sub: int, why: str = "") -> ODVariable: ...
+    @overload
+    def require(self, index: int, sub: None = None, why: str = "") -> None: ...
     def require(self, index: int, sub: int | None = None, why: str = "") -> ODVariable | None:
+        """Skip the case unless the EDS lists ``index`` (``:sub``); the entry when ``sub`` is given."""
         if not self.has(index, sub):
             what = f"0x{index:04X}" + (f":{sub}" if sub is not None else "")
             raise Skip(f"EDS lists no {what}" + (f" ({why})" if why else ""))
-        return self.var(index, sub) if sub is not None else None
+        if sub is None:
+            return None
+        var = self.var(index, sub)
+        assert var is not None  # (has() said so)
+        return var
 
     def sdo_cobs(self) -> tuple[int, int]:
         rx = self.od_default(0x1200, 1, 0x600 + self.node_id)
@@ -267,7 +279,8 @@ class Device:
         raise Fail(f"{what}: accepted", expected=wanted)
 
     # -- typed access through the EDS --------------------------------------------
-    def read(self, index: int, sub: int = 0):
+    def read(self, index: int, sub: int = 0) -> Any:
+        """The value, decoded as the EDS types it (int, float, str or bytes)."""
         raw = self.upload(index, sub)
         var = self.var(index, sub)
         if var is None:
@@ -279,7 +292,7 @@ class Device:
                 f"0x{index:04X}:{sub} value {raw.hex(' ')} does not decode as {type_name(var)}: {exc}"
             ) from None
 
-    def write(self, index: int, sub: int, value) -> None:
+    def write(self, index: int, sub: int, value: Any) -> None:
         var = self.var(index, sub)
         if isinstance(value, (bytes, bytearray)):
             data = bytes(value)
@@ -289,7 +302,7 @@ class Device:
             data = struct.pack("<I", value)
         self.download(index, sub, data)
 
-    def patch(self, ctx: CaseContext, index: int, sub: int, value) -> object:
+    def patch(self, ctx: CaseContext, index: int, sub: int, value: Any) -> object:
         """Write ``value`` and restore the previous value when the case ends."""
         old = self.read(index, sub)
         self.write(index, sub, value)
@@ -297,14 +310,14 @@ class Device:
         return old
 
     # -- canopen's client, for block transfers ---------------------------------------
-    def block_client(self) -> canopen.sdo.SdoClient:
-        client = canopen.sdo.SdoClient(self.sdo_rx, self.sdo_tx, self.od)
+    def block_client(self) -> SdoClient:
+        client = SdoClient(self.sdo_rx, self.sdo_tx, self.od)
         client.network = self.link.network
         client.RESPONSE_TIMEOUT = self.timing.response
         self.link.network.subscribe(self.sdo_tx, client.on_response)
         return client
 
-    def drop_client(self, client: canopen.sdo.SdoClient) -> None:
+    def drop_client(self, client: SdoClient) -> None:
         self.link.network.unsubscribe(self.sdo_tx, client.on_response)
 
     # -- NMT and states -------------------------------------------------------------

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from .device import Device
+from .dnet import DnetDevice
 from .outcome import Fail, Skip, Timing
 
 __all__ = [
@@ -118,17 +119,34 @@ class CaseResult:
 class Context:
     """What a case gets: the device, the timing knobs, options, and clean-up registration."""
 
-    def __init__(self, device: Device, timing: Timing, options: Options):
-        self.device = device
+    def __init__(self, device: Device | DnetDevice, timing: Timing, options: Options):
+        self._device = device
         self.timing = timing
         self.options = options
         self._cleanups: list[Callable[[], object]] = []
+
+    @property
+    def under_test(self) -> Device | DnetDevice:
+        """The device, whatever its protocol (its link, settle())."""
+        return self._device
+
+    @property
+    def device(self) -> Device:
+        """The CANopen device under test (a CANopen case's)."""
+        assert isinstance(self._device, Device), "a CANopen case run against a DeviceNet device"
+        return self._device
+
+    @property
+    def dnet(self) -> DnetDevice:
+        """The DeviceNet device under test (a DeviceNet case's)."""
+        assert isinstance(self._device, DnetDevice), "a DeviceNet case run against a CANopen device"
+        return self._device
 
     def cleanup(self, fn: Callable[[], object]) -> None:
         self._cleanups.append(fn)
 
     def run_cleanups(self) -> list[str]:
-        errors = []
+        errors: list[str] = []
         while self._cleanups:
             fn = self._cleanups.pop()
             try:
@@ -151,7 +169,7 @@ def run_cases(
 
 
 def run_case(c: Case, ctx: Context) -> CaseResult:
-    link = ctx.device.link
+    link = ctx.under_test.link
     link.flush()
     link.start_log()
     t0 = time.monotonic()
@@ -165,7 +183,7 @@ def run_case(c: Case, ctx: Context) -> CaseResult:
     except Exception as exc:  # a case error is reported as a FAIL of that case, with the trace
         tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
         result = CaseResult(c, Verdict.FAIL, f"tester error: {tb}")
-    ctx.device.settle()
+    ctx.under_test.settle()
     errors = ctx.run_cleanups()
     result.duration = time.monotonic() - t0
     if result.verdict is Verdict.FAIL:

@@ -46,7 +46,8 @@ class Link:
         self._own_bus = own_bus
         self._rx: queue.Queue[Frame] = queue.Queue()
         self.network = canopen.Network(bus)
-        self.network.listeners.append(self._on_message)
+        # canopen's list type is inferred from its first listener; can.Notifier takes any callable
+        self.network.listeners.append(self._on_message)  # type: ignore[arg-type]
         self.network.NOTIFIER_CYCLE = (
             0.1  # closing the link waits up to one cycle for the receive thread
         )
@@ -155,5 +156,6 @@ class Link:
 
 def _matcher(match: Match | int) -> Match:
     if isinstance(match, int):
-        return lambda f, cob=match: f.cob == cob and not f.rtr
+        cob = match
+        return lambda f: f.cob == cob and not f.rtr
     return match

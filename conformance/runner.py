@@ -91,7 +91,7 @@ class DnetSuiteConfig:
 
 def dnet_identity(device: DnetDevice) -> dict[str, str]:
     """Identity object attributes for the report header; what cannot be read is left out."""
-    out = {}
+    out: dict[str, str] = {}
     try:
         device.allocate(CHOICE_EXPLICIT)
     except Exception:

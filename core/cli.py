@@ -11,18 +11,26 @@ import asyncio
 import logging
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .plugin import Registry, load_registry
+from .cliargs import (  # `X as X`: plugins import these from here too
+    add_overrides_argument as add_overrides_argument,
+)
+from .cliargs import invalid_topology, seconds, usage_error
+from .cliargs import (
+    overrides_of as overrides_of,
+)
+from .cliargs import (
+    parse_overrides as parse_overrides,
+)
+from .exitcodes import ExitCode
+from .plugin import ENTRY_POINT_GROUP, Command, Registry, load_registry, one_line
 from .runtime import Gateway, GatewayStartError
 from .stopping import stopped_by_signals, wait_until
 from .topology import TopologyError, load_topology
 from .version import __version__
 
 if TYPE_CHECKING:  # ruamel.yaml is imported when --set is used, not at every start
-    from ruamel.yaml import YAML
-
     from .image import ProcessImage
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
@@ -40,105 +48,42 @@ def setup_logging(level: str, fmt: str = "text") -> None:
             handler.setFormatter(JsonFormatter())
 
 
-def add_overrides_argument(
-    parser: argparse.ArgumentParser, example: str = "fronts.can.interface=virtual"
-) -> None:
-    """``--set PATH=VALUE`` (repeatable), read with :func:`parse_overrides`: every command that loads a topology."""
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="PATH=VALUE",
-        help=f"override a topology field before validation, e.g. {example}",
-    )
-    parser.add_argument(
-        "--scan-file",
-        action="append",
-        default=[],
-        metavar="[BACK=]FILE",
-        help="a scan file for a back that finds its modules at start (DCON modules: auto): "
-        "sets backs.BACK.scan.file; BACK may be left out when the topology has one back",
-    )
-
-
-def overrides_of(args: argparse.Namespace, source: str | Path) -> dict[str, Any]:
-    """``--set`` and ``--scan-file`` of a command that loads the topology ``source``."""
-    overrides = parse_overrides(args.set)
-    for item in getattr(args, "scan_file", None) or []:
-        back, sep, file = item.rpartition("=")
-        if not sep:
-            back = _only_back(source, item)
-        if not back or not file:
-            raise SystemExit(f"fieldgate: --scan-file expects [BACK=]FILE, got {item!r}")
-        overrides[f"backs.{back}.scan.file"] = str(Path(file).resolve())
-    return overrides
-
-
-def _only_back(source: str | Path, item: str) -> str:
-    from .topology.loader import read_yaml
-
-    try:
-        data = read_yaml(source)
-    except TopologyError:
-        return "0"  # the topology's own error is reported when it is loaded
-    backs = data.get("backs") if isinstance(data, dict) else None
-    names = [b.get("name") for b in backs if isinstance(b, dict)] if isinstance(backs, list) else []
-    if len(names) == 1 and isinstance(names[0], str):
-        return names[0]
-    raise SystemExit(
-        f"fieldgate: --scan-file {item}: the topology has {len(names)} backs; name one: "
-        f"--scan-file {names[0] if names and isinstance(names[0], str) else 'BACK'}={item}"
-    )
-
-
-def parse_overrides(items: list[str]) -> dict[str, Any]:
-    """``--set fronts.can.interface=virtual`` pairs; values are parsed as YAML scalars."""
-    from ruamel.yaml import YAML
-
-    yaml = YAML(typ="safe")
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise SystemExit(f"fieldgate: --set expects PATH=VALUE, got {item!r}")
-        out[key] = _scalar(yaml, value)
-    return out
-
-
-def _scalar(yaml: YAML, text: str) -> Any:
-    """A YAML value; text that only looks like a mapping (``a: b``) stays a string."""
-    try:
-        value = yaml.load(text) if text else ""
-    except Exception:
-        return text
-    if isinstance(value, (dict, list)) and not text.lstrip().startswith(("{", "[")):
-        return text
-    return value
-
-
 def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:
     try:
         topology = load_topology(args.file, registry, overrides_of(args, args.file))
     except TopologyError as exc:
-        for issue in exc.issues:
-            print(issue, file=sys.stderr)
+        code = invalid_topology(exc)
         print(f"{args.file}: {len(exc.issues)} error(s)", file=sys.stderr)
-        return 1
+        return code
     print(f"{args.file}: valid")
     print(topology.summary())
-    return 0
+    return ExitCode.OK
+
+
+PLUGINS_HEADER = ("PLUGIN", "VERSION", "DISTRIBUTION", "PROVIDES", "SUMMARY")
 
 
 def cmd_plugins(args: argparse.Namespace, registry: Registry) -> int:
+    """The installed plugins as a table; exit 1 when one failed to load (its row says why)."""
     if not registry.plugins:
-        print("no plugins installed")
-        return 0
-    width = max(len(n) for n in registry.plugins)
+        print(f"no plugins installed (entry-point group {ENTRY_POINT_GROUP})")
+        return ExitCode.OK
+    rows = [PLUGINS_HEADER]
     for name, info in sorted(registry.plugins.items()):
-        provides = ", ".join(info.provides) or "-"
-        state = f"  FAILED: {info.error}" if info.error else ""
-        print(f"{name:<{width}}  {info.version:<8}  {provides}  ({info.distribution}){state}")
-    return 0
+        summary = f"FAILED: {info.error}" if info.failed else info.summary
+        rows.append(
+            (name, info.version, info.distribution, ", ".join(info.provides) or "-", summary)
+        )
+    widths = [max(len(row[i]) for row in rows) for i in range(len(PLUGINS_HEADER) - 1)]
+    for row in rows:
+        cells = [cell.ljust(width) for cell, width in zip(row, widths, strict=False)]
+        print("  ".join([*cells, row[-1]]).rstrip())
+    failed = registry.failed()
+    if failed:
+        names = ", ".join(info.name for info in failed)
+        print(f"fieldgate plugins: {len(failed)} plugin(s) failed: {names}", file=sys.stderr)
+        return ExitCode.FAILED
+    return ExitCode.OK
 
 
 def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
@@ -154,9 +99,7 @@ def cmd_run(args: argparse.Namespace, registry: Registry) -> int:
             animate=args.simulate,
         )
     except TopologyError as exc:
-        for issue in exc.issues:
-            print(issue, file=sys.stderr)
-        return 1
+        return invalid_topology(exc)
     return _runner(args.loop).run(_run(gateway, args))
 
 
@@ -178,9 +121,9 @@ def loop_factory(choice: str = "auto") -> Callable[[], asyncio.AbstractEventLoop
         import uvloop
     except ImportError:
         if choice == "uvloop":
-            raise SystemExit(
-                "fieldgate: --loop uvloop: uvloop is not installed here (pip install uvloop; there is none for Windows)"
-            ) from None
+            usage_error(
+                "--loop uvloop: uvloop is not installed here (pip install uvloop; there is none for Windows)"
+            )
         return asyncio.new_event_loop
     return uvloop.new_event_loop
 
@@ -194,25 +137,36 @@ def _runner(choice: str) -> asyncio.Runner:
 
 
 async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
+    from .systemd import Notifier, status_line
+
     log = logging.getLogger("fieldgate")
+    notifier = Notifier.from_environment()  # systemd's Type=notify service (docs/deploy.md)
     with stopped_by_signals() as stop:
         log.info("event loop: %s", loop_name(asyncio.get_running_loop()))
         try:
             await gateway.start()
         except GatewayStartError as exc:
             log.error("cannot start: %s", exc)
-            return 2
-        status = (
-            asyncio.create_task(_print_status(gateway, args.status_every))
-            if args.status_every
-            else None
-        )
+            if notifier is not None:
+                notifier.status(f"cannot start: {exc}")
+                notifier.close()
+            return ExitCode.CANNOT_RUN
+        tasks = []
+        if args.status_every:
+            tasks.append(asyncio.create_task(_print_status(gateway, args.status_every)))
+        if notifier is not None:
+            notifier.ready(status_line(gateway))
+            tasks.append(asyncio.create_task(notifier.keep_alive(lambda: status_line(gateway))))
         await wait_until(stop, args.duration)
         log.info("stopping")
-        if status is not None:
-            status.cancel()
+        if notifier is not None:
+            notifier.stopping()
+        for task in tasks:
+            task.cancel()
         await gateway.stop()
-    return 0
+        if notifier is not None:
+            notifier.close()
+    return ExitCode.OK
 
 
 STATUS_LEGEND = (
@@ -251,17 +205,6 @@ def format_image(image: ProcessImage) -> str:
 
 
 LOG_LEVELS = ["debug", "info", "warning", "error"]
-
-
-def seconds(text: str) -> float:
-    """An argparse type: a number of seconds, 0 or more."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
-    if not value >= 0:  # also NaN
-        raise argparse.ArgumentTypeError(f"expected 0 or more seconds, got {text!r}")
-    return value
 
 
 def build_parser(registry: Registry) -> argparse.ArgumentParser:
@@ -350,26 +293,91 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     p.set_defaults(handler=lambda a, r: run_status(a))
 
     p = sub.add_parser(
-        "plugins", help="list installed plugins with what they provide and their version"
+        "plugins",
+        help="list installed plugins: version, distribution, what each provides, summary; "
+        "exit 1 when one failed to load",
     )
     p.set_defaults(handler=cmd_plugins)
 
+    from . import edscmd, scancmd, simcmd, unitcmd
+
+    p = sub.add_parser(
+        "service-unit",
+        help=f"print the systemd unit {unitcmd.UNIT_NAME} for this installation (docs/deploy.md)",
+    )
+    unitcmd.configure(p)
+    p.set_defaults(handler=lambda a, r: unitcmd.run(a))
+
+    p = sub.add_parser("eds", help="write the EDS of a front (CANopen, DeviceNet, ...)")
+    edscmd.configure(p, registry)
+    p.set_defaults(handler=edscmd.run)
+
     groups: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]] = {}
-    for command in sorted(registry.commands, key=lambda c: c.path):
+
+    def group(path: tuple[str, ...], help_text: str | None = None) -> Any:
         parent = sub
-        for depth, word in enumerate(command.path[:-1]):
-            key = " ".join(command.path[: depth + 1])
+        for depth, word in enumerate(path):
+            key = " ".join(path[: depth + 1])
             if key not in groups:
-                group_parser = parent.add_parser(word, help=f"{word} commands from plugins")
+                group_parser = parent.add_parser(
+                    word, help=help_text or f"{word} commands from plugins"
+                )
                 groups[key] = _with_parents(
-                    group_parser.add_subparsers(dest=f"sub{depth}", metavar="NAME", required=True),
+                    group_parser.add_subparsers(dest=f"sub{depth}", metavar="BACK", required=True),
                     common,
                 )
             parent = groups[key]
+        return parent
+
+    for back_type in sorted(registry.simulators):
+        p = group(
+            ("simulate",), "serve a back's simulated modules (a serial line, a file, ...)"
+        ).add_parser(
+            back_type,
+            help=f"simulated {back_type} modules [{registry.provider(f'simulator:{back_type}')}]",
+        )
+        simcmd.configure(p, registry, back_type)
+        p.set_defaults(handler=lambda a, r, t=back_type: simcmd.run(a, r, t))
+    for back_type, scanner in sorted(registry.scanners.items()):
+        p = group(("scan",), "find the modules on a line; print a topology section").add_parser(
+            back_type,
+            help=f"find {back_type} modules on a line [{registry.provider(f'scan:{back_type}')}]",
+        )
+        scancmd.configure(p, scanner, back_type)
+        p.set_defaults(handler=lambda a, r, t=back_type: scancmd.run(a, r, t))
+
+    for command in sorted(registry.commands, key=lambda c: c.path):
+        parent = group(command.path[:-1]) if len(command.path) > 1 else sub
+        if command.path[-1] in parent.choices:  # a core command (simulate BACK, eds) has the name
+            info = registry.plugins.get(command.plugin)
+            if info is not None and not info.failed:
+                info.error = f"command '{' '.join(command.path)}' is taken by fieldgate itself"
+            continue
         cp = parent.add_parser(command.path[-1], help=f"{command.help} [{command.plugin}]")
-        command.configure(cp)
+        try:
+            command.configure(cp)
+        except Exception as exc:  # a broken plugin command must not take the others down
+            _command_broken(registry, command, cp, one_line(exc))
+            continue
         cp.set_defaults(handler=lambda a, r, run=command.run: run(a))
     return parser
+
+
+def _command_broken(
+    registry: Registry, command: Command, parser: argparse.ArgumentParser, error: str
+) -> None:
+    """A plugin command whose options could not be set up: ``fieldgate plugins`` reports the
+    plugin as failed, and the command itself says so in one line (exit 2)."""
+    words = " ".join(command.path)
+    info = registry.plugins.get(command.plugin)
+    if info is not None and not info.failed:
+        info.error = f"command '{words}': {error}"
+
+    def refuse(args: argparse.Namespace, registry: Registry) -> int:
+        print(f"fieldgate {words}: broken in plugin {command.plugin}: {error}", file=sys.stderr)
+        return ExitCode.CANNOT_RUN
+
+    parser.set_defaults(handler=refuse)
 
 
 def _with_parents(
@@ -394,9 +402,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.handler(args, registry) or 0)
     except KeyboardInterrupt:
-        return 130
+        return ExitCode.INTERRUPTED
     except BrokenPipeError:
-        return 0
+        return ExitCode.OK
 
 
 if __name__ == "__main__":

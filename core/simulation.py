@@ -1,16 +1,22 @@
-"""Simulated modules for every back of a topology, on pseudo-terminal pairs.
+"""Simulated modules for every back of a topology: ``fieldgate run FILE --simulate``.
 
-``fieldgate run FILE --simulate`` (the demo) and tests use it: each back's port is
-replaced by one end of a :class:`~fieldgate.serial_link.PtyPair`, and the back's
-plugin simulator serves the other end, so the back runs its real serial code.
+``--simulate`` asks each back's plugin for its simulator (``registry.add_simulator``):
+
+* a **serial back** (its config a :class:`~fieldgate.topology.SerialBackConfig`) gets one
+  end of a :class:`~fieldgate.serial_link.PtyPair` as its ``port``; the simulator serves
+  the other end, which the factory receives, so the back runs its real serial code;
+* **any other back** (a file, a socket, a bus) gets ``port=None``: the factory points the
+  back's config at what its simulator serves (a temporary file, a loopback port).
+
+A back whose plugin offers no simulator stops ``--simulate`` before anything starts,
+with one line naming every such back.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import cast
 
-from .plugin import PluginStartError, Registry, Simulator
+from .plugin import PluginStartError, Registry, Simulator, one_line
 from .serial_link import PtyPair
 from .topology import SerialBackConfig, Topology
 
@@ -26,37 +32,52 @@ class SimulationBench:
         self._pairs: list[PtyPair] = []
 
     async def start(self) -> None:
+        missing = [
+            f"back {b.name} ({b.type})"
+            for b in self.topology.backs
+            if b.type not in self.registry.simulators
+        ]
+        if missing:
+            raise PluginStartError(
+                f"--simulate: no simulator for {', '.join(missing)}: "
+                f"{'its plugin offers' if len(missing) == 1 else 'their plugins offer'} none"
+            )
         for back in self.topology.backs:
-            factory = self.registry.simulators.get(back.type)
-            if factory is None:
-                raise PluginStartError(
-                    f"back {back.name} ({back.type}): its plugin offers no simulator"
-                )
-            if not hasattr(back, "port"):
-                raise PluginStartError(
-                    f"back {back.name} ({back.type}): not a serial back, cannot simulate it"
-                )
+            factory = self.registry.simulators[back.type]
+            port = self._serial_end(back) if isinstance(back, SerialBackConfig) else None
             try:
-                pair = PtyPair()
-            except OSError as exc:  # no pseudo-terminals here (container without /dev/pts, limit)
+                simulator = factory(back, port, self.animate)
+                await simulator.start()
+            except PluginStartError as exc:
                 raise PluginStartError(
-                    f"back {back.name} ({back.type}): cannot open a pseudo-terminal for its"
-                    f" simulated modules: {exc.strerror or exc}"
+                    f"back {back.name} ({back.type}): simulator: {exc}"
                 ) from None
-            self._pairs.append(pair)
-            back.port = pair.a
-            serial = cast(SerialBackConfig, back)  # (a serial back: it has a port)
-            if getattr(serial, "parity", "N") != "N":
-                # a pseudo-terminal carries bytes, not bits, and Linux refuses even parity on one
-                log.info(
-                    "back %s: simulated line runs without parity (configured %s)",
-                    back.name,
-                    serial.parity,
-                )
-                serial.parity = "N"
-            simulator = factory(back, pair.b, self.animate)
-            await simulator.start()
+            except Exception as exc:
+                raise PluginStartError(
+                    f"back {back.name} ({back.type}): simulator: {one_line(exc)}"
+                ) from exc
             self.simulators[back.name] = simulator
+
+    def _serial_end(self, back: SerialBackConfig) -> str:
+        """Put one end of a new pty pair in the back's ``port``; return the simulator's end."""
+        try:
+            pair = PtyPair()
+        except OSError as exc:  # no pseudo-terminals here (container without /dev/pts, limit)
+            raise PluginStartError(
+                f"back {back.name} ({back.type}): cannot open a pseudo-terminal for its"
+                f" simulated modules: {exc.strerror or exc}"
+            ) from None
+        self._pairs.append(pair)
+        back.port = pair.a
+        if back.parity != "N":
+            # a pseudo-terminal carries bytes, not bits, and Linux refuses even parity on one
+            log.info(
+                "back %s: simulated line runs without parity (configured %s)",
+                back.name,
+                back.parity,
+            )
+            back.parity = "N"
+        return pair.b
 
     def simulator(self, back: str) -> Simulator:
         return self.simulators[back]

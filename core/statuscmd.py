@@ -17,6 +17,8 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
+from .exitcodes import ExitCode
+
 DEFAULT_URL = "http://127.0.0.1:8400/"
 TOKEN_ENV = "FIELDGATE_HTTP_TOKEN"
 TIMEOUT_S = 5.0
@@ -140,13 +142,13 @@ def run_status(args: argparse.Namespace) -> int:
             print(
                 f"fieldgate status: --token-file {args.token_file}: {exc.strerror}", file=sys.stderr
             )
-            return 2
+            return ExitCode.CANNOT_RUN
     else:
         token = os.environ.get(TOKEN_ENV) or None
     try:
         st = fetch_status(args.url, token)
     except StatusError as exc:
         print(f"fieldgate status: {exc}", file=sys.stderr)
-        return 2
+        return ExitCode.CANNOT_RUN
     print(json.dumps(st, indent=2) if args.json else format_status(st))
-    return 0 if st["ready"] else 1
+    return ExitCode.OK if st["ready"] else ExitCode.FAILED

@@ -26,6 +26,7 @@ def _tools_missing() -> str | None:
     want = hashlib.sha256(
         (ROOT / "pyproject.toml").read_bytes()
         + (ROOT / "tests" / "plugin_pkg" / "pyproject.toml").read_bytes()
+        + (ROOT / "examples" / "plugins" / "fieldgate-jsonfile" / "pyproject.toml").read_bytes()
     ).hexdigest()
     if not stamp.exists() or stamp.read_text().strip() != want:
         return f"{bin_dir.parent} was not set up by scripts/ensure-venv for this pyproject.toml"

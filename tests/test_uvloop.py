@@ -59,15 +59,17 @@ def test_the_demo_runs_on_asyncio_when_asked(tmp_path):
     assert "event loop: asyncio" in result.stderr
 
 
-def test_auto_falls_back_to_asyncio_without_uvloop(monkeypatch):
+def test_auto_falls_back_to_asyncio_without_uvloop(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "uvloop", None)  # "import uvloop" raises ImportError
     loop = loop_factory("auto")()
     try:
         assert loop_name(loop) == "asyncio" and isinstance(loop, asyncio.AbstractEventLoop)
     finally:
         loop.close()
-    with pytest.raises(SystemExit, match="uvloop is not installed"):
+    with pytest.raises(SystemExit) as stopped:
         loop_factory("uvloop")
+    assert stopped.value.code == 2  # a command line this machine cannot run (README, exit codes)
+    assert "--loop uvloop: uvloop is not installed here" in capsys.readouterr().err
 
 
 def test_auto_and_uvloop_give_uvloop_when_installed():

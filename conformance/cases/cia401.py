@@ -18,7 +18,7 @@ IO = {0x6000: ("DI", 16), 0x6200: ("DO", 17), 0x6401: ("AI", 18), 0x6411: ("AO",
 def require_401(ctx: Context) -> int:
     dev = ctx.device
     dev.require(0x1000)
-    value = dev.read(0x1000, 0)
+    value: int = dev.read(0x1000, 0)
     if value & 0xFFFF != 0x0191:
         raise Skip(f"device type 0x{value:08X} is not CiA 401 (low word 0x0191)")
     return value
@@ -38,7 +38,12 @@ def io_pdos(ctx: Context) -> tuple[Pdo, Pdo]:
     if rpdo.entries[0] >> 16 != 0x6200 or tpdo.entries[0] >> 16 != 0x6000:
         raise Skip("RPDO1/TPDO1 do not map 0x6200/0x6000")
     old = bytes(dev.upload(0x6200, s + 1)[0] for s in range(len(rpdo.entries)))
-    ctx.cleanup(lambda: [dev.write(0x6200, s + 1, old[s]) for s in range(len(old))])
+
+    def restore() -> None:
+        for s, value in enumerate(old, 1):
+            dev.write(0x6200, s, value)
+
+    ctx.cleanup(restore)
     return rpdo, tpdo
 
 
@@ -195,10 +200,10 @@ def _error_mode(
     value_idx: int,
     out_idx: int,
     in_idx: int,
-    mode,
-    err_value,
-    before,
-    after,
+    mode: int,
+    err_value: int,
+    before: int,
+    after: int,
 ) -> None:
     require_401(ctx)
     require_loopback(ctx)

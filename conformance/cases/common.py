@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import struct
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 
 from ..device import NMT_PREOP, NMT_START, Device, SdoAbort, abort_text
 from ..framework import Context, Fail, Skip
+from ..link import Frame
 
 EMCY_LENGTH_ERROR = 0x8210
 EMCY_LIFE_GUARD = 0x8130
@@ -74,20 +76,27 @@ def other_value(var: ODVariable) -> int:
     return candidate
 
 
+def subindex_numbers(dev: Device, index: int) -> list[int]:
+    """The sub-indices the EDS lists for ``index``, in order ([0] for a variable)."""
+    obj = dev.od[index]
+    return sorted(obj.subindices) if isinstance(obj, (ODRecord, ODArray)) else [0]
+
+
 def emcy_cob(dev: Device) -> int:
     return dev.od_default(0x1014, 0, 0x80 + dev.node_id) & 0x7FF
 
 
-def emcy_code(frame) -> int:
-    return struct.unpack_from("<H", frame.data.ljust(2, b"\0"))[0]
+def emcy_code(frame: Frame) -> int:
+    code: int = struct.unpack_from("<H", frame.data.ljust(2, b"\0"))[0]
+    return code
 
 
-def expect_emcy(ctx: Context, code: int | None, timeout: float | None = None):
+def expect_emcy(ctx: Context, code: int | None, timeout: float | None = None) -> Frame | None:
     """The next EMCY with ``code`` (None: any, -1: any but an error reset 0x0000)."""
     dev = ctx.device
     cob = emcy_cob(dev)
 
-    def wanted(f) -> bool:
+    def wanted(f: Frame) -> bool:
         if f.cob != cob or f.rtr:
             return False
         return code is None or emcy_code(f) == code or code == -1 and emcy_code(f) != 0
@@ -175,7 +184,7 @@ def invalidate(ctx: Context, pdo: Pdo) -> None:
     old = dev.read(pdo.comm, 1)
     dev.write(pdo.comm, 1, old | 0x80000000)
 
-    def restore():
+    def restore() -> None:
         dev.write(pdo.comm, 1, dev.read(pdo.comm, 1) | 0x80000000)
         dev.write(pdo.comm, 1, old)
 
@@ -187,7 +196,7 @@ def keep_mapping(ctx: Context, pdo: Pdo) -> list[int]:
     dev = ctx.device
     entries = [dev.read(pdo.mapping, s) for s in range(1, dev.read(pdo.mapping, 0) + 1)]
 
-    def restore():
+    def restore() -> None:
         dev.write(pdo.mapping, 0, 0)
         for s, e in enumerate(entries, 1):
             dev.write(pdo.mapping, s, e)
@@ -246,12 +255,12 @@ class LengthError:
         self.good = mapped_values(dev, self.rpdo)
         operational(ctx)
 
-    def raise_error(self):
+    def raise_error(self) -> Frame | None:
         self.ctx.device.link.flush()
         self.ctx.device.link.send(self.rpdo.cob & 0x7FF, self.good[: self.rpdo.length - 1])
         return expect_emcy(self.ctx, EMCY_LENGTH_ERROR)
 
-    def clear(self):
+    def clear(self) -> Frame | None:
         self.ctx.device.link.flush()
         self.ctx.device.link.send(self.rpdo.cob & 0x7FF, self.good)
         return expect_emcy(self.ctx, 0x0000)
@@ -290,7 +299,13 @@ def log_mark(ctx: Context) -> int:
     return len(ctx.device.link.log)
 
 
-def expect_error_reset(ctx: Context, mark: int, after, what: str, before: int | None):
+def expect_error_reset(
+    ctx: Context,
+    mark: int,
+    after: Callable[[str, Frame], bool],
+    what: str,
+    before: int | None,
+) -> Frame:
     """The error-reset EMCY (code 0000) that must follow the frame matching ``after(direction, frame)``
     logged after ``mark`` (the tester's command, or the boot-up): it may have come while the tester
     waited for something else (an SDO response), so the log is searched first. CiA 301 §7.2.7.1:

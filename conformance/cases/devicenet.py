@@ -26,6 +26,7 @@ from ..dnet import (
     status_text,
 )
 from ..framework import Context, Fail, Skip, case
+from ..link import Frame
 
 P = "devicenet"
 IDENTITY, DEVICENET, CONNECTION = 0x01, 0x03, 0x05
@@ -48,7 +49,7 @@ IDENTITY_NAMES = {
 
 
 def dev(ctx: Context) -> DnetDevice:
-    return ctx.device  # type: ignore[return-value]
+    return ctx.dnet
 
 
 def explicit(ctx: Context) -> DnetDevice:
@@ -151,7 +152,7 @@ def dup_mac_at_reset(ctx: Context) -> None:
         raise Fail(
             "wrong response to Identity Reset", expected="[hdr] 85", seen=str(reply.frames[-1])
         )
-    requests = []
+    requests: list[Frame] = []
     deadline = (
         time.monotonic() + ctx.timing.bootup + 2.5
     )  # DeviceNet: one second after each request

@@ -3,23 +3,25 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from itertools import pairwise
 
 from ..device import NMT_PREOP, NMT_RESET_COMM, NMT_START, NMT_STOP, SdoAbort, abort_text
 from ..framework import Context, Fail, Skip, case
+from ..link import Frame
 from .common import EMCY_LIFE_GUARD, emcy_code, expect_emcy
 
 ERROR = -1  # expect_emcy: any EMCY except an error reset
 
 
-def resume(ctx: Context, poke) -> None:
+def resume(ctx: Context, poke: Callable[[], object]) -> None:
     """Let a lost master or producer come back so that the device can clear the error it raised."""
     poke()
     time.sleep(0.02)
     ctx.device.link.flush()
 
 
-def heartbeats(ctx: Context, duration: float):
+def heartbeats(ctx: Context, duration: float) -> list[Frame]:
     dev = ctx.device
     return dev.link.collect(lambda f: f.cob == 0x700 + dev.node_id and not f.rtr, duration)
 
@@ -127,7 +129,7 @@ def heartbeat_consumer(ctx: Context) -> None:
         )
 
 
-def guard_replies(ctx: Context, count: int):
+def guard_replies(ctx: Context, count: int) -> list[int]:
     dev = ctx.device
     replies = []
     for _ in range(count):
@@ -206,7 +208,9 @@ def guarding_state(ctx: Context) -> None:
             )
 
 
-def life_guard(ctx: Context, guard_ms: int, factor: int):
+def life_guard(
+    ctx: Context, guard_ms: int, factor: int
+) -> tuple[Frame | None, float | None, float]:
     """Arm life guarding with one RTR and wait for the life guarding EMCY; returns (frame, delay)."""
     dev = ctx.device
     dev.require(0x100D, why="life time factor")
@@ -242,6 +246,7 @@ def life_guarding(ctx: Context) -> None:
         )
     if emcy_code(frame) != EMCY_LIFE_GUARD or len(frame.data) != 8 or not frame.data[2] & 0x10:
         raise Fail("life guarding EMCY", expected="[8] 30 81 <reg with bit 4> ..", seen=str(frame))
+    assert delay is not None  # (there is a frame)
     if not ctx.timing.within(delay, life) and delay < life:
         raise Fail(
             "life guarding EMCY too early",

@@ -7,6 +7,7 @@ import time
 
 from ..device import NMT_RESET_COMM, Device
 from ..framework import Context, Fail, Skip, case
+from ..link import Frame
 
 TX, RX = 0x7E5, 0x7E4  # master → slave, slave → master
 WAITING, CONFIGURATION = 0, 1
@@ -20,7 +21,7 @@ def require_lss(ctx: Context) -> None:
 
 def lss(
     ctx: Context, data: bytes | list[int], reply: int | None = None, timeout: float | None = None
-):
+) -> Frame | None:
     dev = ctx.device
     dev.link.flush()
     dev.link.send(TX, bytes(data).ljust(8, b"\0"))
@@ -33,7 +34,7 @@ def lss(
     )
 
 
-def must(ctx: Context, data, reply: int, what: str):
+def must(ctx: Context, data: bytes | list[int], reply: int, what: str) -> Frame:
     frame = lss(ctx, data, reply)
     if frame is None:
         raise Fail(f"no LSS answer to {what}", expected=f"7E4 [8] {reply:02X} ..", seen="nothing")
@@ -44,7 +45,7 @@ def must(ctx: Context, data, reply: int, what: str):
     return frame
 
 
-def silent(ctx: Context, data, what: str) -> None:
+def silent(ctx: Context, data: bytes | list[int], what: str) -> None:
     dev = ctx.device
     dev.link.flush()
     dev.link.send(TX, bytes(data).ljust(8, b"\0"))

@@ -11,9 +11,11 @@ ends it one way and checks the error-reset EMCY and 0x1001.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from ..device import NMT_RESET_COMM
 from ..framework import Context, Fail, Skip, case
+from ..link import Frame
 from .common import (
     EMCY_LIFE_GUARD,
     REGISTER_GENERIC,
@@ -29,7 +31,7 @@ from .errctl import ERROR, life_guard, require_guarding, resume
 SYNC_PRODUCER_BIT = 0x40000000
 
 
-def sent(direction: str, _frame) -> bool:
+def sent(direction: str, _frame: Frame) -> bool:
     """``after`` for :func:`expect_error_reset`: the tester's command (an SDO request, a SYNC)."""
     return direction == "→"
 
@@ -143,7 +145,7 @@ def raise_sync_loss(ctx: Context) -> int | None:
 
 
 # -- the cases: each error, ended each way ----------------------------------------------------
-def by_write(index: int, sub: int, what: str):
+def by_write(index: int, sub: int, what: str) -> Callable[[Context, int | None], None]:
     """End the error with an SDO write of 0 to ``index:sub``."""
 
     def end(ctx: Context, before: int | None) -> None:
@@ -207,7 +209,15 @@ CASES = (
     ),
 )
 
+
+def _raise_and_end(
+    raise_error: Callable[[Context], int | None], end: Callable[[Context, int | None], None]
+) -> Callable[[Context], None]:
+    def run(ctx: Context) -> None:
+        end(ctx, raise_error(ctx))
+
+    return run
+
+
 for profile, name, raise_error, end, title in CASES:
-    case(profile, name, title)(
-        lambda ctx, raise_error=raise_error, end=end: end(ctx, raise_error(ctx))
-    )
+    case(profile, name, title)(_raise_and_end(raise_error, end))

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import time
+from functools import partial
+
+from canopen.objectdictionary import ODVariable
 
 from ..device import (
     NMT_PREOP,
@@ -15,12 +18,13 @@ from ..device import (
     mux,
 )
 from ..framework import Context, Fail, Skip, case
+from ..link import Frame
 from .common import int_default, other_value, rw_ints
 
 PREOP, OPERATIONAL, STOPPED = 0x7F, 0x05, 0x04
 
 
-def expect_bootup(ctx: Context, cs: int, what: str):
+def expect_bootup(ctx: Context, cs: int, what: str) -> Frame:
     frame = ctx.device.reset(cs)
     if frame is None:
         raise Fail(
@@ -123,7 +127,7 @@ def sdo_gated(ctx: Context) -> None:
     dev.upload(0x1000, 0)
 
 
-def _write_other(ctx: Context, candidates, what: str):
+def _write_other(ctx: Context, candidates: list[ODVariable], what: str) -> ODVariable:
     """Give the first candidate that accepts it a value other than its default; restored at the end."""
     dev = ctx.device
     for var in candidates:
@@ -131,7 +135,7 @@ def _write_other(ctx: Context, candidates, what: str):
             dev.write(var.index, var.subindex, other_value(var))
         except SdoAbort:
             continue
-        ctx.cleanup(lambda v=var: dev.write(v.index, v.subindex, v.default))
+        ctx.cleanup(partial(dev.write, var.index, var.subindex, var.default))
         return var
     raise Skip(f"EDS lists no writable {what} entry with a default that takes another value")
 

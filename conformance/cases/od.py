@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 from canopen.objectdictionary import ODArray, ODRecord, datatypes
 
 from ..device import SdoAbort, abort_text, mux, type_name
 from ..framework import Context, Fail, Skip, case
-from .common import int_default, rw_ints, signed
+from .common import int_default, rw_ints, signed, subindex_numbers
 
 KNOWN_TYPES = {
     getattr(datatypes, n)
@@ -104,6 +106,8 @@ def read_all(ctx: Context) -> None:
             continue
         if var.fixed_size and var.data_type not in (datatypes.REAL32, datatypes.REAL64):
             value = var.decode_raw(raw)
+            if not isinstance(value, (int, float)):
+                continue  # (a fixed-size entry that is no number: nothing to compare)
             if var.min is not None and value < var.min or var.max is not None and value > var.max:
                 problems.append(
                     f"{where}: value {value} outside the EDS range {var.min}..{var.max}"
@@ -118,7 +122,8 @@ def defaults(ctx: Context) -> None:
     dev = ctx.device
     problems = []
     for var in dev.variables():
-        if not var.readable or var.default in (None, "") or var.index in VOLATILE:
+        expected: object = var.default  # (typed int by canopen; a string entry's is a str)
+        if not var.readable or expected in (None, "") or var.index in VOLATILE:
             continue
         if var.access_type != "const" and not (0x1000 <= var.index <= 0x1FFF):
             continue
@@ -126,7 +131,6 @@ def defaults(ctx: Context) -> None:
             value = dev.read(var.index, var.subindex)
         except (SdoAbort, Fail):
             continue  # read_all reports unreadable entries
-        expected = var.default
         if isinstance(expected, str) and isinstance(value, str):
             value, expected = value.rstrip("\0"), expected.rstrip("\0")
         if value != expected:
@@ -199,7 +203,7 @@ def missing_subindex(ctx: Context) -> None:
     dev.require(0x1000)
     dev.expect_abort(bytes([0x40]) + mux(0x1000, 1), (0x06090011, 0x08000000), "read of 0x1000:1")
     if dev.has(0x1018):
-        top = max(dev.od[0x1018].subindices) + 1
+        top = max(subindex_numbers(dev, 0x1018)) + 1
         dev.expect_abort(
             bytes([0x40]) + mux(0x1018, top), (0x06090011, 0x08000000), f"read of 0x1018:{top}"
         )
@@ -225,7 +229,7 @@ def length_mismatch(ctx: Context) -> None:
         if var is None:
             continue
         old = dev.upload(var.index, var.subindex)
-        ctx.cleanup(lambda v=var, o=old: dev.download(v.index, v.subindex, o))
+        ctx.cleanup(partial(dev.download, var.index, var.subindex, old))
         dev.expect_write_abort(
             var.index, var.subindex, data, codes, f"{what} (0x{var.index:04X}:{var.subindex})"
         )
@@ -250,7 +254,7 @@ def value_range(ctx: Context) -> None:
         if not probes:
             continue
         old = dev.upload(var.index, var.subindex)
-        ctx.cleanup(lambda v=var, o=old: dev.download(v.index, v.subindex, o))
+        ctx.cleanup(partial(dev.download, var.index, var.subindex, old))
         for value, codes, what in probes:
             checked += 1
             dev.expect_write_abort(

@@ -4,10 +4,13 @@ event timer, RTR, RPDO length errors, NMT gating."""
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from functools import partial
 from itertools import pairwise
 
 from ..device import NMT_PREOP, NMT_STOP, SdoAbort, abort_text
 from ..framework import Context, Fail, Skip, case
+from ..link import Frame
 from .common import (
     EMCY_LENGTH_ERROR,
     Pdo,
@@ -25,6 +28,7 @@ from .common import (
     restricted,
     set_pdo_sub,
     set_pdo_type,
+    subindex_numbers,
 )
 
 MAPPING_ABORTS = (
@@ -45,13 +49,12 @@ def sync(ctx: Context) -> None:
     ctx.device.link.send(ctx.device.od_default(0x1005, 0, 0x80) & 0x7FF, b"")
 
 
-def tpdo_frames(ctx: Context, pdo: Pdo, duration: float):
-    return ctx.device.link.collect(
-        lambda f, cob=pdo.cob & 0x7FF: f.cob == cob and not f.rtr, duration
-    )
+def tpdo_frames(ctx: Context, pdo: Pdo, duration: float) -> list[Frame]:
+    cob = pdo.cob & 0x7FF
+    return ctx.device.link.collect(lambda f: f.cob == cob and not f.rtr, duration)
 
 
-def rtr(ctx: Context, pdo: Pdo, timeout: float | None = None):
+def rtr(ctx: Context, pdo: Pdo, timeout: float | None = None) -> Frame | None:
     dev = ctx.device
     dev.link.flush()
     dev.link.send(pdo.cob & 0x7FF, rtr=True, dlc=pdo.length)
@@ -72,7 +75,7 @@ def set_while_invalid(ctx: Context, pdo: Pdo, values: dict[int, tuple[int, str]]
     )  # runs first: the restores happen while invalid
 
 
-def check_len(frame, pdo: Pdo) -> None:
+def check_len(frame: Frame, pdo: Pdo) -> None:
     if len(frame.data) != pdo.length:
         raise Fail(f"{pdo.name} DLC", expected=f"{pdo.length} (mapped length)", seen=str(frame))
 
@@ -263,7 +266,7 @@ def mapping_missing_object(ctx: Context) -> None:
 def mapping_too_long(ctx: Context) -> None:
     dev = ctx.device
     pdo = _mapping_target(ctx)
-    top = max(dev.od[pdo.mapping].subindices)
+    top = max(subindex_numbers(dev, pdo.mapping))
     mappable = [
         v
         for v in dev.variables()
@@ -553,9 +556,7 @@ def rpdo_gated(ctx: Context) -> None:
     dev = ctx.device
     pdo = active_pdo(dev, tx=False)
     good = mapped_values(dev, pdo)
-    ctx.cleanup(
-        lambda: [dev.download(e >> 16, (e >> 8) & 0xFF, part) for e, part in _split(pdo, good)]
-    )
+    ctx.cleanup(partial(_write_mapped, ctx, pdo, good))
     changed = bytes(b ^ 0x01 for b in good)
     for cs, name in ((NMT_PREOP, "Pre-operational"), (NMT_STOP, "Stopped")):
         dev.nmt(cs)
@@ -581,7 +582,13 @@ def rpdo_gated(ctx: Context) -> None:
         )
 
 
-def _split(pdo: Pdo, data: bytes):
+def _write_mapped(ctx: Context, pdo: Pdo, data: bytes) -> None:
+    """Write ``data`` (a PDO's bytes) to the objects the PDO maps."""
+    for e, part in _split(pdo, data):
+        ctx.device.download(e >> 16, (e >> 8) & 0xFF, part)
+
+
+def _split(pdo: Pdo, data: bytes) -> Iterator[tuple[int, bytes]]:
     pos = 0
     for e in pdo.entries:
         size = (e & 0xFF) // 8
@@ -664,7 +671,7 @@ def restricted_sync_emcy_cobid(ctx: Context) -> None:
     problems = []
     for index in targets:
         original = dev.read(index, 0)
-        ctx.cleanup(lambda i=index, o=original: dev.write(i, 0, o))
+        ctx.cleanup(partial(dev.write, index, 0, original))
         for cob in (0x601, 0x701):
             if index == 0x1014:
                 dev.write(
@@ -698,9 +705,7 @@ def rpdo_sync(ctx: Context) -> None:
     dev = ctx.device
     pdo = active_pdo(dev, tx=False)
     good = mapped_values(dev, pdo)
-    ctx.cleanup(
-        lambda: [dev.download(e >> 16, (e >> 8) & 0xFF, part) for e, part in _split(pdo, good)]
-    )
+    ctx.cleanup(partial(_write_mapped, ctx, pdo, good))
     set_pdo_type(ctx, pdo, 1)
     operational(ctx)
     changed = bytes(b ^ 0x01 for b in good)

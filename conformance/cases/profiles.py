@@ -27,12 +27,15 @@ the manual fixes (an EMCY, its class) and says so in its title.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from ..device import NMT_RESET_COMM, NMT_START, SdoAbort, StateProbe, mux
 from ..framework import Context, Fail, Skip, case
+from ..link import Frame
 from .cia401 import require_loopback
 from .common import (
     LengthError,
+    Pdo,
     active_pdo,
     emcy_code,
     expect_emcy,
@@ -97,7 +100,9 @@ def spare_node(ctx: Context) -> int:
     return ctx.options.lss_spare_node_id or ctx.device.node_id % 127 + 1
 
 
-def heartbeat_stops(ctx: Context, producer: int, period_s: float, consumer_s: float):
+def heartbeat_stops(
+    ctx: Context, producer: int, period_s: float, consumer_s: float
+) -> tuple[Frame | None, float]:
     """Send ``producer``'s heartbeat for a while (no EMCY may come), then stop; the EMCY that
     follows (or None), and the time of the last heartbeat."""
     dev = ctx.device
@@ -194,7 +199,7 @@ def icpdas_ao_error_two_byte_writes(ctx: Context) -> None:
             raise Fail(f"0x{index:04X}:1 after the write", expected=f"{want:#x}")
 
 
-def analog_tpdo(ctx: Context):
+def analog_tpdo(ctx: Context) -> Pdo:
     """The TPDO mapping AI 1 (0x6401:1) and the AO looped back to it."""
     require_loopback(ctx)
     dev = ctx.device
@@ -280,7 +285,7 @@ def digital_masks(ctx: Context) -> dict[int, int]:
     return {**dict.fromkeys(range(1, count), 0xFF), count: (1 << (bits - 8 * (count - 1))) - 1}
 
 
-def _error_event(ctx: Context, trigger, what: str) -> None:
+def _error_event(ctx: Context, trigger: Callable[[], Frame | None], what: str) -> None:
     """Outputs driven, ``trigger()`` raises the error event (returns its EMCY): every output
     goes to 0 and the head to Pre-operational (seed-004 §3.2, §4.3, §4.8)."""
     dev = ctx.device
@@ -312,7 +317,7 @@ def na9161_heartbeat_loss_outputs(ctx: Context) -> None:
     period = ctx.timing.heartbeat_ms / 1000
     consumer_ms = 3 * ctx.timing.heartbeat_ms
 
-    def trigger():
+    def trigger() -> Frame | None:
         dev.write(0x1016, 1, producer << 16 | consumer_ms)
         ctx.cleanup(lambda: dev.write(0x1016, 1, 0))
         frame, _ = heartbeat_stops(ctx, producer, period, consumer_ms / 1000)
@@ -333,7 +338,7 @@ def na9161_sync_loss_outputs(ctx: Context) -> None:
     period_us = 50_000  # the Delta AS300's SYNC cycle
     sync_cob = int(dev.read(0x1005, 0)) & 0x7FF if dev.has(0x1005) else 0x80
 
-    def trigger():
+    def trigger() -> Frame | None:
         dev.patch(ctx, 0x1006, 0, period_us)
         end = time.monotonic() + 0.5
         while time.monotonic() < end:

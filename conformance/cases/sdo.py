@@ -5,6 +5,7 @@ from __future__ import annotations
 import struct
 import time
 
+from canopen.objectdictionary import ODVariable
 from canopen.sdo.base import CrcXmodem
 from canopen.sdo.client import BlockDownloadStream, BlockUploadStream
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
@@ -14,7 +15,7 @@ from ..framework import Context, Fail, Skip, case
 from .common import rw_ints
 
 
-def big_readable(dev: Device):
+def big_readable(dev: Device) -> ODVariable | None:
     """The readable entry of more than 4 bytes with the largest default, for segmented/block uploads."""
     best = None
     for var in dev.variables():
@@ -32,7 +33,7 @@ def big_readable(dev: Device):
     return best[1] if best else None
 
 
-def writable(dev: Device, big: bool = False):
+def writable(dev: Device, big: bool = False) -> ODVariable | None:
     """A writable non-PDO entry: ``big`` wants one longer than 4 bytes, otherwise one of at most 4."""
     for var in dev.variables():
         if 0x1400 <= var.index <= 0x1BFF or var.access_type not in ("rw", "rww", "rwr"):
@@ -43,7 +44,7 @@ def writable(dev: Device, big: bool = False):
     return None
 
 
-def small_writable(dev: Device):
+def small_writable(dev: Device) -> ODVariable:
     """A writable integer entry; simple communication parameters first (writing them back is harmless)."""
     preferred = {0x1017: 0, 0x100C: 1, 0x1015: 2, 0x100D: 3}
     vars_ = sorted(
@@ -259,9 +260,11 @@ def require_block(ctx: Context) -> None:
     dev.link.collect(None, 0.02)
 
 
-def block_target(dev: Device):
-    var = big_readable(dev)
-    return var if var is not None else dev.var(0x1018, 1) or dev.var(0x1000)
+def block_target(dev: Device) -> ODVariable:
+    var = big_readable(dev) or dev.var(0x1018, 1) or dev.var(0x1000)
+    if var is None:
+        raise Skip("EDS lists no entry longer than 4 bytes, nor 0x1018:1 or 0x1000")
+    return var
 
 
 def _block_upload(ctx: Context, crc: bool) -> None:

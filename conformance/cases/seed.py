@@ -497,6 +497,7 @@ def tv20(ctx: Context) -> None:
         )
     if bytes(frame.data) != bytes.fromhex("3081110700000000"):
         raise Fail("life guarding EMCY", expected="30 81 11 07 00 00 00 00", seen=str(frame))
+    assert delay is not None  # (there is a frame)
     if not ctx.timing.within(delay, life):
         raise Fail(
             "life guarding EMCY time",

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from canopen.objectdictionary import ODVariable
+
 from ..device import NMT_RESET_NODE
 from ..framework import Context, Fail, Skip, case
-from .common import int_default, other_value, rw_ints
+from .common import int_default, other_value, rw_ints, subindex_numbers
 
 SAVE = 0x65766173  # "save"
 LOAD = 0x64616F6C  # "load"
@@ -34,7 +36,7 @@ def capabilities(ctx: Context) -> None:
         if not dev.has(index):
             continue
         found = True
-        for sub in sorted(dev.od[index].subindices):
+        for sub in subindex_numbers(dev, index):
             if sub == 0:
                 continue
             value = dev.read(index, sub)
@@ -66,7 +68,7 @@ def wrong_signature(ctx: Context) -> None:
         raise Skip("EDS lists neither 0x1010:1 nor 0x1011:1")
 
 
-def _target(ctx: Context):
+def _target(ctx: Context) -> ODVariable:
     avoid = (0x1005, 0x1010, 0x1011, 0x1014, 0x1016, 0x1200)
     vars_ = [v for v in rw_ints(ctx.device, 0x1000, 0x1FFF, avoid) if int_default(v) is not None]
     if not vars_:
@@ -86,7 +88,7 @@ def save_across_reset(ctx: Context) -> None:
     var = _target(ctx)
     value = other_value(var)
 
-    def restore():
+    def restore() -> None:
         dev.write(0x1011, 1, LOAD)
         dev.reset(NMT_RESET_NODE)
 

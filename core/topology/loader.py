@@ -113,6 +113,8 @@ class ComponentTypes(Protocol):
 
     def type_names(self, role: str) -> list[str]: ...
 
+    def why_missing(self, role: str, type_name: str) -> str: ...  # plugins that failed, if any
+
 
 class _Named(Protocol):
     name: str
@@ -353,7 +355,8 @@ def validate(
                         line,
                         col,
                         dotted(base + ("type",)),
-                        f"no installed plugin provides {role} type '{type_name}'{hint} (installed {role} types: {installed}); is the plugin installed?",
+                        f"no installed plugin provides {role} type '{type_name}'{hint} (installed {role} types: {installed})"
+                        + (registry.why_missing(role, type_name) or "; is the plugin installed?"),
                     )
                 )
                 continue

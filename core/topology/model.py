@@ -8,6 +8,7 @@ same common fields.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Annotated, Any, Literal, overload
 
 from pydantic import (
@@ -249,7 +250,8 @@ class ModuleConfig(StrictModel):
 
 
 class BackConfig(ComponentConfig):
-    modules: list[ModuleConfig] = Field(default_factory=list)
+    # a Sequence, so that a plugin's model narrows it to a list of its own module model
+    modules: Sequence[ModuleConfig] = Field(default_factory=list)
 
     def channel_specs(self) -> list[ChannelSpec]:
         """Every channel this back provides. Plugins implement it."""

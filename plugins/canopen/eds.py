@@ -19,18 +19,16 @@ so does this command, from the topology.
 
 from __future__ import annotations
 
-import argparse
 import io
 import re
-import sys
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import canopen
 
-from fieldgate.plugin import GatewayContext, Registry, load_registry
-from fieldgate.topology import TopologyError, load_topology
+from fieldgate.plugin import CommandError, EdsRequest, GatewayContext, Registry, load_registry
+from fieldgate.topology import FrontConfig, Topology, load_topology
 
 from .layouts import LayoutError
 from .pdo import dummy_types
@@ -38,7 +36,7 @@ from .pdo import dummy_types
 STANDARD_BITRATES = {10e3, 20e3, 50e3, 125e3, 250e3, 500e3, 800e3, 1000e3}
 
 
-class EdsError(Exception):
+class EdsError(CommandError):
     """The topology has no such canopen front (or none at all)."""
 
 
@@ -62,14 +60,18 @@ def front_node(
             - {"canopen"}
         )
         hint = (
-            f" (it has a {' and a '.join(others)} front; for DeviceNet: fieldgate devicenet eds)"
+            f" (it has a {' and a '.join(others)} front: fieldgate eds --front NAME)"
             if others
             else ""
         )
         raise EdsError(
             f"no canopen front{f' named {front_name!r}' if front_name else ''} in the topology{hint}"
         )
-    cfg = fronts[0]
+    return build_front(topology, fronts[0], registry)
+
+
+def build_front(topology: Topology, cfg: FrontConfig, registry: Registry) -> tuple[Any, Any]:
+    """A canopen front of ``topology`` and its node, built as the running gateway builds them."""
     context = GatewayContext.build(topology)
     ctype = registry.lookup("front", cfg.type)
     if ctype is None:
@@ -176,39 +178,11 @@ def write_eds(
     return text
 
 
-# -- CLI ---------------------------------------------------------------------------------
-def configure(parser: argparse.ArgumentParser) -> None:
-    from fieldgate.cli import add_overrides_argument
-
-    parser.add_argument("topology", help="topology YAML file")
-    add_overrides_argument(parser, "fronts.can.node_id=5")
-    parser.add_argument("--front", help="canopen front name (default: the first canopen front)")
-    parser.add_argument("-o", "--output", help="EDS file to write (default: standard output)")
-
-
-def run(args: argparse.Namespace) -> int:
-    from fieldgate.cli import overrides_of
-
+# -- fieldgate eds ------------------------------------------------------------------------
+def eds_for(request: EdsRequest) -> str:
+    """The EDS of the front ``fieldgate eds`` chose (registered with ``registry.add_eds``)."""
     try:
-        text = write_eds(
-            args.topology, args.front, args.output, overrides=overrides_of(args, args.topology)
-        )
-    except TopologyError as exc:
-        for issue in exc.issues:
-            print(issue, file=sys.stderr)
-        return 1
-    except (EdsError, LayoutError) as exc:
-        print(f"{args.topology}: {exc}", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        print(f"{args.output}: cannot write the EDS: {exc.strerror or exc}", file=sys.stderr)
-        return 1
-    if args.output is None:
-        sys.stdout.write(text)
-    else:
-        print(f"{args.output}: EDS written", file=sys.stderr)
-    return 0
-
-
-def register_command(registry: Registry) -> None:
-    registry.add_command(("eds",), "write the CiA 306 EDS of a canopen front", configure, run)
+        front, node = build_front(request.topology, request.front, request.registry)
+    except LayoutError as exc:
+        raise EdsError(str(exc)) from None
+    return eds_text(front, node, request.file_name)

@@ -33,7 +33,7 @@ from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
 from .cobid import restricted
-from .eds import register_command as register_eds_command
+from .eds import eds_for
 from .frame import Frame, NmtState
 from .front401 import IoFrontOptions, check_io, io_settings
 from .front401 import install as install_io_device
@@ -564,7 +564,7 @@ def fieldgate_register(registry: Registry) -> None:
     registry.add_front(
         "canopen", CanopenFrontConfig, CanopenFront, "CANopen CiA 301 slave on any python-can bus"
     )
-    register_eds_command(registry)
+    registry.add_eds("canopen", eds_for)
 
 
 add_node_extension(install_io_device)  # CiA 401 I/O device: PDOs, 0x6000-, 0x2000- (see .front401)

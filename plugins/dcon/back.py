@@ -34,6 +34,7 @@ from fieldgate.module_info import ModuleIdentity
 from fieldgate.plugin import GatewayContext, PluginStartError
 from fieldgate.polling import CommError, LineJob, SerialBack
 from fieldgate.serial_link import AsyncSerial
+from fieldgate.topology import ModuleConfig
 
 from .autoscan import StartScan, find_modules
 from .codec import BAUD_CODES, HOST_OK
@@ -139,7 +140,8 @@ class DconBack(SerialBack):
                 out[cid] = [f"#{aa}(data)" if p.ao_style == AO_SINGLE else f"#{aa}{i}(data)"]
         return out
 
-    def make_module(self, config: DconModuleConfig, specs: list[ChannelSpec]) -> DconModule:
+    def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> DconModule:
+        assert isinstance(config, DconModuleConfig)  # (the modules of a dcon back)
         # self.dcon is None while the port is missing at start: open_link sets module.link
         module = DconModule(
             config, specs, self.context.image, self.dcon, watch_status=not self._host_ok_allowed()
@@ -410,18 +412,17 @@ class DconBack(SerialBack):
         """True while the module sits in host-watchdog timeout (0x2003 != 0)."""
         return self.module(address).in_watchdog
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         status = super().status()
         status["reply_timeout_ms"] = self.reply_timeout_ms
         if self.start_scan is not None:
             status["start_scan"] = self.start_scan.status()
         if not self.config.auto and self.config.scan.survey:
             status["survey"] = list(self.survey)
+        period = self.host_ok_period()
         status["host_ok"] = {
             "enabled": self.host_ok_enabled,
-            "period_ms": None
-            if self.host_ok_period() is None
-            else round(self.host_ok_period() * 1000),
+            "period_ms": None if period is None else round(period * 1000),
             "sending": self._host_ok_running,
             "sent": self.host_ok_sent,
         }

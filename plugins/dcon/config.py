@@ -10,26 +10,15 @@ from pydantic_core import PydanticCustomError
 
 from fieldgate.image import ChannelSpec, DataType, Kind, Scaling, Source, channel_id
 from fieldgate.module_info import ModuleIdentity
+from fieldgate.scancmd import parse_addresses as parse_addresses  # one place: core's
 from fieldgate.topology import ModuleConfig, SerialBackConfig, StrictModel
 
 from .formats import FORMAT_NAMES
 from .profiles import Profile, find_profile, model_names
 from .scanfile import ScanFile, ScanFileError
-from .tables import TABLES, TypeRange
+from .tables import TABLES, TypeRange, TypeTable
 
 DEFAULT_SCAN_ADDRESSES = "1-15"  # the I-7241D's and I-7231D's module addresses (0x01-0x0F)
-
-
-def parse_addresses(text: str) -> list[int]:
-    """'0-255', '1-15,32' -> addresses."""
-    result: list[int] = []
-    for part in text.split(","):
-        low, _, high = part.strip().partition("-")
-        start, end = int(low, 0), int(high or low, 0)
-        if not 0 <= start <= end <= 255:
-            raise ValueError(f"address range {part!r} outside 0..255")
-        result.extend(range(start, end + 1))
-    return sorted(set(result))
 
 
 FormatName = Literal["auto", "hex", "engineering", "percent", "ohms"]
@@ -105,7 +94,7 @@ class DconModuleConfig(ModuleConfig):
         return profile
 
     @property
-    def type_table(self):
+    def type_table(self) -> TypeTable | None:
         key = self.profile.ai_table or self.profile.ao_table
         return TABLES[key] if key else None
 
@@ -352,7 +341,7 @@ class DconBackConfig(SerialBackConfig):
     def _spec(
         self, m: DconModuleConfig, kind: Kind, index: int, rng: TypeRange | None
     ) -> ChannelSpec:
-        extra: dict = {}
+        extra: dict[str, Any] = {}
         if kind.is_output:
             extra["error_mode"], extra["shutdown_mode"] = m.output_modes(kind, index)
         if not kind.is_digital and rng is not None:

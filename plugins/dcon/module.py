@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from fieldgate.health import ErrorKind
@@ -30,12 +31,12 @@ class DconModule(PolledModule):
         config: DconModuleConfig,
         specs: list[ChannelSpec],
         image: ProcessImage,
-        link: DconLink,
+        link: DconLink | None,
         watch_status: bool = False,
     ):
         super().__init__(config, specs)
         self.image = image
-        self.link = link
+        self._link = link  # None while the port is missing at start (the back sets it)
         self.profile = config.profile
         self.by_kind: dict[Kind, list[str]] = {
             k: [s.id for s in sorted(specs, key=lambda s: s.source.index) if s.kind is k]
@@ -59,12 +60,23 @@ class DconModule(PolledModule):
         self.polls = 0
         self.resets = 0
         self._seen_online = False
-        self.on_reset = lambda module: None  # set by the back: rewrite the outputs
+        # set by the back: rewrite the outputs
+        self.on_reset: Callable[[DconModule], None] = lambda module: None
         wd = config.watchdog
         self.watchdog_enabled = bool(wd and wd.enabled)
         self.watchdog_timeout_ms = wd.timeout_ms if wd else 0
 
     # -- helpers ----------------------------------------------------------------
+    @property
+    def link(self) -> DconLink:
+        if self._link is None:
+            raise CommError(ErrorKind.IO, "the port is not open")
+        return self._link
+
+    @link.setter
+    def link(self, link: DconLink) -> None:
+        self._link = link
+
     async def _ask(self, body: str, lead: str = "$") -> str:
         return codec.addressed(
             await self.link.transact(codec.command(lead, self.address, body)), self.address
@@ -365,7 +377,7 @@ class DconModule(PolledModule):
         wanted = [
             (letter, value)
             for letter, value in (("S", cfg.safe_value), ("P", cfg.power_on_value))
-            if value is not None
+            if isinstance(value, int)  # (a bit pattern: the config checks it for digital modules)
         ]
         missing = [
             (letter, value)
@@ -429,7 +441,7 @@ class DconModule(PolledModule):
             p.model,
         )
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         return {
             "address": self.address,
             "model": self.profile.model,

@@ -1,23 +1,29 @@
-"""Finding DCON modules on a line: ``$AA2`` at every address, then ``$AAM``/``$AAF`` to identify."""
+"""Finding DCON modules on a line: ``$AA2`` at every address, then ``$AAM``/``$AAF`` to identify
+(``fieldgate scan dcon``; core runs the command: baud rates, progress, Ctrl-C)."""
 
 from __future__ import annotations
 
+import argparse
 import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 from fieldgate.health import ErrorKind
+from fieldgate.plugin import CommandError, Scanner, ScanProgress
 from fieldgate.polling import CommError
+from fieldgate.serial_link import AsyncSerial
+from fieldgate.serial_timing import LineTiming
 
 from . import codec
-from .config import parse_addresses
 from .formats import DataFormat
 from .link import DconLink
 from .profiles import Profile, find_profile
-from .scanfile import ScannedModule
+from .scanfile import ScanFile, ScannedModule
 from .tables import TABLES
 
-__all__ = ["Found", "parse_addresses", "progress_bar", "scan_line", "scanned", "topology_yaml"]
+__all__ = ["DconScanner", "Found", "scan_line", "scanned", "topology_yaml"]
 
 
 @dataclass(frozen=True)
@@ -36,9 +42,6 @@ class Found:
             return ""
         rng = TABLES[key].get(self.config.type_code)
         return rng.label if rng else "unknown type code"
-
-
-Progress = Callable[[int, int, int], None]  # (done, total, found)
 
 
 def scanned(found: Found, line_checksum: bool) -> ScannedModule:
@@ -64,7 +67,7 @@ async def scan_line(
     link: DconLink,
     addresses: Iterable[int],
     baudrate: int,
-    progress: Progress | None = None,
+    progress: ScanProgress | None = None,
     found: list[Found] | None = None,
     report: Callable[[str], None] = _to_stderr,
 ) -> list[Found]:
@@ -111,19 +114,6 @@ def _optional(text: str | None) -> str:
     return text or ""
 
 
-def progress_bar(stream=sys.stderr, width: int = 32) -> Progress:
-    def show(done: int, total: int, found: int) -> None:
-        filled = width * done // max(total, 1)
-        stream.write(
-            f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} addresses, {found} module(s) found"
-        )
-        if done == total:
-            stream.write("\n")
-        stream.flush()
-
-    return show
-
-
 def topology_yaml(found: list[Found], port: str, checksum: bool, name: str = "rs485") -> str:
     """Ready-to-paste ``backs:`` entries, one per baud rate that had modules."""
     lines = ["backs:"]
@@ -159,3 +149,64 @@ def topology_yaml(found: list[Found], port: str, checksum: bool, name: str = "rs
     if len(lines) == 1:
         lines.append("  []  # no module answered")
     return "\n".join(lines) + "\n"
+
+
+class DconScanner(Scanner):
+    addresses = "0-255"
+    address_range = (0, 255)
+
+    def configure(self, group: argparse._ArgumentGroup) -> None:
+        group.add_argument("--checksum", action="store_true", help="send and expect DCON checksums")
+        group.add_argument(
+            "-o",
+            "--output",
+            metavar="FILE",
+            help="also write a scan file (JSON) for modules: auto, the EDS generators and --simulate",
+        )
+
+    async def scan(
+        self,
+        port: str,
+        baudrate: int,
+        addresses: list[int],
+        args: argparse.Namespace,
+        progress: ScanProgress,
+        found: list[Any],
+    ) -> None:
+        serial = await AsyncSerial.open(port, baudrate)  # PluginStartError: one line
+        try:
+            # every scan reply carries its address, so a late one cannot be mistaken: no settling
+            link = DconLink(
+                serial,
+                args.checksum,
+                args.timeout_ms / 1000,
+                settle_after_timeout=False,
+                timing=LineTiming.of(baudrate, args.timeout_ms, bits=10),
+            )
+            await scan_line(link, addresses, baudrate, progress, found)
+        finally:
+            await serial.close()
+
+    def topology(self, found: list[Any], args: argparse.Namespace) -> str:
+        return topology_yaml(found, args.port, args.checksum, args.name)
+
+    def save(self, found: list[Any], args: argparse.Namespace, bauds: list[int]) -> None:
+        """``-o FILE``: what the scan found, as ``modules: auto`` and the EDS generators read it."""
+        if args.output is None:
+            return
+        scan = ScanFile(
+            args.port,
+            [scanned(f, args.checksum) for f in found],
+            args.addresses,
+            bauds,
+            [args.checksum],
+        )
+        try:
+            scan.write(Path(args.output))
+        except OSError as exc:
+            raise CommandError(
+                f"{args.output}: cannot write the scan file: {exc.strerror or exc}"
+            ) from None
+        print(
+            f"fieldgate scan dcon: {len(found)} module(s) written to {args.output}", file=sys.stderr
+        )

@@ -39,11 +39,8 @@ class SimModule:
     ):
         self.profile = profile
         self.address = address
-        table = (
-            TABLES[profile.ai_table or profile.ao_table]
-            if (profile.ai_table or profile.ao_table)
-            else None
-        )
+        key = profile.ai_table or profile.ao_table
+        table = TABLES[key] if key else None
         self.table = table
         self.type_code = (
             type_code if type_code is not None else (table.default if table else DIO_TYPE_CODE)
@@ -376,16 +373,17 @@ class SimBus:
         checksum = self._checksum_of(raw)
         try:
             text = codec.unframe(raw, checksum)
-        except codec.CommError:
+        except CommError:
             self.dropped += 1
             return None  # bad checksum or noise: silence
         if text == codec.HOST_OK:
-            for module in self.modules.values():
-                module.host_ok(now)
+            for each in self.modules.values():
+                each.host_ok(now)
             return None
         if len(text) < 3 or text[0] not in codec.COMMAND_LEADS:
             self.dropped += 1
             return None
+        module: SimModule | None
         try:
             module = self.modules.get(int(text[1:3], 16))
         except ValueError:

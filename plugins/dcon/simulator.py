@@ -15,11 +15,13 @@ Python API::
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import logging
 import re
+from typing import Any
 
-from fieldgate.plugin import PluginStartError, Simulator
+from fieldgate.plugin import PluginStartError, SimulateCli, Simulator
 from fieldgate.serial_link import PortServer, cancel_task
 
 from .codec import BAUD_TO_CODE
@@ -32,6 +34,7 @@ log = logging.getLogger("fieldgate.dcon.sim")
 
 _CHANNEL = re.compile(r"(?:^|/)m(\d+)/(di|do|ai|ao)(\d+)$")
 TICK = 0.02
+FAULT_KINDS = ("silence", "bad-checksum", "garbage", "delay", "truncate", "wrong-address")
 
 
 class DconSimulator(Simulator):
@@ -41,7 +44,7 @@ class DconSimulator(Simulator):
         self.baudrate = baudrate
         self.animate = animate
         self.server = PortServer(port, self._received, baudrate=baudrate)
-        self._ticker: asyncio.Task | None = None
+        self._ticker: asyncio.Task[None] | None = None
 
     @property
     def replies(self) -> int:
@@ -79,7 +82,7 @@ class DconSimulator(Simulator):
     def from_modules(
         cls,
         port: str,
-        modules: list[tuple],
+        modules: list[tuple[Any, ...]],
         *,
         checksum: bool = False,
         baudrate: int = 9600,
@@ -175,6 +178,48 @@ class DconSimulator(Simulator):
             return module.ao_raw[index]
         raise KeyError(f"{channel_id} is an input")
 
+    def get(self, channel_id: str) -> bool | int:
+        """Any channel's value in the simulated module (inputs too)."""
+        module, kind, index = self._locate(channel_id)
+        if kind in ("di", "do"):
+            return bool((module.di_bits if kind == "di" else module.do_bits) >> index & 1)
+        return (module.ai_raw if kind == "ai" else module.ao_raw)[index]
+
+    def describe(self) -> list[str]:
+        return [
+            f"module {m.address:3d}: {m.profile.model} ({m.profile.description}), "
+            f"type 0x{m.type_code:02X}, {m.data_format.name.lower()}"
+            for m in self.bus.modules.values()
+        ]
+
+    def command(self, words: list[str]) -> str | None:
+        """``fault ADDRESS KIND [COUNT] [delay=S]`` and ``clear`` (``fieldgate simulate dcon``)."""
+        cmd, rest = words[0].lower(), words[1:]
+        if cmd == "fault" and len(rest) >= 2:
+            if rest[1] not in FAULT_KINDS:
+                raise ValueError(f"unknown fault {rest[1]!r}; one of: {', '.join(FAULT_KINDS)}")
+            address = int(rest[0], 0)
+            if address not in self.bus.modules:
+                raise KeyError(f"no simulated module at address {address}")
+            options = {k: v for k, _, v in (w.partition("=") for w in rest[2:] if "=" in w)}
+            counts = [int(w) for w in rest[2:] if w.isdigit()]
+            fault = self.inject(
+                rest[1],
+                address,
+                delay=float(options.get("delay", 0.5 if rest[1] == "delay" else 0.0)),
+                count=counts[0] if counts else None,
+            )
+            return f"module {address}: {fault.kind}" + (
+                f" for {fault.count} replies" if fault.count else " until cleared"
+            )
+        if cmd == "clear":
+            self.clear_faults()
+            return "faults cleared"
+        return None
+
+    def commands_help(self) -> str:
+        return f"fault ADDRESS {{{'|'.join(FAULT_KINDS)}}} [COUNT] [delay=S] | clear"
+
     def inject(
         self, kind: str, address: int | None = None, *, delay: float = 0.0, count: int | None = None
     ) -> Fault:
@@ -199,3 +244,30 @@ def simulator_factory(
     back_config: DconBackConfig, port: str, animate: bool = False
 ) -> DconSimulator:
     return DconSimulator.from_config(back_config, port, animate)
+
+
+# -- fieldgate simulate dcon -----------------------------------------------------------------
+def module_spec(text: str) -> dict[str, Any]:
+    """``ADDRESS:MODEL[:TYPE[:FORMAT]]`` (TYPE in hex: ``4:I-7012:08:hex``) as a module mapping."""
+    parts = text.split(":")
+    if len(parts) < 2 or len(parts) > 4 or not parts[0].strip():
+        raise ValueError(f"--module expects ADDRESS:MODEL[:TYPE[:FORMAT]], got {text!r}")
+    module: dict[str, Any] = {"address": int(parts[0], 0), "model": parts[1]}
+    if len(parts) > 2:
+        module["type_code"] = int(parts[2], 0 if parts[2].lower().startswith("0x") else 16)
+    if len(parts) > 3:
+        module["data_format"] = parts[3]
+    return module
+
+
+def _options(group: argparse._ArgumentGroup) -> None:
+    group.add_argument("--checksum", action="store_true", help="modules expect and send checksums")
+
+
+SIMULATE_CLI = SimulateCli(
+    module_metavar="ADDRESS:MODEL[:TYPE[:FORMAT]]",
+    module_example="1:I-7043 or 4:I-7012:08:hex",
+    module=module_spec,
+    configure=_options,
+    fields=lambda args: {"checksum": True} if args.checksum else {},
+)

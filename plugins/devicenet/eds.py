@@ -1,6 +1,6 @@
 """DeviceNet EDS of exactly the slave a devicenet front serves.
 
-``fieldgate devicenet eds TOPOLOGY [--front NAME] [-o FILE]`` builds the front's slave the
+``fieldgate eds TOPOLOGY [--front NAME] [-o FILE]`` builds the front's slave the
 way the running gateway does (same assemblies, same identity settings) without opening a
 bus, and reads what the EDS states from the slave's own CIP objects:
 
@@ -29,8 +29,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, cast
 
-from fieldgate.plugin import GatewayContext, Registry, load_registry
-from fieldgate.topology import TopologyError, load_topology
+from fieldgate.exitcodes import ExitCode
+from fieldgate.plugin import CommandError, EdsRequest, GatewayContext, Registry, load_registry
+from fieldgate.topology import FrontConfig, Topology, TopologyError, load_topology
 
 from .application import HOST_OK, WATCHDOG_ENABLE, WATCHDOG_TIME, ApplicationObject
 from .assembly import AnyAssembly, Assembly
@@ -54,7 +55,7 @@ ENUMERATED, READ_ONLY = 0x0002, 0x0010
 WATCHDOG_DEFAULT_TENTHS = 50  # a module whose watchdog time was never set: the seed's 5.0 s
 
 
-class EdsError(Exception):
+class EdsError(CommandError):
     """The topology has no such devicenet front (one line, for the command's error)."""
 
 
@@ -372,7 +373,7 @@ def eds_text(d: Description, now: datetime | None = None, vendor_name: str | Non
         "Vendor Specific" if 100 <= d.device_type <= 199 else f"Device type {d.device_type}",
     )
     lines = [
-        f"$ DeviceNet EDS of fieldgate front {d.front!r} (gateway {d.gateway!r}), written by `fieldgate devicenet eds`.",
+        f"$ DeviceNet EDS of fieldgate front {d.front!r} (gateway {d.gateway!r}), written by `fieldgate eds`.",
         "$ It describes this topology's I/O sizes: regenerate it when the modules change, and change",
         "$ product_code or major_revision with them so a scanner never mixes two layouts.",
         "",
@@ -469,6 +470,13 @@ def front_slave(
         if not fronts:
             raise EdsError("no devicenet front in the topology")
         cfg = fronts[0]
+    return build_front(topology, cfg, registry)
+
+
+def build_front(
+    topology: Topology, cfg: FrontConfig, registry: Registry
+) -> tuple[Any, DeviceNetSlave]:
+    """A devicenet front of ``topology`` and its slave, built as the running gateway builds them."""
     context = GatewayContext.build(topology)
     ctype = registry.lookup("front", cfg.type)
     if ctype is None:
@@ -497,20 +505,41 @@ def write_eds(
     return text
 
 
-# -- CLI ---------------------------------------------------------------------------------------
+# -- fieldgate eds ----------------------------------------------------------------------------
+def eds_for(request: EdsRequest) -> str:
+    """The EDS of the front ``fieldgate eds`` chose (registered with ``registry.add_eds``)."""
+    front, slave = build_front(request.topology, request.front, request.registry)
+    return eds_text(describe(front, slave), None, request.options.vendor_name)
+
+
+def configure_eds(group: argparse._ArgumentGroup) -> None:
+    group.add_argument(
+        "--vendor-name", help="VendName (default: ICP DAS for vendor 803, else fieldgate)"
+    )
+
+
+def register_eds(registry: Registry) -> None:
+    registry.add_eds("devicenet", eds_for, configure_eds, encoding="latin-1")
+    registry.add_command(
+        ("devicenet", "eds"),
+        "deprecated: fieldgate eds TOPOLOGY [--front NAME] (the same EDS)",
+        configure,
+        run,
+    )
+
+
+# -- fieldgate devicenet eds: the old spelling, kept for one release --------------------------
 def configure(parser: argparse.ArgumentParser) -> None:
-    from fieldgate.cli import add_overrides_argument
+    from fieldgate.cliargs import add_overrides_argument
 
     parser.add_argument("topology", help="topology YAML file")
     parser.add_argument("--front", help="devicenet front name (default: the first devicenet front)")
     parser.add_argument("-o", "--output", help="EDS file to write (default: standard output)")
-    parser.add_argument(
-        "--vendor-name", help="VendName (default: ICP DAS for vendor 803, else fieldgate)"
-    )
+    configure_eds(parser.add_argument_group("devicenet fronts"))
     add_overrides_argument(parser, "fronts.dnet.identity.product_code=7")
 
 
-def to_stderr(*lines: str, code: int = 1) -> int:
+def to_stderr(*lines: str, code: int = ExitCode.FAILED) -> int:
     """Print ``lines`` on standard error; the command's exit code (1: an invalid topology, no
     such front, an output that cannot be written; as ``fieldgate eds`` and ``validate``)."""
     print("\n".join(lines), file=sys.stderr)
@@ -518,8 +547,9 @@ def to_stderr(*lines: str, code: int = 1) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fieldgate.cli import overrides_of
+    from fieldgate.cliargs import deprecated, overrides_of
 
+    deprecated("fieldgate devicenet eds", "fieldgate eds TOPOLOGY [--front NAME]")
     try:
         text = write_eds(
             args.topology,
@@ -536,13 +566,8 @@ def run(args: argparse.Namespace) -> int:
         return to_stderr(f"{args.output}: cannot write the EDS: {exc.strerror or exc}")
     if args.output is not None:
         return to_stderr(
-            f"{args.output}: EDS written for {args.front or 'the first devicenet front'}", code=0
+            f"{args.output}: EDS written for {args.front or 'the first devicenet front'}",
+            code=ExitCode.OK,
         )
     sys.stdout.write(text)
-    return 0
-
-
-def register_command(registry: Registry) -> None:
-    registry.add_command(
-        ("devicenet", "eds"), "write the DeviceNet EDS of a devicenet front", configure, run
-    )
+    return ExitCode.OK

@@ -423,6 +423,6 @@ def fieldgate_register(registry: Registry) -> None:
         DeviceNetFront,
         "DeviceNet Group 2 Only slave on any python-can bus",
     )
-    from .eds import register_command
+    from .eds import register_eds
 
-    register_command(registry)
+    register_eds(registry)

@@ -1,19 +1,20 @@
-"""fieldgate.plugins.modbus: Modbus RTU master back end and Modbus module simulator.
+"""The ``modbus`` back: a Modbus RTU master of RS-485 I/O modules, their simulator and scan.
 
 * back type ``modbus`` (:class:`~.back.ModbusBack`, config :class:`~.config.ModbusBackConfig`)
-* simulator for ``fieldgate run --simulate`` and tests (:class:`~.simulator.ModbusSimulator`)
-* ``fieldgate simulate modbus`` (:mod:`.cli`)
+* simulator for ``fieldgate run --simulate``, ``fieldgate simulate modbus`` and tests
+  (:class:`~.simulator.ModbusSimulator`)
+* ``fieldgate scan modbus``: unit ids that answer, at one baud rate or several (:mod:`.scan`)
 
 See docs/modbus.md.
 """
 
 from __future__ import annotations
 
-from fieldgate.plugin import hookimpl
+from fieldgate.plugin import Registry, hookimpl
 
-from . import cli
 from .back import ModbusBack
 from .config import ChannelGroup, ModbusBackConfig, ModbusModuleConfig
+from .scan import ModbusScanner
 from .simulator import Fault, ModbusSimulator
 
 __all__ = [
@@ -31,7 +32,7 @@ def _simulator(config: ModbusBackConfig, port: str, animate: bool = False) -> Mo
 
 
 @hookimpl
-def fieldgate_register(registry) -> None:
+def fieldgate_register(registry: Registry) -> None:
     registry.add_back(
         "modbus",
         ModbusBackConfig,
@@ -39,9 +40,4 @@ def fieldgate_register(registry) -> None:
         "Modbus RTU master (RS-485 I/O modules such as ICP DAS M-7000)",
     )
     registry.add_simulator("modbus", _simulator)
-    registry.add_command(
-        ("simulate", "modbus"),
-        "simulated Modbus RTU modules on a serial port or pty",
-        cli.configure,
-        cli.run,
-    )
+    registry.add_scanner("modbus", ModbusScanner())

@@ -10,16 +10,19 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from itertools import groupby
+from typing import Any
 
 from fieldgate.image import ChannelSpec, Quality
+from fieldgate.plugin import GatewayContext
 from fieldgate.polling import NOTHING_DUE, PolledModule, SerialBack
 from fieldgate.topology import ModuleConfig
 
 from . import values as regvalues
 from .client import ModbusExceptionError, ModbusLink
 from .codec import ExceptionCode, Function
-from .config import ModbusBackConfig, ModbusModuleConfig, Point, Table, module_points
+from .config import ModbusBackConfig, ModbusModuleConfig, module_points
 from .plan import ReadBlock, decode_block, plan_reads, plan_writes
+from .points import Point, Table
 
 log = logging.getLogger("fieldgate.modbus")
 
@@ -60,7 +63,7 @@ class ModbusModule(PolledModule):
         self.bad: dict[str, float] = {}  # channel -> when to try it again
         self.last: dict[str, object] = {}
         self.allow_multiple_writes = True
-        self._logged: set[tuple] = set()
+        self._logged: set[tuple[object, ...]] = set()
         self.replan()
 
     def replan(self) -> None:
@@ -110,7 +113,7 @@ class ModbusModule(PolledModule):
         except ModbusExceptionError:
             pass
 
-    async def _read(self, block: ReadBlock) -> list:
+    async def _read(self, block: ReadBlock) -> list[bool] | list[int]:
         self.reads += 1
         if block.table.is_bits:
             return await self.link.read_bits(self.unit, block.function, block.address, block.count)
@@ -180,8 +183,8 @@ class ModbusModule(PolledModule):
         return readings
 
     # -- writes -----------------------------------------------------------------------
-    async def write_outputs(self, values: dict[str, object]) -> None:
-        changes = [
+    async def write_outputs(self, values: dict[str, Any]) -> None:
+        changes: list[tuple[Point, bool | int | float]] = [
             (self.outputs_by_id[cid], v) for cid, v in values.items() if cid in self.outputs_by_id
         ]
         for op in plan_writes(
@@ -194,7 +197,9 @@ class ModbusModule(PolledModule):
         for address, items in groupby(in_registers, key=lambda pv: pv[0].address):
             await self._write_bits_of_register(address, list(items))
 
-    async def _write(self, function: int, address: int, words: list, points: list[Point]) -> None:
+    async def _write(
+        self, function: int, address: int, words: list[bool] | list[int], points: list[Point]
+    ) -> None:
         try:
             await self.link.write(self.unit, function, address, words)
         except ModbusExceptionError as exc:
@@ -233,13 +238,14 @@ class ModbusModule(PolledModule):
             )
 
     async def _write_bits_of_register(
-        self, address: int, items: list[tuple[Point, object]]
+        self, address: int, items: list[tuple[Point, bool | int | float]]
     ) -> None:
         """Digital outputs or special bytes inside a holding register: read, change them, write back."""
         (current,) = await self.link.read_registers(
             self.unit, Function.READ_HOLDING_REGISTERS, address, 1
         )
         for p, value in items:
+            assert p.bit is not None  # (only such points come here)
             current = regvalues.set_field(current, p.bit, p.dtype, value)
         forced = (
             Function.WRITE_MULTIPLE_REGISTERS
@@ -248,7 +254,7 @@ class ModbusModule(PolledModule):
         )
         await self._write(forced, address, [current], [p for p, _ in items])
 
-    def _log_once(self, key: tuple, message: str, *args) -> None:
+    def _log_once(self, key: tuple[object, ...], message: str, *args: object) -> None:
         if key in self._logged:
             log.debug(message, *args)
         else:
@@ -256,7 +262,7 @@ class ModbusModule(PolledModule):
             log.warning(message, *args)
 
 
-def _zero(p: Point):
+def _zero(p: Point) -> bool | int:
     return False if p.kind.is_digital else 0
 
 
@@ -298,6 +304,7 @@ class ModbusBack(SerialBack):
         await self.link.open()  # the same ModbusLink (the modules hold it), a new pymodbus client
 
     def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> ModbusModule:
+        assert isinstance(config, ModbusModuleConfig)  # (the modules of a modbus back)
         points = module_points(self.name, config)
         module = ModbusModule(
             config,
@@ -310,7 +317,7 @@ class ModbusBack(SerialBack):
         self.modules[config.address] = module
         return module
 
-    def __init__(self, config: ModbusBackConfig, context) -> None:
+    def __init__(self, config: ModbusBackConfig, context: GatewayContext) -> None:
         super().__init__(config, context)
         self.modules: dict[int, ModbusModule] = {}  # the current run's modules, by address
 
@@ -318,7 +325,7 @@ class ModbusBack(SerialBack):
         self.modules.clear()
         await super().start()
 
-    def status(self) -> dict:
+    def status(self) -> dict[str, Any]:
         status = super().status()
         if self.link is not None:
             status["modbus"] = {

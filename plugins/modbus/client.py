@@ -60,12 +60,12 @@ class ModbusExceptionError(CommError):
 
 @dataclass
 class ModbusStats:
-    requests: Counter = field(default_factory=Counter)  # by function code
-    errors: Counter = field(default_factory=Counter)  # by ErrorKind
-    exception_codes: Counter = field(default_factory=Counter)
+    requests: Counter[int] = field(default_factory=Counter)  # by function code
+    errors: Counter[ErrorKind] = field(default_factory=Counter)
+    exception_codes: Counter[int] = field(default_factory=Counter)
     last_rtt: float | None = None
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return {
             "requests": {f"fc{k}": v for k, v in sorted(self.requests.items())},
             "errors": {str(k): v for k, v in self.errors.items()},
@@ -99,7 +99,7 @@ class ModbusLink:
         )
         self.echo = EchoState(echo)
         self.stats = ModbusStats()
-        self._settings = {
+        self._settings: dict[str, Any] = {
             "baudrate": baudrate,
             "bytesize": bytesize,
             "parity": parity,

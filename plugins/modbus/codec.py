@@ -11,6 +11,7 @@ Addresses are PDU addresses (0-based), as they travel on the wire.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -60,7 +61,7 @@ def _crc_table() -> list[int]:
 _CRC_TABLE = _crc_table()
 
 
-def crc16(data: bytes) -> int:
+def crc16(data: bytes | bytearray) -> int:
     """Modbus CRC-16 (poly 0xA001 reflected, init 0xFFFF); sent low byte first."""
     crc = 0xFFFF
     for byte in data:
@@ -74,7 +75,7 @@ def frame(unit: int, pdu: bytes) -> bytes:
     return adu + crc16(adu).to_bytes(2, "little")
 
 
-def crc_ok(adu: bytes) -> bool:
+def crc_ok(adu: bytes | bytearray) -> bool:
     return len(adu) >= MIN_FRAME and crc16(adu[:-2]) == int.from_bytes(adu[-2:], "little")
 
 
@@ -89,7 +90,7 @@ class Request:
     function: int
     address: int
     count: int = 1
-    values: tuple = field(default=())
+    values: tuple[bool | int, ...] = field(default=())
 
     def encode(self) -> bytes:
         fc = self.function
@@ -111,7 +112,7 @@ class Request:
         return frame(self.unit, pdu)
 
 
-def request_length(data: bytes) -> int | None:
+def request_length(data: bytes | bytearray) -> int | None:
     """Length of the request ADU at the start of ``data``; None when more bytes are needed.
 
     Raises ValueError for a function code this codec does not know (the caller drops the
@@ -214,7 +215,7 @@ def diagnose(unit: int, function: int, data: bytes) -> ErrorKind:
     return ErrorKind.GARBAGE
 
 
-def _frames_with_good_crc(data: bytes, function: int):
+def _frames_with_good_crc(data: bytes, function: int) -> Iterator[tuple[int, int]]:
     """Every (unit, function) at any offset of ``data`` that forms a frame with a good CRC."""
     for start in range(len(data) - MIN_FRAME + 1):
         chunk = data[start:]
@@ -233,7 +234,7 @@ def inter_frame_gap(baudrate: int, bits_per_char: int = 11) -> float:
 # -- bit packing ---------------------------------------------------------------
 
 
-def pack_bits(bits) -> bytes:
+def pack_bits(bits: Sequence[object]) -> bytes:
     """Coils/inputs to bytes, first bit in the LSB of the first byte."""
     out = bytearray((len(bits) + 7) // 8)
     for i, bit in enumerate(bits):

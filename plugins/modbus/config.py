@@ -13,7 +13,7 @@ from typing import Literal
 from pydantic import Field, field_validator, model_validator
 from pydantic_core import PydanticCustomError
 
-from fieldgate.image import ChannelSpec, DataType, Kind, Source, channel_id
+from fieldgate.image import ChannelSpec, DataType, ErrorMode, Kind, Source, channel_id
 from fieldgate.topology import ModuleConfig, SerialBackConfig, StrictModel
 
 from . import presets
@@ -23,7 +23,7 @@ from .points import Point, Table
 from .values import WORDS
 
 
-def _invalid(message: str, loc: tuple = ()) -> PydanticCustomError:
+def _invalid(message: str, loc: tuple[str | int, ...] = ()) -> PydanticCustomError:
     """A validation error whose message is ours alone (no "Value error," prefix); ``loc``
     names the field below the validated object it is about (core reports it there)."""
     return PydanticCustomError(
@@ -217,7 +217,7 @@ class ModbusModuleConfig(ModuleConfig):
 
 
 def _check_output_overlap(groups: list[ChannelGroup]) -> None:
-    owners: dict[tuple, int] = {}
+    owners: dict[tuple[Table, int] | tuple[Table, int, int], int] = {}
     for i, g in enumerate(groups):
         if not Kind(g.kind).is_output:
             continue
@@ -227,7 +227,7 @@ def _check_output_overlap(groups: list[ChannelGroup]) -> None:
             owners[cell] = i
 
 
-def _cells(g: ChannelGroup):
+def _cells(g: ChannelGroup) -> list[tuple[Table, int] | tuple[Table, int, int]]:
     if g.table.is_bits:
         return [(g.table, a) for a in range(g.address, g.address + g.count)]
     if Kind(g.kind).is_digital:
@@ -303,16 +303,17 @@ class ModbusBackConfig(SerialBackConfig):
         specs = []
         for m in self.modules:
             for p in module_points(self.name, m):
-                extra = {}
-                if p.kind.is_output:
-                    extra["error_mode"], extra["shutdown_mode"] = m.output_modes(p.kind, p.index)
+                error_mode, shutdown_mode = (
+                    m.output_modes(p.kind, p.index) if p.kind.is_output else (ErrorMode(), None)
+                )
                 specs.append(
                     ChannelSpec(
                         p.channel,
                         p.kind,
                         Source(self.name, m.address, p.index),
                         dtype=p.dtype,
-                        **extra,
+                        error_mode=error_mode,
+                        shutdown_mode=shutdown_mode,
                     )
                 )
         return specs

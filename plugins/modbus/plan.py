@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from fieldgate.image import Quality
@@ -64,7 +65,7 @@ def plan_reads(
     return blocks
 
 
-def decode_block(block: ReadBlock, data: list) -> dict[str, object]:
+def decode_block(block: ReadBlock, data: Sequence[int]) -> dict[str, object]:
     """Readings of every point of a block from the bits or registers read.
 
     A register pair that is not a finite float32 gives the point over-range quality.
@@ -91,14 +92,16 @@ def decode_block(block: ReadBlock, data: list) -> dict[str, object]:
 class WriteOp:
     function: int
     address: int
-    values: list  # bools for coils, 16-bit words for registers
+    values: list[bool] | list[int]  # bools for coils, 16-bit words for registers
     points: list[Point]
 
     def describe(self) -> str:
         return f"FC{self.function} at {self.address} x{len(self.values)}"
 
 
-def plan_writes(changes: list[tuple[Point, object]], allow_multiple: bool = True) -> list[WriteOp]:
+def plan_writes(
+    changes: list[tuple[Point, bool | int | float]], allow_multiple: bool = True
+) -> list[WriteOp]:
     """Write requests for changed coil and register outputs (not bits inside registers)."""
     ops: list[WriteOp] = []
     coils = sorted(
@@ -109,11 +112,11 @@ def plan_writes(changes: list[tuple[Point, object]], allow_multiple: bool = True
         key=lambda pv: pv[0].address,
     )
     for run in _runs(coils):
-        words = [bool(v) for _, v in run]
+        bits = [bool(v) for _, v in run]
         ops.extend(
             _ops(
                 run,
-                words,
+                bits,
                 Function.WRITE_SINGLE_COIL,
                 Function.WRITE_MULTIPLE_COILS,
                 MAX_WRITE_BITS,
@@ -135,9 +138,11 @@ def plan_writes(changes: list[tuple[Point, object]], allow_multiple: bool = True
     return ops
 
 
-def _runs(items: list[tuple[Point, object]]) -> list[list[tuple[Point, object]]]:
+def _runs(
+    items: list[tuple[Point, bool | int | float]],
+) -> list[list[tuple[Point, bool | int | float]]]:
     """Split sorted (point, value) pairs into runs of adjacent addresses with the same forced function."""
-    runs: list[list[tuple[Point, object]]] = []
+    runs: list[list[tuple[Point, bool | int | float]]] = []
     for p, v in items:
         last = runs[-1][-1][0] if runs else None
         if (
@@ -153,7 +158,12 @@ def _runs(items: list[tuple[Point, object]]) -> list[list[tuple[Point, object]]]
 
 
 def _ops(
-    run, words: list, single: int, multiple: int, limit: int, allow_multiple: bool
+    run: list[tuple[Point, bool | int | float]],
+    words: list[bool] | list[int],
+    single: int,
+    multiple: int,
+    limit: int,
+    allow_multiple: bool,
 ) -> list[WriteOp]:
     points = [p for p, _ in run]
     forced = points[0].write_fc

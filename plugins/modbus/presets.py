@@ -9,29 +9,30 @@ Where each map comes from is in docs/modbus.md ("Model presets").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass(frozen=True)
 class Preset:
     model: str
     description: str
-    groups: tuple[dict, ...]  # ChannelGroup fields
+    groups: tuple[dict[str, Any], ...]  # ChannelGroup fields
     source: str
 
 
-def _di(count: int) -> dict:
+def _di(count: int) -> dict[str, Any]:
     return {"kind": "di", "table": "discrete_inputs", "address": 32, "count": count}
 
 
-def _do(count: int) -> dict:
+def _do(count: int) -> dict[str, Any]:
     return {"kind": "do", "table": "coils", "address": 0, "count": count}
 
 
-def _ai(count: int) -> dict:
+def _ai(count: int) -> dict[str, Any]:
     return {"kind": "ai", "table": "input_registers", "address": 0, "count": count, "type": "int16"}
 
 
-def _ao(count: int) -> dict:
+def _ao(count: int) -> dict[str, Any]:
     return {
         "kind": "ao",
         "table": "holding_registers",

@@ -48,7 +48,8 @@ from .codec import (
 from .codec import (
     frame as rtu_frame,
 )
-from .config import ModbusBackConfig, Point, Table
+from .config import ModbusBackConfig
+from .points import Point, Table
 
 log = logging.getLogger("fieldgate.modbus.simulator")
 
@@ -115,7 +116,7 @@ class SimModule:
                 self.tables[p.table][a] = False if p.table.is_bits else 0
 
     # -- values by point ------------------------------------------------------------
-    def set_point(self, p: Point, value) -> None:
+    def set_point(self, p: Point, value: bool | int | float) -> None:
         cells = self.tables[p.table]
         if p.table.is_bits:
             cells[p.address] = bool(value)
@@ -125,7 +126,7 @@ class SimModule:
             for i, word in enumerate(regvalues.encode(p.dtype, value, p.word_order)):
                 cells[p.address + i] = word
 
-    def get_point(self, p: Point):
+    def get_point(self, p: Point) -> bool | int | float:
         cells = self.tables[p.table]
         if p.table.is_bits:
             return cells[p.address]
@@ -156,7 +157,7 @@ class SimModule:
         if any(a not in cells for a in span):
             return exception_response(self.address, fc, ExceptionCode.ILLEGAL_DATA_ADDRESS)
         if fc in (1, 2):
-            return read_bits_response(self.address, fc, [cells[a] for a in span])
+            return read_bits_response(self.address, fc, [bool(cells[a]) for a in span])
         if fc in (3, 4):
             return read_registers_response(self.address, fc, [cells[a] for a in span])
         before = {a: cells[a] for a in span}
@@ -333,7 +334,7 @@ class ModbusSimulator(Simulator):
             parity=c.parity,
             stopbits=c.stopbits,
         )
-        self._task: asyncio.Task | None = None
+        self._task: asyncio.Task[None] | None = None
         self.output_listeners: list[Callable[[str, object], None]] = []
         self._outputs_seen = {
             cid: m.get_point(p) for cid, (m, p) in self.channels.items() if p.kind.is_output
@@ -367,7 +368,7 @@ class ModbusSimulator(Simulator):
                 f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})"
             ) from None
 
-    def set_input(self, channel_id: str, value) -> None:
+    def set_input(self, channel_id: str, value: bool | int | float) -> None:
         module, point = self._lookup(channel_id)
         if point.kind.is_output:
             raise ValueError(f"{channel_id} is an output; the gateway writes it")
@@ -375,11 +376,11 @@ class ModbusSimulator(Simulator):
             point, point.dtype.check(value) if point.dtype is not DataType.FLOAT32 else float(value)
         )
 
-    def get_output(self, channel_id: str):
+    def get_output(self, channel_id: str) -> bool | int | float:
         module, point = self._lookup(channel_id)
         return module.get_point(point)
 
-    def get(self, channel_id: str):
+    def get(self, channel_id: str) -> bool | int | float:
         """Any channel's current value in the simulated module (inputs too)."""
         module, point = self._lookup(channel_id)
         return module.get_point(point)
@@ -393,6 +394,37 @@ class ModbusSimulator(Simulator):
         for a, module in self.modules.items():
             if address is None or a == address:
                 module.faults.clear()
+
+    # -- fieldgate simulate modbus: the simulator's own commands ------------------------
+    def command(self, words: list[str]) -> str | None:
+        """``fault ADDRESS KIND [COUNT] [code=N] [delay=S] [address=N]`` and ``clear [ADDRESS]``."""
+        cmd, rest = words[0].lower(), words[1:]
+        if cmd == "fault" and len(rest) >= 2:
+            options = {k: v for k, _, v in (w.partition("=") for w in rest[2:] if "=" in w)}
+            counts = [int(w) for w in rest[2:] if w.isdigit()]
+            address = int(options["address"]) if "address" in options else None
+            fault = Fault(
+                rest[1],
+                count=counts[0] if counts else None,
+                code=int(options.get("code", 4)),
+                delay=float(options.get("delay", 0.5)),
+                address=address,
+            )
+            self.inject(int(rest[0]), fault)
+            where = "" if address is None else f" on requests touching address {address}"
+            return f"module {rest[0]}: {fault.kind}{where}" + (
+                f" for {fault.count} replies" if fault.count else " until cleared"
+            )
+        if cmd == "clear":
+            self.clear_faults(int(rest[0]) if rest else None)
+            return "faults cleared"
+        return None
+
+    def commands_help(self) -> str:
+        return (
+            f"fault ADDRESS {{{'|'.join(FAULT_KINDS)}}} [COUNT] [code=N] [delay=S] [address=N]"
+            " | clear [ADDRESS]"
+        )
 
     @property
     def requests(self) -> deque[Request]:
@@ -434,7 +466,7 @@ class ModbusSimulator(Simulator):
                 module.set_point(p, _animated_value(p, tick))
 
 
-def _animated_value(p: Point, tick: int):
+def _animated_value(p: Point, tick: int) -> bool | int | float:
     if p.kind is Kind.SI:  # a counter block: the tick count, little-endian, every 4 bytes
         return tick >> 8 * (p.index % 4) & 0xFF
     if p.kind is Kind.DI:
@@ -467,7 +499,7 @@ def demo_wiring(config: ModbusBackConfig) -> list[tuple[str, str]]:
                 out.append([p for p in pts if p.kind is kind])
         return out
 
-    pairs = []
+    pairs: list[tuple[str, str]] = []
     for out_kind, in_kind in ((Kind.DO, Kind.DI), (Kind.AO, Kind.AI)):
         # modules and channels pair up as far as both sides go; the rest have no partner
         for outs, ins in zip(having(out_kind), having(in_kind, without=out_kind), strict=False):

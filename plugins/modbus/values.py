@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Sequence
 
 from fieldgate.image import DataType
 
@@ -23,7 +24,7 @@ WORDS = {
 _FORMAT = {DataType.INT32: ">i", DataType.UINT32: ">I", DataType.FLOAT32: ">f"}
 
 
-def decode(dtype: DataType, words: list[int], word_order: str = "big") -> int | float:
+def decode(dtype: DataType, words: Sequence[int], word_order: str = "big") -> int | float:
     """Registers to a value. ``words`` are the raw 16-bit registers in address order."""
     if dtype is DataType.UINT16:
         return words[0] & 0xFFFF
@@ -31,7 +32,7 @@ def decode(dtype: DataType, words: list[int], word_order: str = "big") -> int | 
         raw = words[0] & 0xFFFF
         return raw - 0x10000 if raw & 0x8000 else raw
     high, low = (words[0], words[1]) if word_order == "big" else (words[1], words[0])
-    value = struct.unpack(
+    value: int | float = struct.unpack(
         _FORMAT[dtype], (high & 0xFFFF).to_bytes(2, "big") + (low & 0xFFFF).to_bytes(2, "big")
     )[0]
     if dtype is DataType.FLOAT32 and not math.isfinite(value):
@@ -42,8 +43,7 @@ def decode(dtype: DataType, words: list[int], word_order: str = "big") -> int | 
 def encode(dtype: DataType, value: int | float, word_order: str = "big") -> list[int]:
     """A value to its registers in address order. Raises ValueError when it does not fit."""
     if dtype in (DataType.INT16, DataType.UINT16):
-        value = dtype.check(value)
-        return [value & 0xFFFF]
+        return [int(dtype.check(value)) & 0xFFFF]  # (an int: check() refuses anything else)
     if dtype is DataType.FLOAT32:
         raw = struct.pack(">f", float(value))
     else:
@@ -62,7 +62,7 @@ def get_field(register: int, bit: int, dtype: DataType) -> bool | int:
 def set_field(register: int, bit: int, dtype: DataType, value: object) -> int:
     """``register`` with the bit (BOOL) or byte (UINT8) at ``bit`` replaced by ``value``."""
     if dtype is DataType.UINT8:
-        byte = DataType.UINT8.check(value)
+        byte = int(DataType.UINT8.check(value))
         return (register & ~(0xFF << bit) | byte << bit) & 0xFFFF
     return set_bit(register, bit, bool(value))
 

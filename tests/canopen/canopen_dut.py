@@ -15,9 +15,10 @@ import json
 import os
 import subprocess
 import sys
-import threading
 import uuid
 from pathlib import Path
+
+from fieldgate.testing import GatewayThread
 
 FRONT = "plc"
 
@@ -61,8 +62,9 @@ def topology(state_dir: Path, node_id: int = 5, **front) -> dict:
     }
 
 
-class InProcessDut:
-    """The gateway on its own event loop in a thread of the test process."""
+class InProcessDut(GatewayThread):
+    """The gateway on its own event loop in a thread of the test process (the test fixtures'
+    :class:`fieldgate.testing.GatewayThread`), its canopen front on ``interface``/``channel``."""
 
     def __init__(
         self,
@@ -74,63 +76,21 @@ class InProcessDut:
         simulate: bool = False,
         animate: bool = False,
     ):
-        self.simulate = simulate  # serve the backs from their simulators (gateway.bench)
-        self.animate = (
-            animate  # ... moving inputs, outputs wired to inputs (fieldgate run --simulate)
-        )
-        self.topo = {
+        from fieldgate import load_registry
+
+        topo = {
             **topo,
             "fronts": [{**topo["fronts"][0], "interface": interface, "channel": channel}],
         }
-        self.loop_factory = loop_factory  # what ``fieldgate run --loop`` would run
-        self.gateway = None
-        self._thread: threading.Thread | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
-
-    def start(self) -> None:
-        from fieldgate import Gateway, load_registry
-
-        ready, errors = threading.Event(), []
-        self._loop = self.loop_factory()
-
-        def run() -> None:
-            asyncio.set_event_loop(self._loop)
-            try:
-                self.gateway = Gateway.load(
-                    self.topo,
-                    registry=load_registry(),
-                    simulate=self.simulate,
-                    animate=self.animate,
-                )
-                self._loop.run_until_complete(self.gateway.start())
-            except BaseException as exc:
-                errors.append(exc)
-                ready.set()
-                return
-            ready.set()
-            self._loop.run_forever()
-            self._loop.run_until_complete(self.gateway.stop())
-
-        self._thread = threading.Thread(target=run, name="dut", daemon=True)
-        self._thread.start()
-        ready.wait(10)
-        if errors:
-            raise errors[0]
-
-    def call(self, fn):
-        """Run ``fn()`` on the gateway's loop and return its result."""
-        fut = asyncio.run_coroutine_threadsafe(_call(fn), self._loop)
-        return fut.result(5)
-
-    def stop(self) -> None:
-        if self._thread is not None and self._thread.is_alive():
-            self._loop.call_soon_threadsafe(self._loop.stop)
-            self._thread.join(10)
-        self._thread = None
-
-
-async def _call(fn):
-    return fn()
+        # loop_factory: what ``fieldgate run --loop`` would run; simulate/animate: as
+        # ``fieldgate run --simulate`` (simulated modules, moving inputs, outputs wired to inputs)
+        super().__init__(
+            topo,
+            registry=load_registry(),
+            simulate=simulate,
+            animate=animate,
+            loop_factory=loop_factory,
+        )
 
 
 class ProcessDut:

@@ -132,7 +132,7 @@ def test_eds_passes_lely_dcfchk(tmp_path, options):
 def test_cli_with_an_unknown_front_fails_with_a_message(tmp_path, capsys):
     path = write_topology(tmp_path)
     assert cli_main(["eds", str(path), "--front", "nosuch"]) == 1
-    assert "no canopen front named 'nosuch'" in capsys.readouterr().err
+    assert "no front named 'nosuch' (fronts: plc (canopen))" in capsys.readouterr().err
     assert not (tmp_path / "plc.eds").exists()
 
 
@@ -252,14 +252,12 @@ async def test_dcon_watchdog_objects_in_the_eds_match_the_running_gateway(tmp_pa
         await gw.stop()
 
 
-def test_cli_on_a_devicenet_topology_points_to_the_devicenet_command(capsys):
+def test_cli_on_a_devicenet_topology_writes_the_devicenet_eds(capsys):
+    """One command for every front with an EDS: the DeviceNet example gets its DeviceNet EDS."""
     example = Path(__file__).resolve().parents[2] / "examples" / "i7241d-style.yaml"
-    assert cli_main(["eds", str(example)]) == 1
-    err = capsys.readouterr().err
-    assert (
-        "no canopen front in the topology (it has a devicenet front; for DeviceNet: fieldgate devicenet eds)"
-        in err
-    )
+    assert cli_main(["eds", str(example)]) == 0
+    out = capsys.readouterr().out
+    assert "\n[IO_Info]\n" in out and "[DeviceInfo]" not in out
 
 
 @pytest.mark.parametrize(

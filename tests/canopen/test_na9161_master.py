@@ -1,16 +1,15 @@
 """canopen's master against examples/na9161-style.yaml over simulated Modbus modules: it maps
 the counter's special bytes (0x3000/0x3200) and single digital channels (0x6020-/0x6220-,
-dummy entries) with its PdoMap API, reading the OD from `fieldgate eds`, and the data
-travel between the simulated modules and the bus (in-process, virtual bus)."""
+dummy entries) with its PdoMap API, reading the OD from the front's EDS, and the data
+travel between the simulated modules and the bus (in-process, virtual bus; the
+``fieldgate_thread`` and ``canopen_master`` test fixtures)."""
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
 
-import canopen
 import pytest
-from canopen_dut import InProcessDut, write_eds
 from ruamel.yaml import YAML
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "na9161-style.yaml"
@@ -27,34 +26,20 @@ def until(predicate, timeout: float = 5.0) -> bool:
 
 
 @pytest.fixture
-def na9161(tmp_path):
+def na9161(tmp_path, fieldgate_thread, canopen_master):
+    """The example in a gateway thread (simulated modules), and canopen's master with the OD of
+    its EDS: the test fixtures fieldgate and its canopen plugin ship."""
     topo = YAML(typ="safe").load(EXAMPLE.read_text())
     topo["gateway"]["state_dir"] = str(tmp_path / "state")
-    topo["fronts"][0].update(bit_mapping=True, guard_time_ms=0, life_time_factor=0)
-    topo["backs"][0]["poll_ms"] = 5
     channel = f"fg-na9161-{tmp_path.name[-12:]}"
-    eds = write_eds(topo, tmp_path, "na9161.eds")
-    network = canopen.Network()
-    network.NOTIFIER_CYCLE = 0.05
-    network.connect(interface="virtual", channel=channel)
-    node = network.add_node(canopen.RemoteNode(NODE, str(eds)))
-    node.sdo.RESPONSE_TIMEOUT = 1.0
-    dut = InProcessDut(topo, "virtual", channel, simulate=True)
-    dut.start()
-    try:
-        assert until(lambda: _answers(node)), "the gateway does not answer SDO"
-        yield network, node, dut, dut.gateway.bench.simulator("rs485")
-    finally:
-        dut.stop()
-        network.disconnect()
-
-
-def _answers(node) -> bool:
-    try:
-        node.sdo.upload(0x1000, 0)
-        return True
-    except canopen.SdoCommunicationError:
-        return False
+    topo["fronts"][0].update(
+        bit_mapping=True, guard_time_ms=0, life_time_factor=0, interface="virtual", channel=channel
+    )
+    topo["backs"][0]["poll_ms"] = 5
+    master = canopen_master(topo)
+    dut = fieldgate_thread(topo)
+    master.wait_answering()
+    yield master.network, master.node, dut, dut.simulator("rs485")
 
 
 def test_master_maps_the_counter_bytes_and_exchanges_them(na9161):

@@ -92,8 +92,8 @@ def front_unavailable() -> str | None:
     registry = load_registry()
     if registry.lookup("front", "canopen") is None:
         return "fieldgate's canopen front is not registered yet"
-    if ("eds",) not in {c.path for c in registry.commands}:
-        return "the `fieldgate eds` command does not exist yet"
+    if "canopen" not in registry.eds_writers:
+        return "`fieldgate eds` cannot describe a canopen front yet"
     return None
 
 

@@ -70,7 +70,9 @@ def test_fieldgate_plugins_lists_name_version_and_what_each_provides():
     out = subprocess.run(
         [sys.executable, "-m", "fieldgate", "plugins"], capture_output=True, text=True, check=True
     ).stdout
-    line = next(text for text in out.splitlines() if text.startswith("loopback"))
-    assert (
-        "1.0.0" in line and "back:loopback, front:memory" in line and "(fieldgate-loopback)" in line
-    )
+    header, *rows = out.splitlines()
+    assert header.split() == ["PLUGIN", "VERSION", "DISTRIBUTION", "PROVIDES", "SUMMARY"]
+    line = next(text for text in rows if text.startswith("loopback"))
+    assert line.split()[1:3] == ["1.0.0", "fieldgate-loopback"]
+    assert "back:loopback, front:memory" in line
+    assert line.endswith("a loopback back and a memory front, used by fieldgate's tests.")

@@ -1,13 +1,13 @@
-import asyncio
+"""The DCON tests' gateway: the test fixtures fieldgate ships (``fieldgate.testing``)."""
 
 import pytest
 
-from fieldgate import Gateway, load_registry
+from fieldgate.testing import wait_until
 
 
 @pytest.fixture(scope="session")
-def dcon_registry():
-    return load_registry()
+def dcon_registry(fieldgate_registry):
+    return fieldgate_registry
 
 
 def topology(modules, **back):
@@ -22,13 +22,8 @@ def topology(modules, **back):
     }
 
 
-async def wait_for(predicate, timeout=3.0, step=0.01):
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not predicate():
-        if loop.time() > deadline:
-            raise AssertionError("condition not reached in time")
-        await asyncio.sleep(step)
+async def wait_for(predicate, timeout=3.0):
+    await wait_until(predicate, timeout)
 
 
 @pytest.fixture(name="wait_for")
@@ -37,12 +32,10 @@ def wait_for_fixture():
 
 
 @pytest.fixture
-def gateway(dcon_registry):
+def gateway(fieldgate_gateway):
     """``async with gateway(modules, **back) as gw``: a running gateway on simulated modules."""
 
     def make(modules, animate=False, **back):
-        return Gateway.load(
-            topology(modules, **back), registry=dcon_registry, simulate=True, animate=animate
-        )
+        return fieldgate_gateway(topology(modules, **back), animate=animate)
 
     return make

@@ -1,6 +1,5 @@
 """Scanning a line for modules: in process against the simulator, and the two CLI commands together."""
 
-import argparse
 import os
 import re
 import select
@@ -8,12 +7,13 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from ruamel.yaml import YAML
 
 from fieldgate.plugins.dcon.link import DconLink
-from fieldgate.plugins.dcon.scan import parse_addresses, scan_line, topology_yaml
+from fieldgate.plugins.dcon.scan import scan_line, topology_yaml
 from fieldgate.plugins.dcon.scanfile import ScanFile
 from fieldgate.plugins.dcon.simulator import DconSimulator
 from fieldgate.serial_link import AsyncSerial, PtyPair
@@ -88,18 +88,6 @@ def test_yaml_for_several_baud_rates_and_unknown_modules():
     assert "NOT SUPPORTED" in text and "module checksum is on" in text
 
 
-@pytest.mark.parametrize(
-    "text, addresses", [("0-3", [0, 1, 2, 3]), ("1,8,0x10", [1, 8, 16]), ("5-6,1", [1, 5, 6])]
-)
-def test_parse_addresses(text, addresses):
-    assert parse_addresses(text) == addresses
-
-
-def test_parse_addresses_rejects_out_of_range():
-    with pytest.raises(ValueError):
-        parse_addresses("250-300")
-
-
 def test_simulate_and_scan_commands_together(tmp_path):
     exe = os.path.join(os.path.dirname(sys.executable), "fieldgate")
     sim = subprocess.Popen(
@@ -124,8 +112,8 @@ def test_simulate_and_scan_commands_together(tmp_path):
     try:
         port = None
         for line in sim.stdout:
-            if line.startswith("serving on "):
-                port = line.split()[2]
+            if line.startswith("simulating back "):
+                port = line.split("point the gateway at ")[1].split()[0]
                 break
         assert port and port.startswith("/dev/")
         scan = subprocess.run(
@@ -198,7 +186,7 @@ def test_cli_errors_are_one_line():
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_simulate_stops_with_exit_0_on_ctrl_c_and_sigterm(stopped_by_signal, sig):
     code, stderr = stopped_by_signal(
-        ["simulate", "dcon", "--pty", "--module", "3:I-7060"], "serving on ", sig
+        ["simulate", "dcon", "--pty", "--module", "3:I-7060"], "simulating back ", sig
     )
     assert code == 0 and "Traceback" not in stderr
 
@@ -220,7 +208,9 @@ def test_baudrate_as_in_the_topology_and_baud_still_accepted(capsys, command, va
     assert (
         parser.parse_args([*command, "--baud", value]).baudrate == expected
     )  # the older name, kept
-    assert parser.parse_args(command).baudrate in ("9600", 9600)
+    # scan: 9600; simulate: the topology's, or the back's default (9600), as simulate modbus
+    assert parser.parse_args(command).baudrate in ("9600", None)
+    assert "'--baud' is deprecated" in capsys.readouterr().err  # the note, once per use
     with pytest.raises(SystemExit):
         parser.parse_args([*command, "--help"])
     usage = capsys.readouterr().out
@@ -248,7 +238,11 @@ def test_ctrl_c_during_a_scan_prints_what_it_found_and_where_it_stopped():
     )
     scan = None
     try:
-        port = next(line.split()[2] for line in sim.stdout if line.startswith("serving on "))
+        port = next(
+            line.split("point the gateway at ")[1].split()[0]
+            for line in sim.stdout
+            if line.startswith("simulating back ")
+        )
         scan = subprocess.Popen(
             [exe, "scan", "dcon", "--port", port, "--baudrate", "9600,19200", "--timeout-ms", "50"],
             stdout=subprocess.PIPE,
@@ -283,36 +277,19 @@ def test_ctrl_c_during_a_scan_prints_what_it_found_and_where_it_stopped():
                 proc.wait()
 
 
-def test_a_port_that_fails_at_a_later_baud_rate_keeps_the_earlier_finds(monkeypatch, capsys):
-    from fieldgate.plugin import PluginStartError
-    from fieldgate.plugins.dcon import cli
-
-    opened = []
-
-    class Port:
-        async def close(self):
-            pass
-
-    async def open_port(port, baud):
-        opened.append(baud)
-        if len(opened) > 1:
-            raise PluginStartError(f"cannot open {port} at {baud} bit/s: device disconnected")
-        return Port()
-
-    async def scan_line(link, addresses, baud, progress, found):
-        found.append(f"module at {baud}")
-        return found
-
-    monkeypatch.setattr(cli.AsyncSerial, "open", open_port)
-    monkeypatch.setattr(cli, "scan_line", scan_line)
-    monkeypatch.setattr(cli, "topology_yaml", lambda found, port, checksum, name: f"{found}\n")
-    parser = argparse.ArgumentParser()
-    cli.configure_scan(parser)
-    args = parser.parse_args(["--port", "/dev/ttyUSB0", "--baudrate", "9600,115200"])
-    assert cli.run_scan(args) == 2
-    out, err = capsys.readouterr()
-    assert opened == [9600, 115200]
-    assert out == "['module at 9600']\n"
-    assert (
-        "cannot open /dev/ttyUSB0 at 115200 bit/s" in err and "the modules found before that" in err
+def test_simulate_takes_the_modules_of_an_auto_back_from_its_scan_file():
+    """``modules: auto`` has no list: ``fieldgate simulate dcon --topology`` serves the modules
+    of the back's scan file (the I-7241D example's)."""
+    example = Path(__file__).resolve().parents[2] / "examples" / "i7241d-style.yaml"
+    result = subprocess.run(
+        [sys.executable, "-m", "fieldgate", "simulate", "dcon", "--topology", str(example)]
+        + ["--pty", "--duration", "20"],
+        input="get rs485/m2/ai0\nquit\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
+    assert result.returncode == 0, result.stderr
+    banner = next(line for line in result.stdout.splitlines() if line.startswith("simulating"))
+    assert banner.startswith("simulating back rs485 (dcon): modules 1, 2, 3; point the gateway at")
+    assert "rs485/m2/ai0 = 0" in result.stdout.splitlines()

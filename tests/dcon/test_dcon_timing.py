@@ -43,7 +43,6 @@ async def test_replies_longer_than_the_timeout_and_an_echo_keep_every_module_onl
             "1:I-7017",
             "--module",
             "2:I-7055",
-            ready="serving on",
         ),
     ):
         gateway = Gateway.load(topology(wire.a, echo), registry=dcon_registry)

@@ -1,4 +1,4 @@
-"""`fieldgate devicenet eds`: the EDS parses with an independent reader (eds_pie) and states
+"""`fieldgate eds` of a devicenet front: the EDS parses with an independent reader (eds_pie) and states
 exactly what a DeviceNet master finds on the bus: identity, I/O sizes after allocation, and
 parameters whose link paths answer with their defaults."""
 
@@ -107,7 +107,7 @@ def value(eds, section: str, key: str, index: int = 0) -> int | str:
 
 def generate(tmp_path: Path, topology: Path, *options: str) -> str:
     out = tmp_path / "slave.eds"
-    assert cli_main(["devicenet", "eds", str(topology), *options, "-o", str(out)]) == 0
+    assert cli_main(["eds", str(topology), *options, "-o", str(out)]) == 0
     return out.read_text(encoding="latin-1")
 
 
@@ -383,11 +383,11 @@ def test_a_topology_without_outputs_has_no_output_entry(tmp_path, caplog):
     [
         (
             ["--front", "nosuch"],
-            "no front named 'nosuch' (fronts: plc (canopen), dnet (devicenet))",
+            "no front named 'nosuch' (fronts: plc (canopen), dnet (devicenet), panel (memory))",
         ),
         (
-            ["--front", "plc"],
-            "front 'plc' is a canopen front, not devicenet (its EDS: fieldgate eds)",
+            ["--front", "panel"],
+            "front 'panel' is a memory front, which has no EDS (EDS for: canopen, devicenet)",
         ),
     ],
 )
@@ -400,43 +400,72 @@ def test_bad_front_is_one_line_and_exit_code_1(tmp_path, capsys, args, message):
         "node_id": 5,
         "expose": ["io/m1/di*"],  # one output has one writing front: the dnet front here
     }
-    topology = write_topology(tmp_path, [canopen, dnet_front()])
+    panel = {"name": "panel", "type": "memory", "expose": ["io/m1/di*"]}
+    topology = write_topology(tmp_path, [canopen, dnet_front(), panel])
     out = tmp_path / "x.eds"
-    assert cli_main(["devicenet", "eds", str(topology), *args, "-o", str(out)]) == 1
+    assert cli_main(["eds", str(topology), *args, "-o", str(out)]) == 1
     err = capsys.readouterr().err
     assert err == f"{topology}: {message}\n" and not out.exists()
-    # the canopen command is still there beside it
+    # one command for both fronts: the first with an EDS by default, or the one named
     assert (
-        cli_main(["eds", str(topology), "--front", "plc", "-o", str(out)]) == 0
-        and "[DeviceInfo]" in out.read_text()
+        cli_main(["eds", str(topology), "-o", str(out)]) == 0 and "[DeviceInfo]" in out.read_text()
     )
+    assert cli_main(["eds", str(topology), "--front", "dnet", "-o", str(out)]) == 0
+    assert "\n[IO_Info]\n" in out.read_text(encoding="latin-1")
 
 
-def test_no_devicenet_front_and_invalid_topology_exit_1_as_fieldgate_eds_and_validate(
-    tmp_path, capsys
-):
-    canopen = {
-        "name": "plc",
-        "type": "canopen",
-        "interface": "virtual",
-        "channel": "unused",
-        "node_id": 5,
-    }
-    topology = write_topology(tmp_path, [canopen])
-    assert cli_main(["devicenet", "eds", str(topology)]) == 1
-    assert capsys.readouterr().err == f"{topology}: no devicenet front in the topology\n"
+def test_no_front_with_an_eds_and_invalid_topology_exit_1_as_validate(tmp_path, capsys):
+    topology = write_topology(tmp_path, [{"name": "panel", "type": "memory"}])
+    assert cli_main(["eds", str(topology)]) == 1
+    assert capsys.readouterr().err == (
+        f"{topology}: no front with an EDS in the topology (fronts: panel (memory); "
+        "EDS for: canopen, devicenet)\n"
+    )
     bad = write_topology(tmp_path, [dnet_front(mac_id=64)])
-    assert cli_main(["devicenet", "eds", str(bad)]) == 1
+    assert cli_main(["eds", str(bad)]) == 1
     err = capsys.readouterr().err
     assert "mac_id" in err and "Traceback" not in err
     assert cli_main(["eds", str(bad)]) == cli_main(["validate", str(bad)]) == 1
 
 
+def test_the_old_spelling_writes_the_same_eds_with_a_deprecation_note(tmp_path, capsys):
+    topology = write_topology(tmp_path, [dnet_front()])
+    old, new = tmp_path / "old.eds", tmp_path / "new.eds"
+    assert cli_main(["devicenet", "eds", str(topology), "-o", str(old)]) == 0
+    assert capsys.readouterr().err.splitlines()[0] == (
+        "fieldgate: 'fieldgate devicenet eds' is deprecated and goes away in the next release; "
+        "use 'fieldgate eds TOPOLOGY [--front NAME]'"
+    )
+    assert cli_main(["eds", str(topology), "-o", str(new)]) == 0
+
+    def body(path: Path) -> list[str]:  # without the creation date and time
+        return [
+            line
+            for line in path.read_text(encoding="latin-1").splitlines()
+            if not line.startswith(("CreateDate", "CreateTime", "ModDate", "ModTime"))
+        ]
+
+    assert body(old) == body(new)
+
+
+def test_vendor_name_applies_to_devicenet_fronts_only(tmp_path, capsys):
+    canopen = {
+        "name": "plc",
+        "type": "canopen",
+        "interface": "virtual",
+        "channel": "x",
+        "node_id": 5,
+    }
+    topology = write_topology(tmp_path, [canopen])
+    assert cli_main(["eds", str(topology), "--vendor-name", "Acme"]) == 1
+    assert capsys.readouterr().err == (
+        f"{topology}: --vendor-name applies to devicenet fronts; plc is canopen\n"
+    )
+
+
 def test_standard_output_without_o(tmp_path, capsys):
     topology = write_topology(tmp_path, [dnet_front()])
-    assert (
-        cli_main(["devicenet", "eds", str(topology), "--vendor-name", 'Acme "Fieldbus" Ltd']) == 0
-    )
+    assert cli_main(["eds", str(topology), "--vendor-name", 'Acme "Fieldbus" Ltd']) == 0
     text = capsys.readouterr().out
     assert (
         CIP_EDS(text).get_value("Device", "VendName") == 'Acme \\"Fieldbus\\" Ltd'
@@ -447,7 +476,7 @@ def test_standard_output_without_o(tmp_path, capsys):
 def test_unwritable_output_exits_1_with_one_line(tmp_path, capsys):
     topology = write_topology(tmp_path, [dnet_front()])
     out = topology / "x.eds"  # below a regular file
-    assert cli_main(["devicenet", "eds", str(topology), "-o", str(out)]) == 1
+    assert cli_main(["eds", str(topology), "-o", str(out)]) == 1
     err = capsys.readouterr().err
     assert err.startswith(f"{out}: cannot write the EDS: ") and err.count("\n") == 1
 
@@ -460,7 +489,7 @@ def test_a_missing_folder_or_a_directory_is_one_line_and_exit_1(tmp_path, capsys
     topology = write_topology(tmp_path, [dnet_front()])
     (tmp_path / "outdir").mkdir()
     out = tmp_path / output
-    assert cli_main(["devicenet", "eds", str(topology), "-o", str(out)]) == 1
+    assert cli_main(["eds", str(topology), "-o", str(out)]) == 1
     assert capsys.readouterr().err == f"{out}: cannot write the EDS: {reason}\n"
     assert not (tmp_path / "no").exists() and not any(
         (tmp_path / "outdir").iterdir()
@@ -472,7 +501,7 @@ def test_the_eds_file_gets_the_umask_mode(tmp_path):
     out = tmp_path / "slave.eds"
     old = os.umask(0o022)
     try:
-        assert cli_main(["devicenet", "eds", str(topology), "-o", str(out)]) == 0
+        assert cli_main(["eds", str(topology), "-o", str(out)]) == 0
     finally:
         os.umask(old)
     assert out.stat().st_mode & 0o777 == 0o644

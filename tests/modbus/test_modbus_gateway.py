@@ -1,28 +1,24 @@
-"""End to end: a gateway with the modbus back on simulated modules, and the simulate CLI."""
+"""End to end: a gateway with the modbus back on simulated modules, and ``fieldgate simulate
+modbus`` (the command core serves for every back with a simulator)."""
 
 import argparse
 import asyncio
 import os
 import re
 import signal
+import subprocess
 import sys
 
 import pytest
 from modbus_line import I7232D_MODULES
 
-from fieldgate import Gateway, Quality
-from fieldgate.plugins.modbus.cli import build_config, execute
+from fieldgate import Quality, load_registry
 from fieldgate.plugins.modbus.client import ModbusLink
 from fieldgate.plugins.modbus.config import ModbusBackConfig
 from fieldgate.plugins.modbus.simulator import ModbusSimulator
-
-
-async def wait_for(condition, timeout=5.0):
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not condition():
-        assert loop.time() < deadline, "condition not met in time"
-        await asyncio.sleep(0.01)
+from fieldgate.simcmd import UsageError, build_config
+from fieldgate.simcmd import execute as run_command
+from fieldgate.testing import assert_channel, wait_for_channel, wait_until
 
 
 def demo_topology():
@@ -45,19 +41,18 @@ def demo_topology():
     }
 
 
-async def test_the_demo_loop_runs_through_gateway_and_simulator(registry):
-    gateway = Gateway.load(demo_topology(), registry=registry, simulate=True, animate=True)
-    await gateway.start()
-    try:
+async def test_the_demo_loop_runs_through_gateway_and_simulator(fieldgate_gateway):
+    async with fieldgate_gateway(demo_topology(), animate=True) as gateway:
         sim = gateway.bench.simulator("rs485")
-        await wait_for(lambda: gateway.image["rs485/m1/di0"].quality is Quality.GOOD)
+        image = gateway.image
+        await wait_for_channel(image, "rs485/m1/di0")  # read, good
         gateway.write("rs485/m3/do2", True)  # DO of the M-7055D, wired to the M-7052D's DI
-        await wait_for(lambda: gateway.read("rs485/m1/di2") is True)
+        await wait_for_channel(image, "rs485/m1/di2", True)
         assert sim.get_output("rs485/m3/do2") is True
         gateway.write("rs485/m4/ao0", 0x3FFF)  # 5 V out of the M-7024 into the M-7017R
-        await wait_for(lambda: gateway.read("rs485/m5/ai0") == 0x3FFF)
+        await wait_for_channel(image, "rs485/m5/ai0", 0x3FFF)
         gateway.component("plc").lose_master()  # do0 goes to its error value 1
-        await wait_for(lambda: sim.get_output("rs485/m3/do0") is True)
+        await wait_until(lambda: sim.get_output("rs485/m3/do0") is True)
         status = gateway.status()["backs"]["rs485"]
         assert status["modbus"]["requests"]["fc2"] > 0 and status["cycles"] > 0
         assert {m["address"]: m["online"] for m in status["modules"]} == {
@@ -66,33 +61,32 @@ async def test_the_demo_loop_runs_through_gateway_and_simulator(registry):
             4: True,
             5: True,
         }
-    finally:
-        await gateway.stop()
     assert sim.get_output("rs485/m3/do0") is False  # shutdown value written before the line closed
 
 
-async def test_a_dead_module_in_the_gateway_goes_comm_fault_and_comes_back(registry):
+async def test_a_dead_module_in_the_gateway_goes_comm_fault_and_comes_back(fieldgate_gateway):
     topology = demo_topology()
     topology["backs"][0] |= {"offline_probe_ms": 100, "timeout_ms": 50}
-    gateway = Gateway.load(topology, registry=registry, simulate=True)
-    await gateway.start()
-    try:
+    async with fieldgate_gateway(topology) as gateway:
         sim = gateway.bench.simulator("rs485")
+        image = gateway.image
         sim.set_input("rs485/m5/ai0", 77)
-        await wait_for(lambda: gateway.read("rs485/m5/ai0") == 77)
+        await wait_for_channel(image, "rs485/m5/ai0", 77)
         from fieldgate.plugins.modbus.simulator import Fault
 
         sim.inject(5, Fault("no_answer"))
-        await wait_for(lambda: gateway.image["rs485/m5/ai0"].quality is Quality.COMM_FAULT)
+        await wait_for_channel(image, "rs485/m5/ai0", 77, Quality.COMM_FAULT)  # the last value
         assert not gateway.health.get("rs485", 5).online and gateway.health.get("rs485", 1).online
         sim.clear_faults()
-        await wait_for(lambda: gateway.image["rs485/m5/ai0"].quality is Quality.GOOD)
+        await wait_for_channel(image, "rs485/m5/ai0", 77, Quality.GOOD)
         sim.inject(1, Fault("exception", code=2, address=34))  # the M-7052D refuses DI2
-        await wait_for(lambda: gateway.image["rs485/m1/di2"].quality is Quality.CONFIG_ERROR)
+        await wait_for_channel(image, "rs485/m1/di2", quality=Quality.CONFIG_ERROR)
         assert gateway.status()["backs"]["rs485"]["modbus"]["refused_points"] == ["rs485/m1/di2"]
-        assert gateway.image["rs485/m1/di3"].quality is Quality.GOOD
-    finally:
-        await gateway.stop()
+        assert_channel(image, "rs485/m1/di3")  # good
+
+
+def execute(sim: ModbusSimulator, line: str) -> str:
+    return run_command(sim, list(sim.channels), line)
 
 
 def test_cli_commands():
@@ -124,7 +118,7 @@ async def test_fieldgate_simulate_modbus_serves_a_pty(tmp_path):
         "3:M-7055D",
         "--baudrate",
         "115200",
-        "--set",
+        "--input",
         "rs485/m1/di0=1",
         "--duration",
         "20",
@@ -168,7 +162,7 @@ def test_fieldgate_simulate_modbus_stops_with_exit_0_on_ctrl_c_and_sigterm(stopp
     terminal with a read pending (it used to hang there, or exit 130)."""
     code, stderr = stopped_by_signal(
         ["simulate", "modbus", "--pty", "--module", "1:M-7055D"],
-        "simulating modules 1 (M-7055D)",
+        "simulating back rs485 (modbus): modules 1 (M-7055D)",
         sig,
     )
     assert code == 0 and "Traceback" not in stderr
@@ -210,6 +204,7 @@ def test_cli_takes_the_modules_from_a_topology(tmp_path):
         "gateway: {name: plant}\nfronts: [{name: plc, type: memory}]\nbacks:\n"
         "  - {name: line2, type: modbus, port: /dev/ttyUSB0, baudrate: 19200, modules: [{address: 7, model: M-7060D}]}\n"
     )
+    registry = load_registry()
     args = argparse.Namespace(
         port="/dev/pts/99",
         pty=False,
@@ -218,14 +213,15 @@ def test_cli_takes_the_modules_from_a_topology(tmp_path):
         module=[],
         name="rs485",
         baudrate=None,
+        set=[],
     )
-    config = build_config(args)
+    config = build_config(args, registry, "modbus")
     assert (config.name, config.port, config.baudrate) == ("line2", "/dev/pts/99", 19200)
     assert "line2/m7/do3" in {s.id for s in config.channel_specs()}
     args.back = "nope"
-    with pytest.raises(ValueError, match="has no modbus back named nope"):
-        build_config(args)
-    with pytest.raises(ValueError, match="expects ADDRESS:MODEL"):
+    with pytest.raises(UsageError, match="has no modbus back named nope"):
+        build_config(args, registry, "modbus")
+    with pytest.raises(UsageError, match="expects ADDRESS:MODEL"):
         build_config(
             argparse.Namespace(
                 port="x",
@@ -235,5 +231,25 @@ def test_cli_takes_the_modules_from_a_topology(tmp_path):
                 module=["M-7060D"],
                 name="rs485",
                 baudrate=None,
-            )
+                set=[],
+            ),
+            registry,
+            "modbus",
         )
+
+
+def test_the_old_set_channel_value_still_sets_an_input_with_a_deprecation_note():
+    result = subprocess.run(
+        [sys.executable, "-m", "fieldgate", "simulate", "modbus", "--pty"]
+        + ["--module", "1:M-7052D", "--set", "rs485/m1/di0=1", "--duration", "20"],
+        input="get rs485/m1/di0\nquit\n",
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "rs485/m1/di0 = True" in result.stdout.splitlines()
+    assert result.stderr.strip() == (
+        "fieldgate: '--set CHANNEL=VALUE' is deprecated and goes away in the next release; "
+        "use '--input CHANNEL=VALUE'"
+    )

@@ -1,4 +1,6 @@
-"""A third-party fieldgate plugin with one back and one front, used by the tests.
+"""Test plugin: a loopback back and a memory front, used by fieldgate's tests.
+
+A third-party package (fieldgate-loopback, installed in the test environment only).
 
 * back ``loopback``: each module's DO n is wired to its DI n, AO n to AI n (SO byte n to
   SI byte n: a special module's raw block), like the
@@ -7,12 +9,15 @@
   be told its master is lost.
 
 ``fail_start`` and ``fail_after_s`` inject start-up and run-time failures, so the
-gateway's supervision can be tested.
+gateway's supervision can be tested; ``stall_after_s`` blocks the whole event loop for
+``stall_s`` once (a runaway callback), so the systemd watchdog can be tested: the stall's
+begin and end are sent to ``$NOTIFY_SOCKET`` as ``X-FIELDGATE-TEST=stall-begin|stall-end``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import time
 
 from pydantic import Field
 
@@ -41,6 +46,10 @@ class LoopbackConfig(BackConfig):
     fail_after_s: float | None = Field(
         None, gt=0, description="test hook: run() fails after this long"
     )
+    stall_after_s: float | None = Field(
+        None, gt=0, description="test hook: block the event loop once, after this long"
+    )
+    stall_s: float = Field(1.0, gt=0, description="test hook: how long the loop is blocked")
 
     def channel_specs(self) -> list[ChannelSpec]:
         specs = []
@@ -96,7 +105,21 @@ class LoopbackBack(Back):
         if self.config.fail_after_s is not None:
             await asyncio.sleep(self.config.fail_after_s)
             raise RuntimeError("injected run-time failure")
+        if self.config.stall_after_s is not None:
+            await asyncio.sleep(self.config.stall_after_s)
+            self._stall()
         await asyncio.Event().wait()
+
+    def _stall(self) -> None:
+        from fieldgate.systemd import Notifier
+
+        notifier = Notifier.from_environment()
+        if notifier is not None:
+            notifier.send("X-FIELDGATE-TEST=stall-begin")
+        time.sleep(self.config.stall_s)  # blocks the loop: nothing else runs meanwhile
+        if notifier is not None:
+            notifier.send("X-FIELDGATE-TEST=stall-end")
+            notifier.close()
 
     async def stop(self) -> None:
         if self._sub is not None:
