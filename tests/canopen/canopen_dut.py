@@ -18,9 +18,18 @@ import sys
 import uuid
 from pathlib import Path
 
+from socketcan_guest import scaled
+
 from fieldgate.testing import GatewayThread
 
 FRONT = "plc"
+# How long a started gateway may take to send its boot-up. A `fieldgate run` process in the
+# SocketCAN guest, beside the host suite on a 2-core host, took over 10 s once.
+BOOT_TIMEOUT = scaled(30.0)
+# Every DUT make_dut gave out; tests/canopen/conftest.py stops what a test left running (a
+# fixture that fails before its yield has no teardown, and a gateway left on vcan0 answers
+# as node 5 in every later test).
+MADE: list = []
 
 
 def bus_under_test() -> tuple[str, str, bool]:
@@ -105,7 +114,12 @@ class ProcessDut:
         self.path.write_text(json.dumps(topo, indent=1))  # JSON is YAML
         self.interface, self.channel = interface, channel
         self.simulate = simulate  # --simulate: animated simulated modules behind the front
+        # what the gateway printed: a file, not a pipe nobody reads (a full pipe stalls it)
+        self.log_path = workdir / "gateway.log"
         self.proc: subprocess.Popen | None = None
+
+    def output(self) -> str:
+        return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
 
     def start(self) -> None:
         cmd = [
@@ -120,9 +134,8 @@ class ProcessDut:
             f"fronts.{FRONT}.channel={self.channel}",
             *(["--simulate"] if self.simulate else []),
         ]
-        self.proc = subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-        )
+        with self.log_path.open("a") as log:
+            self.proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
 
     def call(self, fn):
         raise NotImplementedError("the gateway runs in another process")
@@ -164,8 +177,16 @@ def make_dut(
 ):
     """The gateway under test; ``simulate``: its backs served by animated simulated modules,
     as ``fieldgate run --simulate`` does."""
-    return (
+    dut = (
         ProcessDut(topo, interface, channel, workdir, simulate=simulate)
         if external
         else InProcessDut(topo, interface, channel, simulate=simulate, animate=simulate)
     )
+    MADE.append(dut)
+    return dut
+
+
+def stop_all_made() -> None:
+    """Stop every DUT given out so far (a second stop does nothing)."""
+    while MADE:
+        MADE.pop().stop()

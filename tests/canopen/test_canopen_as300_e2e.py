@@ -21,7 +21,7 @@ from pathlib import Path
 import can
 import canopen
 import pytest
-from canopen_dut import FRONT, bus_under_test, make_dut, write_eds
+from canopen_dut import BOOT_TIMEOUT, FRONT, bus_under_test, make_dut, write_eds
 from ruamel.yaml import YAML
 from socketcan_guest import scaled
 
@@ -133,7 +133,7 @@ def run(bus, tmp_path, style: str, **front):
     master = As300(interface, channel, eds)
     dut = make_dut(topo, interface, channel, external, tmp_path, simulate=True)
     dut.start()
-    assert master.wait(0x700 + NODE, lambda d: d == b"\x00", 15.0), "no boot-up"
+    assert master.wait(0x700 + NODE, lambda d: d == b"\x00", BOOT_TIMEOUT), "no boot-up"
     return master, dut
 
 

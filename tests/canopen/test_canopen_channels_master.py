@@ -13,7 +13,7 @@ from datetime import UTC, datetime
 import canopen
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
-from canopen_dut import FRONT, bus_under_test, make_dut, topology
+from canopen_dut import BOOT_TIMEOUT, FRONT, bus_under_test, make_dut, topology
 
 NODE = 5
 RX, TX = 0x680 + NODE, 0x6A0 + NODE  # outside the restricted CAN-IDs
@@ -35,7 +35,7 @@ def master(tmp_path):
         tmp_path,
     )
     dut.start()
-    assert booted.wait(10), "no boot-up"
+    assert booted.wait(BOOT_TIMEOUT), "no boot-up"
     node = network.add_node(canopen.RemoteNode(NODE, canopen.ObjectDictionary()))
     node.sdo.RESPONSE_TIMEOUT = 1.0
     yield network, node, dut, external

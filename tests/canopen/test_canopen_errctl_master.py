@@ -8,7 +8,7 @@ import struct
 import time
 
 import pytest
-from canopen_dut import FRONT, bus_under_test, make_dut, topology
+from canopen_dut import BOOT_TIMEOUT, FRONT, bus_under_test, make_dut, topology
 from test_canopen_master import NODE, Master
 
 EMCY = 0x80 + NODE
@@ -26,7 +26,7 @@ def rig(tmp_path):
         tmp_path,
     )
     dut.start()
-    assert master.wait_frame(0x700 + NODE, 1, 10.0)[0] == b"\x00", "no boot-up"
+    assert master.wait_frame(0x700 + NODE, 1, BOOT_TIMEOUT)[:1] == [b"\x00"], "no boot-up"
     yield master, dut
     dut.stop()
     master.close()

@@ -14,7 +14,7 @@ import can
 import canopen
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError
-from canopen_dut import bus_under_test, make_dut, topology
+from canopen_dut import BOOT_TIMEOUT, bus_under_test, make_dut, topology
 
 NODE = 5
 
@@ -75,7 +75,7 @@ def rig(bus, tmp_path):
     )
     dut = make_dut(topo, interface, channel, external, tmp_path)
     dut.start()
-    assert master.wait_frame(0x700 + NODE, 1, 10.0)[0] == b"\x00", "no boot-up"
+    assert master.wait_frame(0x700 + NODE, 1, BOOT_TIMEOUT)[:1] == [b"\x00"], "no boot-up"
     yield master, dut
     dut.stop()
     master.close()
@@ -174,7 +174,7 @@ def test_store_restart_restore(rig, bus, tmp_path):
     dut.stop()
     master.clear()
     dut.start()
-    assert master.wait_frame(0x700 + NODE, 1, 10.0)[0] == b"\x00"
+    assert master.wait_frame(0x700 + NODE, 1, BOOT_TIMEOUT)[:1] == [b"\x00"], "no boot-up"
     assert sdo.upload(0x100C, 0) == struct.pack("<H", 777)
     sdo.download(0x1011, 1, b"load")
     master.node.nmt.send_command(0x81)

@@ -16,7 +16,7 @@ import canopen
 import canopen.lss
 import pytest
 from canopen.lss import LssError
-from canopen_dut import FRONT, bus_under_test, make_dut, topology
+from canopen_dut import BOOT_TIMEOUT, FRONT, bus_under_test, make_dut, topology
 
 from fieldgate.plugins.canopen.lss import LssAddress
 
@@ -96,7 +96,7 @@ def device(bus, network, boot_ups, state_dir, tmp_path):
         if expected is None:
             wait_unconfigured_ready(network.lss)
         else:
-            assert boot_ups.get(timeout=10) == (0x700 + expected, b"\x00")
+            assert boot_ups.get(timeout=BOOT_TIMEOUT) == (0x700 + expected, b"\x00")
         return dut
 
     yield start
