@@ -58,7 +58,7 @@ def state_dir(tmp_path):
     return tmp_path / "state"
 
 
-def wait_unconfigured_ready(lss, timeout=10.0) -> None:
+def wait_unconfigured_ready(lss, timeout=BOOT_TIMEOUT) -> None:
     """An unconfigured node sends nothing by itself: ask until it answers 0x4C with 0x50."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -31,6 +31,10 @@ BUSES = ("vcan0",)
 # case id -> a substring of its SKIP reason, for every example
 SKIPS = {
     "sync-pdo.bit_mapping": "byte granularity",  # bit_mapping is off in the examples
+    # the animated inputs may change between each probe and its answer in a slow guest
+    # (uml-noxstate at slowdown 3.4): the case then gives no verdict rather than a wrong one
+    "sync-pdo.sync_acyclic": "no verdict",
+    "sync-pdo.rtr_not_allowed": "no verdict",
     # the simulated modules' inputs move by themselves: nothing is wired output to input
     **{
         case: "needs --loopback"
