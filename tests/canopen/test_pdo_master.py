@@ -12,7 +12,7 @@ import time
 
 import canopen
 import pytest
-from canopen_dut import bus_under_test, make_dut, topology, write_eds
+from canopen_dut import BOOT_TIMEOUT, bus_under_test, make_dut, topology, write_eds
 
 NODE = 5
 
@@ -30,7 +30,7 @@ def master_and_dut(tmp_path):
     dut = make_dut(topo, interface, channel, external, tmp_path)
     dut.start()
     try:
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + BOOT_TIMEOUT
         while True:  # wait until the node answers SDO (a process needs a moment)
             try:
                 node.sdo.upload(0x1000, 0)
