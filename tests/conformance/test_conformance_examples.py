@@ -8,7 +8,9 @@ or be skipped with the reason documented below. An example configured for a mast
 (``master: delta-as300``) is also graded by that master-fit profile, which `all` leaves out
 (docs/conformance.md, "Against the examples").
 The examples run one after the other (the guest may have one CPU, which the stage shares with
-the host suite running beside it); the tolerance on periods is the SocketCAN stage's 40 ms.
+the host suite running beside it); the tolerance on periods is 60 ms, wider than the SocketCAN
+stage's 40 ms elsewhere: a full CI run under uml-noxstate, the host suite on the other core, saw
+one event-timer period of 161 ms for 100 (a 61 ms scheduling stall of the guest).
 """
 
 from __future__ import annotations
@@ -166,7 +168,7 @@ def grade(
                 "--profile=all",
                 *(f"--profile={master}" for master in masters),
                 f"--junit={junit}",
-                f"--tolerance-ms={40 * SLOWDOWN:.0f}",
+                f"--tolerance-ms={60 * SLOWDOWN:.0f}",
                 f"--timeout={0.5 * SLOWDOWN:.2f}",
                 f"--silence={0.3 * SLOWDOWN:.2f}",
             ],
