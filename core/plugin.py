@@ -14,7 +14,7 @@ import copy
 import importlib.metadata
 import logging
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -23,7 +23,7 @@ import pluggy
 
 from .events import MASTER_BACK, MASTER_LOST, MODULE_OFFLINE, MODULE_ONLINE, EventHub
 from .health import HealthEvent, HealthRegistry, ModuleHealth
-from .image import ChannelSpec, ProcessImage
+from .image import ChannelSpec, ProcessImage, Value
 from .masters import MasterMonitor
 from .topology.model import BackConfig, FrontConfig
 
@@ -134,6 +134,36 @@ class GatewayContext:
         for spec in specs:
             if spec.id not in self.image:
                 self.image.add(spec)
+
+    async def set_outputs(self, values: Mapping[str, Value], origin: str) -> None:
+        """A front writes outputs for a client (an OPC UA Write, a Modbus FC6/FC16, a Sparkplug
+        DCMD) and returns once the process image has applied them; the client's answer is sent
+        only then. Raises KeyError (no such channel) or ValueError (an input, a value outside
+        the channel's type, an output the front may not write) with a one-line reason, and
+        nothing is written.
+
+        In the fieldbus process this is :meth:`ProcessImage.write_outputs`. A north-facing
+        front runs in a child process of its own (docs/architecture.md): there the call goes
+        to the fieldbus process over the child's command channel and returns when that
+        process has applied the batch (``fieldgate.isolation``). Fronts that accept network
+        clients write outputs only this way.
+        """
+        self.image.write_outputs(values, origin=origin)
+
+    def point_locations(self) -> dict[str, list[str]]:
+        """Where the backs read each channel (``rs485/m1/di0`` -> ``["Modbus RTU unit 1 ..."]``),
+        for descriptions; in a north-facing child, what the fieldbus process reported."""
+        places: dict[str, list[str]] = {}
+        for back in self.backs.values():
+            method = getattr(back, "point_locations", None)
+            if method is None:
+                continue
+            try:
+                for cid, where in method().items():
+                    places.setdefault(cid, []).extend(where)
+            except Exception:  # only descriptions depend on it
+                log.debug("point_locations of %s failed", back.name, exc_info=True)
+        return places
 
     @property
     def clock(self) -> Callable[[], float]:
