@@ -24,6 +24,7 @@ from .cliargs import (
     parse_overrides as parse_overrides,
 )
 from .exitcodes import ExitCode
+from .logsetup import LOG_FORMATS, setup_logging
 from .plugin import ENTRY_POINT_GROUP, Command, Registry, load_registry, one_line
 from .runtime import Gateway, GatewayStartError
 from .stopping import stopped_by_signals, wait_until
@@ -32,20 +33,6 @@ from .version import __version__
 
 if TYPE_CHECKING:  # ruamel.yaml is imported when --set is used, not at every start
     from .image import ProcessImage
-
-LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
-LOG_FORMATS = ("text", "json")
-
-
-def setup_logging(level: str, fmt: str = "text") -> None:
-    logging.basicConfig(
-        level=getattr(logging, level.upper()), format=LOG_FORMAT, stream=sys.stderr, force=True
-    )
-    if fmt == "json":
-        from .logjson import JsonFormatter
-
-        for handler in logging.getLogger().handlers:
-            handler.setFormatter(JsonFormatter())
 
 
 def cmd_validate(args: argparse.Namespace, registry: Registry) -> int:

@@ -86,12 +86,23 @@ class EventHub:
         event = Event(self._seq, self._wall(), kind, source, text, data)
         self._recent.append(event)
         self.counts[kind] += 1
+        self._tell(event)
+        return event
+
+    def mirror(self, event: Event) -> None:
+        """Take an event another process's hub published, as it was (seq, time): a
+        north-facing child's copy of the fieldbus process's events."""
+        self._seq = max(self._seq, event.seq)
+        self._recent.append(event)
+        self.counts[event.kind] += 1
+        self._tell(event)
+
+    def _tell(self, event: Event) -> None:
         for listener in list(self._listeners):
             try:
                 listener(event)
             except Exception:  # a bad subscriber never stops the publisher (a CAN engine)
                 log.exception("event listener %r failed", listener)
-        return event
 
     def subscribe(self, listener: Listener) -> Callable[[], None]:
         """Call ``listener(event)`` for every event from now on; returns the unsubscribe call."""

@@ -135,6 +135,11 @@ class ModuleHealth:
     def subscribe(self, listener: Callable[[ModuleHealth, HealthEvent], None]) -> None:
         self._listeners.append(listener)
 
+    def announce(self, event: HealthEvent) -> None:
+        """Tell the listeners of an event that happened elsewhere (a north-facing child's
+        mirror of a module, after it copied the module's state)."""
+        self._emit(event)
+
     def _emit(self, event: HealthEvent) -> None:
         for listener in list(self._listeners):
             try:

@@ -198,6 +198,8 @@ def channel_id(back: str, address: int, kind: Kind, index: int) -> str:
 
 
 Value = bool | int | float
+MirroredState = tuple[str, Value, str, float | None, str]
+"""One channel as another image holds it: (id, value, quality name, timestamp, written_by)."""
 Reading = Value | tuple[Value, Quality]
 """What a back reports for one input: its value, or (value, Quality) when the module itself
 reports a quality for it (over-range, config error...)."""
@@ -483,6 +485,36 @@ class ProcessImage:
         in one batch. Returns the changes."""
         staged = [(self[cid], self[cid].value, quality) for cid in channel_ids]
         return self._commit(staged, origin, None)
+
+    def mirror(self, states: Iterable[MirroredState], origin: str = "mirror") -> list[Change]:
+        """Set channels to what another image holds, in one batch: a north-facing child keeps
+        its copy of the fieldbus process's image this way (``fieldgate.isolation``).
+
+        Each state is ``(id, value, quality, timestamp, written_by)`` as the other image has
+        it, inputs and outputs alike, nothing checked but the id (unknown ids are skipped);
+        subscribers get the changes as from any other write, with ``origin`` as their origin
+        when the state names none."""
+        changes: list[Change] = []
+        good = Quality.GOOD
+        for cid, value, quality_name, timestamp, written_by in states:
+            channel = self._channels.get(cid)
+            if channel is None:
+                continue
+            quality = Quality(quality_name)
+            if timestamp is not None:
+                channel.timestamp = timestamp
+            if quality is good:
+                channel.last_good = value
+            if channel.is_output and written_by:
+                channel.written_by = written_by
+            old_value, old_quality = channel.value, channel.quality
+            if old_value == value and old_quality is quality and type(old_value) is type(value):
+                continue
+            channel.value, channel.quality = value, quality
+            changes.append(Change(channel, old_value, old_quality, written_by or origin))
+        if changes and self._subscriptions:
+            self._notify(changes)
+        return changes
 
     def _refuse(self, channel_id: str, what: str) -> NoReturn:
         if channel_id not in self._channels:

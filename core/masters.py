@@ -48,6 +48,14 @@ class MasterMonitor:
         log.info("front %s: %s", front, reason)
         self._notify(front, True, reason)
 
+    def mirror(self, front: str, ok: bool, reason: str) -> None:
+        """Take a front's master state as another process reports it: listeners hear the
+        change, and no error mode is applied here (the fieldbus process applied them)."""
+        if self._ok.get(front) is ok:
+            return
+        self._ok[front] = ok
+        self._notify(front, ok, reason)
+
     def is_ok(self, front: str) -> bool:
         return self._ok.get(front, True)
 

@@ -248,6 +248,7 @@ class ComponentType:
     factory: Callable[[Any, GatewayContext], Component]
     plugin: str
     description: str = ""
+    north: bool = False  # accepts network clients or talks to a broker: runs in a child process
 
 
 @dataclass(frozen=True)
@@ -442,8 +443,16 @@ class Registry:
         model: type[FrontModel],
         factory: Callable[[FrontModel, GatewayContext], Front],
         description: str = "",
+        *,
+        north: bool = False,
     ) -> None:
-        self._add("front", type_name, model, factory, description)
+        """A front type. ``north=True``: it accepts network clients (a server: OPC UA, Modbus
+        TCP) or talks to a broker (Sparkplug); the gateway runs each such front in a child
+        process of its own, against a mirror of the process image, so no client can stop or
+        slow the fieldbus side (docs/architecture.md, "Process layout"). Its factory must be
+        importable by name (a module-level function), and the front writes outputs only with
+        :meth:`GatewayContext.set_outputs`."""
+        self._add("front", type_name, model, factory, description, north)
 
     def add_back(
         self,
@@ -530,13 +539,16 @@ class Registry:
         model: type[FrontConfig] | type[BackConfig],
         factory: Callable[..., Any],
         description: str,
+        north: bool = False,
     ) -> None:
         key = (role, type_name)
         if key in self.types:
             raise ValueError(
                 f"{role} type {type_name!r} registered by both {self.types[key].plugin} and {self._current}"
             )
-        self.types[key] = ComponentType(role, type_name, model, factory, self._current, description)
+        self.types[key] = ComponentType(
+            role, type_name, model, factory, self._current, description, north
+        )
         if self._current in self.plugins:
             self.plugins[self._current].provides.append(f"{role}:{type_name}")
 

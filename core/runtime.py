@@ -90,7 +90,10 @@ class Gateway:
         self._restarts: dict[str, int] = {}
         self.down: dict[str, str] = {}  # components waiting for a restart, with the cause
         self.running = False
-        self.http: Any = None  # fieldgate.http.service.HttpService while gateway.http is configured
+        self.http: Any = (
+            None  # fieldgate.isolation.front.HttpChild while gateway.http is configured
+        )
+        self._feed: Any = None  # fieldgate.isolation.feed.GatewayFeed, once a child needs it
 
     @classmethod
     def load(
@@ -106,25 +109,39 @@ class Gateway:
 
     # -- life cycle -----------------------------------------------------------
     async def start(self) -> None:
-        """Start every back, then every front. On any failure, stop what started and raise.
+        """Start every back, then every fieldbus front, then the north-facing fronts (each in
+        a child process, together). On any failure, stop what started and raise.
 
-        The HTTP server (``gateway.http``) starts first, so /readyz answers 503 while the
-        components start.
+        The HTTP server (``gateway.http``, a child process too) starts beside them and
+        answers /readyz 503 until everything runs.
         """
+        self._ask_priority()
+        http_started: asyncio.Future[None] | None = None
         if self.topology.gateway.http is not None and self.http is None:
-            from .http.service import HttpService
+            from .isolation.front import HttpChild
 
-            try:
-                self.http = HttpService(self, self.topology.gateway.http)
-                await self.http.start()
-            except Exception as exc:
-                self.http = None
-                raise GatewayStartError(str(exc)) from None
+            self.http = HttpChild(self, self.feed(), self.topology.gateway.isolation)
+            http_started = asyncio.ensure_future(self.http.start())
         try:
             await self._start_components()
         except GatewayStartError:
+            if http_started is not None and not http_started.done():
+                http_started.cancel()
+                await asyncio.gather(http_started, return_exceptions=True)
             await self._stop_http()
             raise
+        if http_started is not None:
+            try:
+                await http_started
+            except Exception as exc:
+                await self.stop()
+                raise GatewayStartError(f"HTTP status server: {exc}") from None
+        log.info(
+            "gateway %s running: %d back(s), %d front(s)",
+            self.topology.gateway.name,
+            len(self.backs),
+            len(self.fronts),
+        )
 
     async def _start_components(self) -> None:
         if self.bench is not None:
@@ -141,7 +158,16 @@ class Gateway:
                 self.masters.register(front.name)
                 self.fronts.append(self._create("front", front))
             for comp in self.backs + self.fronts:
-                await self._start_one(comp)
+                if not self._north(comp):
+                    await self._start_one(comp)
+            # the fieldbus is up; the north-facing children start together
+            results = await asyncio.gather(
+                *(self._start_one(c) for c in self.fronts if self._north(c)),
+                return_exceptions=True,
+            )
+            for result in results:
+                if isinstance(result, BaseException):
+                    raise result
         except GatewayStartError:
             await self._stop_components()
             if self.bench is not None:
@@ -152,17 +178,48 @@ class Gateway:
             self._tasks[comp.name] = asyncio.create_task(
                 self._supervise(comp), name=f"fieldgate:{comp.name}"
             )
-        log.info(
-            "gateway %s running: %d back(s), %d front(s)",
-            self.topology.gateway.name,
-            len(self.backs),
-            len(self.fronts),
-        )
+
+    def feed(self) -> Any:
+        """The gateway's changes for north-facing children (created when the first needs it)."""
+        if self._feed is None:
+            from .isolation.feed import GatewayFeed
+
+            self._feed = GatewayFeed(self.context)
+        return self._feed
+
+    @staticmethod
+    def _north(comp: Component) -> bool:
+        from .isolation.front import IsolatedFront
+
+        return isinstance(comp, IsolatedFront)
+
+    def _ask_priority(self) -> None:
+        nice = self.topology.gateway.isolation.fieldbus_nice
+        if nice is None:
+            return
+        import os
+
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
+            log.info("fieldbus process runs at niceness %d", nice)
+        except OSError as exc:
+            log.warning(
+                "gateway.isolation.fieldbus_nice %d: not allowed here (%s); running at %d",
+                nice,
+                exc.strerror or exc,
+                os.getpriority(os.PRIO_PROCESS, 0),
+            )
 
     def _create(self, role: str, cfg: Any) -> Component:
         ctype = self.registry.lookup(role, cfg.type)
         if ctype is None:
             raise GatewayStartError(f"{role} {cfg.name}: no plugin provides type '{cfg.type}'")
+        if ctype.north:
+            from .isolation.front import IsolatedFront
+
+            return IsolatedFront(
+                cfg, self.context, ctype.factory, self.feed(), self.topology.gateway.isolation
+            )
         try:
             return ctype.factory(cfg, self.context)
         except PluginStartError as exc:
@@ -264,6 +321,9 @@ class Gateway:
         if self.http is not None:
             http, self.http = self.http, None
             await http.stop()
+        if self._feed is not None:
+            self._feed.close()
+            self._feed = None
 
     async def _cancel(self, comp: Component) -> None:
         """Cancel a component's task and wait for it, cancelling again while it goes on.
@@ -343,4 +403,17 @@ class Gateway:
                 for c in self.backs
             },
             "modules": [m.as_dict() for m in self.health.modules()],
+            "children": self.children_status(),
         }
+
+    def children_status(self) -> dict[str, dict[str, Any]]:
+        """The north-facing child processes: pid, memory, CPU, feed, writes, kills."""
+        from .isolation.front import IsolatedFront
+
+        children = {
+            c.name: c.child.process_status() for c in self.fronts if isinstance(c, IsolatedFront)
+        }
+        child = getattr(self.http, "child", None)  # tests may run the service in this process
+        if child is not None:
+            children["http"] = {**child.process_status(), "restarts": self.http.restarts}
+        return children

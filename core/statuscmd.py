@@ -127,6 +127,23 @@ def format_status(st: dict[str, Any]) -> str:
         )
     if len(rows) > 1:
         lines += ["", *_table(rows)]
+    rows = [["process", "pid", "state", "rss MB", "limit MB", "cpu s", "resyncs", "kills"]]
+    for name, c in st.get("children", {}).items():
+        kills = c.get("kills") or {}
+        rows.append(
+            [
+                name,
+                str(c.get("pid") or "-"),
+                str(c.get("state", "-")),
+                f"{c.get('rss_mb', 0):.0f}",
+                str(c.get("memory_limit_mb", "-")),
+                f"{c.get('cpu_s', 0):.1f}",
+                str(c.get("resyncs", 0)),
+                ", ".join(f"{k} {n}" for k, n in kills.items()) or "-",
+            ]
+        )
+    if len(rows) > 1:
+        lines += ["", *_table(rows)]
     points = st.get("points", {})
     if points:
         lines += ["", "points: " + ", ".join(f"{n} {q}" for q, n in points.items() if n)]

@@ -36,9 +36,8 @@ from prometheus_client.core import (
     Metric,
 )
 
-from ..health import RTT_BUCKETS, ErrorKind
+from ..health import RTT_BUCKETS, ErrorKind, LineStats
 from ..image import Quality
-from ..polling import LineScheduler
 from ..version import __version__
 from .views import readiness
 
@@ -224,10 +223,10 @@ class GatewayCollector:
             "fieldgate_line_pending_writes", "outputs waiting to be written", labels=["back"]
         )
         for comp in gw.backs:
-            scheduler = getattr(comp, "scheduler", None)
-            if not isinstance(scheduler, LineScheduler):
+            scheduler = getattr(comp, "scheduler", None)  # a LineScheduler, or its mirror
+            stats = getattr(scheduler, "stats", None)
+            if not isinstance(stats, LineStats):
                 continue
-            stats = scheduler.stats
             cycles.add_metric([comp.name], float(stats.cycles))
             if stats.last_cycle_time is not None:
                 cycle_time.add_metric([comp.name], stats.last_cycle_time)

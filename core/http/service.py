@@ -292,10 +292,17 @@ class HttpService:
 
     # -- endpoints -----------------------------------------------------------------------
     async def _healthz(self, request: Request) -> Response:
+        fieldbus = getattr(self.gateway, "fieldbus_health", None)
+        ahead = ""
+        if fieldbus is not None:  # served from a child process: the fieldbus process's health
+            ok, text = fieldbus()
+            if not ok:
+                return text_response(503, text)
+            ahead = f"{text}; this server's "
         lag = self.loop_monitor.lag
         if lag > LAG_UNHEALTHY_S:
-            return text_response(503, f"event loop {lag * 1000:.0f} ms late")
-        return Response(200, f"ok: event loop {lag * 1000:.1f} ms late\n".encode())
+            return text_response(503, f"{ahead}event loop {lag * 1000:.0f} ms late")
+        return Response(200, f"ok: {ahead}event loop {lag * 1000:.1f} ms late\n".encode())
 
     async def _readyz(self, request: Request) -> Response:
         ready, reasons = views.readiness(self.gateway)

@@ -173,6 +173,61 @@ class HttpSettings(StrictModel):
         return any(s is not None for s in (self.auth_token, self.token_file, self.token_env))
 
 
+class IsolationSettings(StrictModel):
+    """North-facing parts (fronts that accept network clients or talk to a broker, and the
+    HTTP status server) run each in a child process of its own; these bound what one may
+    cost the fieldbus process (docs/architecture.md, "Process layout")."""
+
+    memory_limit_mb: int = Field(
+        384,
+        ge=32,
+        le=65_536,
+        description="resident memory one north-facing child may use; above it, it is killed and restarted",
+    )
+    nice: int = Field(
+        10,
+        ge=0,
+        le=19,
+        description="niceness the children add to their own: under CPU contention the fieldbus process runs first",
+    )
+    fieldbus_nice: int | None = Field(
+        None,
+        ge=-20,
+        le=19,
+        description="niceness the fieldbus process asks for at start (below 0 needs CAP_SYS_NICE; "
+        "refused: one line and it runs on)",
+    )
+    liveness_timeout_s: float = Field(
+        5.0,
+        ge=0.5,
+        le=300,
+        description="a child whose event loop has not answered a ping for this long is killed and restarted",
+    )
+    start_timeout_s: float = Field(
+        60.0, ge=1, le=600, description="how long a child may take to start serving"
+    )
+    feed_buffer_kb: int = Field(
+        1024,
+        ge=16,
+        le=1_048_576,
+        description="process-image changes queued for a child that reads slowly; beyond, they are "
+        "dropped and it gets a fresh snapshot (a resync)",
+    )
+    writes_per_s: float = Field(
+        1000.0,
+        gt=0,
+        le=100_000,
+        description="client write batches per second the fieldbus process applies for one child; "
+        "a child sending more waits (its clients' writes are answered later)",
+    )
+    log_lines_per_minute: int = Field(
+        600,
+        ge=10,
+        le=1_000_000,
+        description="log lines one child may write a minute; more are counted and left out",
+    )
+
+
 class GatewaySection(StrictModel):
     name: Identifier
     description: str = ""
@@ -182,6 +237,10 @@ class GatewaySection(StrictModel):
     )
     http: HttpSettings | None = Field(
         None, description="HTTP status API, metrics and live page; off unless given"
+    )
+    isolation: IsolationSettings = Field(
+        default_factory=IsolationSettings,
+        description="limits of the child processes north-facing parts run in",
     )
 
 

@@ -86,5 +86,6 @@ def fieldgate_register(registry: Any) -> None:
         ModbusTcpFrontConfig,
         make_front,
         "Modbus TCP server on the process image (pymodbus)",
+        north=True,
     )
     registry.add_command(("map",), "print the Modbus map of a modbus-tcp front", configure, run)

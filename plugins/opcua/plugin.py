@@ -24,5 +24,9 @@ def make_front(config: OpcUaFrontConfig, context: GatewayContext) -> Front:
 @hookimpl
 def fieldgate_register(registry: Any) -> None:
     registry.add_front(
-        "opcua", OpcUaFrontConfig, make_front, "OPC UA server on the process image (asyncua)"
+        "opcua",
+        OpcUaFrontConfig,
+        make_front,
+        "OPC UA server on the process image (asyncua)",
+        north=True,
     )

@@ -107,6 +107,13 @@ def load_gateway(tmp_path: Path, example: str = "i7232d-style.yaml", **http: Any
 
 
 async def start(gw: Gateway) -> Running:
+    """The status server under test runs in this process, on the gateway itself as its view:
+    the tests read its internals (streams, caches, budgets). A gateway runs it in a child
+    process of its own against a mirror (tests/isolation/test_isolation_http.py)."""
+    from fieldgate.http.service import HttpService
+
+    gw.http = HttpService(gw, gw.topology.gateway.http)
+    await gw.http.start()
     await gw.start()
     running = Running(gw, gw.http.server.port, gw.topology.fronts[0].channel)
     gw.context.events.subscribe(running.events.append)

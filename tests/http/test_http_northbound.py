@@ -55,8 +55,23 @@ async def northbound(tmp_path):
 
 async def test_status_and_metrics_show_each_server_fronts_clients_and_counters(northbound):
     running, ua_port, mb_port = northbound
-    await wait_for(lambda: len(running.gateway.component("opcua").clients()) == 1)
-    status = (await running.get("/api/v1/status")).json()
+
+    # each server front runs in a child process that reports its status once a second, and
+    # the status server (in a child of its own) gets the gateway's once a second
+    async def reported() -> dict:
+        status = (await running.get("/api/v1/status")).json()
+        fronts = status["fronts"]
+        return (
+            status
+            if len(fronts["opcua"].get("clients", [])) == 1
+            and fronts["modbus"].get("counters", {}).get("reads") == 1
+            else {}
+        )
+
+    status: dict = {}
+    async with asyncio.timeout(15):
+        while not (status := await reported()):
+            await asyncio.sleep(0.2)
     ua = status["fronts"]["opcua"]
     assert ua["endpoint"] == f"opc.tcp://127.0.0.1:{ua_port}/" and ua["state"] == "listening"
     assert [c["peer"].split(":")[0] for c in ua["clients"]] == ["127.0.0.1"]

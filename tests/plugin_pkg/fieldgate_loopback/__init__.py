@@ -7,6 +7,10 @@ A third-party package (fieldgate-loopback, installed in the test environment onl
   demo bench of the I-7232D manual (M-7055D outputs wired to M-7052D inputs), in software.
 * front ``memory``: a front without a bus; it records the channels it serves and can
   be told its master is lost.
+* front ``probe``: a north-facing front (it runs in a child process) serving a line protocol
+  on TCP, to test the process layout: ``get ID``, ``set ID VALUE`` (through
+  ``context.set_outputs``), ``batches``, and misbehaviour on request: ``hang S`` (blocks its
+  event loop), ``eat MB`` (holds memory), ``crash`` (its run() fails), ``exit CODE``.
 
 ``fail_start`` and ``fail_after_s`` inject start-up and run-time failures, so the
 gateway's supervision can be tested; ``stall_after_s`` blocks the whole event loop for
@@ -17,6 +21,7 @@ begin and end are sent to ``$NOTIFY_SOCKET`` as ``X-FIELDGATE-TEST=stall-begin|s
 from __future__ import annotations
 
 import asyncio
+import os
 import time
 
 from pydantic import Field
@@ -157,8 +162,102 @@ class MemoryFront(Front):
         return self.context.masters.lost(self.name, reason, outputs)
 
 
+class ProbeFrontConfig(FrontConfig):
+    type: str = "probe"
+    listen: str = Field("127.0.0.1:0", description="HOST:PORT of the line server")
+    writable: list[str] = Field(default_factory=list, description="outputs it may write")
+    fail_start: str | None = Field(None, description="test hook: start() fails with this cause")
+
+    def written_outputs(self) -> list[str] | None:
+        return self.writable
+
+
+class ProbeFront(Front):
+    def __init__(self, config: ProbeFrontConfig, context):
+        super().__init__(config, context)
+        self.server: asyncio.AbstractServer | None = None
+        self.batches = 0
+        self.changes = 0
+        self.port = 0
+        self._crash = asyncio.Event()
+        self._held: list[bytearray] = []
+
+    async def start(self) -> None:
+        if self.config.fail_start:
+            raise PluginStartError(self.config.fail_start)
+        host, port = self.config.listen.rsplit(":", 1)
+        self.context.image.subscribe_batch(self._changed)
+        self.server = await asyncio.start_server(self._serve, host, int(port))
+        self.port = self.server.sockets[0].getsockname()[1]
+
+    def _changed(self, changes) -> None:
+        self.batches += 1
+        self.changes += len(changes)
+
+    async def _serve(self, reader, writer) -> None:
+        while line := await reader.readline():
+            words = line.decode().split()
+            answer = await self._answer(words)
+            writer.write((answer + "\n").encode())
+            await writer.drain()
+        writer.close()
+
+    async def _answer(self, words: list[str]) -> str:
+        match words:
+            case ["get", cid]:
+                ch = self.context.image[cid]
+                return f"{cid} {ch.value} {ch.quality}"
+            case ["set", cid, value]:
+                try:
+                    await self.context.set_outputs({cid: int(value)}, origin=self.name)
+                except (KeyError, ValueError) as exc:
+                    return f"refused: {exc}"
+                return "ok"
+            case ["batches"]:
+                return str(self.batches)
+            case ["hang", seconds]:
+                time.sleep(float(seconds))  # blocks this child's loop
+                return "woke"
+            case ["eat", megabytes]:
+                self._held.append(bytearray(int(megabytes) * 2**20))
+                for block in self._held:  # touch every page: resident, not just reserved
+                    block[::4096] = b"x" * len(block[::4096])
+                return "ate"
+            case ["crash"]:
+                self._crash.set()
+                return "crashing"
+            case ["exit", code]:
+                os._exit(int(code))
+        return "?"
+
+    async def run(self) -> None:
+        await self._crash.wait()
+        raise RuntimeError("probe told to crash")
+
+    async def stop(self) -> None:
+        if self.server is not None:
+            self.server.close()
+            self.server = None
+
+    def status(self) -> dict:
+        return {"state": "listening", "port": self.port, "batches": self.batches}
+
+    def metrics(self) -> list:
+        return [("probe_batches_total", "counter", "image batches the probe saw", self.batches, {})]
+
+    def point_locations(self) -> dict[str, list[str]]:
+        return {"lb/m1/ao0": ["probe line 1"]}
+
+
 @hookimpl
 def fieldgate_register(registry) -> None:
+    registry.add_front(
+        "probe",
+        ProbeFrontConfig,
+        ProbeFront,
+        "a north-facing line server (test plugin)",
+        north=True,
+    )
     registry.add_back(
         "loopback", LoopbackConfig, LoopbackBack, "outputs looped back to inputs (test plugin)"
     )

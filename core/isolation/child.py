@@ -1,0 +1,211 @@
+"""The child side: ``python -m fieldgate.isolation.child FD``.
+
+Reads its first message (what to serve: the topology, its part, the gateway's snapshot,
+the isolation settings) from the socket the fieldbus process passed as ``FD``, lowers its
+own priority, dies with its parent, logs within a budget, and serves its part against a
+:class:`~.mirror.MirrorContext` until the fieldbus process says stop or goes away:
+
+* ``front``: a north-facing front built by its plugin's factory, unchanged;
+* ``http``: the HTTP status server on a mirror of the gateway (:mod:`.remote`).
+
+Every second it reports its part's status, metrics and point locations.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import ctypes
+import ctypes.util
+import json
+import logging
+import os
+import pickle
+import signal
+import socket
+import sys
+import time
+from typing import Any
+
+from ..logsetup import LogBudget, setup_logging
+from ..plugin import one_line
+from . import wire
+from .mirror import MirrorContext
+from .parts import Part, make_part
+
+log = logging.getLogger("fieldgate.isolation.child")
+
+STATUS_PERIOD_S = 1.0
+STATUS_LIMIT = 256 * 1024  # bytes of one status report (the fieldbus process drops larger ones)
+PR_SET_PDEATHSIG = 1
+
+
+def _read_frame(sock: socket.socket) -> bytes:
+    def exactly(n: int) -> bytes:
+        data = bytearray()
+        while len(data) < n:
+            chunk = sock.recv(n - len(data))
+            if not chunk:
+                raise EOFError("the fieldbus process closed the channel")
+            data += chunk
+        return bytes(data)
+
+    (size,) = wire.HEADER.unpack(exactly(wire.HEADER.size))
+    return exactly(size)
+
+
+def _die_with_parent(parent: int) -> None:
+    """SIGKILL when the fieldbus process dies (Linux), however it dies."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:  # it died before prctl
+        os._exit(0)
+
+
+def main(argv: list[str]) -> int:
+    parent = os.getppid()
+    sock = socket.socket(fileno=int(argv[0]))
+    init: dict[str, Any] = pickle.loads(_read_frame(sock))
+    _die_with_parent(parent)
+    settings = init["isolation"]
+    try:
+        os.nice(settings.nice)
+    except OSError:
+        pass
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C on a terminal: the parent stops us
+    budget = LogBudget(settings.log_lines_per_minute)
+    setup_logging(
+        init["log_level"],
+        init["log_format"],
+        budget=budget,
+        prefix=f"{init['name']}[{os.getpid()}] ",
+    )
+    runner = asyncio.Runner(loop_factory=_loop_factory(init.get("loop", "asyncio")))
+    try:
+        return runner.run(Child(sock, init, budget).serve())
+    finally:
+        runner.close()
+
+
+def _loop_factory(name: str) -> Any:
+    if name == "uvloop":
+        try:
+            import uvloop
+
+            return uvloop.new_event_loop
+        except ImportError:
+            pass
+    return asyncio.new_event_loop
+
+
+class Child:
+    def __init__(self, sock: socket.socket, init: dict[str, Any], budget: LogBudget):
+        self.sock = sock
+        self.init = init
+        self.budget = budget
+        self.writer: asyncio.StreamWriter | None = None
+        self.context: MirrorContext | None = None
+        self.part: Part | None = None
+        self.stopping = asyncio.Event()
+
+    def send(self, message: dict[str, Any]) -> None:
+        if self.writer is not None and not self.writer.is_closing():
+            self.writer.write(wire.up(message))
+
+    async def serve(self) -> int:
+        reader, self.writer = await asyncio.open_unix_connection(sock=self.sock)
+        init = self.init
+        context = self.context = MirrorContext(init["topology"], self.send, init["locations"])
+        context.apply(init["snapshot"])
+        listen = asyncio.create_task(self._listen(reader), name="fieldgate:child:listen")
+        try:
+            part = self.part = make_part(init, context)
+            await part.start()
+        except Exception as exc:
+            log.debug("cannot start", exc_info=True)
+            self.send({"t": "failed", "error": _start_error(exc)})
+            await self._drain()
+            listen.cancel()
+            return 1
+        self.send({"t": "ready", **self._report()})
+        run = asyncio.create_task(part.run(), name="fieldgate:child:run")
+        report = asyncio.create_task(self._report_loop(), name="fieldgate:child:status")
+        stop = asyncio.create_task(self.stopping.wait())
+        done, _ = await asyncio.wait({run, listen, stop}, return_when=asyncio.FIRST_COMPLETED)
+        code = 0
+        if run in done and not run.cancelled() and run.exception() is not None:
+            error = run.exception()
+            assert error is not None
+            log.error("stopped: %s", one_line(error))
+            self.send({"t": "failed", "error": one_line(error)})
+            code = 1
+        for task in (run, report, stop, listen):
+            task.cancel()
+        try:
+            await asyncio.wait_for(part.stop(), 2.0)
+        except Exception as exc:  # noqa: BLE001  (stopping: say it, exit anyway)
+            log.warning("error while stopping: %s", one_line(exc))
+        context.fail_writes("the child is stopping")
+        await self._drain()
+        return code
+
+    async def _drain(self) -> None:
+        if self.writer is not None:
+            try:
+                await asyncio.wait_for(self.writer.drain(), 1.0)
+            except (Exception, asyncio.CancelledError):
+                pass
+
+    async def _listen(self, reader: asyncio.StreamReader) -> None:
+        assert self.context is not None
+        try:
+            while True:
+                header = await reader.readexactly(wire.HEADER.size)
+                (size,) = wire.HEADER.unpack(header)
+                message = pickle.loads(await reader.readexactly(size))
+                kind = message[0]
+                if kind == "ping":
+                    self.context.fieldbus_lag = message[2]
+                    self.context.last_ping = time.monotonic()
+                    self.send({"t": "pong", "seq": message[1]})
+                elif kind == "stop":
+                    self.stopping.set()
+                    return
+                elif kind == "gw" and self.part is not None:
+                    self.part.gateway_state(message[1])
+                else:
+                    self.context.apply(message)
+        except (asyncio.IncompleteReadError, ConnectionError):
+            log.info("the fieldbus process closed the channel: stopping")
+            self.stopping.set()
+
+    async def _report_loop(self) -> None:
+        while True:
+            await asyncio.sleep(STATUS_PERIOD_S)
+            try:
+                self.send({"t": "status", **self._report()})
+            except Exception:  # a report that cannot be made: say it once a minute at most
+                log.exception("status report failed")
+
+    def _report(self) -> dict[str, Any]:
+        assert self.part is not None
+        report = self.part.report()
+        report.setdefault("status", {})["log_lines_left_out"] = self.budget.suppressed_total
+        body = json.dumps(report, default=str)
+        if len(body) > STATUS_LIMIT:  # many clients with long names: keep the counters
+            report["status"].pop("clients", None)
+            report["status"]["clients_left_out"] = "report too large"
+            report["locations"] = {}
+        return report
+
+
+def _start_error(exc: BaseException) -> str:
+    from ..plugin import PluginStartError
+
+    return str(exc) if isinstance(exc, PluginStartError) else one_line(exc)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,426 @@
+"""One north-facing child process, seen from the fieldbus process: start, feed, watch, stop.
+
+:class:`ChildProcess` starts ``python -m fieldgate.isolation.child`` with one end of a socket
+pair, sends it what it serves (the topology, its part, a snapshot of the gateway), then
+keeps its :class:`~.feed.Outbox` flowing from the gateway's :class:`~.feed.GatewayFeed`
+without ever waiting on it. It watches the child three ways:
+
+* liveness: a ping every ``liveness_timeout_s / 4`` on the same channel; no answer from the
+  child's event loop for ``liveness_timeout_s`` and it is killed;
+* memory: its resident set read from /proc each second; above ``memory_limit_mb`` it is killed;
+* the process itself: an exit or a closed channel ends it.
+:meth:`wait` returns the reason; the runtime's supervision restarts it with back-off.
+
+What a child asks of the fieldbus process (``{"t": "write", ...}``) is checked field by
+field and applied at most ``writes_per_s`` batches a second per child, one at a time; a
+child has at most ``MAX_WRITES_WAITING`` batches waiting (it waits for their answers).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import os
+import signal
+import socket
+import sys
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from ..plugin import PluginStartError
+from ..topology.model import IsolationSettings
+from . import wire
+from .feed import GatewayFeed, Outbox
+
+log = logging.getLogger("fieldgate.isolation")
+
+MAX_WRITES_WAITING = 64
+MAX_STATUS_BYTES = 512 * 1024  # a status frame larger than this is dropped unread
+WRITE_CHUNK = 256 * 1024  # bytes handed to the socket per wake-up
+STOP_GRACE_S = 3.0
+PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
+TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+WriteHandler = Callable[[dict[str, bool | int | float]], str | None]
+
+
+class ChildProcess:
+    """A north-facing part running in a child process (see the module's docstring)."""
+
+    def __init__(
+        self,
+        name: str,
+        feed: GatewayFeed,
+        settings: IsolationSettings,
+        init: Callable[[], dict[str, Any]],
+        on_write: WriteHandler | None = None,
+    ):
+        self.name = name
+        self.feed = feed
+        self.settings = settings
+        self._init = init
+        self._on_write = on_write
+        self.process: asyncio.subprocess.Process | None = None
+        self.outbox = Outbox(settings.feed_buffer_kb * 1024)
+        self.status: dict[str, Any] = {}  # the child's last report
+        self.ready: dict[str, Any] = {}
+        self.rss = 0
+        self.peak_rss = 0
+        self.cpu_s = 0.0
+        self.started_at: float | None = None
+        self.writes_applied = 0
+        self.writes_refused = 0
+        self.protocol_errors = 0
+        self.kills: dict[str, int] = {}
+        self.state = "stopped"
+        self._transport: asyncio.WriteTransport | None = None
+        self._paused = False
+        self._flush_scheduled = False
+        self._detach: Callable[[], None] | None = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._ready: asyncio.Future[dict[str, Any]] | None = None
+        self._ended: asyncio.Future[str] | None = None
+        self._reason = ""
+        self._last_pong = 0.0
+        self._writes: deque[tuple[int, dict[str, bool | int | float]]] = deque()
+        self._write_wake = asyncio.Event()
+        self.fieldbus_lag = 0.0
+
+    # -- life cycle -------------------------------------------------------------------------
+    async def start(self) -> dict[str, Any]:
+        """Start the child and return its ready report; PluginStartError (one line) when it
+        cannot start (its own reason, or why it did not answer)."""
+        loop = asyncio.get_running_loop()
+        self._reason = ""
+        self.outbox = Outbox(self.settings.feed_buffer_kb * 1024)
+        self._ready = loop.create_future()
+        self._ended = loop.create_future()
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            self.process = await asyncio.create_subprocess_exec(
+                sys.executable,
+                "-m",
+                "fieldgate.isolation.child",
+                str(theirs.fileno()),
+                pass_fds=(theirs.fileno(),),
+                stdin=asyncio.subprocess.DEVNULL,
+            )
+        except OSError as exc:
+            ours.close()
+            raise PluginStartError(f"cannot start a child process: {exc}") from None
+        finally:
+            theirs.close()
+        self.state = "starting"
+        self.started_at = time.monotonic()
+        self._last_pong = loop.time()
+        transport, _ = await loop.create_unix_connection(lambda: _Link(self), sock=ours)
+        self._transport = transport  # type: ignore[assignment]
+        transport.set_write_buffer_limits(high=WRITE_CHUNK, low=WRITE_CHUNK // 4)  # type: ignore[attr-defined]
+        # the snapshot in the first message and the feed's first change are one loop turn apart
+        self.outbox.resync = False
+        init = self._init()
+        init["snapshot"] = self.feed.snapshot_message()
+        self._detach = self.feed.attach(self.outbox, self._wake)
+        transport.write(wire.down(init))  # type: ignore[attr-defined]
+        self._tasks = [
+            loop.create_task(self._reap(), name=f"fieldgate:{self.name}:reap"),
+            loop.create_task(self._watch(), name=f"fieldgate:{self.name}:watch"),
+            loop.create_task(self._apply_writes(), name=f"fieldgate:{self.name}:writes"),
+        ]
+        try:
+            ready = await asyncio.wait_for(
+                asyncio.shield(self._ready), self.settings.start_timeout_s
+            )
+        except TimeoutError:
+            self.kill(f"not ready within {self.settings.start_timeout_s:g} s")
+            await self._cleanup()
+            raise PluginStartError(
+                f"child process not ready within {self.settings.start_timeout_s:g} s "
+                "(gateway.isolation.start_timeout_s)"
+            ) from None
+        except PluginStartError:
+            await self._cleanup()
+            raise
+        self.state = "running"
+        self.ready = ready
+        return ready
+
+    async def wait(self) -> str:
+        """Until the child ends; why it ended, in one line."""
+        assert self._ended is not None
+        return await asyncio.shield(self._ended)
+
+    async def stop(self) -> None:
+        """Ask the child to stop; kill it if it has not within STOP_GRACE_S."""
+        proc = self.process
+        if proc is not None and proc.returncode is None and self._transport is not None:
+            self.state = "stopping"
+            self.outbox.put_control(wire.down(("stop",)))
+            self._flush()
+            try:
+                await asyncio.wait_for(proc.wait(), STOP_GRACE_S)
+            except TimeoutError:
+                self.kill(f"still running {STOP_GRACE_S:g} s after it was asked to stop")
+                await proc.wait()
+        await self._cleanup()
+        self.state = "stopped"
+
+    def kill(self, reason: str) -> None:
+        """SIGKILL, with the reason :meth:`wait` gives."""
+        proc = self.process
+        if proc is None or proc.returncode is not None:
+            return
+        if not self._reason:
+            self._reason = reason
+            self.kills[reason.split(":")[0]] = self.kills.get(reason.split(":")[0], 0) + 1
+            log.error("%s: killing its child process %d: %s", self.name, proc.pid, reason)
+        try:
+            proc.send_signal(signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+    def channel_closed(self, process: asyncio.subprocess.Process | None) -> None:
+        """``process``'s socket closed a second ago and it is still there: end it (unless it
+        is stopping, when :meth:`stop` waits for it, or a restart replaced it)."""
+        if process is self.process and self.state not in ("stopping", "stopped"):
+            self.kill("its channel to the fieldbus process closed")
+
+    async def _cleanup(self) -> None:
+        if self._detach is not None:
+            self._detach()
+            self._detach = None
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+        proc = self.process
+        if proc is not None and proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+        self._paused = False
+        self._writes.clear()
+
+    def _end(self, reason: str) -> None:
+        reason = self._reason or reason
+        if self._ready is not None and not self._ready.done():
+            self._ready.set_exception(PluginStartError(reason))
+        if self._ended is not None and not self._ended.done():
+            self._ended.set_result(reason)
+        if self.state == "running":
+            self.state = "failed"
+
+    async def _reap(self) -> None:
+        assert self.process is not None
+        code = await self.process.wait()
+        if code < 0:
+            how = f"killed by signal {-code} ({signal.Signals(-code).name})"
+        else:
+            how = f"exited with code {code}"
+        self._end(f"child process {how}" + (f": {self._reason}" if self._reason else ""))
+
+    # -- the child's health -------------------------------------------------------------------
+    async def _watch(self) -> None:
+        loop = asyncio.get_running_loop()
+        period = min(0.5, self.settings.liveness_timeout_s / 4)
+        seq = 0
+        next_sample = loop.time()
+        while True:
+            before = loop.time()
+            await asyncio.sleep(period)
+            now = loop.time()
+            self.fieldbus_lag = max(0.0, now - before - period)
+            seq += 1
+            self.outbox.put_control(wire.down(("ping", seq, self.fieldbus_lag)))
+            self._wake()
+            silent = now - self._last_pong
+            if silent > self.settings.liveness_timeout_s:
+                self.kill(f"liveness: its event loop has not answered for {silent:.1f} s")
+            if now >= next_sample:
+                next_sample = now + 1.0
+                self._sample()
+
+    def _sample(self) -> None:
+        proc = self.process
+        if proc is None or proc.returncode is not None:
+            return
+        try:
+            with open(f"/proc/{proc.pid}/statm", "rb") as f:
+                self.rss = int(f.read().split()[1]) * PAGE
+            with open(f"/proc/{proc.pid}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()
+            self.cpu_s = (int(fields[11]) + int(fields[12])) / TICKS
+        except (OSError, ValueError, IndexError):
+            return
+        self.peak_rss = max(self.peak_rss, self.rss)
+        limit = self.settings.memory_limit_mb * 1024 * 1024
+        if self.rss > limit:
+            self.kill(
+                f"memory limit: {self.rss / 2**20:.0f} MB resident, over "
+                f"gateway.isolation.memory_limit_mb {self.settings.memory_limit_mb}"
+            )
+
+    # -- to the child ---------------------------------------------------------------------------
+    def _wake(self) -> None:
+        """Something is queued: write it in a later loop turn (never inside a CAN engine's)."""
+        if not self._flush_scheduled and not self._paused and self._transport is not None:
+            self._flush_scheduled = True
+            asyncio.get_running_loop().call_soon(self._flush)
+
+    def _flush(self) -> None:
+        self._flush_scheduled = False
+        transport = self._transport
+        if transport is None or transport.is_closing():
+            return
+        while self.outbox.pending and not self._paused:
+            frames = self.outbox.take(self.feed.snapshot, WRITE_CHUNK)
+            if not frames:
+                break
+            transport.writelines(frames)
+
+    def pause_writing(self) -> None:
+        self._paused = True
+
+    def resume_writing(self) -> None:
+        self._paused = False
+        self._wake()
+
+    # -- from the child --------------------------------------------------------------------------
+    def received(self, body: bytes) -> None:
+        if len(body) > MAX_STATUS_BYTES and body.startswith(b'{"t":"status"'):
+            self.protocol_errors += 1
+            return
+        message = wire.read_up(body)
+        kind = message["t"]
+        if kind == "pong":
+            self._last_pong = asyncio.get_running_loop().time()
+        elif kind == "status":
+            self._report(message)
+        elif kind == "write":
+            self._write_request(message)
+        elif kind == "ready":
+            self._report(message)
+            if self._ready is not None and not self._ready.done():
+                self._ready.set_result(message)
+            self._last_pong = asyncio.get_running_loop().time()
+        elif kind == "failed":
+            error = str(message.get("error", "failed"))[:500]
+            if self._ready is not None and not self._ready.done():
+                self._ready.set_exception(PluginStartError(error))
+            self._reason = self._reason or error
+        else:
+            raise wire.WireError(f"unknown message {kind!r}")
+
+    status_metrics: Any = None
+    status_locations: Any = None
+
+    def _report(self, message: dict[str, Any]) -> None:
+        status = message.get("status")
+        if isinstance(status, dict):
+            self.status = status
+            self.status_metrics = message.get("metrics")
+            self.status_locations = message.get("locations")
+
+    def _write_request(self, message: dict[str, Any]) -> None:
+        request, values = message.get("id"), message.get("values")
+        if not isinstance(request, int) or not isinstance(values, dict):
+            raise wire.WireError("a write needs an integer id and a values object")
+        checked: dict[str, bool | int | float] = {}
+        for cid, value in values.items():
+            if not isinstance(value, (bool, int, float)) or (
+                isinstance(value, float) and not math.isfinite(value)
+            ):
+                self._ack(request, f"{cid}: {value!r} is not a number")
+                return
+            checked[cid] = value
+        if len(self._writes) >= MAX_WRITES_WAITING:
+            self._ack(request, f"more than {MAX_WRITES_WAITING} write requests waiting")
+            return
+        self._writes.append((request, checked))
+        self._write_wake.set()
+
+    async def _apply_writes(self) -> None:
+        """One batch at a time, at most ``writes_per_s`` a second (a token bucket of one
+        second's worth): a child whose clients write faster waits for its answers."""
+        rate = self.settings.writes_per_s
+        tokens, last = rate, time.monotonic()
+        while True:
+            if not self._writes:
+                self._write_wake.clear()
+                await self._write_wake.wait()
+            now = time.monotonic()
+            tokens = min(rate, tokens + (now - last) * rate)
+            last = now
+            if tokens < 1:
+                await asyncio.sleep((1 - tokens) / rate)
+                continue
+            tokens -= 1
+            request, values = self._writes.popleft()
+            error = self._on_write(values) if self._on_write is not None else "no writes here"
+            if error is None:
+                self.writes_applied += 1
+            else:
+                self.writes_refused += 1
+            self._ack(request, error)
+
+    def _ack(self, request: int, error: str | None) -> None:
+        self.outbox.put_control(wire.down(("ack", request, error)))
+        self._wake()
+
+    def send_control(self, message: tuple[Any, ...]) -> None:
+        self.outbox.put_control(wire.down(message))
+        self._wake()
+
+    # -- observability -------------------------------------------------------------------------
+    def process_status(self) -> dict[str, Any]:
+        proc = self.process
+        return {
+            "pid": proc.pid if proc is not None and proc.returncode is None else None,
+            "state": self.state,
+            "rss_mb": round(self.rss / 2**20, 1),
+            "peak_rss_mb": round(self.peak_rss / 2**20, 1),
+            "memory_limit_mb": self.settings.memory_limit_mb,
+            "cpu_s": round(self.cpu_s, 2),
+            "uptime_s": None
+            if self.started_at is None
+            else round(time.monotonic() - self.started_at, 1),
+            "feed_frames": self.outbox.frames,
+            "feed_bytes": self.outbox.bytes,
+            "feed_queued_bytes": self.outbox.size,
+            "resyncs": self.outbox.resyncs,
+            "writes_applied": self.writes_applied,
+            "writes_refused": self.writes_refused,
+            "kills": dict(self.kills),
+        }
+
+
+class _Link(asyncio.Protocol):
+    """The socket to one child: frames in (bounded), flow control out."""
+
+    def __init__(self, child: ChildProcess):
+        self.child = child
+        self.process = child.process  # this link's process (a restart makes another link)
+        self.reader = wire.FrameReader(wire.MAX_UP)
+
+    def data_received(self, data: bytes) -> None:
+        try:
+            for body in self.reader.feed(data):
+                self.child.received(body)
+        except wire.WireError as exc:
+            self.child.protocol_errors += 1
+            self.child.kill(f"protocol: {exc}")
+
+    def pause_writing(self) -> None:
+        self.child.pause_writing()
+
+    def resume_writing(self) -> None:
+        self.child.resume_writing()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        # the exit (and its code) usually follows at once: the reaper says why it ended
+        asyncio.get_running_loop().call_later(1.0, self.child.channel_closed, self.process)
