@@ -162,7 +162,9 @@ async def loop_cost(gw: GatewayThread, n: int = 200) -> dict[str, float]:
     return {"render": render, "batch": batch, "longest_family": longest}
 
 
-def sdo_round_trips(bus: can.BusABC, seconds: float) -> dict[str, list[float]]:
+def sdo_round_trips(
+    bus: can.BusABC, seconds: float, node_id: int = NODE_ID
+) -> dict[str, list[float]]:
     times: dict[str, list[float]] = {name: [] for name in OBJECTS}
     end = time.monotonic() + seconds
     requests = [
@@ -174,12 +176,12 @@ def sdo_round_trips(bus: can.BusABC, seconds: float) -> dict[str, list[float]]:
         name, data = requests[i % 2]
         i += 1
         started = time.perf_counter()
-        bus.send(can.Message(arbitration_id=0x600 + NODE_ID, data=data, is_extended_id=False))
+        bus.send(can.Message(arbitration_id=0x600 + node_id, data=data, is_extended_id=False))
         while True:
             msg = bus.recv(1.0)
             if msg is None:
                 raise SystemExit(f"no SDO answer to {name}")
-            if msg.arbitration_id == 0x580 + NODE_ID:
+            if msg.arbitration_id == 0x580 + node_id:
                 break
         times[name].append(time.perf_counter() - started)
         if msg.data[0] != 0x43 and msg.data[0] != 0x4B and msg.data[0] != 0x4F:

@@ -125,7 +125,7 @@ class Gateway:
         try:
             await self._start_components()
         except GatewayStartError:
-            if http_started is not None and not http_started.done():
+            if http_started is not None:
                 http_started.cancel()
                 await asyncio.gather(http_started, return_exceptions=True)
             await self._stop_http()

@@ -239,7 +239,9 @@ class ChildProcess:
             self.outbox.put_control(wire.down(("ping", seq, self.fieldbus_lag)))
             self._wake()
             silent = now - self._last_pong
-            if silent > self.settings.liveness_timeout_s:
+            if self.state == "starting":  # its start may block its loop; start_timeout_s rules
+                self._last_pong = now
+            elif silent > self.settings.liveness_timeout_s:
                 self.kill(f"liveness: its event loop has not answered for {silent:.1f} s")
             if now >= next_sample:
                 next_sample = now + 1.0
