@@ -299,22 +299,27 @@ class Attacker:
 
 # == the gateway (a thread with its own loop) ==============================================
 class GatewayThread:
-    def __init__(self, loop_choice: str, state_dir: str, ports: dict[str, int]):
+    """examples/plant-northbound.yaml on its own loop in a thread of this process (the
+    fieldbus process), its listeners on ``ports``; ``fast``: the line polled as fast as it goes."""
+
+    def __init__(self, loop_choice: str, state_dir: str, ports: dict[str, int], fast: bool = True):
         from fieldgate.cli import loop_factory
         from fieldgate.runtime import Gateway
 
         self.channel = f"fieldgate-iso-bench-{uuid.uuid4().hex[:8]}"
+        overrides: dict[str, Any] = {
+            "gateway.state_dir": state_dir,
+            "gateway.http.listen": f"127.0.0.1:{ports['http']}",
+            "fronts.can.channel": self.channel,
+            "fronts.opcua.listen": f"127.0.0.1:{ports['opcua']}",
+            "fronts.modbus.listen": f"127.0.0.1:{ports['modbus']}",
+            "fronts.plant.brokers.0.port": ports["mqtt"],
+        }
+        if fast:
+            overrides["backs.rs485.poll_ms"] = 0
         self.gateway = Gateway.load(
             ROOT / "examples" / "plant-northbound.yaml",
-            overrides={
-                "gateway.state_dir": state_dir,
-                "gateway.http.listen": f"127.0.0.1:{ports['http']}",
-                "fronts.can.channel": self.channel,
-                "fronts.opcua.listen": f"127.0.0.1:{ports['opcua']}",
-                "fronts.modbus.listen": f"127.0.0.1:{ports['modbus']}",
-                "fronts.plant.brokers.0.port": ports["mqtt"],
-                "backs.rs485.poll_ms": 0,
-            },
+            overrides=overrides,
             simulate=True,
             animate=True,
         )

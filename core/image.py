@@ -516,6 +516,17 @@ class ProcessImage:
             self._notify(changes)
         return changes
 
+    def refresh_times(self, times: Iterable[tuple[str, float | None]]) -> None:
+        """Set read times another image refreshed without a change (the mirror's side of
+        ``fieldgate.isolation``); a good channel's last good value is its value. No one is
+        notified: nothing changed."""
+        for cid, timestamp in times:
+            channel = self._channels.get(cid)
+            if channel is not None and timestamp is not None:
+                channel.timestamp = timestamp
+                if channel.quality is Quality.GOOD:
+                    channel.last_good = channel.value
+
     def _refuse(self, channel_id: str, what: str) -> NoReturn:
         if channel_id not in self._channels:
             raise KeyError(f"no channel {channel_id!r} in the process image")

@@ -19,7 +19,6 @@ import ctypes.util
 import json
 import logging
 import os
-import pickle
 import signal
 import socket
 import sys
@@ -67,7 +66,7 @@ def _die_with_parent(parent: int) -> None:
 def main(argv: list[str]) -> int:
     parent = os.getppid()
     sock = socket.socket(fileno=int(argv[0]))
-    init: dict[str, Any] = pickle.loads(_read_frame(sock))
+    init: dict[str, Any] = wire.read_down(_read_frame(sock))
     _die_with_parent(parent)
     settings = init["isolation"]
     try:
@@ -109,6 +108,10 @@ class Child:
         self.context: MirrorContext | None = None
         self.part: Part | None = None
         self.stopping = asyncio.Event()
+        self.max_lag_s = float(init["isolation"].feed_max_lag_ms) / 1000
+        self.behind = False  # asked for a snapshot, skipping changes until it comes
+        self.skipped = 0
+        self.resyncs_asked = 0
 
     def send(self, message: dict[str, Any]) -> None:
         if self.writer is not None and not self.writer.is_closing():
@@ -164,22 +167,41 @@ class Child:
             while True:
                 header = await reader.readexactly(wire.HEADER.size)
                 (size,) = wire.HEADER.unpack(header)
-                message = pickle.loads(await reader.readexactly(size))
+                body = await reader.readexactly(size)
+                if self.behind and body[0] in wire.DATA_KINDS:
+                    self.skipped += 1  # a snapshot is on its way: this change is in it
+                    continue
+                message = wire.read_down(body)
                 kind = message[0]
                 if kind == "ping":
-                    self.context.fieldbus_lag = message[2]
-                    self.context.last_ping = time.monotonic()
-                    self.send({"t": "pong", "seq": message[1]})
+                    self._pinged(message)
                 elif kind == "stop":
                     self.stopping.set()
                     return
                 elif kind == "gw" and self.part is not None:
                     self.part.gateway_state(message[1])
                 else:
+                    if kind == "snap":
+                        self.behind = False
                     self.context.apply(message)
         except (asyncio.IncompleteReadError, ConnectionError):
             log.info("the fieldbus process closed the channel: stopping")
             self.stopping.set()
+
+    def _pinged(self, message: tuple[Any, ...]) -> None:
+        """A ping carries the time the fieldbus process sent it: a child that reads it more
+        than ``max_lag_s`` later is behind, asks for a snapshot and skips the changes queued
+        before it (the snapshot holds them)."""
+        _, seq, lag, sent = message
+        assert self.context is not None
+        now = time.monotonic()
+        self.context.fieldbus_lag = lag
+        self.context.last_ping = now
+        self.send({"t": "pong", "seq": seq})
+        if not self.behind and now - sent > self.max_lag_s:
+            self.behind = True
+            self.resyncs_asked += 1
+            self.send({"t": "resync", "lag_s": round(now - sent, 3)})
 
     async def _report_loop(self) -> None:
         while True:
@@ -192,7 +214,9 @@ class Child:
     def _report(self) -> dict[str, Any]:
         assert self.part is not None
         report = self.part.report()
-        report.setdefault("status", {})["log_lines_left_out"] = self.budget.suppressed_total
+        status = report.setdefault("status", {})
+        status["log_lines_left_out"] = self.budget.suppressed_total
+        status["feed_changes_skipped"] = self.skipped
         body = json.dumps(report, default=str)
         if len(body) > STATUS_LIMIT:  # many clients with long names: keep the counters
             report["status"].pop("clients", None)

@@ -15,12 +15,15 @@ Messages (tuples, pickled):
 * ``("chg", [(id, value, quality, timestamp, written_by), ...])``: one image batch
 * ``("health", module_state, event)``, ``("master", front, ok, reason)``,
   ``("port", back, ok, text)``, ``("event", Event)``
-* control (never dropped): ``("ping", seq, fieldbus_lag_s)``, ``("ack", id, error)``,
+* ``("ts", [(id, timestamp), ...])``: inputs read again with the same value and quality
+  (no change, so no batch: the image only refreshed their time), every ``REFRESH_S``
+* control (never dropped): ``("ping", seq, fieldbus_lag_s, sent)``, ``("ack", id, error)``,
   ``("gw", gateway_state)`` (to the HTTP child), ``("stop",)``
 """
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections import deque
 from collections.abc import Callable
@@ -35,6 +38,7 @@ from . import wire
 log = logging.getLogger("fieldgate.isolation")
 
 ModuleState = tuple[Any, ...]
+REFRESH_S = 0.5  # how often a child learns the read times of points that did not change
 
 
 def module_state(m: ModuleHealth) -> ModuleState:
@@ -101,15 +105,28 @@ class Outbox:
         if self.resync:
             return  # the snapshot that comes next carries this change
         if self.size + len(frame) > self.budget:
-            self.data.clear()
-            self.size = 0
-            self.resync = True
-            self.resyncs += 1
+            self.drop_for_snapshot()
             return
         self.data.append(frame)
         self.size += len(frame)
 
-    def put_control(self, frame: bytes) -> None:
+    def drop_for_snapshot(self) -> None:
+        """The child is behind (over the budget, or it said so): what is queued goes, and
+        the next thing it gets is a snapshot."""
+        if self.resync:
+            return
+        self.data.clear()
+        self.size = 0
+        self.resync = True
+        self.resyncs += 1
+
+    def put_control(self, frame: bytes, latest_only: bool = False) -> None:
+        """A frame that is never dropped for a resync; ``latest_only`` (a ping, the gateway's
+        state for the HTTP child): it replaces an unsent one of its kind, so a child that does
+        not read costs one of each, not one per second."""
+        if latest_only:
+            kind = frame[wire.HEADER.size]
+            self.control = deque(f for f in self.control if f[wire.HEADER.size] != kind)
         self.control.append(frame)
 
     def take(self, snapshot: Callable[[], bytes], limit: int) -> list[bytes]:
@@ -149,6 +166,8 @@ class GatewayFeed:
         self.batches = 0
         self._cancels: list[Callable[[], None]] = []
         self._subscribed = False
+        self._sent_times: dict[str, float | None] = {}
+        self._refresher: asyncio.TimerHandle | None = None
 
     def attach(self, outbox: Outbox, wake: Callable[[], None]) -> Callable[[], None]:
         """Feed ``outbox`` from now on (its first frame is a snapshot); returns the detach call."""
@@ -172,12 +191,33 @@ class GatewayFeed:
         ctx.health.subscribe_ports(self._on_port)
         ctx.masters.subscribe(self._on_master)
         self._cancels.append(ctx.events.subscribe(self._on_event))
+        self._sent_times = {c.id: c.timestamp for c in ctx.image}
+        try:
+            self._refresher = asyncio.get_running_loop().call_later(REFRESH_S, self._tick)
+        except RuntimeError:  # no loop (a test drives it): refresh() by hand
+            self._refresher = None
 
     def close(self) -> None:
         for cancel in self._cancels:
             cancel()
         self._cancels.clear()
         self.outboxes.clear()
+        if self._refresher is not None:
+            self._refresher.cancel()
+            self._refresher = None
+        self._subscribed = False
+
+    def _tick(self) -> None:
+        self._refresher = asyncio.get_running_loop().call_later(REFRESH_S, self._tick)
+        self.refresh()
+
+    def refresh(self) -> None:
+        """The read times that moved without a change: one frame for every child."""
+        sent = self._sent_times
+        moved = [(c.id, c.timestamp) for c in self.context.image if sent.get(c.id) != c.timestamp]
+        if moved:
+            sent.update(moved)
+            self._send(("ts", moved))
 
     # -- what changed ---------------------------------------------------------------------
     def _send(self, message: tuple[Any, ...]) -> None:
@@ -190,6 +230,9 @@ class GatewayFeed:
 
     def _on_batch(self, changes: list[Change]) -> None:
         self.batches += 1
+        sent = self._sent_times
+        for c in changes:
+            sent[c.id] = c.timestamp
         self._send(
             (
                 "chg",

@@ -203,7 +203,7 @@ class HttpChild:
         except Exception:  # never the fieldbus side's failure
             log.exception("http: the gateway's state could not be gathered")
             return
-        self.child.send_control(("gw", state))
+        self.child.send_latest(("gw", state))
 
     async def _keep(self) -> None:
         from ..runtime import Backoff

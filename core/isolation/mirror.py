@@ -85,6 +85,8 @@ class MirrorContext(GatewayContext):
         kind = message[0]
         if kind == "chg":
             self.image.mirror(message[1])
+        elif kind == "ts":
+            self.image.refresh_times(message[1])
         elif kind == "ack":
             done = self._waiting.get(message[1])
             if done is not None and not done.done():

@@ -210,6 +210,7 @@ class ChildProcess:
         reason = self._reason or reason
         if self._ready is not None and not self._ready.done():
             self._ready.set_exception(PluginStartError(reason))
+            self._ready.exception()  # retrieved: a start that was cancelled meanwhile awaits none
         if self._ended is not None and not self._ended.done():
             self._ended.set_result(reason)
         if self.state == "running":
@@ -236,7 +237,9 @@ class ChildProcess:
             now = loop.time()
             self.fieldbus_lag = max(0.0, now - before - period)
             seq += 1
-            self.outbox.put_control(wire.down(("ping", seq, self.fieldbus_lag)))
+            self.outbox.put_control(
+                wire.down(("ping", seq, self.fieldbus_lag, time.monotonic())), latest_only=True
+            )
             self._wake()
             silent = now - self._last_pong
             if self.state == "starting":  # its start may block its loop; start_timeout_s rules
@@ -305,6 +308,9 @@ class ChildProcess:
             self._report(message)
         elif kind == "write":
             self._write_request(message)
+        elif kind == "resync":  # it fell behind in time: what is queued goes, a snapshot comes
+            self.outbox.drop_for_snapshot()
+            self._wake()
         elif kind == "ready":
             self._report(message)
             if self._ready is not None and not self._ready.done():
@@ -374,8 +380,9 @@ class ChildProcess:
         self.outbox.put_control(wire.down(("ack", request, error)))
         self._wake()
 
-    def send_control(self, message: tuple[Any, ...]) -> None:
-        self.outbox.put_control(wire.down(message))
+    def send_latest(self, message: tuple[Any, ...]) -> None:
+        """A control message that replaces an unsent one of its kind (the gateway's state)."""
+        self.outbox.put_control(wire.down(message), latest_only=True)
         self._wake()
 
     # -- observability -------------------------------------------------------------------------

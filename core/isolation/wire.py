@@ -23,10 +23,36 @@ class WireError(Exception):
     be); the channel is closed."""
 
 
+# the first byte of a frame to a child: the kind of message, readable without unpickling, so
+# a child that fell behind skips the changes it will get again in a snapshot, cheaply
+KINDS = {
+    "init": 0,
+    "chg": 1,
+    "health": 2,
+    "master": 3,
+    "port": 4,
+    "event": 5,
+    "snap": 6,
+    "ping": 7,
+    "ack": 8,
+    "gw": 9,
+    "stop": 10,
+    "ts": 11,
+}
+DATA_KINDS = frozenset(KINDS[k] for k in ("chg", "health", "master", "port", "event", "ts"))
+
+
 def down(message: Any) -> bytes:
-    """A message from the fieldbus process to a child, framed."""
+    """A message from the fieldbus process to a child (a tuple whose first item names its
+    kind, or the ``init`` dict), framed: kind byte, then the pickle."""
+    kind = KINDS["init"] if isinstance(message, dict) else KINDS[message[0]]
     body = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
-    return HEADER.pack(len(body)) + body
+    return HEADER.pack(len(body) + 1) + bytes((kind,)) + body
+
+
+def read_down(body: bytes) -> Any:
+    """A frame's message, as :func:`down` made it (the child's side)."""
+    return pickle.loads(body[1:])
 
 
 def up(message: dict[str, Any]) -> bytes:

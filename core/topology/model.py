@@ -213,6 +213,13 @@ class IsolationSettings(StrictModel):
         description="process-image changes queued for a child that reads slowly; beyond, they are "
         "dropped and it gets a fresh snapshot (a resync)",
     )
+    feed_max_lag_ms: int = Field(
+        1000,
+        ge=50,
+        le=600_000,
+        description="a child that reads a change this much later than it was sent asks for a "
+        "fresh snapshot and skips what was queued before it",
+    )
     writes_per_s: float = Field(
         1000.0,
         gt=0,

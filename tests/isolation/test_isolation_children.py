@@ -193,3 +193,28 @@ async def test_a_front_s_start_failure_stops_the_gateway_with_its_own_reason(reg
     with pytest.raises(GatewayStartError, match=r"^front probe \(probe\): port 4840 in use$"):
         await gw.start()
     assert gw.component("lb").started is False
+
+
+async def test_a_child_that_falls_behind_in_time_skips_to_a_fresh_snapshot(registry):
+    topo = topology(isolation={"feed_max_lag_ms": 300, "liveness_timeout_s": 30})
+    async with Gateway.load(topo, registry=registry) as gw:
+        front = gw.component("probe")
+        line = await Line.open(gw)
+        try:
+            line.writer.write(b"hang 2\n")  # its loop sleeps 2 s; the image changes meanwhile
+            for value in range(200):
+                gw.write("lb/m1/ao1", value)
+                await asyncio.sleep(0.005)
+            assert (await asyncio.wait_for(line.reader.readline(), 20)).strip() == b"woke"
+            await until(lambda: front.child.outbox.resyncs >= 1)
+            # once the snapshot is in, the child holds the latest value
+            for _ in range(100):
+                if await line.ask("get lb/m1/ai1") == f"lb/m1/ai1 199 {Quality.GOOD}":
+                    break
+                await asyncio.sleep(0.05)
+            assert await line.ask("get lb/m1/ai1") == f"lb/m1/ai1 199 {Quality.GOOD}"
+            status = await probe_status(gw)
+            await until(lambda: front.status().get("feed_changes_skipped", 0) > 0)
+            assert status["process"]["resyncs"] >= 1
+        finally:
+            line.close()

@@ -3,8 +3,6 @@ outbox is bounded and resyncs, and a MirrorContext rebuilt from the frames equal
 
 from __future__ import annotations
 
-import pickle
-
 import pytest
 
 from fieldgate import Gateway, Quality
@@ -18,7 +16,7 @@ from .test_isolation_children import topology
 
 def decode(frames: list[bytes]) -> list[tuple]:
     reader = wire.FrameReader(wire.MAX_DOWN)
-    return [pickle.loads(body) for body in reader.feed(b"".join(frames))]
+    return [wire.read_down(body) for body in reader.feed(b"".join(frames))]
 
 
 @pytest.fixture
@@ -126,3 +124,24 @@ def test_frames_over_the_limit_are_refused_from_their_header():
 def test_what_a_child_sends_is_json_with_a_kind_or_refused(body):
     with pytest.raises(wire.WireError):
         wire.read_up(body)
+
+
+def test_read_times_that_move_without_a_change_reach_the_mirror(gateway):
+    ctx = gateway.context
+    feed = GatewayFeed(ctx)
+    outbox = Outbox(1 << 20)
+    feed.attach(outbox, lambda: None)
+    mirror = MirrorContext(ctx.topology, [].append, {})
+    ctx.image.update_inputs({"lb/m1/ai0": 5}, timestamp=100.0)
+    for message in decode(outbox.take(feed.snapshot, 1 << 20)):
+        mirror.apply(message)
+    ctx.image.update_inputs({"lb/m1/ai0": 5}, timestamp=107.5)  # the same value read again
+    assert not outbox.data  # no change, no batch
+    feed.refresh()
+    messages = decode(outbox.take(feed.snapshot, 1 << 20))
+    assert [m[0] for m in messages] == ["ts"]
+    for message in messages:
+        mirror.apply(message)
+    assert mirror.image["lb/m1/ai0"].timestamp == 107.5
+    feed.refresh()
+    assert not outbox.pending  # nothing moved since
