@@ -97,6 +97,12 @@ class SparkplugFrontConfig(FrontConfig):
         pattern=TOPIC_ELEMENT,
         description="publish only while this host application's STATE is online",
     )
+    primary_host_wait_s: float = Field(
+        10.0,
+        gt=0,
+        le=3600,
+        description="with primary_host_id and several brokers: move to the next broker when the host's STATE has not said online within this long (an offline STATE moves at once)",
+    )
     client_id: str | None = Field(
         None, description="MQTT client id; default fieldgate-<group>-<edge node>"
     )

@@ -148,6 +148,7 @@ class SparkplugFront(Front):
                 reconnect_max_s=cfg.reconnect_max_s,
                 max_command_bytes=cfg.max_command_bytes,
                 rebirth_min_interval_s=cfg.rebirth_min_interval_ms / 1000,
+                primary_host_wait_s=cfg.primary_host_wait_s,
             ),
             self.journal,
             last_bdseq=self._load_bdseq(),
@@ -275,13 +276,15 @@ class SparkplugFront(Front):
                 self.log.warning("broker refused the connection: %s", reason)
             self._execute(self.session.on_connack(self._now(), ok, reason))
 
-    def _lost(self, generation: int, reason: str) -> None:
+    def _lost(self, generation: int, reason: str, connect_sent: bool = True) -> None:
         if generation != self._generation or self.session is None:
             return
         if self.session.state is State.ONLINE:
             self.log.warning("connection to the broker lost: %s", reason)
         self._drop_link()
-        self._execute(self.session.on_connection_lost(self._now(), reason))
+        self._execute(
+            self.session.on_connection_lost(self._now(), reason, connect_sent=connect_sent)
+        )
 
     def _puback(self, generation: int, token: int) -> None:
         if generation == self._generation and self.session is not None:
@@ -381,7 +384,7 @@ class SparkplugFront(Front):
                 await link.open(action.will_topic, action.will_payload)
             except Exception as exc:  # refused, unreachable, TLS failure: next attempt
                 self.log.debug("connect to %s failed: %s", broker.label, exc)
-                self._lost(generation, f"{type(exc).__name__}: {exc}")
+                self._lost(generation, f"{type(exc).__name__}: {exc}", connect_sent=False)
 
         asyncio.ensure_future(connect())
 

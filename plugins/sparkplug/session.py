@@ -13,13 +13,17 @@ Session rules (Sparkplug B 3.0):
 
 * Every CONNECT carries the NDEATH will (QoS 1, not retained) with an INT64 ``bdSeq``; the
   NBIRTH of that connection carries the same ``bdSeq``. ``bdSeq`` goes up by one (mod 256)
-  per accepted connection; the adapter persists it on :class:`SaveBdSeq` before the
-  NBIRTH is published, so a restarted gateway continues from it. A refused or failed
-  CONNECT reuses the same value (no will of it was ever registered).
+  per CONNECT packet (tck-id-topics-nbirth-bdseq-increment): after a connection, a refused
+  or timed-out CONNECT; an attempt whose TCP/TLS connection failed sent no CONNECT and
+  keeps its value. The adapter persists the value on :class:`SaveBdSeq` before the CONNECT
+  that carries it, so a restarted gateway continues after it even if it died before the
+  CONNACK.
 * ``seq`` is 0 in NBIRTH, then +1 mod 256 on every DBIRTH/DDATA/DDEATH.
 * With ``primary_host_id``, nothing is published until ``spBv1.0/STATE/<id>`` says online;
   an offline STATE (timestamp not older than the last online one) publishes NDEATH,
-  disconnects and moves to the next broker.
+  disconnects and moves to the next broker. With more than one broker, a node still
+  waiting moves on too: at an offline STATE, or when no online STATE came within
+  ``primary_host_wait_s`` (it walks the list until it finds the host online).
 * NCMD ``Node Control/Rebirth``: NBIRTH and every DBIRTH at once, same ``bdSeq``, no DATA
   (at most one rebirth per ``rebirth_min_interval_s``: requests in between are coalesced
   into one when it has passed)
@@ -178,6 +182,7 @@ class SessionSettings:
     reconnect_max_s: float = 8.0
     max_command_bytes: int = 65536
     rebirth_min_interval_s: float = 1.0
+    primary_host_wait_s: float = 10.0
 
 
 @dataclass
@@ -206,8 +211,8 @@ class Session:
         self.rng = rng or random.Random(0)
         self.state = State.DISCONNECTED
         self.broker = 0
-        self.last_bdseq = last_bdseq  # of the last accepted connection (persisted)
-        self.bdseq = self._next_bdseq()  # of the connection being made or held
+        self._saved_bdseq = last_bdseq  # persisted: the last value a CONNECT may have carried
+        self.bdseq = 0 if last_bdseq is None else (last_bdseq + 1) % BDSEQ_MODULO
         self.seq = 0
         self.current: dict[str, Sample] = {s.channel_id: s for s in current}
         self.published: dict[str, Sample] = {}  # last value sent live, for deadbands
@@ -226,6 +231,7 @@ class Session:
         self._replay_ids: set[int] = set()
         self._replay_blocked = False  # every waiting row belongs to an offline device
         self._host_ts: int | None = None  # timestamp of the last accepted STATE
+        self._host_wait_until: float | None = None  # waiting for the host: next broker then
         self._unsynced: list[int] = []  # QoS 0 DATA tokens handed out since the last Sync
         self._sync_token: int | None = None  # the Sync awaiting on_synced
         self._sync_covers: list[int] = []  # the tokens it confirms
@@ -242,8 +248,9 @@ class Session:
         self.connects = 0
 
     # -- helpers ----------------------------------------------------------------------------
-    def _next_bdseq(self) -> int:
-        return 0 if self.last_bdseq is None else (self.last_bdseq + 1) % BDSEQ_MODULO
+    def _advance_bdseq(self) -> None:
+        """The current value went out in a CONNECT: the next CONNECT carries the next one."""
+        self.bdseq = (self.bdseq + 1) % BDSEQ_MODULO
 
     def _next_seq(self) -> int:
         self.seq = (self.seq + 1) % SEQ_MODULO
@@ -313,7 +320,11 @@ class Session:
         self.state = State.CONNECTING
         self._reconnect_at = None
         self._connect_deadline = t.mono + CONNECT_TIMEOUT_S
-        return [
+        actions: list[Action] = []
+        if self._saved_bdseq != self.bdseq:  # persisted before any CONNECT carries it
+            self._saved_bdseq = self.bdseq
+            actions.append(SaveBdSeq(self.bdseq))
+        return actions + [
             Connect(
                 self.broker,
                 self.settings.client_id,
@@ -326,31 +337,37 @@ class Session:
     def on_connack(self, t: Instant, ok: bool, reason: str = "") -> list[Action]:
         if self.state is not State.CONNECTING:
             return []
-        if not ok:
+        if not ok:  # a refused CONNECT was a CONNECT all the same
             self.state = State.DISCONNECTED
+            self._advance_bdseq()
             self._schedule_reconnect(t, next_broker=True)
             return []
         self.connects += 1
-        self._attempt = 0
         self._connect_deadline = None
-        self.last_bdseq = self.bdseq
-        actions: list[Action] = [SaveBdSeq(self.bdseq)]
+        actions: list[Action] = []
         topics = [self.model.node_topic("NCMD"), self.model.device_topic("DCMD", "+")]
         if self.settings.primary_host_id is not None:
             topics.append(f"spBv1.0/STATE/{self.settings.primary_host_id}")
         actions.append(Subscribe(tuple(topics)))
         if self.settings.primary_host_id is not None:
             self.state = State.WAITING_HOST
+            if self.settings.brokers > 1:
+                self._host_wait_until = t.mono + self.settings.primary_host_wait_s
             return actions
         self.rebirths["connect"] += 1
         return self._with_sync(actions + self._birth(t))
 
-    def on_connection_lost(self, t: Instant, reason: str = "") -> list[Action]:
-        """The connection dropped, or an attempt failed before CONNACK."""
+    def on_connection_lost(
+        self, t: Instant, reason: str = "", *, connect_sent: bool = True
+    ) -> list[Action]:
+        """The connection dropped, or an attempt failed before CONNACK (``connect_sent``
+        False: its TCP/TLS connection failed, so no CONNECT carried this bdSeq)."""
         if self.state in (State.DISCONNECTED, State.STOPPED):
             return []
         failed_attempt = self.state is State.CONNECTING
         self._drop_connection()
+        if connect_sent or not failed_attempt:
+            self._advance_bdseq()
         self.state = State.DISCONNECTED
         self._schedule_reconnect(t, next_broker=failed_attempt)
         return []
@@ -372,16 +389,17 @@ class Session:
         self._replay_blocked = False
         self.birthed.clear()
         self._birth_pending.clear()
+        self._host_wait_until = None
         self._journal(lost)
-        if self.last_bdseq is not None:
-            self.bdseq = self._next_bdseq()
 
-    def _leave(self, t: Instant, reason: str) -> list[Action]:
-        """Intentional disconnect: NDEATH first, then disconnect, then the next broker."""
+    def _leave(self, t: Instant, reason: str, *, immediate: bool = True) -> list[Action]:
+        """Intentional disconnect: NDEATH first, then disconnect, then the next broker (at
+        once, or after the reconnect delay: a walk in search of the primary host)."""
         actions: list[Action] = [self._ndeath(t)]
         self._drop_connection()
+        self._advance_bdseq()
         self.state = State.DISCONNECTED
-        self._schedule_reconnect(t, next_broker=True, immediate=True)
+        self._schedule_reconnect(t, next_broker=True, immediate=immediate)
         actions.append(Disconnect(reason))
         return actions
 
@@ -411,6 +429,8 @@ class Session:
         has reported the DATA it discarded)."""
         self.state = State.ONLINE
         self._rebirth_at = None
+        self._host_wait_until = None
+        self._attempt = 0  # a session reached: the reconnect delay starts over
         self.seq = 0
         actions: list[Action] = [
             Publish(
@@ -762,6 +782,8 @@ class Session:
             return self._birth(t)
         if not online and self.state is State.ONLINE:
             return self._leave(t, f"primary host {host} offline")
+        if not online and self.state is State.WAITING_HOST and self.settings.brokers > 1:
+            return self._leave(t, f"primary host {host} offline here", immediate=False)
         return []
 
     # -- time -------------------------------------------------------------------------------
@@ -779,8 +801,18 @@ class Session:
             and t.mono >= self._connect_deadline
         ):
             self.state = State.DISCONNECTED
+            self._advance_bdseq()  # the CONNECT may have reached the broker
             self._schedule_reconnect(t, next_broker=True)
             return [Disconnect("no CONNACK in time")]
+        if (
+            self.state is State.WAITING_HOST
+            and self._host_wait_until is not None
+            and t.mono >= self._host_wait_until
+        ):
+            wait = self.settings.primary_host_wait_s
+            return self._leave(
+                t, f"primary host not online here within {wait:g} s", immediate=False
+            )
         actions: list[Action] = []
         if self._rebirth_at is not None and t.mono >= self._rebirth_at:
             self._rebirth_at = None
@@ -797,6 +829,8 @@ class Session:
             return self._reconnect_at
         if self.state is State.CONNECTING:
             return self._connect_deadline
+        if self.state is State.WAITING_HOST:
+            return self._host_wait_until
         due: list[float] = []
         if self._rebirth_at is not None and self.publishing:
             due.append(self._rebirth_at)

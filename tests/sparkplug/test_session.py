@@ -104,9 +104,15 @@ def confirm(session: Session, clock: Clock, actions: list) -> list:
     return out
 
 
+def connect_of(actions: list) -> Connect:
+    """The one Connect of ``actions`` (a SaveBdSeq may come before it)."""
+    (connect,) = [a for a in actions if isinstance(a, Connect)]
+    assert all(isinstance(a, (Connect, SaveBdSeq)) for a in actions)
+    return connect
+
+
 def online(session: Session, clock: Clock) -> list:
-    (connect,) = session.tick(clock())
-    assert isinstance(connect, Connect)
+    connect_of(session.tick(clock()))
     return session.on_connack(clock(), True)
 
 
@@ -117,15 +123,16 @@ def change(session: Session, cid: str, value, clock: Clock, quality=Quality.GOOD
 def test_connect_carries_the_will_and_the_birth_has_the_same_bdseq():
     clock = Clock()
     session = make(last_bdseq=41)
-    (connect,) = session.tick(clock())
+    first = session.tick(clock())
+    assert first[0] == SaveBdSeq(42)  # persisted before the CONNECT that carries it
+    connect = connect_of(first)
     assert connect.will_topic == "spBv1.0/plant/NDEATH/gw1"
     will = spb.decode(connect.will_payload)
     assert [(m.name, m.datatype, m.value) for m in will.metrics] == [("bdSeq", spb.INT64, 42)]
     assert will.seq is None  # NDEATH carries no seq
     actions = session.on_connack(clock(), True)
-    assert actions[0] == SaveBdSeq(42)  # persisted before the NBIRTH goes out
-    assert isinstance(actions[1], Subscribe)
-    assert set(actions[1].topics) == {"spBv1.0/plant/NCMD/gw1", "spBv1.0/plant/DCMD/gw1/+"}
+    assert isinstance(actions[0], Subscribe)
+    assert set(actions[0].topics) == {"spBv1.0/plant/NCMD/gw1", "spBv1.0/plant/DCMD/gw1/+"}
     assert kinds(actions) == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]
     nbirth = spb.decode(publishes(actions)[0].payload)
     assert nbirth.seq == 0
@@ -207,7 +214,7 @@ def test_outage_journals_samples_and_replays_them_in_order_as_historical_once_co
     # reconnect: new bdSeq, births first, then a capped replay beside live data
     when = session.next_deadline()
     assert when is not None
-    (connect,) = session.tick(Instant(when, clock().wall_ms))
+    connect = connect_of(session.tick(Instant(when, clock().wall_ms)))
     assert (
         connect.bdseq == 1 and connect.broker == 0
     )  # a dropped connection retries the same broker
@@ -224,7 +231,7 @@ def test_outage_journals_samples_and_replays_them_in_order_as_historical_once_co
     assert session.tick(clock(1)) == []  # window full: nothing until confirmed
     assert journal.count() == 10  # nothing dropped before it is confirmed
     seen: list[int] = []
-    todo = actions[6:] + live
+    todo = [a for a in actions if isinstance(a, Sync) or getattr(a, "token", None)] + live
     while todo:
         batch, todo = todo, []
         for p in publishes(batch):
@@ -324,29 +331,36 @@ def test_a_replay_interrupted_by_a_disconnect_is_sent_again_whole():
     assert journal.count() == 0
 
 
-def test_bdseq_continues_after_a_restart_and_wraps_at_256():
+def test_bdseq_goes_up_per_connect_packet_is_saved_before_it_and_wraps_at_256():
     clock = Clock()
-    session = make(last_bdseq=254)
-    (c,) = session.tick(clock())
-    assert c.bdseq == 255
-    session.on_connection_lost(clock(), "refused")  # no CONNACK: the same bdSeq next time
-    (c,) = session.tick(clock(60))
-    assert c.bdseq == 255 and c.broker == 1  # failed attempts walk the broker list
+    session = make(last_bdseq=253)
+    first = session.tick(clock())
+    assert first[0] == SaveBdSeq(254) and connect_of(first).bdseq == 254
+    # the TCP connection failed: no CONNECT carried 254, the next attempt reuses it unsaved
+    session.on_connection_lost(clock(), "refused", connect_sent=False)
+    again = session.tick(clock(60))
+    assert again == [connect_of(again)] and again[0].bdseq == 254 and again[0].broker == 1
+    # a refused CONNACK: that CONNECT was sent, so the next one carries 255 (saved first)
+    session.on_connack(clock(), False, "not authorized")
+    third = session.tick(clock(60))
+    assert third[0] == SaveBdSeq(255) and connect_of(third).bdseq == 255
     session.on_connack(clock(), True)
     session.on_connection_lost(clock(), "gone")
-    (c,) = session.tick(clock(60))
-    assert c.bdseq == 0
-    assert spb.decode(c.will_payload).metrics[0].value == 0
+    wrapped = session.tick(clock(60))
+    assert wrapped[0] == SaveBdSeq(0) and connect_of(wrapped).bdseq == 0
+    assert spb.decode(connect_of(wrapped).will_payload).metrics[0].value == 0
+    # a gateway restarted from the saved value never reuses it, CONNACK or not
+    assert connect_of(make(last_bdseq=0).tick(clock())).bdseq == 1
 
 
 def test_connect_timeout_gives_up_and_tries_the_next_broker():
     clock = Clock()
     session = make()
-    (c,) = session.tick(clock())
+    c = connect_of(session.tick(clock()))
     assert session.next_deadline() == pytest.approx(clock().mono + 10)
     assert session.tick(clock(10)) == [Disconnect("no CONNACK in time")]
-    (c2,) = session.tick(clock(60))
-    assert c2.broker == 1 and c2.bdseq == c.bdseq
+    c2 = connect_of(session.tick(clock(60)))
+    assert c2.broker == 1 and c2.bdseq == c.bdseq + 1  # that CONNECT may have arrived
 
 
 def test_rebirth_publishes_nbirth_and_every_dbirth_with_no_data_in_between():
@@ -413,7 +427,7 @@ def test_next_server_sends_ndeath_disconnects_and_moves_on():
     actions = session.on_message(clock(), "spBv1.0/plant/NCMD/gw1", cmd)
     assert kinds(actions) == ["NDEATH"] and actions[0].qos == 1
     assert isinstance(actions[-1], Disconnect)
-    (c,) = session.tick(clock())
+    c = connect_of(session.tick(clock()))
     assert c.broker == 1 and c.bdseq == 1
 
 
@@ -489,7 +503,7 @@ def test_primary_host_gates_the_birth_and_its_offline_state_moves_to_the_next_br
     clock = Clock()
     session = make(primary_host_id="scada")
     actions = online(session, clock)
-    assert "spBv1.0/STATE/scada" in actions[1].topics
+    assert "spBv1.0/STATE/scada" in actions[0].topics
     assert publishes(actions) == []
     change(session, "io/m3/ai0", 5, clock)
     assert session.flush(clock()) == [] and session.journal.count() == 1  # held, not lost
@@ -503,18 +517,54 @@ def test_primary_host_gates_the_birth_and_its_offline_state_moves_to_the_next_br
 
     assert session.on_message(clock(), "spBv1.0/STATE/scada", b"ONLINE") == []
     assert session.ignored["bad_state"] == 1
-    assert state(False, 10) == []  # still waiting
     actions = state(True, 20)
     assert kinds(actions)[:4] == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]
     assert state(False, 19) == []  # an old will of the host: ignored
     assert session.ignored["stale_state"] == 1 and session.state is State.ONLINE
     actions = state(False, 30)
     assert kinds(actions) == ["NDEATH"] and isinstance(actions[-1], Disconnect)
-    (c,) = session.tick(clock())
+    c = connect_of(session.tick(clock()))
     assert c.broker == 1
     session.on_connack(clock(), True)
     # on the next broker, the host's STATE carries that connection's own (older) timestamp
     assert kinds(state(True, 25))[:1] == ["NBIRTH"]
+
+
+def test_a_waiting_node_walks_the_brokers_until_it_finds_the_primary_host_online():
+    clock = Clock()
+    session = make(primary_host_id="scada", brokers=2, primary_host_wait_s=10.0)
+    online(session, clock)
+    assert session.state is State.WAITING_HOST
+    assert session.next_deadline() == pytest.approx(clock().mono + 10)
+
+    def state(online_: bool, ts: int) -> list:
+        doc = json.dumps({"online": online_, "timestamp": ts}).encode()
+        return session.on_message(clock(), "spBv1.0/STATE/scada", doc)
+
+    # broker 0 holds the host's retained offline STATE: NDEATH, leave, try broker 1
+    actions = state(False, 5)
+    assert kinds(actions) == ["NDEATH"] and isinstance(actions[-1], Disconnect)
+    assert session.next_deadline() > clock().mono  # after the reconnect delay, not in a loop
+    c = connect_of(session.tick(Instant(session.next_deadline(), clock().wall_ms)))
+    assert c.broker == 1
+    session.on_connack(clock(), True)
+    # broker 1 has no STATE of the host at all: after primary_host_wait_s, back to broker 0
+    assert session.tick(clock(9.9)) == []
+    actions = session.tick(clock(0.1))
+    assert kinds(actions) == ["NDEATH"] and isinstance(actions[-1], Disconnect)
+    c = connect_of(session.tick(Instant(session.next_deadline(), clock().wall_ms)))
+    assert c.broker == 0
+    session.on_connack(clock(), True)
+    assert kinds(state(True, 7))[:1] == ["NBIRTH"]  # found it
+
+
+def test_with_one_broker_a_waiting_node_stays_and_waits_for_the_host():
+    clock = Clock()
+    session = make(primary_host_id="scada", brokers=1)
+    online(session, clock)
+    doc = json.dumps({"online": False, "timestamp": 5}).encode()
+    assert session.on_message(clock(), "spBv1.0/STATE/scada", doc) == []
+    assert session.next_deadline() is None and session.state is State.WAITING_HOST
 
 
 def test_deadband_suppresses_small_changes_but_never_quality_changes():
