@@ -31,7 +31,8 @@ plays the part of the TCK's web console:
   after its NCMD, with where fieldgate's own debug log puts them (handed to the MQTT client
   before or after the request arrived).
 
-Logs of each run: ``WORK/<test>/fieldgate.log`` (debug level: every publish), ``WORK/hivemq.log``.
+Logs of each run: ``WORK/<test>/fieldgate.log`` (debug level: every publish), ``WORK/hivemq.log``,
+and the TCK's own ``WORK/SparkplugTCKresults.log`` (its ``report.py`` makes a summary of it).
 """
 
 from __future__ import annotations
@@ -59,6 +60,9 @@ from ruamel.yaml import YAML
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
+sys.path.insert(0, str(ROOT))  # the tests' Sparkplug decoder, independent of the front's code
+from tests.sparkplug import spb  # noqa: E402
+
 LAUNCHER = HERE / "sparkplug_tck" / "TckBroker.java"
 TCK_PORT = 1883  # the TCK's HostApplication and Results connect to tcp://localhost:1883
 SECOND_PORT = 1884  # MultipleBrokerTest's default second broker
@@ -217,6 +221,7 @@ def start_tck_broker(work: Path, classpath: str, host: str) -> tuple[subprocess.
         ["java", "-cp", classpath, "TckBroker", str(work / "hivemq"), str(TCK_PORT), host],
         stdout=log,
         stderr=subprocess.STDOUT,
+        cwd=work,  # the TCK writes SparkplugTCKresults.log into its working directory
     )
     end = time.monotonic() + 120
     while time.monotonic() < end:
@@ -304,39 +309,6 @@ def parse(result: str) -> dict[str, str]:
     return out
 
 
-def seq_of(payload: bytes) -> int | None:
-    """The ``seq`` field (3, varint) of a Sparkplug B payload, read without the schema module."""
-    i = 0
-    while i < len(payload):
-        key, i = varint(payload, i)
-        number, wire = key >> 3, key & 7
-        if wire == 0:
-            value, i = varint(payload, i)
-            if number == 3:
-                return value
-        elif wire == 2:
-            size, i = varint(payload, i)
-            i += size
-        elif wire == 1:
-            i += 8
-        elif wire == 5:
-            i += 4
-        else:
-            return None
-    return None
-
-
-def varint(data: bytes, i: int) -> tuple[int, int]:
-    shift = value = 0
-    while True:
-        b = data[i]
-        i += 1
-        value |= (b & 0x7F) << shift
-        if not b & 0x80:
-            return value, i
-        shift += 7
-
-
 def rebirth_race(seen: list[Seen], log_file: Path, group: str, edge: str) -> list[str]:
     """For each DATA the TCK saw after its rebirth NCMD and before the new NBIRTH: was it
     handed to the MQTT client before the gateway received the request (the TCK's race)?"""
@@ -356,7 +328,7 @@ def rebirth_race(seen: list[Seen], log_file: Path, group: str, edge: str) -> lis
         (i for i, line in enumerate(log) if f"received spBv1.0/{group}/NCMD/{edge}" in line), None
     )
     for m in late:
-        seq = seq_of(m.payload)
+        seq = spb.decode(m.payload).seq
         handed = next(
             (
                 i

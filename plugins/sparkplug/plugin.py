@@ -204,6 +204,9 @@ class SparkplugFront(Front):
                 self._write_errors += len(values)
                 reason = exc.args[0] if exc.args else exc
                 self.log.warning("DCMD write to %s refused: %s", ", ".join(values), reason)
+            except Exception:  # the fieldbus side unreachable: this batch fails, the next tries
+                self._write_errors += len(values)
+                self.log.exception("DCMD write to %s failed", ", ".join(values))
 
     def _queue_writes(self, values: dict[str, Value]) -> None:
         try:
