@@ -48,7 +48,7 @@ HOST_ID = "checker"
 
 # -- one gateway (child process) ------------------------------------------------------------
 def gateway_topology(
-    index: int, port: int, points: int, state_dir: str, poll_ms: int = 100
+    index: int, port: int, points: int, state_dir: str, poll_ms: int = 100, data_qos: int = 0
 ) -> dict[str, Any]:
     return {
         "gateway": {"name": f"gw{index:03d}", "state_dir": state_dir},
@@ -62,6 +62,7 @@ def gateway_topology(
                 "reconnect_min_s": 0.2,
                 "reconnect_max_s": 1.0,
                 "replay_messages_per_s": 50,
+                "data_qos": data_qos,
             }
         ],
         "backs": [
@@ -99,7 +100,9 @@ async def run_gateway(args: argparse.Namespace) -> None:
     from fieldgate.runtime import Gateway
 
     gw = Gateway.load(
-        gateway_topology(args.index, args.port, args.points, args.state_dir, args.poll_ms),
+        gateway_topology(
+            args.index, args.port, args.points, args.state_dir, args.poll_ms, args.data_qos
+        ),
         simulate=True,
     )
     seen: dict[str, list[int]] = {}  # good values each channel took in the process image
@@ -350,6 +353,8 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
                     str(args.rate),
                     "--poll-ms",
                     str(args.poll_ms),
+                    "--data-qos",
+                    str(args.data_qos),
                     "--state-dir",
                     str(work / edge),
                     "--report",
@@ -396,6 +401,8 @@ def run_fleet(args: argparse.Namespace) -> dict[str, Any]:
     result.update(
         broker_cpu=broker_cpu / broker_cpu_span,  # share of one core, first half of the run
         gateways=args.gateways,
+        data_qos=args.data_qos,
+        restart=args.restart,
         gateways_reporting=len(loaded),
         points=args.points,
         rate_hz=args.rate,
@@ -437,6 +444,13 @@ def main() -> None:
         "not yet delivered to the checker dies with it)",
     )
     parser.add_argument("--outage", type=float, default=1.0, help="seconds the broker stays down")
+    parser.add_argument(
+        "--data-qos",
+        type=int,
+        choices=(0, 1),
+        default=0,
+        help="the front's data_qos: 0 (its default, Sparkplug 3.0) or 1 (at-least-once)",
+    )
     parser.add_argument("--json", help="also write the results to this file")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--index", type=int, help=argparse.SUPPRESS)
@@ -453,7 +467,8 @@ def main() -> None:
     if args.json:
         Path(args.json).write_text(text)
     print(
-        f"\n{result['gateways']} gateways x {result['points']} points at {result['rate_hz']:g} Hz: "
+        f"\n{result['gateways']} gateways x {result['points']} points at {result['rate_hz']:g} Hz, "
+        f"data_qos {result['data_qos']}, broker {result['restart']}: "
         f"{result['messages_per_s']:.0f} msg/s, {result['samples_per_s']:.0f} samples/s; "
         f"latency change->subscriber p50 {result['change_latency_ms']['p50']:.1f} ms "
         f"p99 {result['change_latency_ms']['p99']:.1f} ms, acquisition->subscriber p50 "

@@ -97,6 +97,12 @@ class SparkplugFrontConfig(FrontConfig):
         pattern=TOPIC_ELEMENT,
         description="publish only while this host application's STATE is online",
     )
+    primary_host_wait_s: float = Field(
+        10.0,
+        gt=0,
+        le=3600,
+        description="with primary_host_id and several brokers: move to the next broker when the host's STATE has not said online within this long (an offline STATE moves at once)",
+    )
     client_id: str | None = Field(
         None, description="MQTT client id; default fieldgate-<group>-<edge node>"
     )
@@ -110,8 +116,8 @@ class SparkplugFrontConfig(FrontConfig):
         description="glob -> absolute deadband on the raw value; a change smaller than it is not published",
     )
     data_qos: Literal[0, 1] = Field(
-        1,
-        description="QoS of live DDATA: 1 = acknowledged, so a sample in flight when the broker goes is replayed (Sparkplug 3.0 says 0; set 0 for a strict TCK run)",
+        0,
+        description="QoS of DDATA, live and historical: 0 = Sparkplug 3.0 (tck-id-payloads-ddata-qos); 1 = at-least-once delivery to QoS 1 subscribers, also those offline with a persistent session (not Sparkplug conformant)",
     )
     journal_file: str | None = Field(
         None,
@@ -167,6 +173,15 @@ class SparkplugFrontConfig(FrontConfig):
         if self.reconnect_max_s < self.reconnect_min_s:
             raise ValueError("reconnect_max_s must not be below reconnect_min_s")
         return self
+
+    def validation_warnings(self) -> list[str]:
+        if self.data_qos == 1:
+            return [
+                "data_qos: 1 publishes DDATA at QoS 1 (at-least-once delivery): not Sparkplug B 3.0"
+                " conformant, which requires QoS 0 (tck-id-payloads-ddata-qos); a strict host or"
+                " the Eclipse Sparkplug TCK reports it as a failure (docs/sparkplug.md)"
+            ]
+        return []
 
     def written_outputs(self) -> list[str]:
         """Only the outputs listed as writable: a DCMD can write nothing else."""

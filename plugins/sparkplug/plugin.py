@@ -24,11 +24,12 @@ from fieldgate.plugin import Front, GatewayContext, PluginStartError, hookimpl
 
 from .config import SparkplugFrontConfig
 from .journal import JournalError, SqliteJournal
-from .link import Link, LinkEvents
-from .model import NodeModel, Sample
+from .link import Link, LinkEvents, LinkStats
+from .model import NodeModel, Sample, Value
 from .session import (
     Action,
     Connect,
+    DiscardQueuedData,
     Disconnect,
     Instant,
     Publish,
@@ -37,8 +38,12 @@ from .session import (
     SessionSettings,
     State,
     Subscribe,
+    Sync,
     Write,
 )
+
+MAX_QUEUED_WRITES = 256
+"""DCMD write batches waiting for the process image at once; more are refused and counted."""
 
 
 class SparkplugFront(Front):
@@ -51,7 +56,7 @@ class SparkplugFront(Front):
         self._loop: asyncio.AbstractEventLoop | None = None
         self._link: Link | None = None
         self._generation = 0
-        self._mids: dict[int, int] = {}  # MQTT message id -> session token
+        self._link_stats = LinkStats()
         self._passwords: list[str | None] = []
         self._wake = asyncio.Event()
         self._flush_scheduled = False
@@ -59,6 +64,7 @@ class SparkplugFront(Front):
         self._health_subscribed = False
         self._writes = 0
         self._write_errors = 0
+        self._write_queue: asyncio.Queue[dict[str, Value]] = asyncio.Queue(MAX_QUEUED_WRITES)
         self._wall_offset = 0.0  # wall clock minus the image's clock, in seconds
         self._logged_state: State | None = None
 
@@ -142,6 +148,7 @@ class SparkplugFront(Front):
                 reconnect_max_s=cfg.reconnect_max_s,
                 max_command_bytes=cfg.max_command_bytes,
                 rebirth_min_interval_s=cfg.rebirth_min_interval_ms / 1000,
+                primary_host_wait_s=cfg.primary_host_wait_s,
             ),
             self.journal,
             last_bdseq=self._load_bdseq(),
@@ -173,13 +180,44 @@ class SparkplugFront(Front):
 
     async def run(self) -> None:
         assert self.session is not None
+        writer = asyncio.ensure_future(self._write_outputs())
+        try:
+            while True:
+                self._execute(self.session.tick(self._now()))
+                deadline = self.session.next_deadline()
+                self._wake.clear()
+                timeout = None if deadline is None else max(0.0, deadline - time.monotonic())
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._wake.wait(), timeout)
+        finally:
+            writer.cancel()
+
+    async def _write_outputs(self) -> None:
+        """DCMD writes, one batch (one DCMD) at a time, in arrival order, off the MQTT path:
+        the process image applies each (in a front's child process: over its channel)."""
         while True:
-            self._execute(self.session.tick(self._now()))
-            deadline = self.session.next_deadline()
-            self._wake.clear()
-            timeout = None if deadline is None else max(0.0, deadline - time.monotonic())
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), timeout)
+            values = await self._write_queue.get()
+            try:
+                await self.context.set_outputs(values, origin=self.name)
+                self._writes += len(values)
+            except (KeyError, ValueError) as exc:
+                self._write_errors += len(values)
+                reason = exc.args[0] if exc.args else exc
+                self.log.warning("DCMD write to %s refused: %s", ", ".join(values), reason)
+            except Exception:  # the fieldbus side unreachable: this batch fails, the next tries
+                self._write_errors += len(values)
+                self.log.exception("DCMD write to %s failed", ", ".join(values))
+
+    def _queue_writes(self, values: dict[str, Value]) -> None:
+        try:
+            self._write_queue.put_nowait(values)
+        except asyncio.QueueFull:
+            self._write_errors += len(values)
+            self.log.warning(
+                "DCMD write to %s refused: %d writes already waiting for the process image",
+                ", ".join(values),
+                MAX_QUEUED_WRITES,
+            )
 
     async def stop(self) -> None:
         if self._subscription is not None:
@@ -241,21 +279,23 @@ class SparkplugFront(Front):
                 self.log.warning("broker refused the connection: %s", reason)
             self._execute(self.session.on_connack(self._now(), ok, reason))
 
-    def _lost(self, generation: int, reason: str) -> None:
+    def _lost(self, generation: int, reason: str, connect_sent: bool = True) -> None:
         if generation != self._generation or self.session is None:
             return
         if self.session.state is State.ONLINE:
             self.log.warning("connection to the broker lost: %s", reason)
-        self._mids.clear()
         self._drop_link()
-        self._execute(self.session.on_connection_lost(self._now(), reason))
+        self._execute(
+            self.session.on_connection_lost(self._now(), reason, connect_sent=connect_sent)
+        )
 
-    def _puback(self, generation: int, mid: int) -> None:
-        if generation != self._generation or self.session is None:
-            return
-        token = self._mids.pop(mid, None)
-        if token is not None:
+    def _puback(self, generation: int, token: int) -> None:
+        if generation == self._generation and self.session is not None:
             self._execute(self.session.on_puback(self._now(), token))
+
+    def _synced(self, generation: int, token: int) -> None:
+        if generation == self._generation and self.session is not None:
+            self._execute(self.session.on_synced(self._now(), token))
 
     def _message(self, generation: int, topic: str, payload: bytes) -> None:
         if generation == self._generation and self.session is not None:
@@ -263,22 +303,22 @@ class SparkplugFront(Front):
 
     # -- outputs ---------------------------------------------------------------------------
     def _execute(self, actions: list[Action]) -> None:
+        writes: dict[str, Value] = {}
         for action in actions:
             if isinstance(action, Publish):
-                if self._link is None:
-                    continue  # the connection is gone; its loss reaches the session
-                mid = self._link.publish(action.topic, action.payload, action.qos, action.retain)
-                if action.token is not None and mid is not None:
-                    self._mids[mid] = action.token
+                if self._link is None:  # the connection is gone; its loss reaches the session
+                    self._link_stats.dropped["not_connected"] += 1
+                    continue
+                self._link.publish(action)
+            elif isinstance(action, Sync):
+                if self._link is not None:
+                    self._link.sync(action.token)
+            elif isinstance(action, DiscardQueuedData):
+                assert self.session is not None
+                tokens = self._link.discard_data() if self._link is not None else []
+                self.session.on_discarded(self._now(), tokens)
             elif isinstance(action, Write):
-                try:
-                    self.context.image.write_output(
-                        action.channel_id, action.value, origin=self.name
-                    )
-                    self._writes += 1
-                except ValueError as exc:
-                    self._write_errors += 1
-                    self.log.warning("DCMD write to %s refused: %s", action.channel_id, exc)
+                writes[action.channel_id] = action.value
             elif isinstance(action, SaveBdSeq):
                 try:
                     write_json_atomic(self.bdseq_path, {"bdseq": action.bdseq})
@@ -292,6 +332,8 @@ class SparkplugFront(Front):
             elif isinstance(action, Disconnect):
                 self.log.info("disconnecting: %s", action.reason)
                 self._drop_link()
+        if writes:  # one DCMD's metrics: one batch, applied whole or refused whole
+            self._queue_writes(writes)
         self._log_state()
         self._wake.set()
 
@@ -318,7 +360,6 @@ class SparkplugFront(Front):
     def _drop_link(self) -> None:
         link, self._link = self._link, None
         self._generation += 1
-        self._mids.clear()
         if link is not None:
             link.closed = True
             asyncio.ensure_future(link.close())
@@ -328,7 +369,7 @@ class SparkplugFront(Front):
         self._drop_link()
         generation = self._generation
         broker = self.config.brokers[action.broker]
-        events = LinkEvents(self._connack, self._lost, self._puback, self._message)
+        events = LinkEvents(self._connack, self._lost, self._puback, self._message, self._synced)
         link = Link(
             self._loop,
             events,
@@ -337,6 +378,7 @@ class SparkplugFront(Front):
             self._passwords[action.broker],
             action.client_id,
             self.config.keepalive_s,
+            self._link_stats,
         )
         self._link = link
 
@@ -345,7 +387,7 @@ class SparkplugFront(Front):
                 await link.open(action.will_topic, action.will_payload)
             except Exception as exc:  # refused, unreachable, TLS failure: next attempt
                 self.log.debug("connect to %s failed: %s", broker.label, exc)
-                self._lost(generation, f"{type(exc).__name__}: {exc}")
+                self._lost(generation, f"{type(exc).__name__}: {exc}", connect_sent=False)
 
         asyncio.ensure_future(connect())
 
@@ -361,6 +403,9 @@ class SparkplugFront(Front):
             edge_node_id=self.model.edge_node_id if self.model else None,
             writes=self._writes,
             write_errors=self._write_errors,
+            published=dict(self._link_stats.published),
+            publish_dropped=dict(self._link_stats.dropped),
+            outbox=self._link.queued if self._link is not None else 0,
         )
         return out
 
@@ -412,9 +457,34 @@ class SparkplugFront(Front):
             counter(
                 "sparkplug_connects_total", "accepted MQTT connections", s.connects, front=front
             ),
+            gauge(
+                "sparkplug_outbox_messages",
+                "messages waiting to be handed to the MQTT client",
+                self._link.queued if self._link is not None else 0,
+                front=front,
+            ),
+            counter("sparkplug_writes_total", "outputs written by DCMD", self._writes, front=front),
+            counter(
+                "sparkplug_write_errors_total",
+                "DCMD output writes refused by the process image",
+                self._write_errors,
+                front=front,
+            ),
         ]
         by_label = (
             ("sparkplug_messages_total", "Sparkplug messages published, by type", "type", s.sent),
+            (
+                "sparkplug_published_messages_total",
+                "messages handed to the MQTT client, by type",
+                "type",
+                self._link_stats.published,
+            ),
+            (
+                "sparkplug_publish_dropped_total",
+                "messages never handed to the MQTT client, by reason (rebirth: DATA of the old births, its samples journaled)",
+                "reason",
+                self._link_stats.dropped,
+            ),
             ("sparkplug_rebirths_total", "NBIRTH sequences, by reason", "reason", s.rebirths),
             (
                 "sparkplug_ignored_commands_total",

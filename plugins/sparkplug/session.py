@@ -13,24 +13,39 @@ Session rules (Sparkplug B 3.0):
 
 * Every CONNECT carries the NDEATH will (QoS 1, not retained) with an INT64 ``bdSeq``; the
   NBIRTH of that connection carries the same ``bdSeq``. ``bdSeq`` goes up by one (mod 256)
-  per accepted connection; the adapter persists it on :class:`SaveBdSeq` before the
-  NBIRTH is published, so a restarted gateway continues from it. A refused or failed
-  CONNECT reuses the same value (no will of it was ever registered).
+  per CONNECT packet (tck-id-topics-nbirth-bdseq-increment): after a connection, a refused
+  or timed-out CONNECT; an attempt whose TCP/TLS connection failed sent no CONNECT and
+  keeps its value. The adapter persists the value on :class:`SaveBdSeq` before the CONNECT
+  that carries it, so a restarted gateway continues after it even if it died before the
+  CONNACK.
 * ``seq`` is 0 in NBIRTH, then +1 mod 256 on every DBIRTH/DDATA/DDEATH.
 * With ``primary_host_id``, nothing is published until ``spBv1.0/STATE/<id>`` says online;
   an offline STATE (timestamp not older than the last online one) publishes NDEATH,
-  disconnects and moves to the next broker.
+  disconnects and moves to the next broker. With more than one broker, a node still
+  waiting moves on too: at an offline STATE, or when no online STATE came within
+  ``primary_host_wait_s`` (it walks the list until it finds the host online).
 * NCMD ``Node Control/Rebirth``: NBIRTH and every DBIRTH at once, same ``bdSeq``, no DATA
   (at most one rebirth per ``rebirth_min_interval_s``: requests in between are coalesced
   into one when it has passed)
   in between. ``Node Control/Next Server``: disconnect and move to the next broker.
 
-Store-and-forward: while the session is not publishing, samples go to the journal; a
-live DDATA sent at QoS 1 that was not acknowledged when the connection dropped goes there
-too. After the births, the journal is replayed in order as DDATA with ``is_historical``,
-at most ``replay_messages_per_s`` messages per second and ``replay_window`` unacknowledged
-at once, beside live data; a row leaves the journal only on the PUBACK of its message.
-Rows of a device that is offline wait for its DBIRTH.
+Store-and-forward: while the session is not publishing (no connection, the primary host
+offline, a rebirth due), samples go to the journal. Every DDATA, live or historical, is
+sent at ``data_qos`` (0 by default, as Sparkplug 3.0 requires) and stays *unconfirmed*
+until the broker has provably read it: at QoS 1 its PUBACK; at QoS 0 a :class:`Sync`
+emitted after it (the adapter sends an MQTT UNSUBSCRIBE of a filter nothing matches; the
+broker reads a connection's packets in order, so its UNSUBACK comes after it read every
+PUBLISH before it). Live samples of a DDATA unconfirmed when the connection drops go to
+the journal. After the births, the journal is replayed in order as DDATA with
+``is_historical``, at most ``replay_messages_per_s`` messages per second and
+``replay_window`` unconfirmed at once, beside live data; a row leaves the journal only
+when its message is confirmed. Rows of a device that is offline wait for its DBIRTH.
+
+Rebirth without stale DATA: an accepted Rebirth request first emits
+:class:`DiscardQueuedData`; the adapter drops every DATA message it has not yet handed to
+the MQTT client (they belong to the old birth sequence) and reports their tokens to
+:meth:`Session.on_discarded`, which puts their samples back in the journal (live ones) or
+back in the replay (historical ones): they follow the new births as historical data.
 """
 
 from __future__ import annotations
@@ -88,7 +103,23 @@ class Publish:
     payload: bytes
     qos: int = 0
     retain: bool = False
-    token: int | None = None  # QoS 1: reported back by on_puback(token)
+    token: int | None = None  # DATA only: confirmed by on_puback (QoS 1) or a Sync (QoS 0)
+    kind: str = ""  # nbirth, dbirth, ddata, ddata_historical, ddeath, ndeath: counters, logs
+    seq: int | None = None  # the payload's seq (logs)
+
+
+@dataclass(frozen=True)
+class Sync:
+    """Tell :meth:`Session.on_synced` (with this token) once the broker has read every
+    message handed to the MQTT client before this action."""
+
+    token: int
+
+
+@dataclass(frozen=True)
+class DiscardQueuedData:
+    """Drop every DATA message not yet handed to the MQTT client and report their tokens
+    to :meth:`Session.on_discarded` (a Rebirth request: they belong to the old births)."""
 
 
 @dataclass(frozen=True)
@@ -107,7 +138,7 @@ class SaveBdSeq:
     bdseq: int
 
 
-Action = Connect | Subscribe | Publish | Disconnect | Write | SaveBdSeq
+Action = Connect | Subscribe | Publish | Sync | DiscardQueuedData | Disconnect | Write | SaveBdSeq
 
 MAX_STATE_BYTES = 4096
 """A STATE message is ``{"online": true, "timestamp": ...}``: anything much larger is not one."""
@@ -143,7 +174,7 @@ class SessionSettings:
     brokers: int = 1
     client_id: str = "fieldgate"
     primary_host_id: str | None = None
-    data_qos: int = 1
+    data_qos: int = 0
     replay_messages_per_s: float = 20.0
     replay_batch: int = 500
     replay_window: int = 8
@@ -151,6 +182,7 @@ class SessionSettings:
     reconnect_max_s: float = 8.0
     max_command_bytes: int = 65536
     rebirth_min_interval_s: float = 1.0
+    primary_host_wait_s: float = 10.0
 
 
 @dataclass
@@ -158,6 +190,7 @@ class _InFlight:
     historical: bool
     samples: list[Sample] = field(default_factory=list)  # live: re-journaled when lost
     ids: list[int] = field(default_factory=list)  # historical: journal rows to delete
+    qos: int = 0
 
 
 class Session:
@@ -178,8 +211,8 @@ class Session:
         self.rng = rng or random.Random(0)
         self.state = State.DISCONNECTED
         self.broker = 0
-        self.last_bdseq = last_bdseq  # of the last accepted connection (persisted)
-        self.bdseq = self._next_bdseq()  # of the connection being made or held
+        self._saved_bdseq = last_bdseq  # persisted: the last value a CONNECT may have carried
+        self.bdseq = 0 if last_bdseq is None else (last_bdseq + 1) % BDSEQ_MODULO
         self.seq = 0
         self.current: dict[str, Sample] = {s.channel_id: s for s in current}
         self.published: dict[str, Sample] = {}  # last value sent live, for deadbands
@@ -198,6 +231,10 @@ class Session:
         self._replay_ids: set[int] = set()
         self._replay_blocked = False  # every waiting row belongs to an offline device
         self._host_ts: int | None = None  # timestamp of the last accepted STATE
+        self._host_wait_until: float | None = None  # waiting for the host: next broker then
+        self._unsynced: list[int] = []  # QoS 0 DATA tokens handed out since the last Sync
+        self._sync_token: int | None = None  # the Sync awaiting on_synced
+        self._sync_covers: list[int] = []  # the tokens it confirms
         # counters
         self.sent: Counter[str] = Counter()
         self.ignored: Counter[str] = Counter()
@@ -205,13 +242,15 @@ class Session:
         self._last_rebirth = -1.0  # monotonic time of the last NCMD rebirth
         self._rebirth_at: float | None = None  # a coalesced rebirth is due then
         self.dropped = 0
+        self.discarded: Counter[str] = Counter()  # DATA messages dropped before the wire, by reason
         self.replayed = 0
         self.journaled = 0
         self.connects = 0
 
     # -- helpers ----------------------------------------------------------------------------
-    def _next_bdseq(self) -> int:
-        return 0 if self.last_bdseq is None else (self.last_bdseq + 1) % BDSEQ_MODULO
+    def _advance_bdseq(self) -> None:
+        """The current value went out in a CONNECT: the next CONNECT carries the next one."""
+        self.bdseq = (self.bdseq + 1) % BDSEQ_MODULO
 
     def _next_seq(self) -> int:
         self.seq = (self.seq + 1) % SEQ_MODULO
@@ -224,6 +263,34 @@ class Session:
     @property
     def publishing(self) -> bool:
         return self.state is State.ONLINE
+
+    @property
+    def data_allowed(self) -> bool:
+        """DATA may go out: online, and no rebirth requested and still due."""
+        return self.state is State.ONLINE and self._rebirth_at is None
+
+    def _with_sync(self, actions: list[Action]) -> list[Action]:
+        """Append a :class:`Sync` covering the QoS 0 DATA handed out, unless one is awaited."""
+        if self._unsynced and self._sync_token is None and self.publishing:
+            self._sync_token = self._new_token()
+            self._sync_covers, self._unsynced = self._unsynced, []
+            actions.append(Sync(self._sync_token))
+        return actions
+
+    def _track(self, flight: _InFlight) -> int:
+        """A token for a DATA message, remembered until confirmed, discarded or lost."""
+        token = self._new_token()
+        self._inflight[token] = flight
+        if flight.qos == 0:
+            self._unsynced.append(token)
+        return token
+
+    def _confirm(self, token: int) -> None:
+        """The broker has the message: historical rows leave the journal."""
+        flight = self._inflight.pop(token, None)
+        if flight is not None and flight.historical:
+            self.journal.delete(flight.ids)
+            self._replay_ids.difference_update(flight.ids)
 
     def _journal(self, samples: list[Sample]) -> None:
         if not samples:
@@ -253,7 +320,11 @@ class Session:
         self.state = State.CONNECTING
         self._reconnect_at = None
         self._connect_deadline = t.mono + CONNECT_TIMEOUT_S
-        return [
+        actions: list[Action] = []
+        if self._saved_bdseq != self.bdseq:  # persisted before any CONNECT carries it
+            self._saved_bdseq = self.bdseq
+            actions.append(SaveBdSeq(self.bdseq))
+        return actions + [
             Connect(
                 self.broker,
                 self.settings.client_id,
@@ -266,31 +337,37 @@ class Session:
     def on_connack(self, t: Instant, ok: bool, reason: str = "") -> list[Action]:
         if self.state is not State.CONNECTING:
             return []
-        if not ok:
+        if not ok:  # a refused CONNECT was a CONNECT all the same
             self.state = State.DISCONNECTED
+            self._advance_bdseq()
             self._schedule_reconnect(t, next_broker=True)
             return []
         self.connects += 1
-        self._attempt = 0
         self._connect_deadline = None
-        self.last_bdseq = self.bdseq
-        actions: list[Action] = [SaveBdSeq(self.bdseq)]
+        actions: list[Action] = []
         topics = [self.model.node_topic("NCMD"), self.model.device_topic("DCMD", "+")]
         if self.settings.primary_host_id is not None:
             topics.append(f"spBv1.0/STATE/{self.settings.primary_host_id}")
         actions.append(Subscribe(tuple(topics)))
         if self.settings.primary_host_id is not None:
             self.state = State.WAITING_HOST
+            if self.settings.brokers > 1:
+                self._host_wait_until = t.mono + self.settings.primary_host_wait_s
             return actions
         self.rebirths["connect"] += 1
-        return actions + self._birth(t)
+        return self._with_sync(actions + self._birth(t))
 
-    def on_connection_lost(self, t: Instant, reason: str = "") -> list[Action]:
-        """The connection dropped, or an attempt failed before CONNACK."""
+    def on_connection_lost(
+        self, t: Instant, reason: str = "", *, connect_sent: bool = True
+    ) -> list[Action]:
+        """The connection dropped, or an attempt failed before CONNACK (``connect_sent``
+        False: its TCP/TLS connection failed, so no CONNECT carried this bdSeq)."""
         if self.state in (State.DISCONNECTED, State.STOPPED):
             return []
         failed_attempt = self.state is State.CONNECTING
         self._drop_connection()
+        if connect_sent or not failed_attempt:
+            self._advance_bdseq()
         self.state = State.DISCONNECTED
         self._schedule_reconnect(t, next_broker=failed_attempt)
         return []
@@ -303,35 +380,39 @@ class Session:
             if not flight.historical:
                 lost.extend(flight.samples)
         self._inflight.clear()
+        self._unsynced.clear()
+        self._sync_covers.clear()
+        self._sync_token = None
+        self._rebirth_at = None  # the new connection's births serve it
         self._replay_ids.clear()
         self._replay_cursor = 0
         self._replay_blocked = False
         self.birthed.clear()
         self._birth_pending.clear()
+        self._host_wait_until = None
         self._journal(lost)
-        if self.last_bdseq is not None:
-            self.bdseq = self._next_bdseq()
 
-    def _leave(self, t: Instant, reason: str) -> list[Action]:
-        """Intentional disconnect: NDEATH first, then disconnect, then the next broker."""
-        actions: list[Action] = [
-            Publish(self.model.node_topic("NDEATH"), codec.node_death(t.wall_ms, self.bdseq), 1)
-        ]
-        self.sent["ndeath"] += 1
+    def _leave(self, t: Instant, reason: str, *, immediate: bool = True) -> list[Action]:
+        """Intentional disconnect: NDEATH first, then disconnect, then the next broker (at
+        once, or after the reconnect delay: a walk in search of the primary host)."""
+        actions: list[Action] = [self._ndeath(t)]
         self._drop_connection()
+        self._advance_bdseq()
         self.state = State.DISCONNECTED
-        self._schedule_reconnect(t, next_broker=True, immediate=True)
+        self._schedule_reconnect(t, next_broker=True, immediate=immediate)
         actions.append(Disconnect(reason))
         return actions
+
+    def _ndeath(self, t: Instant) -> Publish:
+        self.sent["ndeath"] += 1
+        death = codec.node_death(t.wall_ms, self.bdseq)
+        return Publish(self.model.node_topic("NDEATH"), death, 1, kind="ndeath")
 
     def stop(self, t: Instant) -> list[Action]:
         """Gateway shutdown: NDEATH if connected, keep unacknowledged samples in the journal."""
         actions: list[Action] = []
         if self.state in (State.ONLINE, State.WAITING_HOST):
-            actions.append(
-                Publish(self.model.node_topic("NDEATH"), codec.node_death(t.wall_ms, self.bdseq), 1)
-            )
-            self.sent["ndeath"] += 1
+            actions.append(self._ndeath(t))
         pending = [s for samples in self._pending.values() for s in samples]
         self._pending.clear()
         self._drop_connection()  # unacknowledged samples first: they are the older ones
@@ -342,12 +423,22 @@ class Session:
         return actions
 
     # -- births -----------------------------------------------------------------------------
-    def _birth(self, t: Instant) -> list[Action]:
-        """NBIRTH and a DBIRTH per online device, nothing else in between."""
+    def _birth(self, t: Instant, *, replay: bool = True) -> list[Action]:
+        """NBIRTH and a DBIRTH per online device, nothing else in between; then the replay
+        starts (at once after a connect; at the next tick after a rebirth, once the adapter
+        has reported the DATA it discarded)."""
         self.state = State.ONLINE
+        self._rebirth_at = None
+        self._host_wait_until = None
+        self._attempt = 0  # a session reached: the reconnect delay starts over
         self.seq = 0
         actions: list[Action] = [
-            Publish(self.model.node_topic("NBIRTH"), codec.node_birth(t.wall_ms, self.bdseq))
+            Publish(
+                self.model.node_topic("NBIRTH"),
+                codec.node_birth(t.wall_ms, self.bdseq),
+                kind="nbirth",
+                seq=0,
+            )
         ]
         self.sent["nbirth"] += 1
         self.birthed.clear()
@@ -357,7 +448,8 @@ class Session:
         self._birth_pending.clear()
         self._replay_cursor = 0
         self._replay_blocked = False
-        actions.extend(self._replay(t))  # historical data goes beside live data from now on
+        if replay:
+            actions.extend(self._replay(t))  # historical data goes beside live data from now on
         return actions
 
     def _device_birth(self, t: Instant, dev: str) -> Publish:
@@ -368,9 +460,12 @@ class Session:
         self.sent["dbirth"] += 1
         self._replay_cursor = 0  # its waiting journal rows can go now
         self._replay_blocked = False
+        seq = self._next_seq()
         return Publish(
             self.model.device_topic("DBIRTH", dev),
-            codec.device_birth(t.wall_ms, self._next_seq(), metrics),
+            codec.device_birth(t.wall_ms, seq, metrics),
+            kind="dbirth",
+            seq=seq,
         )
 
     def _current(self, m: MetricDef, t: Instant) -> Sample:
@@ -409,7 +504,7 @@ class Session:
 
     def flush(self, t: Instant) -> list[Action]:
         actions: list[Action] = []
-        if not self.publishing:
+        if not self.data_allowed:  # no session, or a rebirth due: the journal keeps them
             if self.state is not State.STOPPED:
                 self._journal([s for samples in self._pending.values() for s in samples])
             self._pending.clear()
@@ -419,10 +514,13 @@ class Session:
                 self.birthed.discard(dev)
                 self._pending.pop(dev, None)
                 self.sent["ddeath"] += 1
+                seq = self._next_seq()
                 actions.append(
                     Publish(
                         self.model.device_topic("DDEATH", dev),
-                        codec.device_death(t.wall_ms, self._next_seq()),
+                        codec.device_death(t.wall_ms, seq),
+                        kind="ddeath",
+                        seq=seq,
                     )
                 )
             elif dev in self._birth_pending and self.device_online[dev]:
@@ -434,22 +532,23 @@ class Session:
             actions.append(self._data(t, dev, samples))
         self._pending.clear()
         actions.extend(self._replay(t))
-        return actions
+        return self._with_sync(actions)
 
     def _data(self, t: Instant, dev: str, samples: list[Sample]) -> Publish:
         metrics = [(self.model.by_channel[s.channel_id], s) for s in samples]
         for _, s in metrics:
             self.published[s.channel_id] = s
-        token = None
-        if self.settings.data_qos == 1:
-            token = self._new_token()
-            self._inflight[token] = _InFlight(False, samples=list(samples))
+        qos = self.settings.data_qos
+        token = self._track(_InFlight(False, samples=list(samples), qos=qos))
         self.sent["ddata"] += 1
+        seq = self._next_seq()
         return Publish(
             self.model.device_topic("DDATA", dev),
-            codec.device_data(t.wall_ms, self._next_seq(), metrics),
-            self.settings.data_qos,
+            codec.device_data(t.wall_ms, seq, metrics),
+            qos,
             token=token,
+            kind="ddata",
+            seq=seq,
         )
 
     # -- replay -----------------------------------------------------------------------------
@@ -460,7 +559,7 @@ class Session:
         actions: list[Action] = []
         s = self.settings
         while (
-            self.publishing
+            self.data_allowed
             and not self._replay_blocked
             and self.journal.count() > len(self._replay_ids)
             and self._replay_inflight() < s.replay_window
@@ -471,19 +570,22 @@ class Session:
                 self._replay_blocked = True
                 break
             dev, rows = batch
-            token = self._new_token()
             ids = [row_id for row_id, _ in rows]
-            self._inflight[token] = _InFlight(True, ids=ids)
+            qos = s.data_qos
+            token = self._track(_InFlight(True, ids=ids, qos=qos))
             self._replay_ids.update(ids)
             metrics = [(self.model.by_channel[smp.channel_id], smp) for _, smp in rows]
             self.sent["ddata_historical"] += 1
             self.replayed += len(rows)
+            seq = self._next_seq()
             actions.append(
                 Publish(
                     self.model.device_topic("DDATA", dev),
-                    codec.device_data(t.wall_ms, self._next_seq(), metrics, historical=True),
-                    1,
+                    codec.device_data(t.wall_ms, seq, metrics, historical=True),
+                    qos,
                     token=token,
+                    kind="ddata_historical",
+                    seq=seq,
                 )
             )
             step = 1.0 / s.replay_messages_per_s  # a burst of at most one second's worth
@@ -530,17 +632,47 @@ class Session:
             self._replay_cursor = last
 
     def on_puback(self, t: Instant, token: int) -> list[Action]:
-        flight = self._inflight.pop(token, None)
-        if flight is None:
+        """The PUBACK of a QoS 1 DATA message."""
+        flight = self._inflight.get(token)
+        if flight is None or flight.qos != 1:
             return []
-        if flight.historical:
-            self.journal.delete(flight.ids)
-            self._replay_ids.difference_update(flight.ids)
-            return self._replay(t)
-        return []
+        self._confirm(token)
+        return self._with_sync(self._replay(t)) if flight.historical else []
+
+    def on_synced(self, t: Instant, token: int) -> list[Action]:
+        """The broker has read everything handed out before :class:`Sync` ``token``."""
+        if token != self._sync_token:
+            return []  # of a connection that is gone
+        self._sync_token = None
+        for covered in self._sync_covers:
+            self._confirm(covered)
+        self._sync_covers = []
+        return self._with_sync(self._replay(t))
+
+    def on_discarded(self, t: Instant, tokens: Iterable[int]) -> None:
+        """The adapter dropped these DATA messages before they reached the MQTT client
+        (:class:`DiscardQueuedData`): live samples go to the journal, historical rows back
+        to the replay; both follow the new births as historical data (from the next
+        :meth:`tick`, which :meth:`next_deadline` asks for)."""
+        lost: list[Sample] = []
+        for token in sorted(tokens):
+            flight = self._inflight.pop(token, None)
+            if flight is None:
+                continue
+            self.discarded["rebirth"] += 1
+            if flight.historical:
+                self._replay_ids.difference_update(flight.ids)
+                self._replay_cursor = 0
+                self._replay_blocked = False
+            else:
+                lost.extend(flight.samples)
+        self._journal(lost)
 
     # -- incoming ---------------------------------------------------------------------------
     def on_message(self, t: Instant, topic: str, data: bytes) -> list[Action]:
+        return self._with_sync(self._on_message(t, topic, data))
+
+    def _on_message(self, t: Instant, topic: str, data: bytes) -> list[Action]:
         parts = topic.split("/")
         limit = MAX_STATE_BYTES if parts[1:2] == ["STATE"] else self.settings.max_command_bytes
         if len(data) > limit:  # every inbound payload, STATE too (it is retained: it comes back)
@@ -616,13 +748,15 @@ class Session:
         ago; then the requests in between are coalesced into one rebirth when it is over
         (a host, or a loop of hosts, asking in a burst costs one set of births)."""
         due = self._last_rebirth + self.settings.rebirth_min_interval_s
+        discard: list[Action] = [DiscardQueuedData()]  # DATA of the old births: not sent
         if self._last_rebirth < 0 or t.mono >= due:
             self.rebirths["ncmd"] += 1
             self._last_rebirth = t.mono
-            return self._birth(t)
+            return discard + self._birth(t, replay=False)
         self.rebirths["coalesced"] += 1
-        self._rebirth_at = due
-        return []
+        already_due = self._rebirth_at is not None
+        self._rebirth_at = due  # no DATA until then: changes go to the journal
+        return [] if already_due else discard
 
     def _state(self, t: Instant, host: str, data: bytes) -> list[Action]:
         if host != self.settings.primary_host_id:
@@ -648,6 +782,8 @@ class Session:
             return self._birth(t)
         if not online and self.state is State.ONLINE:
             return self._leave(t, f"primary host {host} offline")
+        if not online and self.state is State.WAITING_HOST and self.settings.brokers > 1:
+            return self._leave(t, f"primary host {host} offline here", immediate=False)
         return []
 
     # -- time -------------------------------------------------------------------------------
@@ -665,17 +801,27 @@ class Session:
             and t.mono >= self._connect_deadline
         ):
             self.state = State.DISCONNECTED
+            self._advance_bdseq()  # the CONNECT may have reached the broker
             self._schedule_reconnect(t, next_broker=True)
             return [Disconnect("no CONNACK in time")]
+        if (
+            self.state is State.WAITING_HOST
+            and self._host_wait_until is not None
+            and t.mono >= self._host_wait_until
+        ):
+            wait = self.settings.primary_host_wait_s
+            return self._leave(
+                t, f"primary host not online here within {wait:g} s", immediate=False
+            )
         actions: list[Action] = []
         if self._rebirth_at is not None and t.mono >= self._rebirth_at:
             self._rebirth_at = None
             if self.publishing:
                 self.rebirths["ncmd"] += 1
                 self._last_rebirth = t.mono
-                actions += self._birth(t)
+                actions += self._birth(t, replay=False)
         if self.publishing:
-            return actions + self._replay(t)
+            return self._with_sync(actions + self._replay(t))
         return actions
 
     def next_deadline(self) -> float | None:
@@ -683,11 +829,13 @@ class Session:
             return self._reconnect_at
         if self.state is State.CONNECTING:
             return self._connect_deadline
+        if self.state is State.WAITING_HOST:
+            return self._host_wait_until
         due: list[float] = []
         if self._rebirth_at is not None and self.publishing:
             due.append(self._rebirth_at)
         if (
-            self.publishing
+            self.data_allowed
             and not self._replay_blocked
             and self.journal.count() > len(self._replay_ids)
             and self._replay_inflight() < self.settings.replay_window
@@ -711,6 +859,7 @@ class Session:
             "backlog_messages": self.journal.count(),
             "backlog_oldest_age_s": None if oldest is None else max(0.0, (wall_ms - oldest) / 1000),
             "dropped_messages": self.dropped,
+            "discarded_data_messages": dict(self.discarded),
             "replayed_samples": self.replayed,
             "journaled_samples": self.journaled,
             "inflight": len(self._inflight),

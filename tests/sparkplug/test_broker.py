@@ -154,6 +154,71 @@ async def test_rebirth_sends_every_birth_within_500_ms_with_no_data_in_between(
     assert all(b == (a + 1) % 256 for a, b in zip(after, after[1:], strict=False))
 
 
+async def test_rebirth_drops_queued_data_of_the_old_births_and_sends_it_after_them_as_history(
+    broker, subscriber, tmp_path
+):
+    """DATA queued in the front's outbox when a Rebirth request arrives never follows the
+    new NBIRTH under the old sequence: on the wire (the subscriber's arrival order) the
+    request is followed by NBIRTH and the DBIRTHs, then the queued samples as historical
+    DDATA of the new sequence; the drop is counted in status and metrics."""
+    gw = Gateway.load(topology(broker.port, tmp_path / "state"))
+    async with gw:
+        await until(lambda: len(subscriber.of("DBIRTH")) == 2, what="the births")
+        front = gw.component("spb")
+        link = front._link
+        # a slow socket: the client's network thread reports the first DDATA as never
+        # written, so the ones after it wait in the outbox (as they do behind a full socket)
+        held: list[int] = []
+        written = link._done
+        link._done = held.append
+        for value in range(101, 106):
+            gw.write("io/m1/ao0", value)
+            await until(lambda v=value: gw.read("io/m1/ai0") == v, what=f"ai0 = {value}")
+            await asyncio.sleep(0.02)
+        await until(lambda: link.queued_data >= 4, what="DATA queued in the outbox")
+        queued = link.queued_data
+        subscriber.publish(
+            "spBv1.0/plant/NCMD/gw1",
+            spb.command(
+                spb.command_metric(name="Node Control/Rebirth", datatype=spb.BOOLEAN, value=True)
+            ),
+        )
+        await until(lambda: len(subscriber.of("NBIRTH")) == 2, what="the rebirth")
+        link._done = written
+        for mid in held:
+            written(mid)
+        await until(lambda: 105 in SampleLog(subscriber.snapshot()).values("io-m1", "ai0"))
+        await until(lambda: front.status()["inflight"] == 0, what="every DATA confirmed")
+        status = front.status()
+        metrics = {
+            (name, tuple(sorted(labels.items()))): value
+            for name, _, _, value, labels in front.metrics()
+        }
+    msgs = [m for m in subscriber.snapshot() if m.type != "STATE"]
+    ncmd = next(i for i, m in enumerate(msgs) if m.type == "NCMD")
+    nbirth = next(i for i, m in enumerate(msgs) if m.type == "NBIRTH" and i > ncmd)
+    assert [m.type for m in msgs[ncmd + 1 : nbirth + 3]] == ["NBIRTH", "DBIRTH", "DBIRTH"]
+    after = [m for m in msgs[nbirth:] if m.type != "NDEATH"]
+    seqs = [m.decode().seq for m in after]
+    assert seqs == list(range(len(after)))  # one sequence from the new NBIRTH's 0, no stale seq
+    samples = SampleLog(msgs).samples[("io-m1", "ai0")]
+    values = [v for _, v, _, _ in samples if isinstance(v, int) and v > 100]
+    assert sorted(values) == list(range(101, 106)) and len(values) == 5  # each once
+    late = [(v, hist) for t, v, hist, _ in samples if isinstance(v, int) and v > 100]
+    queued_values = {v for v, hist in late if hist}
+    assert queued_values == set(range(106 - queued, 106))  # queued at the request: history now
+    assert status["publish_dropped"]["rebirth"] == queued
+    assert status["discarded_data_messages"] == {"rebirth": queued}
+    assert (
+        metrics[("sparkplug_publish_dropped_total", (("front", "spb"), ("reason", "rebirth")))]
+        == queued
+    )
+    assert (
+        metrics[("sparkplug_published_messages_total", (("front", "spb"), ("type", "nbirth")))] == 2
+    )
+    assert all(m.qos == 0 for m in msgs if m.type == "DDATA")
+
+
 async def test_module_offline_gives_ddeath_and_back_online_a_dbirth_with_current_values(
     broker, subscriber, tmp_path
 ):
@@ -220,6 +285,17 @@ async def test_bad_commands_are_counted_and_never_stop_the_front(broker, subscri
         good = spb.command(spb.command_metric(alias=ao0, datatype=spb.INT16, value=-321))
         subscriber.publish("spBv1.0/plant/DCMD/gw1/io-m1", good)
         await until(lambda: gw.read("io/m1/ao0") == -321, what="the DCMD write")
+        front = gw.component("spb")
+
+        async def refuse(values: dict[str, Any], origin: str) -> None:
+            raise ValueError("io/m1/ao0: refused by the process image (test)")
+
+        applied = front.context.set_outputs
+        front.context.set_outputs = refuse  # the fieldbus side refuses the next batch
+        subscriber.publish("spBv1.0/plant/DCMD/gw1/io-m1", good)
+        await until(lambda: front.status()["write_errors"] == 1, what="the refused write")
+        front.context.set_outputs = applied
+        assert front.status()["writes"] == 1
         ignored = gw.status()["fronts"]["spb"]["commands_ignored"]
         assert gw.read("io/m2/ao0") == 0  # not writable for this front
         cmd = spb.command(
@@ -350,6 +426,9 @@ def test_kill_9_during_an_outage_loses_nothing_and_continues_bdseq(broker, tmp_p
                 last = int(line.split()[1])
         first.send_signal(signal.SIGKILL)  # a power cut, as far as the process can tell
         first.wait()
+        # the bdSeq of the last CONNECT it may have sent (saved before each one: the first
+        # connection's, or the next if it tried to reconnect during the outage)
+        saved = json.loads((tmp_path / "state" / "spb.sparkplug.json").read_text())["bdseq"]
         broker.start()
         second = start_gateway(topo_file, 10_000)
         wait_until(lambda: len(sub.of("NBIRTH")) == 2, 20, "the new session")
@@ -369,7 +448,8 @@ def test_kill_9_during_an_outage_loses_nothing_and_continues_bdseq(broker, tmp_p
                 print(proc.stderr.read()[-3000:])
         sub.stop()
     new_bdseq = {m.name: m.value for m in sub.of("NBIRTH")[1].decode().metrics}["bdSeq"]
-    assert new_bdseq == (bdseq + 1) % 256
+    assert saved in (bdseq, (bdseq + 1) % 256)
+    assert new_bdseq == (saved + 1) % 256  # never the bdSeq of a will it may have left behind
     log = SampleLog(sub.snapshot())
     before_kill = [v for v in log.values("io-m1", "ai0") if v <= last]
     assert sorted(before_kill) == list(range(1, last + 1)) and len(before_kill) == last

@@ -34,6 +34,13 @@ def topology(**front: object) -> dict:
     }
 
 
+def test_data_qos_1_is_valid_but_validate_says_it_is_not_sparkplug_conformant():
+    front = load_topology(topology(data_qos=1), REGISTRY).fronts[0]
+    (warning,) = front.validation_warnings()
+    assert "at-least-once" in warning and "tck-id-payloads-ddata-qos" in warning
+    assert "not Sparkplug B 3.0 conformant" in warning
+
+
 def errors(data: dict) -> list[str]:
     with pytest.raises(TopologyError) as info:
         load_topology(data, REGISTRY)
@@ -43,7 +50,8 @@ def errors(data: dict) -> list[str]:
 def test_a_minimal_front_validates_with_defaults():
     topo = load_topology(topology(), REGISTRY)
     front = topo.fronts[0]
-    assert front.edge_node_id is None and front.data_qos == 1 and front.writable == []
+    assert front.edge_node_id is None and front.data_qos == 0 and front.writable == []
+    assert front.validation_warnings() == []  # the defaults are Sparkplug 3.0 conformant
     assert (
         front.brokers[0].effective_port == 1883
         and front.brokers[0].label == "mqtt://127.0.0.1:1883"

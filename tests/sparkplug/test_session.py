@@ -12,6 +12,7 @@ from fieldgate.plugins.sparkplug.journal import MemoryJournal
 from fieldgate.plugins.sparkplug.model import NodeModel, Sample
 from fieldgate.plugins.sparkplug.session import (
     Connect,
+    DiscardQueuedData,
     Disconnect,
     Instant,
     Publish,
@@ -20,6 +21,7 @@ from fieldgate.plugins.sparkplug.session import (
     SessionSettings,
     State,
     Subscribe,
+    Sync,
     Write,
 )
 
@@ -86,9 +88,31 @@ def kinds(actions: list) -> list[str]:
     return [a.topic.split("/")[2] for a in publishes(actions)]
 
 
+def syncs(actions: list) -> list[Sync]:
+    return [a for a in actions if isinstance(a, Sync)]
+
+
+def confirm(session: Session, clock: Clock, actions: list) -> list:
+    """What the broker's acknowledgements of ``actions`` release: the PUBACK of each QoS 1
+    DATA message, the UNSUBACK of each Sync."""
+    out: list = []
+    for a in actions:
+        if isinstance(a, Publish) and a.token is not None and a.qos == 1:
+            out += session.on_puback(clock(), a.token)
+        elif isinstance(a, Sync):
+            out += session.on_synced(clock(), a.token)
+    return out
+
+
+def connect_of(actions: list) -> Connect:
+    """The one Connect of ``actions`` (a SaveBdSeq may come before it)."""
+    (connect,) = [a for a in actions if isinstance(a, Connect)]
+    assert all(isinstance(a, (Connect, SaveBdSeq)) for a in actions)
+    return connect
+
+
 def online(session: Session, clock: Clock) -> list:
-    (connect,) = session.tick(clock())
-    assert isinstance(connect, Connect)
+    connect_of(session.tick(clock()))
     return session.on_connack(clock(), True)
 
 
@@ -99,15 +123,16 @@ def change(session: Session, cid: str, value, clock: Clock, quality=Quality.GOOD
 def test_connect_carries_the_will_and_the_birth_has_the_same_bdseq():
     clock = Clock()
     session = make(last_bdseq=41)
-    (connect,) = session.tick(clock())
+    first = session.tick(clock())
+    assert first[0] == SaveBdSeq(42)  # persisted before the CONNECT that carries it
+    connect = connect_of(first)
     assert connect.will_topic == "spBv1.0/plant/NDEATH/gw1"
     will = spb.decode(connect.will_payload)
     assert [(m.name, m.datatype, m.value) for m in will.metrics] == [("bdSeq", spb.INT64, 42)]
     assert will.seq is None  # NDEATH carries no seq
     actions = session.on_connack(clock(), True)
-    assert actions[0] == SaveBdSeq(42)  # persisted before the NBIRTH goes out
-    assert isinstance(actions[1], Subscribe)
-    assert set(actions[1].topics) == {"spBv1.0/plant/NCMD/gw1", "spBv1.0/plant/DCMD/gw1/+"}
+    assert isinstance(actions[0], Subscribe)
+    assert set(actions[0].topics) == {"spBv1.0/plant/NCMD/gw1", "spBv1.0/plant/DCMD/gw1/+"}
     assert kinds(actions) == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]
     nbirth = spb.decode(publishes(actions)[0].payload)
     assert nbirth.seq == 0
@@ -172,10 +197,11 @@ def test_seq_increments_by_one_modulo_256_over_600_messages():
     assert seqs.count(0) == 3  # NBIRTH, then two wraps
 
 
-def test_outage_journals_samples_and_replays_them_in_order_as_historical_after_puback():
+@pytest.mark.parametrize("qos", [0, 1])
+def test_outage_journals_samples_and_replays_them_in_order_as_historical_once_confirmed(qos):
     clock = Clock()
     journal = MemoryJournal()
-    session = make(journal)
+    session = make(journal, data_qos=qos)
     online(session, clock)
     assert session.on_connection_lost(clock(), "broker gone") == []
     assert session.state is State.DISCONNECTED
@@ -188,30 +214,61 @@ def test_outage_journals_samples_and_replays_them_in_order_as_historical_after_p
     # reconnect: new bdSeq, births first, then a capped replay beside live data
     when = session.next_deadline()
     assert when is not None
-    (connect,) = session.tick(Instant(when, clock().wall_ms))
+    connect = connect_of(session.tick(Instant(when, clock().wall_ms)))
     assert (
         connect.bdseq == 1 and connect.broker == 0
     )  # a dropped connection retries the same broker
     actions = session.on_connack(clock(), True)
     assert kinds(actions)[:4] == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]
     replay = publishes(actions)[4:]
-    assert len(replay) == 2  # the window: 2 unacknowledged historical messages
+    assert len(replay) == 2  # the window: 2 unconfirmed historical messages
+    # QoS 0: one Sync after them (the broker's UNSUBACK confirms both); QoS 1: their PUBACKs
+    assert len(syncs(actions)) == (1 if qos == 0 else 0)
     change(session, "io/m3/ai0", 99, clock)
-    live = publishes(session.flush(clock()))
-    assert [spb.decode(p.payload).metrics[0].is_historical for p in live] == [False]
-    assert session.tick(clock(1)) == []  # window full: nothing until a PUBACK
-    assert journal.count() == 10  # nothing dropped before its PUBACK
+    live = session.flush(clock())
+    assert [spb.decode(p.payload).metrics[0].is_historical for p in publishes(live)] == [False]
+    assert syncs(live) == []  # one Sync awaited at a time
+    assert session.tick(clock(1)) == []  # window full: nothing until confirmed
+    assert journal.count() == 10  # nothing dropped before it is confirmed
     seen: list[int] = []
-    while replay:
-        p = replay.pop(0)
-        assert p.qos == 1 and all(m.is_historical for m in spb.decode(p.payload).metrics)
-        seen += [spb.value_of(m, spb.INT16) for m in spb.decode(p.payload).metrics]
-        replay += publishes(session.on_puback(clock(), p.token))
+    todo = [a for a in actions if isinstance(a, Sync) or getattr(a, "token", None)] + live
+    while todo:
+        batch, todo = todo, []
+        for p in publishes(batch):
+            assert p.qos == qos and not p.retain
+            metrics = spb.decode(p.payload).metrics
+            if p.kind == "ddata_historical":
+                assert all(m.is_historical for m in metrics)
+                seen += [spb.value_of(m, spb.INT16) for m in metrics]
+        todo += confirm(session, clock, batch)
         deadline = session.next_deadline()
         if deadline is not None:
-            replay += publishes(session.tick(Instant(deadline, clock().wall_ms)))
+            todo += session.tick(Instant(deadline, clock().wall_ms))
     assert seen == list(range(10))
     assert journal.count() == 0 and session.dropped == 0
+    assert session.status(clock().wall_ms)["inflight"] == 0  # the live one confirmed too
+
+
+def test_qos0_data_waits_for_the_sync_and_a_sync_of_a_lost_connection_confirms_nothing():
+    clock = Clock()
+    journal = MemoryJournal()
+    session = make(journal)  # data_qos 0: the default
+    online(session, clock)
+    change(session, "io/m3/ai0", 1, clock)
+    first = session.flush(clock())
+    assert kinds(first) == ["DDATA"] and publishes(first)[0].qos == 0
+    (sync,) = syncs(first)
+    assert session.on_puback(clock(), publishes(first)[0].token) == []  # QoS 0 has no PUBACK
+    assert session.status(clock().wall_ms)["inflight"] == 1
+    change(session, "io/m3/ai0", 2, clock)
+    assert syncs(session.flush(clock())) == []  # covered by the next Sync
+    follow = session.on_synced(clock(), sync.token)
+    assert len(syncs(follow)) == 1  # the second DDATA gets its own
+    assert session.status(clock().wall_ms)["inflight"] == 1
+    session.on_connection_lost(clock(), "gone")
+    assert [s.value for _, s in journal.read(0, 10)] == [2]  # the unconfirmed one
+    assert session.on_synced(clock(), syncs(follow)[0].token) == []  # of the old connection
+    assert journal.count() == 1
 
 
 def test_replay_rate_is_capped():
@@ -237,16 +294,18 @@ def test_replay_rate_is_capped():
     assert all(b - a == pytest.approx(0.1) for a, b in zip(times, times[1:], strict=False))
 
 
-def test_unacknowledged_live_data_goes_to_the_journal_when_the_connection_drops():
+@pytest.mark.parametrize("qos", [0, 1])
+def test_unconfirmed_live_data_goes_to_the_journal_when_the_connection_drops(qos):
     clock = Clock()
     journal = MemoryJournal()
-    session = make(journal)
+    session = make(journal, data_qos=qos)
     online(session, clock)
     change(session, "io/m3/ai0", 7, clock)
-    (acked,) = publishes(session.flush(clock()))
+    acked = session.flush(clock())
+    session.on_puback(clock(), publishes(acked)[0].token) if qos else confirm(session, clock, acked)
     change(session, "io/m3/ai0", 8, clock)
-    (lost,) = publishes(session.flush(clock()))
-    session.on_puback(clock(), acked.token)
+    lost = session.flush(clock())
+    assert kinds(lost) == ["DDATA"]
     session.on_connection_lost(clock(), "gone")
     assert [s.value for _, s in journal.read(0, 10)] == [8]
 
@@ -265,35 +324,43 @@ def test_a_replay_interrupted_by_a_disconnect_is_sent_again_whole():
     assert [m.value for m in spb.decode(first.payload).metrics] == [0, 1, 2, 3, 4]
     session.on_connection_lost(clock(), "gone")
     session.tick(clock(60))
-    again = publishes(session.on_connack(clock(), True))[-1]
+    actions = session.on_connack(clock(), True)
+    again = publishes(actions)[-1]
     assert [m.value for m in spb.decode(again.payload).metrics] == [0, 1, 2, 3, 4]
-    session.on_puback(clock(), again.token)
+    confirm(session, clock, actions)
     assert journal.count() == 0
 
 
-def test_bdseq_continues_after_a_restart_and_wraps_at_256():
+def test_bdseq_goes_up_per_connect_packet_is_saved_before_it_and_wraps_at_256():
     clock = Clock()
-    session = make(last_bdseq=254)
-    (c,) = session.tick(clock())
-    assert c.bdseq == 255
-    session.on_connection_lost(clock(), "refused")  # no CONNACK: the same bdSeq next time
-    (c,) = session.tick(clock(60))
-    assert c.bdseq == 255 and c.broker == 1  # failed attempts walk the broker list
+    session = make(last_bdseq=253)
+    first = session.tick(clock())
+    assert first[0] == SaveBdSeq(254) and connect_of(first).bdseq == 254
+    # the TCP connection failed: no CONNECT carried 254, the next attempt reuses it unsaved
+    session.on_connection_lost(clock(), "refused", connect_sent=False)
+    again = session.tick(clock(60))
+    assert again == [connect_of(again)] and again[0].bdseq == 254 and again[0].broker == 1
+    # a refused CONNACK: that CONNECT was sent, so the next one carries 255 (saved first)
+    session.on_connack(clock(), False, "not authorized")
+    third = session.tick(clock(60))
+    assert third[0] == SaveBdSeq(255) and connect_of(third).bdseq == 255
     session.on_connack(clock(), True)
     session.on_connection_lost(clock(), "gone")
-    (c,) = session.tick(clock(60))
-    assert c.bdseq == 0
-    assert spb.decode(c.will_payload).metrics[0].value == 0
+    wrapped = session.tick(clock(60))
+    assert wrapped[0] == SaveBdSeq(0) and connect_of(wrapped).bdseq == 0
+    assert spb.decode(connect_of(wrapped).will_payload).metrics[0].value == 0
+    # a gateway restarted from the saved value never reuses it, CONNACK or not
+    assert connect_of(make(last_bdseq=0).tick(clock())).bdseq == 1
 
 
 def test_connect_timeout_gives_up_and_tries_the_next_broker():
     clock = Clock()
     session = make()
-    (c,) = session.tick(clock())
+    c = connect_of(session.tick(clock()))
     assert session.next_deadline() == pytest.approx(clock().mono + 10)
     assert session.tick(clock(10)) == [Disconnect("no CONNACK in time")]
-    (c2,) = session.tick(clock(60))
-    assert c2.broker == 1 and c2.bdseq == c.bdseq
+    c2 = connect_of(session.tick(clock(60)))
+    assert c2.broker == 1 and c2.bdseq == c.bdseq + 1  # that CONNECT may have arrived
 
 
 def test_rebirth_publishes_nbirth_and_every_dbirth_with_no_data_in_between():
@@ -308,6 +375,7 @@ def test_rebirth_publishes_nbirth_and_every_dbirth_with_no_data_in_between():
         spb.command_metric(name="Node Control/Rebirth", datatype=spb.BOOLEAN, value=True)
     )
     actions = session.on_message(clock(), "spBv1.0/plant/NCMD/gw1", cmd)
+    assert actions[0] == DiscardQueuedData()  # before the NBIRTH: DATA not yet sent is dropped
     assert kinds(actions) == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]
     payloads = [spb.decode(p.payload) for p in publishes(actions)]
     assert [p.seq for p in payloads] == [0, 1, 2, 3]
@@ -316,6 +384,37 @@ def test_rebirth_publishes_nbirth_and_every_dbirth_with_no_data_in_between():
     assert m1["di0"].value is True  # the births carry the current values
     assert kinds(session.flush(clock())) == ["DDATA"]  # the pending change follows, seq 4
     assert session.rebirths["ncmd"] == 1
+
+
+def test_data_discarded_for_a_rebirth_follows_the_births_as_historical_data():
+    clock = Clock()
+    journal = MemoryJournal()
+    session = make(journal)
+    online(session, clock)
+    change(session, "io/m3/ai0", 1, clock)
+    sent = session.flush(clock())  # handed to the client before the request
+    change(session, "io/m3/ai0", 2, clock)
+    change(session, "io/m1/di0", True, clock)
+    queued = publishes(session.flush(clock()))  # still in the adapter's outbox
+    assert kinds(queued) == ["DDATA", "DDATA"]
+    cmd = spb.command(
+        spb.command_metric(name="Node Control/Rebirth", datatype=spb.BOOLEAN, value=True)
+    )
+    actions = session.on_message(clock(), "spBv1.0/plant/NCMD/gw1", cmd)
+    assert actions[0] == DiscardQueuedData()
+    assert kinds(actions) == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]  # no DATA in this step
+    session.on_discarded(clock(), [p.token for p in queued])
+    assert sorted(s.value for _, s in journal.read(0, 10)) == [True, 2]
+    assert session.status(clock().wall_ms)["discarded_data_messages"] == {"rebirth": 2}
+    after = session.tick(clock())
+    history = publishes(after)
+    assert kinds(after) == ["DDATA", "DDATA"] and syncs(after) == []  # the first Sync is awaited
+    assert [spb.decode(p.payload).seq for p in history] == [4, 5]  # the new births' sequence
+    assert all(m.is_historical for p in history for m in spb.decode(p.payload).metrics)
+    more = confirm(session, clock, sent)  # the message sent before the request is confirmed
+    assert len(syncs(more)) == 1
+    confirm(session, clock, more)
+    assert journal.count() == 0 and session.status(clock().wall_ms)["inflight"] == 0
 
 
 def test_next_server_sends_ndeath_disconnects_and_moves_on():
@@ -328,7 +427,7 @@ def test_next_server_sends_ndeath_disconnects_and_moves_on():
     actions = session.on_message(clock(), "spBv1.0/plant/NCMD/gw1", cmd)
     assert kinds(actions) == ["NDEATH"] and actions[0].qos == 1
     assert isinstance(actions[-1], Disconnect)
-    (c,) = session.tick(clock())
+    c = connect_of(session.tick(clock()))
     assert c.broker == 1 and c.bdseq == 1
 
 
@@ -404,7 +503,7 @@ def test_primary_host_gates_the_birth_and_its_offline_state_moves_to_the_next_br
     clock = Clock()
     session = make(primary_host_id="scada")
     actions = online(session, clock)
-    assert "spBv1.0/STATE/scada" in actions[1].topics
+    assert "spBv1.0/STATE/scada" in actions[0].topics
     assert publishes(actions) == []
     change(session, "io/m3/ai0", 5, clock)
     assert session.flush(clock()) == [] and session.journal.count() == 1  # held, not lost
@@ -418,18 +517,54 @@ def test_primary_host_gates_the_birth_and_its_offline_state_moves_to_the_next_br
 
     assert session.on_message(clock(), "spBv1.0/STATE/scada", b"ONLINE") == []
     assert session.ignored["bad_state"] == 1
-    assert state(False, 10) == []  # still waiting
     actions = state(True, 20)
     assert kinds(actions)[:4] == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]
     assert state(False, 19) == []  # an old will of the host: ignored
     assert session.ignored["stale_state"] == 1 and session.state is State.ONLINE
     actions = state(False, 30)
     assert kinds(actions) == ["NDEATH"] and isinstance(actions[-1], Disconnect)
-    (c,) = session.tick(clock())
+    c = connect_of(session.tick(clock()))
     assert c.broker == 1
     session.on_connack(clock(), True)
     # on the next broker, the host's STATE carries that connection's own (older) timestamp
     assert kinds(state(True, 25))[:1] == ["NBIRTH"]
+
+
+def test_a_waiting_node_walks_the_brokers_until_it_finds_the_primary_host_online():
+    clock = Clock()
+    session = make(primary_host_id="scada", brokers=2, primary_host_wait_s=10.0)
+    online(session, clock)
+    assert session.state is State.WAITING_HOST
+    assert session.next_deadline() == pytest.approx(clock().mono + 10)
+
+    def state(online_: bool, ts: int) -> list:
+        doc = json.dumps({"online": online_, "timestamp": ts}).encode()
+        return session.on_message(clock(), "spBv1.0/STATE/scada", doc)
+
+    # broker 0 holds the host's retained offline STATE: NDEATH, leave, try broker 1
+    actions = state(False, 5)
+    assert kinds(actions) == ["NDEATH"] and isinstance(actions[-1], Disconnect)
+    assert session.next_deadline() > clock().mono  # after the reconnect delay, not in a loop
+    c = connect_of(session.tick(Instant(session.next_deadline(), clock().wall_ms)))
+    assert c.broker == 1
+    session.on_connack(clock(), True)
+    # broker 1 has no STATE of the host at all: after primary_host_wait_s, back to broker 0
+    assert session.tick(clock(9.9)) == []
+    actions = session.tick(clock(0.1))
+    assert kinds(actions) == ["NDEATH"] and isinstance(actions[-1], Disconnect)
+    c = connect_of(session.tick(Instant(session.next_deadline(), clock().wall_ms)))
+    assert c.broker == 0
+    session.on_connack(clock(), True)
+    assert kinds(state(True, 7))[:1] == ["NBIRTH"]  # found it
+
+
+def test_with_one_broker_a_waiting_node_stays_and_waits_for_the_host():
+    clock = Clock()
+    session = make(primary_host_id="scada", brokers=1)
+    online(session, clock)
+    doc = json.dumps({"online": False, "timestamp": 5}).encode()
+    assert session.on_message(clock(), "spBv1.0/STATE/scada", doc) == []
+    assert session.next_deadline() is None and session.state is State.WAITING_HOST
 
 
 def test_deadband_suppresses_small_changes_but_never_quality_changes():
@@ -468,9 +603,9 @@ def test_rows_of_an_offline_device_wait_for_its_birth():
     session.flush(clock())
     session.on_device_health("io-m2", False)
     session.tick(clock(60))
-    actions = publishes(session.on_connack(clock(), True))
+    actions = session.on_connack(clock(), True)
     assert kinds(actions) == ["NBIRTH", "DBIRTH", "DBIRTH", "DDATA"]
-    session.on_puback(clock(), actions[-1].token)
+    confirm(session, clock, actions)
     assert session.next_deadline() is None  # the io-m2 row waits; no busy loop
     session.on_device_health("io-m2", True)
     actions = publishes(session.flush(clock(1)))
@@ -619,14 +754,20 @@ def test_a_burst_of_rebirth_requests_is_coalesced_into_one_more_rebirth():
         spb.command_metric(name="Node Control/Rebirth", datatype=spb.BOOLEAN, value=True)
     )
     assert kinds(session.on_message(clock(), "spBv1.0/plant/NCMD/gw1", cmd))[0] == "NBIRTH"
-    for _ in range(50):  # a host (or a loop of them) asking over and over
+    # the first request within the interval stops DATA at once; the others change nothing
+    assert session.on_message(clock(0.01), "spBv1.0/plant/NCMD/gw1", cmd) == [DiscardQueuedData()]
+    for _ in range(49):  # a host (or a loop of them) asking over and over
         assert session.on_message(clock(0.01), "spBv1.0/plant/NCMD/gw1", cmd) == []
     assert session.rebirths["coalesced"] == 50
+    change(session, "io/m3/ai0", 5, clock)
+    assert session.flush(clock()) == []  # no DATA until the births: journaled
+    assert session.journal.count() == 1
     due = session.next_deadline()
     assert due == pytest.approx(clock().mono - 0.5 + 1.0)  # one interval after the first
     assert session.tick(clock(0.1)) == []  # not yet
     actions = session.tick(Instant(due, clock().wall_ms))
-    assert kinds(actions) == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH"]  # one, for all 50
+    assert kinds(actions) == ["NBIRTH", "DBIRTH", "DBIRTH", "DBIRTH", "DDATA"]  # one, for all 50
+    assert spb.decode(publishes(actions)[-1].payload).metrics[0].is_historical  # the held change
     assert session.rebirths["ncmd"] == 2 and session.next_deadline() is None
     # a request after the interval is served at once again
     later = session.on_message(clock(2.0), "spBv1.0/plant/NCMD/gw1", cmd)
