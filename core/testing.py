@@ -17,9 +17,10 @@ Fixtures (each a factory; whatever they made is closed when the test ends):
 * ``fieldgate_http(gateway_or_url, token=None)``: a small HTTP/1.1 client of the status API
   (:class:`StatusClient`), written here, not the server's code.
 
-Helpers: :func:`assert_channel` (value and quality now, one clear message) and
+Helpers: :func:`assert_channel` (value and quality now, one clear message),
 :func:`wait_for_channel` (until they hold: event-driven through the image's subscription,
-with a deadline, no polling).
+with a deadline, no polling), and :func:`in_this_process` (a north-facing front built in
+the test's own process, for tests that reach into it).
 """
 
 from __future__ import annotations
@@ -312,6 +313,29 @@ class StatusClient:
 
 
 # -- fixtures ------------------------------------------------------------------------------------
+def in_this_process(registry: Registry, *front_types: str) -> Registry:
+    """A copy of ``registry`` whose fronts of ``front_types`` run in the gateway's own
+    process instead of a child process of their own.
+
+    A north-facing front (``registry.add_front(..., north=True)``) runs in a child process
+    against a mirror of the gateway (docs/architecture.md, "Process layout"): its status and
+    metrics reach the gateway once a second, and nothing of it is reachable from the test.
+    A test that must reach into the front itself (its session, its socket) builds it here
+    with this registry; the front's code is the same, only where it runs differs. Test the
+    front in its child too: that is how every gateway runs it."""
+    import copy
+    import dataclasses
+
+    inline = copy.copy(registry)
+    inline.types = dict(registry.types)
+    for name in front_types:
+        ctype = registry.lookup("front", name)
+        if ctype is None:
+            raise KeyError(f"no front type {name!r} in the registry")
+        inline.types[("front", name)] = dataclasses.replace(ctype, north=False)
+    return inline
+
+
 @pytest.fixture(scope="session")
 def fieldgate_registry() -> Registry:
     """The installed plugins, loaded once per test session."""

@@ -184,6 +184,10 @@ class Child:
                     if kind == "snap":
                         self.behind = False
                     self.context.apply(message)
+                    if kind == "chg":
+                        # one batch, one loop turn, as in the fieldbus process: a front that
+                        # publishes once per turn (Sparkplug) sends each batch on its own
+                        await asyncio.sleep(0)
         except (asyncio.IncompleteReadError, ConnectionError):
             log.info("the fieldbus process closed the channel: stopping")
             self.stopping.set()

@@ -121,16 +121,16 @@ class IsolatedFront(Front):
         for sample in self.child.status_metrics or []:
             if isinstance(sample, list) and len(sample) == 5:
                 rows.append(tuple(sample))  # type: ignore[arg-type]  (checked by /metrics)
-        return rows + child_metrics(self.child)
+        return rows + child_metrics(self.child, front=self.name)
 
     def point_locations(self) -> dict[str, list[str]]:
         places = self.child.status_locations or self.child.ready.get("locations") or {}
         return places if isinstance(places, dict) else {}
 
 
-def child_metrics(child: ChildProcess) -> list[Sample]:
-    """The child process's own series, as one component's samples."""
-    return [
+def child_metrics(child: ChildProcess, **labels: str) -> list[Sample]:
+    """The child process's own series, as one component's samples (with ``labels``)."""
+    rows = [
         gauge("child_resident_bytes", "resident memory of a north-facing child", child.rss),
         gauge(
             "child_memory_limit_bytes",
@@ -160,6 +160,7 @@ def child_metrics(child: ChildProcess) -> list[Sample]:
         counter("child_kills_total", "times a child was killed, by cause", n, cause=cause)
         for cause, n in sorted(child.kills.items())
     ]
+    return [(name, kind, text, value, {**tags, **labels}) for name, kind, text, value, tags in rows]
 
 
 class HttpChild:

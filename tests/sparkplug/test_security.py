@@ -11,9 +11,15 @@ from typing import Any
 
 import pytest
 
+from fieldgate.plugin import load_registry
 from fieldgate.runtime import Gateway, GatewayStartError
+from fieldgate.testing import in_this_process
 
 from .broker import Mosquitto, require_mosquitto
+
+# settle() reads the front's session: the front is built in this process (every gateway runs
+# it in a child process of its own; tests/sparkplug/test_broker.py covers that way)
+INLINE = in_this_process(load_registry(), "sparkplug")
 
 
 def openssl(*args: str, cwd: Path) -> None:
@@ -101,7 +107,9 @@ async def test_tls_with_a_password_file_connects(tls_broker, pki, tmp_path):
         "username": "line3",
         "password_file": str(tmp_path / "pw"),
     }
-    async with Gateway.load(topology(tls_broker.port, tmp_path / "state", broker)) as gw:
+    async with Gateway.load(
+        topology(tls_broker.port, tmp_path / "state", broker), registry=INLINE
+    ) as gw:
         status = await settle(gw, True)
     assert (
         status["sent"]["nbirth"] == 1
@@ -118,7 +126,9 @@ async def test_a_broker_certificate_from_another_ca_is_refused(
         "username": "line3",
         "password_env": "FG_TEST_PW",
     }
-    async with Gateway.load(topology(tls_broker.port, tmp_path / "state", broker)) as gw:
+    async with Gateway.load(
+        topology(tls_broker.port, tmp_path / "state", broker), registry=INLINE
+    ) as gw:
         status = await settle(gw, False)
     assert status["connects"] == 0 and status["state"] != "online"
 
@@ -132,7 +142,9 @@ async def test_a_wrong_password_is_refused_and_retried(
         "username": "line3",
         "password_env": "FG_TEST_PW",
     }
-    async with Gateway.load(topology(tls_broker.port, tmp_path / "state", broker)) as gw:
+    async with Gateway.load(
+        topology(tls_broker.port, tmp_path / "state", broker), registry=INLINE
+    ) as gw:
         status = await settle(gw, False)
     assert status["connects"] == 0
     assert "wrong-secret" not in caplog.text
@@ -141,7 +153,7 @@ async def test_a_wrong_password_is_refused_and_retried(
 async def test_a_missing_password_stops_the_front_at_start_with_one_line(tmp_path, monkeypatch):
     monkeypatch.delenv("FG_NO_SUCH_PW", raising=False)
     broker = {"username": "u", "password_env": "FG_NO_SUCH_PW"}
-    gw = Gateway.load(topology(1883, tmp_path / "state", broker))
+    gw = Gateway.load(topology(1883, tmp_path / "state", broker), registry=INLINE)
     with pytest.raises(GatewayStartError) as info:
         await gw.start()
     assert str(info.value) == (
