@@ -42,6 +42,9 @@ from .session import (
     Write,
 )
 
+MAX_OUTBOX_DATA = 1000
+"""DATA messages waiting for the MQTT client at once (a stalled socket): beyond, they are
+dropped from the outbox, counted, and their samples go to the journal as history."""
 MAX_QUEUED_WRITES = 256
 """DCMD write batches waiting for the process image at once; more are refused and counted."""
 
@@ -310,6 +313,10 @@ class SparkplugFront(Front):
                     self._link_stats.dropped["not_connected"] += 1
                     continue
                 self._link.publish(action)
+                if self._link.queued_data > MAX_OUTBOX_DATA:  # a socket that stopped taking
+                    assert self.session is not None
+                    tokens = self._link.discard_data("outbox_full")
+                    self.session.on_discarded(self._now(), tokens, "outbox_full")
             elif isinstance(action, Sync):
                 if self._link is not None:
                     self._link.sync(action.token)

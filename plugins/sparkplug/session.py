@@ -649,17 +649,17 @@ class Session:
         self._sync_covers = []
         return self._with_sync(self._replay(t))
 
-    def on_discarded(self, t: Instant, tokens: Iterable[int]) -> None:
+    def on_discarded(self, t: Instant, tokens: Iterable[int], reason: str = "rebirth") -> None:
         """The adapter dropped these DATA messages before they reached the MQTT client
-        (:class:`DiscardQueuedData`): live samples go to the journal, historical rows back
-        to the replay; both follow the new births as historical data (from the next
-        :meth:`tick`, which :meth:`next_deadline` asks for)."""
+        (:class:`DiscardQueuedData`, or its outbox over its bound: ``reason``): live samples
+        go to the journal, historical rows back to the replay; both follow as historical
+        data (from the next :meth:`tick`, which :meth:`next_deadline` asks for)."""
         lost: list[Sample] = []
         for token in sorted(tokens):
             flight = self._inflight.pop(token, None)
             if flight is None:
                 continue
-            self.discarded["rebirth"] += 1
+            self.discarded[reason] += 1
             if flight.historical:
                 self._replay_ids.difference_update(flight.ids)
                 self._replay_cursor = 0

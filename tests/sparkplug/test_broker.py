@@ -224,6 +224,46 @@ async def test_rebirth_drops_queued_data_of_the_old_births_and_sends_it_after_th
     assert all(m.qos == 0 for m in msgs if m.type == "DDATA")
 
 
+async def test_a_socket_that_stops_taking_costs_a_bounded_outbox_and_no_sample(
+    broker, subscriber, tmp_path, monkeypatch
+):
+    """DATA waiting behind a stalled socket beyond the outbox's bound is dropped from the
+    outbox (counted as outbox_full) and its samples go to the journal: they arrive later as
+    historical data, each once."""
+    from fieldgate.plugins.sparkplug import front as front_module
+
+    monkeypatch.setattr(front_module, "MAX_OUTBOX_DATA", 3)
+    gw = Gateway.load(topology(broker.port, tmp_path / "state"), registry=INLINE)
+    async with gw:
+        await until(lambda: len(subscriber.of("DBIRTH")) == 2, what="the births")
+        front = gw.component("spb")
+        link = front._link
+        held: list[int] = []
+        written = link._done
+        link._done = held.append  # the first DDATA is never reported written: the rest queue
+        for value in range(201, 211):
+            gw.write("io/m1/ao0", value)
+            await until(lambda v=value: gw.read("io/m1/ai0") == v, what=f"ai0 = {value}")
+            await asyncio.sleep(0.02)
+        assert link.queued_data <= 3
+        dropped = front.status()["publish_dropped"]["outbox_full"]
+        assert dropped >= 5
+        link._done = written
+        for mid in held:
+            written(mid)
+        await until(lambda: 210 in SampleLog(subscriber.snapshot()).values("io-m1", "ai0"))
+        await until(
+            lambda: (
+                sorted(
+                    v for v in SampleLog(subscriber.snapshot()).values("io-m1", "ai0") if v > 200
+                )
+                == list(range(201, 211))
+            ),
+            what="every sample once",
+        )
+        assert front.status()["discarded_data_messages"]["outbox_full"] == dropped
+
+
 async def test_module_offline_gives_ddeath_and_back_online_a_dbirth_with_current_values(
     broker, subscriber, tmp_path
 ):
