@@ -11,6 +11,7 @@ import time
 import traceback
 from collections.abc import Callable
 from types import TracebackType
+from typing import Any
 
 LOG_FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
 LOG_FORMATS = ("text", "json")
@@ -32,15 +33,25 @@ def setup_logging(
         force=True,
     )
     for handler in logging.getLogger().handlers:
+        base: type[logging.Formatter] = logging.Formatter
         if fmt == "json":
             from .logjson import JsonFormatter
 
-            handler.setFormatter(JsonFormatter())
+            base = JsonFormatter
         if budget is not None:
             handler.addFilter(budget)
-            formatter = handler.formatter or logging.Formatter(LOG_FORMAT)
-            formatter.formatException = _short_traceback  # type: ignore[method-assign]
-            handler.setFormatter(formatter)
+            base = _short_tracebacks(base)
+        handler.setFormatter(base(handler.formatter._fmt if handler.formatter else None))
+
+
+def _short_tracebacks(base: type[logging.Formatter]) -> type[logging.Formatter]:
+    """``base`` writing only the innermost frames of a traceback."""
+
+    class Short(base):  # type: ignore[valid-type,misc]  # a class made from a variable base
+        def formatException(self, ei: Any) -> str:  # noqa: N802  (logging's name)
+            return _short_traceback(ei) if ei and ei[1] is not None else ""
+
+    return Short
 
 
 def _short_traceback(exc_info: ExcInfo) -> str:

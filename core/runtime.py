@@ -20,6 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from .backoff import Backoff
 from .cancellation import raise_if_cancelled
 from .events import COMPONENT_FAILED, COMPONENT_RESTARTED
 from .image import Quality
@@ -29,32 +30,8 @@ from .topology import Topology, load_topology
 
 log = logging.getLogger("fieldgate.runtime")
 
-MAX_BACKOFF = 60.0
-STABLE_RUN_S = (
-    60.0  # a component that ran this long before failing restarts after the first delay again
-)
 CANCEL_GRACE_S = 0.5  # how long a cancelled component task may take before it is cancelled again
 CANCEL_ATTEMPTS = 10
-
-
-class Backoff:
-    """Restart delays of one component: the topology's first delay, doubling on each
-    failure up to MAX_BACKOFF (or the first delay, when that is longer), and back to the
-    first after a run of STABLE_RUN_S without failure."""
-
-    def __init__(self, first: float):
-        self.first = self.delay = first
-        self.cap = max(first, MAX_BACKOFF)
-
-    def ran(self, seconds: float) -> None:
-        """The component ran this long before it failed."""
-        if seconds >= STABLE_RUN_S:
-            self.delay = self.first
-
-    def next(self) -> float:
-        """The delay before the next restart attempt."""
-        delay, self.delay = self.delay, min(self.delay * 2, self.cap)
-        return delay
 
 
 class GatewayStartError(Exception):
@@ -136,6 +113,7 @@ class Gateway:
             except Exception as exc:
                 await self.stop()
                 raise GatewayStartError(f"HTTP status server: {exc}") from None
+        self._state_changed()
         log.info(
             "gateway %s running: %d back(s), %d front(s)",
             self.topology.gateway.name,
@@ -178,6 +156,13 @@ class Gateway:
             self._tasks[comp.name] = asyncio.create_task(
                 self._supervise(comp), name=f"fieldgate:{comp.name}"
             )
+
+    def _state_changed(self) -> None:
+        """Readiness or a component's state changed: the HTTP child hears it now, not at its
+        next once-a-second report."""
+        push = getattr(self.http, "push", None)
+        if push is not None:
+            push()
 
     def feed(self) -> Any:
         """The gateway's changes for north-facing children (created when the first needs it)."""
@@ -261,6 +246,7 @@ class Gateway:
                 COMPONENT_FAILED, comp.name, f"{comp.kind} {comp.name} failed: {cause}"
             )
             self.image.set_quality(comp.channel_ids(), Quality.COMM_FAULT, origin=comp.name)
+            self._state_changed()
             await self._safe_stop(comp)
             while True:
                 await asyncio.sleep(delay)
@@ -271,6 +257,7 @@ class Gateway:
                     self.context.events.publish(
                         COMPONENT_RESTARTED, comp.name, f"{comp.kind} {comp.name} restarted"
                     )
+                    self._state_changed()
                     break
                 except asyncio.CancelledError:
                     raise
@@ -295,6 +282,7 @@ class Gateway:
     async def stop(self) -> None:
         """Fronts stop, outputs go to their shutdown values, backs flush and close."""
         self.running = False  # not ready from here on (/readyz)
+        self._state_changed()
         for comp in self.fronts:
             await self._cancel(comp)
         for comp in self.fronts:

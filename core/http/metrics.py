@@ -231,7 +231,7 @@ class GatewayCollector:
             if stats.last_cycle_time is not None:
                 cycle_time.add_metric([comp.name], stats.last_cycle_time)
             writes.add_metric([comp.name], float(stats.writes))
-            pending.add_metric([comp.name], float(scheduler.pending_writes))
+            pending.add_metric([comp.name], float(getattr(scheduler, "pending_writes", 0)))
         yield from (cycles, cycle_time, writes, pending)
 
     def _points(self, gw: GatewayView) -> Iterator[Metric]:

@@ -120,7 +120,8 @@ class IsolatedFront(Front):
         rows: list[Sample] = []
         for sample in self.child.status_metrics or []:
             if isinstance(sample, list) and len(sample) == 5:
-                rows.append(tuple(sample))  # type: ignore[arg-type]  (checked by /metrics)
+                # the child's samples as it sent them: /metrics checks each (check_sample)
+                rows.append(tuple(sample))
         return rows + child_metrics(self.child, front=self.name)
 
     def point_locations(self) -> dict[str, list[str]]:
@@ -196,6 +197,11 @@ class HttpChild:
             self._task = None
         await self.child.stop()
 
+    def push(self) -> None:
+        """Send the gateway's state now (readiness or a component changed)."""
+        if self.child.state == "running":
+            self._push()
+
     def _push(self) -> None:
         from .remote import gateway_state
 
@@ -207,7 +213,7 @@ class HttpChild:
         self.child.send_latest(("gw", state))
 
     async def _keep(self) -> None:
-        from ..runtime import Backoff
+        from ..backoff import Backoff
         from .remote import PERIOD_S
 
         backoff = Backoff(1.0)

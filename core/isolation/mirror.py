@@ -75,10 +75,11 @@ class MirrorContext(GatewayContext):
         return self._locations
 
     def fail_writes(self, reason: str) -> None:
-        """The channel to the fieldbus process is gone: every write waiting fails."""
+        """The channel to the fieldbus process is gone: every write waiting fails with a
+        ConnectionError (a refusal is a ValueError or KeyError)."""
         for done in self._waiting.values():
             if not done.done():
-                done.set_exception(WriteRefused(reason))
+                done.set_exception(ConnectionError(reason))
 
     # -- what the fieldbus process sends --------------------------------------------------------
     def apply(self, message: tuple[Any, ...]) -> None:

@@ -17,7 +17,7 @@ from types import SimpleNamespace
 from typing import Any
 
 from ..health import LineStats, ModuleHealth
-from ..plugin import Component
+from ..plugin import Component, GatewayContext
 from .feed import apply_module_state, module_state
 from .mirror import MirrorContext
 
@@ -127,7 +127,8 @@ class MirrorGateway:
 
     def __init__(self, context: MirrorContext):
         self.topology = context.topology
-        self.context = context
+        self.context: GatewayContext = context
+        self.mirror = context
         self.image = context.image
         self.health = context.health
         self.masters = context.masters
@@ -175,8 +176,8 @@ class MirrorGateway:
 
     def fieldbus_health(self) -> tuple[bool, str]:
         """For /healthz: is the fieldbus process answering, and how late is its event loop?"""
-        lag = self.context.fieldbus_lag
-        silent = time.monotonic() - self.context.last_ping
+        lag = self.mirror.fieldbus_lag
+        silent = time.monotonic() - self.mirror.last_ping
         if silent > FIELDBUS_SILENT_S:
             return False, f"the fieldbus process has not been heard from for {silent:.1f} s"
         if lag > 1.0:

@@ -117,14 +117,14 @@ class ChildProcess:
         self.started_at = time.monotonic()
         self._last_pong = loop.time()
         transport, _ = await loop.create_unix_connection(lambda: _Link(self), sock=ours)
-        self._transport = transport  # type: ignore[assignment]
-        transport.set_write_buffer_limits(high=WRITE_CHUNK, low=WRITE_CHUNK // 4)  # type: ignore[attr-defined]
+        self._transport = transport
+        transport.set_write_buffer_limits(high=WRITE_CHUNK, low=WRITE_CHUNK // 4)
         # the snapshot in the first message and the feed's first change are one loop turn apart
         self.outbox.resync = False
         init = self._init()
         init["snapshot"] = self.feed.snapshot_message()
         self._detach = self.feed.attach(self.outbox, self._wake)
-        transport.write(wire.down(init))  # type: ignore[attr-defined]
+        transport.write(wire.down(init))
         self._tasks = [
             loop.create_task(self._reap(), name=f"fieldgate:{self.name}:reap"),
             loop.create_task(self._watch(), name=f"fieldgate:{self.name}:watch"),

@@ -16,7 +16,7 @@ def test_external_package_is_found_through_its_entry_point_alone():
     registry = load_registry()
     info = registry.plugins["loopback"]
     assert (info.version, info.distribution, info.error) == ("1.0.0", "fieldgate-loopback", "")
-    assert info.provides == ["back:loopback", "front:memory"]
+    assert info.provides == ["back:loopback", "front:memory", "front:probe"]
     assert registry.lookup("back", "loopback").model.__name__ == "LoopbackConfig"
 
 

@@ -271,7 +271,7 @@ async def test_stop_gives_up_on_a_component_that_never_stops_and_says_so(
 
 
 def test_restart_delays_double_up_to_a_minute_and_start_over_after_a_stable_run():
-    from fieldgate.runtime import Backoff
+    from fieldgate.backoff import Backoff
 
     b = Backoff(1.0)
     assert [b.next() for _ in range(8)] == [1, 2, 4, 8, 16, 32, 60, 60]

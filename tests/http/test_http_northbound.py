@@ -8,7 +8,7 @@ import asyncio
 from typing import Any
 
 import pytest
-from httpkit import EXAMPLES, Running, start, wait_for
+from httpkit import EXAMPLES, Running, start
 from netkit import free_port
 from prometheus_client.parser import text_string_to_metric_families
 from pymodbus.client import AsyncModbusTcpClient

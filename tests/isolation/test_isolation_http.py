@@ -61,7 +61,7 @@ async def test_the_status_server_runs_in_a_child_and_serves_the_gateway_from_its
         assert report["fronts"]["probe"]["process"]["state"] == "running"
         assert (await http_get(port, "/readyz"))[0] == 200
         status, metrics = await http_get(port, "/metrics")
-        assert b'fieldgate_child_resident_bytes{component="probe"}' in metrics
+        assert b'fieldgate_child_resident_bytes{component="probe",front="probe"}' in metrics
         assert b"fieldgate_probe_batches_total" in metrics
         status, body = await http_get(port, "/healthz")
         assert status == 200 and b"fieldbus event loop" in body

@@ -251,16 +251,16 @@ class ProbeFront(Front):
 
 @hookimpl
 def fieldgate_register(registry) -> None:
+    registry.add_back(
+        "loopback", LoopbackConfig, LoopbackBack, "outputs looped back to inputs (test plugin)"
+    )
+    registry.add_front(
+        "memory", MemoryFrontConfig, MemoryFront, "a front without a bus (test plugin)"
+    )
     registry.add_front(
         "probe",
         ProbeFrontConfig,
         ProbeFront,
         "a north-facing line server (test plugin)",
         north=True,
-    )
-    registry.add_back(
-        "loopback", LoopbackConfig, LoopbackBack, "outputs looped back to inputs (test plugin)"
-    )
-    registry.add_front(
-        "memory", MemoryFrontConfig, MemoryFront, "a front without a bus (test plugin)"
     )
