@@ -147,6 +147,11 @@ class DeadbandMonitoredItems(MonitoredItemService):
         for n, item in enumerate(params.ItemsToCreate):
             if n and n % 64 == 0:
                 await asyncio.sleep(0)  # thousands of items in one request: let others run
+            if getattr(self.isub, "gone", False):  # deleted or expired meanwhile: none added
+                gone = ua.MonitoredItemCreateResult()
+                gone.StatusCode = ua.StatusCode(ua.UInt32(ua.StatusCodes.BadSubscriptionIdInvalid))
+                results.append(gone)
+                continue
             flt = item.RequestedParameters.Filter
             if (
                 (flt := _data_change_filter(flt)) is not None
@@ -165,6 +170,10 @@ class DeadbandMonitoredItems(MonitoredItemService):
             one.ItemsToCreate = [item]
             created = await super().create_monitored_items(one)
             for result in created:
+                if getattr(self.isub, "gone", False):  # its first sample expired it: gone too
+                    result.StatusCode = ua.StatusCode(
+                        ua.UInt32(ua.StatusCodes.BadSubscriptionIdInvalid)
+                    )
                 if not result.StatusCode.is_good():
                     self._forget(result.MonitoredItemId)
             results.extend(created)

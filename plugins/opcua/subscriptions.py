@@ -73,6 +73,7 @@ class GuardedSubscription(InternalSubscription):
             limits.max_queue_size,
         )
         self.expired = False
+        self.gone = False  # expired or deleted: no item may be added any more
         self._on_expired = on_expired
 
     @property
@@ -92,8 +93,12 @@ class GuardedSubscription(InternalSubscription):
         if not self.expired:
             await super()._trigger_publish()
 
+    async def stop(self) -> None:
+        self.gone = True
+        await super().stop()
+
     def _expire(self) -> None:
-        self.expired = True
+        self.expired = self.gone = True
         log.warning(
             "subscription %s expired: %d publishing cycles without a Publish request "
             "(lifetime count %d); deleted with its %d monitored items",

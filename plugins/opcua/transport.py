@@ -198,6 +198,12 @@ class Guard:
         self.admission.session_closed(token)
         return not refused
 
+    def session_attached(self, session: Any, protocol: GuardedProtocol) -> None:
+        if self.owners.get(session) is not protocol:
+            self.owners[session] = protocol
+            if session not in self.admission.sessions:
+                self.admission.register_session(session, protocol.peer, time.monotonic())
+
     def session_created(self, session: Any, protocol: GuardedProtocol) -> None:
         self.owners[session] = protocol
         self.admission.register_session(session, protocol.peer, time.monotonic())
@@ -391,6 +397,7 @@ class GuardedProcessor(UaProcessor):
             result = await super().process_message(seqhdr, body)  # type: ignore[no-untyped-call]
             if self.session is not None and self.session.is_activated():
                 self.guard.admission.activated(self.protocol)
+                self.guard.session_attached(self.session, self.protocol)  # (a reconnect too)
             return bool(result)
         return bool(await super().process_message(seqhdr, body))  # type: ignore[no-untyped-call]
 

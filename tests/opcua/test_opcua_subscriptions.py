@@ -115,8 +115,12 @@ async def test_d1_an_expired_subscription_with_interval_0_expires_once_and_is_de
     assert sub.RevisedPublishingInterval == 0 and sub.RevisedLifetimeCount == 3
     caplog.set_level(logging.WARNING)
     results = await subs.create_monitored_items(items(sub.SubscriptionId, var.nodeid, 10))
-    assert all(r.StatusCode.is_good() for r in results)  # created; the subscription then expired
+    codes = [r.StatusCode.value for r in results]
+    # the 4th item's first change found the lifetime spent: the rest is refused, none left
+    assert codes == [0] * 4 + [ua.StatusCodes.BadSubscriptionIdInvalid] * 6
     assert sub.SubscriptionId not in subs.subscriptions
+    node = server.iserver.aspace[var.nodeid]
+    assert node.attributes[ua.AttributeIds.Value].datachange_callbacks == {}
     assert counted == {"subscription_expired": 1}
     for value in range(1, 200):  # every later change: nothing runs any more
         await write(server, var, value)
