@@ -82,7 +82,54 @@ class OpcUaFrontConfig(FrontConfig):
         default_factory=list,
         description="output channels (globs) a client may write; each output has one writing front",
     )
-    max_sessions: int = Field(32, ge=1, le=1000, description="concurrent client connections")
+    # -- what a client can make the server hold (docs/opcua.md, "Limits") --------------------
+    max_connections: int = Field(
+        64, ge=1, le=10_000, description="TCP connections in all; more: the least useful gives way"
+    )
+    max_connections_per_peer: int = Field(
+        16, ge=1, le=10_000, description="TCP connections from one address"
+    )
+    max_sessions: int = Field(
+        32, ge=1, le=1000, description="sessions in all (those waiting for their client included)"
+    )
+    max_sessions_per_peer: int = Field(8, ge=1, le=1000, description="sessions from one address")
+    hello_timeout_s: float = Field(
+        5.0, gt=0, le=300, description="seconds a new connection has to send its Hello"
+    )
+    activation_timeout_s: float = Field(
+        15.0, gt=0, le=600, description="seconds a new connection has to activate a session"
+    )
+    max_session_timeout_ms: float = Field(
+        60_000, ge=5_000, le=3_600_000, description="the longest session timeout granted"
+    )
+    max_chunk_size: int = Field(
+        65_535,
+        ge=8_192,
+        le=16_777_216,
+        description="the largest message chunk taken or sent (negotiated buffer sizes at most this)",
+    )
+    max_message_size: int = Field(
+        4_194_304, ge=8_192, le=268_435_456, description="the largest request, its chunks added up"
+    )
+    max_chunk_count: int = Field(64, ge=1, le=65_536, description="chunks of one request")
+    min_publishing_interval_ms: float = Field(
+        100, ge=10, le=60_000, description="the fastest publishing interval granted"
+    )
+    min_sampling_interval_ms: float = Field(
+        100,
+        ge=0,
+        le=60_000,
+        description="the fastest sampling interval granted (0: every change is a sample)",
+    )
+    max_subscriptions_per_session: int = Field(10, ge=1, le=1000)
+    max_monitored_items_per_subscription: int = Field(5_000, ge=1, le=1_000_000)
+    max_monitored_items_per_session: int = Field(10_000, ge=1, le=1_000_000)
+    max_queue_size: int = Field(
+        100, ge=1, le=10_000, description="values a monitored item keeps between two publishes"
+    )
+    max_retransmission_queue: int = Field(
+        16, ge=1, le=5_000, description="unacknowledged notifications kept per subscription"
+    )
 
     @field_validator("listen")
     @classmethod
@@ -115,6 +162,19 @@ class OpcUaFrontConfig(FrontConfig):
                 f"listen {self.listen} is not a loopback address: give users (name with "
                 "password_file or password_env); anonymous sessions are refused off loopback"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _per_peer_within_total(self) -> OpcUaFrontConfig:
+        for per, total in (
+            ("max_connections_per_peer", "max_connections"),
+            ("max_sessions_per_peer", "max_sessions"),
+            ("max_monitored_items_per_subscription", "max_monitored_items_per_session"),
+        ):
+            if getattr(self, per) > getattr(self, total):
+                raise ValueError(
+                    f"{per} ({getattr(self, per)}) is above {total} ({getattr(self, total)})"
+                )
         return self
 
     @property

@@ -6,7 +6,16 @@ value write on the node with the quality's StatusCode (:mod:`.quality`) and the 
 time as source timestamp, so monitored items are fed by the image's change events, never by
 polling it. Data-change filters (absolute and percent deadband) are :mod:`.deadband`'s.
 Client writes reach only outputs listed in ``writable`` (the other variables are read-only),
-under the one-writer rule the topology checks.
+under the one-writer rule the topology checks, through ``context.set_outputs``: the Write
+is answered once the fieldbus side applied it (:mod:`.writes`).
+
+What a client can make the server hold is bounded by the front's configuration, checked
+before anything is buffered (:mod:`.transport`, :mod:`.framing`, :mod:`.admission`,
+:mod:`.subscriptions`); asyncua's log lines about clients' faults are one line each and
+rate-limited (:mod:`.logs`). The front uses only what a north-facing child process has of
+the gateway: ``context.image`` (its channels and change stream), ``health``, ``masters``,
+``events``, ``topology``, ``state_dir``, ``front_channels``, ``set_outputs`` and
+``point_locations``.
 """
 
 from __future__ import annotations
@@ -21,19 +30,24 @@ from pathlib import Path
 from typing import Any
 
 from asyncua import Server, ua
-from asyncua.server.address_space import NodeData
+from asyncua.server.internal_session import SessionState
 
 from fieldgate.events import MASTER_BACK, MASTER_LOST, NMT_STATE, Event
 from fieldgate.health import HealthEvent, ModuleHealth
-from fieldgate.image import Change, Channel, Quality
+from fieldgate.image import Change, Channel, Quality, Value
 from fieldgate.metric_samples import Sample as MetricSample
 from fieldgate.metric_samples import counter, gauge
 from fieldgate.plugin import Front, GatewayContext, PluginStartError
 
-from . import deadband, model
+from . import deadband, logs, model
+from .admission import AdmissionLimits
 from .config import OpcUaFrontConfig
+from .framing import FramingLimits
 from .quality import status_code
 from .security import TrustDirectory, Users, certificate_der, ensure_certificate
+from .subscriptions import GuardedSubscriptions, SubscriptionLimits
+from .transport import Guard, GuardedServer
+from .writes import WriteGate, WriteTarget, data_value
 
 POLICY = {
     "None": ua.SecurityPolicyType.NoSecurity,
@@ -96,7 +110,6 @@ class OpcUaFront(Front):
         self._other: dict[str, ua.NodeId] = {}  # health/front node id text -> NodeId
         self._pending: list[tuple[ua.NodeId, ua.DataValue]] = []
         self._flush_task: asyncio.Task[None] | None = None
-        self._local: set[int] = set()  # ids of DataValues this front is writing itself
         self._subscription: Any = None
         self._listening = False
         self._wall_offset = 0.0
@@ -104,7 +117,9 @@ class OpcUaFront(Front):
         self._trust: TrustDirectory | None = None
         self._listeners_added = False
         self.counters: Counter[str] = Counter()
-        self.rejected: Counter[str] = Counter()
+        self.rejected: Counter[str] = Counter()  # refusals and evictions, by reason
+        self.guard: Guard | None = None
+        self._subscriptions: GuardedSubscriptions | None = None
 
     # -- helpers ----------------------------------------------------------------------------
     def _nid(self, text: str) -> ua.NodeId:
@@ -152,10 +167,27 @@ class OpcUaFront(Front):
                 passwords[user.name] = user.password(base_dir)
             except ValueError as exc:
                 raise PluginStartError(f"user {user.name}: {exc}") from None
-        deadband.install()
+        logs.install()
         self.namespace_uri = cfg.namespace_uri or f"urn:fieldgate:{gateway}"
         app_uri = f"urn:fieldgate:{gateway}:{self.name}"
-        server = Server(user_manager=Users(passwords, cfg.anonymous_allowed, self._reject))
+        self.guard = Guard(
+            FramingLimits(cfg.max_chunk_size, cfg.max_message_size, cfg.max_chunk_count),
+            AdmissionLimits(
+                cfg.max_connections,
+                cfg.max_connections_per_peer,
+                cfg.max_sessions,
+                cfg.max_sessions_per_peer,
+                cfg.hello_timeout_s,
+                cfg.activation_timeout_s,
+            ),
+            self.log,
+            cfg.anonymous_allowed,
+            self.rejected,
+        )
+        server = GuardedServer(
+            self.guard, user_manager=Users(passwords, cfg.anonymous_allowed, self._reject)
+        )
+        self._limit(server)
         await server.init()
         host_text = f"[{host}]" if ":" in host else host
         self.url = f"opc.tcp://{host_text}:{port}/"
@@ -165,7 +197,6 @@ class OpcUaFront(Front):
         server.set_endpoint(self.url)
         server.set_server_name(f"fieldgate {gateway} ({self.name})")
         await server.set_application_uri(app_uri)
-        server.iserver.max_connections = cfg.max_sessions
         server.set_security_policy([POLICY[m] for m in cfg.security])
         tokens: list[type] = []
         if cfg.anonymous_allowed:
@@ -212,6 +243,45 @@ class OpcUaFront(Front):
             self.namespace_uri,
         )
 
+    def _limit(self, server: GuardedServer) -> None:
+        """The configuration's limits on asyncua's internal server (before it is started)."""
+        cfg = self.config
+        iserver = server.iserver
+        iserver.max_session_timeout_ms = cfg.max_session_timeout_ms
+        iserver.max_monitored_item_queue_size = cfg.max_queue_size
+        iserver.max_unacked_messages_per_subscription = cfg.max_retransmission_queue
+        iserver.max_subscriptions = cfg.max_sessions * cfg.max_subscriptions_per_session
+        subscriptions = GuardedSubscriptions(
+            iserver.aspace,
+            iserver,
+            SubscriptionLimits(
+                cfg.min_publishing_interval_ms,
+                cfg.min_sampling_interval_ms,
+                cfg.max_subscriptions_per_session,
+                cfg.max_monitored_items_per_subscription,
+                cfg.max_monitored_items_per_session,
+                cfg.max_queue_size,
+            ),
+            self._subscription_event,
+        )
+        iserver.subscription_service = subscriptions
+        iserver.isession.subscription_service = subscriptions
+        self._subscriptions = subscriptions
+
+    def _subscription_event(self, what: str, n: int) -> None:
+        if what == "subscription_expired":
+            self.counters["subscriptions_expired"] += n
+        elif self.guard is not None:
+            cfg = self.config
+            limit = (
+                f"at most {cfg.max_subscriptions_per_session} per session"
+                if what == "too_many_subscriptions"
+                else f"at most {cfg.max_monitored_items_per_subscription} per subscription and "
+                f"{cfg.max_monitored_items_per_session} per session"
+            )
+            text = f"{n} {what.removeprefix('too_many_').replace('_', ' ')} refused ({limit})"
+            self.guard.note(what, "of a session", text, n=n)
+
     async def _load_security(self, server: Server, app_uri: str, base_dir: Path) -> None:
         cfg = self.config
         state = self.context.state_dir
@@ -246,7 +316,6 @@ class OpcUaFront(Front):
         channels = ctx.front_channels(cfg)
         modules = {m.key: m.model for m in ctx.health.modules()}
         lines: dict[str, str] = {}
-        locations: dict[str, list[str]] = {}
         for back_cfg in ctx.topology.backs:
             port = getattr(back_cfg, "port", None)
             baud = getattr(back_cfg, "baudrate", None)
@@ -255,13 +324,11 @@ class OpcUaFront(Front):
                 + (f" on {port}" if port else "")
                 + (f" at {baud} baud" if baud else "")
             )
-            back = ctx.backs.get(back_cfg.name)
-            method = getattr(back, "point_locations", None)
-            if method is not None:
-                try:
-                    locations.update(method())
-                except Exception:  # only descriptions depend on it
-                    self.log.debug("point_locations of %s failed", back_cfg.name, exc_info=True)
+        try:
+            locations = ctx.point_locations()
+        except Exception:  # noqa: BLE001  (only descriptions depend on it)
+            self.log.debug("point_locations failed", exc_info=True)
+            locations = {}
         others = [f.name for f in ctx.topology.fronts if f.name != self.name]
         space = model.build(
             ctx.topology.gateway.name, channels, cfg.writable, modules, lines, locations, others
@@ -280,6 +347,7 @@ class OpcUaFront(Front):
                 )
             nodes[folder.node_id] = node
         ranges: dict[ua.NodeId, tuple[float, float]] = {}
+        targets: dict[ua.NodeId, WriteTarget] = {}
         by_id = {c.id: c for c in channels}
         for var in space.variables:
             nid = self._nid(var.node_id)
@@ -333,10 +401,20 @@ class OpcUaFront(Front):
                 await server.write_attribute_value(nid, initial)
                 self._vars.setdefault(var.channel_id, []).append((nid, var))
                 if var.writable:
-                    server.set_attribute_value_setter(nid, self._client_write(var.channel_id))
+                    targets[nid] = WriteTarget(var.channel_id, vtype, channel.spec.data_type)
             else:
                 self._other[var.node_id] = nid
         deadband.set_ranges(server.iserver.aspace, ranges)
+        iserver = server.iserver
+        iserver.attribute_service = WriteGate(
+            iserver.attribute_service,
+            iserver.aspace,
+            targets,
+            self._set_outputs,
+            self._applied,
+            self.counters,
+            self.log,
+        )
         for health in ctx.health.modules():
             self._health_values(health)
         for name in others:
@@ -427,7 +505,6 @@ class OpcUaFront(Front):
         while self._pending and server is not None:
             batch, self._pending = self._pending, []
             for nid, dv in batch:
-                self._local.add(id(dv))
                 try:
                     await server.write_attribute_value(nid, dv)
                     self.counters["value_updates"] += 1
@@ -435,28 +512,19 @@ class OpcUaFront(Front):
                     self.counters["update_errors"] += 1
                     if self.counters["update_errors"] == 1:
                         self.log.exception("writing %s into the address space failed", nid)
-                finally:
-                    self._local.discard(id(dv))
 
     # -- client writes ------------------------------------------------------------------------
-    def _client_write(self, channel_id: str) -> Any:
-        def setter(node: NodeData, attr: ua.AttributeIds, dv: ua.DataValue) -> None:
-            node.attributes[attr].value = dv
-            node.attributes[attr].value_callback = None
-            if id(dv) in self._local:
-                return
-            value = dv.Value.Value if dv.Value is not None else None
-            if not isinstance(value, (bool, int, float)):
-                self.counters["write_errors"] += 1
-                return
-            try:
-                self.context.image.write_output(channel_id, value, origin=self.name)
-                self.counters["writes"] += 1
-            except (ValueError, TypeError) as exc:
-                self.counters["write_errors"] += 1
-                self.log.warning("client write to %s refused: %s", channel_id, exc)
+    async def _set_outputs(self, values: Any) -> None:
+        await self.context.set_outputs(values, origin=self.name)
 
-        return setter
+    async def _applied(self, nid: ua.NodeId, target: WriteTarget, value: Value) -> None:
+        """A client's write was applied: the node shows it at once (a Read right after the
+        Write response sees it), with the channel's status."""
+        server = self.server
+        if server is None:
+            return
+        quality = self.context.image[target.channel_id].quality
+        await server.write_attribute_value(nid, data_value(target, value, status_code(quality)))
 
     # -- observability -------------------------------------------------------------------------
     def clients(self) -> list[dict[str, Any]]:
@@ -478,10 +546,27 @@ class OpcUaFront(Front):
             )
         return out
 
+    def held(self) -> dict[str, int]:
+        """What clients hold now: connections, sessions, subscriptions, monitored items."""
+        server = self.server
+        if server is None:
+            return {}
+        iserver = server.iserver
+        subs = self._subscriptions
+        return {
+            "connections": len(server.bserver.clients) if server.bserver is not None else 0,
+            "sessions": sum(
+                1 for s in iserver._external_sessions.values() if s.state != SessionState.Closed
+            ),
+            "subscriptions": len(subs.subscriptions) if subs is not None else 0,
+            "monitored_items": subs.monitored_items if subs is not None else 0,
+        }
+
     def status(self) -> dict[str, Any]:
         if self.server is None:
             return {}
         clients = self.clients()
+        faults = self.guard.faults if self.guard is not None else Counter()
         return {
             "state": "listening" if self._listening else "stopped",
             "endpoint": self.url,
@@ -489,20 +574,27 @@ class OpcUaFront(Front):
             "namespace": self.namespace_uri,
             "variables": len(self.space.variables) if self.space else 0,
             "clients": clients,
+            "held": self.held(),
             "counters": {
                 "value_updates": self.counters["value_updates"],
                 "writes": self.counters["writes"],
                 "write_errors": self.counters["write_errors"],
+                "subscriptions_expired": self.counters["subscriptions_expired"],
                 **{f"rejected_{k}": v for k, v in sorted(self.rejected.items())},
             },
+            "service_faults": dict(sorted(faults.items())),
         }
 
     def metrics(self) -> list[MetricSample]:
         if self.server is None:
             return []
         front = self.name
+        held = self.held()
         rows = [
             gauge("opcua_clients", "client connections open", len(self.clients()), front=front),
+            gauge("opcua_sessions", "sessions open", held["sessions"], front=front),
+            gauge("opcua_subscriptions", "subscriptions", held["subscriptions"], front=front),
+            gauge("opcua_monitored_items", "monitored items", held["monitored_items"], front=front),
             counter(
                 "opcua_value_updates_total",
                 "node values written from process image changes",
@@ -517,16 +609,37 @@ class OpcUaFront(Front):
             ),
             counter(
                 "opcua_write_errors_total",
-                "client writes the process image refused",
+                "client writes refused",
                 self.counters["write_errors"],
+                front=front,
+            ),
+            counter(
+                "opcua_subscriptions_expired_total",
+                "subscriptions deleted after their lifetime without a Publish request",
+                self.counters["subscriptions_expired"],
                 front=front,
             ),
         ]
         rows += [
             counter(
-                "opcua_rejected_total", "sessions refused, by reason", n, front=front, reason=reason
+                "opcua_rejected_total",
+                "connections, sessions and requests refused or closed, by reason",
+                n,
+                front=front,
+                reason=reason,
             )
             for reason, n in sorted(self.rejected.items())
+        ]
+        faults = self.guard.faults if self.guard is not None else Counter()
+        rows += [
+            counter(
+                "opcua_service_faults_total",
+                "requests answered with a ServiceFault, by status",
+                n,
+                front=front,
+                status=status,
+            )
+            for status, n in sorted(faults.items())
         ]
         return rows
 

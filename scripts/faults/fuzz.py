@@ -157,7 +157,10 @@ def main(argv: list[str] | None = None) -> int:
             target = TARGETS[name](work)
             inputs = args.inputs or FULL_INPUTS[name]
             print(f"{name}: {inputs:,} inputs, seed {args.seed}", file=sys.stderr, flush=True)
-            report = fuzz(target, inputs, args.seed, args.hang_s, progress=True)
+            try:
+                report = fuzz(target, inputs, args.seed, args.hang_s, progress=True)
+            finally:
+                getattr(target, "close", lambda: None)()  # a target with a server stops it
             print(json.dumps(report.as_dict()), flush=True)
             reports.append(report)
     return 0 if all(r.ok for r in reports) else 1

@@ -15,7 +15,7 @@ from fuzz_targets import TARGETS, Bytes, Target
 
 from fieldgate import load_registry
 
-CI_INPUTS = {name: 5000 for name in TARGETS} | {"yaml": 300}
+CI_INPUTS = {name: 5000 for name in TARGETS} | {"yaml": 300, "opcua": 2000}
 
 
 @pytest.fixture(scope="module")
@@ -26,10 +26,15 @@ def registry():
 @pytest.mark.parametrize("name", list(TARGETS))
 def test_wire_survives_its_fuzz_inputs(name, registry, tmp_path):
     target = TARGETS[name](tmp_path, registry)
-    report = fuzz.fuzz(target, CI_INPUTS[name], seed=2026)
+    try:
+        report = fuzz.fuzz(target, CI_INPUTS[name], seed=2026)
+    finally:
+        getattr(target, "close", lambda: None)()
     assert report.examples == []
     assert (report.crashes, report.hangs, report.invariant_failures) == (0, 0, 0)
     assert report.inputs == CI_INPUTS[name]
+    if name == "opcua":
+        opcua_inputs_reach_deep(target)
 
 
 def test_the_inputs_reach_deep_into_the_engines(registry, tmp_path):
@@ -48,6 +53,22 @@ def test_the_inputs_reach_deep_into_the_engines(registry, tmp_path):
     fuzz.fuzz(modbus, 1000, seed=7)
     errors = modbus.link.stats.errors
     assert errors["garbage"] > 10 and errors["crc"] > 0 and errors["timeout"] > 0
+
+
+def opcua_inputs_reach_deep(target: Target) -> None:
+    """The OPC UA server's fuzz inputs are acknowledged, open secure channels, and meet each
+    of the framing's refusals (not only the first-byte one)."""
+    answers, rejected = target.answers, target.guard.rejected  # type: ignore[attr-defined]
+    assert answers["ACK"] > 100 and answers["OPN"] > 10 and answers["ERR"] > 100, answers
+    for reason in (
+        "not_hello_first",
+        "hello_invalid",
+        "endpoint_url_invalid",
+        "message_type_invalid",
+        "chunk_too_large",
+        "decoding_error",
+    ):
+        assert rejected[reason] > 0, (reason, dict(rejected))
 
 
 class Planted(Target):

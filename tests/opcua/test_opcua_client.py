@@ -33,6 +33,7 @@ def topology(port: int, state_dir: str, **opcua: Any) -> dict[str, Any]:
                 "type": "opcua",
                 "listen": f"127.0.0.1:{port}",
                 "writable": ["rs485/m4/ao0"],
+                "min_sampling_interval_ms": 0,  # every change a sample (the deadband test)
                 **opcua,
             }
         ],
@@ -199,7 +200,12 @@ async def test_absolute_deadband_compares_with_the_last_reported_value(gateway, 
     await wait_until(lambda: gateway.read("rs485/m5/ai0") == 0)
     await client.ok("subscribe", publishingInterval=50)
     item = (
-        await client.ok("monitor", nodeIds=[node], deadband={"type": "Absolute", "value": 100})
+        await client.ok(
+            "monitor",
+            nodeIds=[node],
+            samplingInterval=0,
+            deadband={"type": "Absolute", "value": 100},
+        )
     )["items"][0]
     assert item["ok"]
     await client.wait_for(lambda c: c["nodeId"] == node)

@@ -72,6 +72,63 @@ def test_the_quality_table_in_the_docs_is_the_code():
         assert f"| `{quality.value}` | {name}" in doc, quality
 
 
+LIMITS = (
+    "max_connections",
+    "max_connections_per_peer",
+    "max_sessions",
+    "max_sessions_per_peer",
+    "hello_timeout_s",
+    "activation_timeout_s",
+    "max_session_timeout_ms",
+    "max_chunk_size",
+    "max_message_size",
+    "max_chunk_count",
+    "min_publishing_interval_ms",
+    "min_sampling_interval_ms",
+    "max_subscriptions_per_session",
+    "max_monitored_items_per_subscription",
+    "max_monitored_items_per_session",
+    "max_queue_size",
+    "max_retransmission_queue",
+)
+
+
+def test_every_limit_is_in_the_docs_table_with_its_default():
+    """docs/opcua.md "Limits": one row per key, its default as the code has it (issue 29)."""
+    from pathlib import Path
+
+    from fieldgate.plugins.opcua.config import OpcUaFrontConfig
+
+    doc = (Path(__file__).parents[2] / "docs" / "opcua.md").read_text()
+    fields = OpcUaFrontConfig.model_fields
+    documented = {line.split("`")[1] for line in doc.splitlines() if line.startswith("| `max_")}
+    documented |= {line.split("`")[1] for line in doc.splitlines() if line.startswith("| `min_")}
+    documented |= {
+        line.split("`")[1]
+        for line in doc.splitlines()
+        if line.startswith("| `") and "_s` |" in line
+    }
+    assert documented == set(LIMITS)
+    for key in LIMITS:
+        default = fields[key].default
+        text = (
+            f"{default:g}"
+            if isinstance(default, float) and default != int(default)
+            else str(int(default))
+        )
+        assert f"| `{key}` | {text}" in doc or f"| `{key}` | {float(default)}" in doc, key
+
+
+def test_limits_bound_what_validate_accepts():
+    with pytest.raises(TopologyError, match="max_connections_per_peer"):
+        load_topology(topology(max_connections=4, max_connections_per_peer=8), REGISTRY)
+    with pytest.raises(TopologyError, match="min_publishing_interval_ms"):
+        load_topology(topology(min_publishing_interval_ms=0), REGISTRY)
+    with pytest.raises(TopologyError, match="max_chunk_size"):
+        load_topology(topology(max_chunk_size=1024), REGISTRY)  # below Part 6's 8,192
+    load_topology(topology(min_sampling_interval_ms=0, max_sessions=100), REGISTRY)
+
+
 # -- address space -----------------------------------------------------------------------------
 def channels() -> list:
     image = ProcessImage(clock=lambda: 0.0)
