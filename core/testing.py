@@ -19,8 +19,10 @@ Fixtures (each a factory; whatever they made is closed when the test ends):
 
 Helpers: :func:`assert_channel` (value and quality now, one clear message),
 :func:`wait_for_channel` (until they hold: event-driven through the image's subscription,
-with a deadline, no polling), and :func:`in_this_process` (a north-facing front built in
-the test's own process, for tests that reach into it).
+with a deadline, no polling), :func:`wait_for_report` (a component's status once it holds
+what the test waits for: a north-facing front reports from its child once a second), and
+:func:`in_this_process` (a north-facing front built in the test's own process, for tests
+that reach into it).
 """
 
 from __future__ import annotations
@@ -313,6 +315,30 @@ class StatusClient:
 
 
 # -- fixtures ------------------------------------------------------------------------------------
+async def wait_for_report(
+    gateway: Gateway,
+    component: str,
+    holds: Callable[[dict[str, Any]], bool] = lambda status: bool(status),
+    timeout: float = 15.0,
+) -> dict[str, Any]:
+    """A component's ``status()`` once ``holds(status)``: a north-facing front runs in a child
+    process that reports its status once a second (a front in the gateway's own process
+    answers at once). AssertionError with the last status after ``timeout`` seconds."""
+    comp = gateway.component(component)
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while True:
+        status = comp.status()
+        try:
+            if holds(status):
+                return status
+        except (KeyError, IndexError, TypeError):
+            pass  # not reported yet
+        if loop.time() > deadline:
+            raise AssertionError(f"{component}'s status did not get there in {timeout} s: {status}")
+        await asyncio.sleep(0.05)
+
+
 def in_this_process(registry: Registry, *front_types: str) -> Registry:
     """A copy of ``registry`` whose fronts of ``front_types`` run in the gateway's own
     process instead of a child process of their own.

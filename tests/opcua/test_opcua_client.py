@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import datetime
+import time
 from typing import Any
 
 import pytest
@@ -16,6 +17,7 @@ from netkit import free_port, wait_until
 
 from fieldgate import Gateway, Quality, load_registry
 from fieldgate.plugins.modbus.simulator import Fault
+from fieldgate.testing import wait_for_report
 
 from .uaclient import UaClient, require_node_opcua
 
@@ -123,7 +125,7 @@ async def test_read_gives_value_quality_and_acquisition_time(gateway, client):
     assert value["value"] == 1234 and value["status"]["name"] == "Good"
     # the source timestamp is that poll (later polls of the same value do not move it), not the
     # time of the read request; the wall clock offset is the front's, taken at its start
-    offset = gateway.component("ua")._wall_offset
+    offset = time.time() - time.monotonic()  # the front's, taken the same way in its child
     assert abs(iso(value["sourceTimestamp"]).timestamp() - (seen[0] + offset)) < 0.002
     assert iso(value["serverTimestamp"]) >= iso(value["sourceTimestamp"])
 
@@ -187,7 +189,7 @@ async def test_writes_reach_writable_outputs_only(gateway, client):
         "write", nodeId=f"ns={idx};s=rs485/m4/ao0", dataType="Double", value=1.5
     )
     assert wrong["status"]["name"] == "BadTypeMismatch" and gateway.read("rs485/m4/ao0") == -1234
-    status = gateway.status()["fronts"]["ua"]
+    status = await wait_for_report(gateway, "ua", lambda s: s["counters"]["writes"] == 1)
     assert status["counters"]["writes"] == 1 and len(status["clients"]) == 1
     assert status["clients"][0]["user"] == "anonymous"
 
@@ -227,7 +229,7 @@ async def test_absolute_deadband_compares_with_the_last_reported_value(gateway, 
 
 
 async def test_status_and_metrics_show_the_client(gateway, client):
-    status = gateway.status()["fronts"]["ua"]
+    status = await wait_for_report(gateway, "ua", lambda s: len(s["clients"]) == 1)
     assert status["endpoint"] == f"opc.tcp://127.0.0.1:{gateway.port}/"
     assert status["clients"][0]["peer"].startswith("127.0.0.1:")
     rows = {row[0]: row for row in gateway.component("ua").metrics()}

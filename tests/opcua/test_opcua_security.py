@@ -17,6 +17,7 @@ from netkit import free_port
 
 from fieldgate import Gateway, load_registry
 from fieldgate.plugins.opcua.security import ensure_certificate
+from fieldgate.testing import wait_for_report
 
 from .uaclient import UaClient, require_node_opcua
 
@@ -109,8 +110,10 @@ async def test_sign_and_encrypt_with_a_trusted_certificate_and_a_user(secure):
             index = (await client.ok("namespace", uri="urn:fieldgate:cell"))["index"]
             value = (await client.ok("read", nodeIds=[f"ns={index};s=rs485/m1/di0"]))["values"][0]
             assert value["dataType"] == "Boolean"
-            clients = gw.status()["fronts"]["ua"]["clients"]
-            assert [c["user"] for c in clients] == ["scada"]
+            status = await wait_for_report(
+                gw, "ua", lambda s: [c["user"] for c in s["clients"]] == ["scada"]
+            )
+            assert [c["user"] for c in status["clients"]] == ["scada"]
         finally:
             await client.close()
     # the generated server certificate is in the state directory, its key private
@@ -147,12 +150,10 @@ async def test_bad_credentials_anonymous_and_security_none_are_refused(secure):
         client, answer = await attempt(port, tmp / "pki", **case)
         await client.close()
         assert not answer["ok"], case
-    rejected = gw.status()["fronts"]["ua"]["counters"]
-    assert (
-        rejected["rejected_bad_credentials"] >= 1
-    )  # node-opcua may retry; anonymous: it sees no such policy
-    await asyncio.sleep(0.2)  # the refused connections are closed
-    assert gw.status()["fronts"]["ua"]["clients"] == []
+    status = await wait_for_report(
+        gw, "ua", lambda s: s["counters"]["rejected_bad_credentials"] >= 1 and not s["clients"]
+    )  # node-opcua may retry; anonymous: it sees no such policy; the refused ones are closed
+    assert status["counters"]["rejected_bad_credentials"] >= 1 and status["clients"] == []
 
 
 async def test_an_untrusted_client_certificate_is_refused_and_kept_for_the_administrator(secure):
@@ -174,7 +175,10 @@ async def test_an_untrusted_client_certificate_is_refused_and_kept_for_the_admin
         serialization.Encoding.DER
     )
     assert [p.read_bytes() for p in rejected] == [der]
-    assert gw.status()["fronts"]["ua"]["counters"]["rejected_certificate_untrusted"] == 1
+    status = await wait_for_report(
+        gw, "ua", lambda s: s["counters"]["rejected_certificate_untrusted"] == 1
+    )
+    assert status["counters"]["rejected_certificate_untrusted"] == 1
     # moved into trusted/, the same client gets in without a restart
     rejected[0].rename(state / "ua.opcua-pki" / "trusted" / rejected[0].name)
     client, answer = await attempt(

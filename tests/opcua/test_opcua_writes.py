@@ -18,8 +18,12 @@ from netkit import free_port, wait_until
 from fieldgate import Gateway, Quality, load_registry
 from fieldgate.image import DataType
 from fieldgate.plugins.opcua.writes import WriteTarget, _checked
+from fieldgate.testing import in_this_process
 
-REGISTRY = load_registry()
+# the tests stand in for the fieldbus side (a context whose set_outputs they control): the
+# front is built in this process (every gateway runs it in a child process of its own; the
+# cross-process write path: tests/isolation, tests/opcua/test_opcua_client.py)
+REGISTRY = in_this_process(load_registry(), "opcua")
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
 
