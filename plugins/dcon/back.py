@@ -72,6 +72,7 @@ class DconBack(SerialBack):
         )
         self._requests: list[Request] = []
         self._host_ok_running = False
+        self._host_ok_was_allowed = True
         self.reply_timeout_ms = config.timeout_ms  # the I-7241D's Application class attribute 3
         self.start_scan: StartScan | None = None  # modules: auto, once per process
         # modules: auto whose start scan found nothing (port missing, line silent): why, and
@@ -347,12 +348,48 @@ class DconBack(SerialBack):
 
     def _host_ok_changed(self) -> None:
         allowed = self._host_ok_allowed()
+        stopping = self._host_ok_was_allowed and not allowed
+        self._host_ok_was_allowed = allowed
         for module in self.modules.values():
             module.watch_status = (
                 not allowed
             )  # read ~AA0 with the inputs while modules may time out
+            module.latch_after_write = not allowed and self._current_is_safe(module)
+        if stopping:
+            self._latch_current_outputs()
         if self.scheduler is not None:
             self.scheduler.wake()
+
+    def _current_is_safe(self, module: DconModule) -> bool:
+        """``safe_value: current`` (the I-7241D's rule) applies to this module: a watchdog, outputs,
+        and no safe value of its own in the topology."""
+        return (
+            self.config.safe_value == "current"
+            and module.config.safe_value is None
+            and module.has_outputs
+            and module.watchdog_enabled
+        )
+
+    def _latch_current_outputs(self) -> None:
+        """The host OK stops: each module whose safe value is its current output latches it
+        now, so its watchdog keeps the outputs as they are (writes from now on latch again)."""
+        for module in self.modules.values():
+            if not self._current_is_safe(module) or module.in_watchdog:
+                continue
+            try:
+                future = self._submit(module.latch_safe_value)
+            except PluginStartError:
+                return  # not running: nothing on the line to latch
+            future.add_done_callback(
+                lambda f, m=module: f.cancelled()
+                or f.exception() is None
+                or log.warning(
+                    "%s: module %d: cannot latch its current outputs as safe values: %s",
+                    self.name,
+                    m.address,
+                    f.exception(),
+                )
+            )
 
     # -- one-shot requests on the line (recovery, run-time watchdog settings) -------------------
     def _submit(self, action: Callable[[], Awaitable[Any]]) -> asyncio.Future[Any]:
