@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import functools
 import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -380,15 +381,15 @@ class DconBack(SerialBack):
                 future = self._submit(module.latch_safe_value)
             except PluginStartError:
                 return  # not running: nothing on the line to latch
-            future.add_done_callback(
-                lambda f, m=module: f.cancelled()
-                or f.exception() is None
-                or log.warning(
-                    "%s: module %d: cannot latch its current outputs as safe values: %s",
-                    self.name,
-                    m.address,
-                    f.exception(),
-                )
+            future.add_done_callback(functools.partial(self._latched, module.address))
+
+    def _latched(self, address: int, future: asyncio.Future[Any]) -> None:
+        if not future.cancelled() and future.exception() is not None:
+            log.warning(
+                "%s: module %d: cannot latch its current outputs as safe values: %s",
+                self.name,
+                address,
+                future.exception(),
             )
 
     # -- one-shot requests on the line (recovery, run-time watchdog settings) -------------------

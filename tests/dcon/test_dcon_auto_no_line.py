@@ -65,7 +65,9 @@ async def test_a_missing_port_starts_with_the_scan_files_modules_offline_until_i
         assert scan["error"].startswith("cannot open serial port")
         assert scan["modules_from"] == f"the scan file {scan_file}"
         addresses = [m.address for m in back_cfg.modules]
-        assert addresses and scan["modules"] == [f"{m.model} at {m.address}" for m in back_cfg.modules]
+        assert addresses and scan["modules"] == [
+            f"{m.model} at {m.address}" for m in back_cfg.modules
+        ]
         assert gateway.health.ports_lost.keys() == {"rs485"}
         assert {c.quality for c in gateway.image.channels(back="rs485")} == {Quality.COMM_FAULT}
         simulator = dcon_registry.simulators["dcon"](back_cfg, pty.b, False)
