@@ -16,12 +16,13 @@ accepts. Figures are same-run ratios against the own client.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
 
 IFACE = sys.argv[1] if len(sys.argv) > 1 else "lo"
-N = 200
+N = int(os.environ.get("BENCH_READS", "200"))
 
 MEASURE = r"""
 import asyncio, os, sys, time

@@ -116,6 +116,10 @@ def probe_bitrate(
     is then left down). Raises :class:`~.link.LinkError` (no CAP_NET_ADMIN, a controller
     without listen-only mode)."""
     info = canlink.read_link(name)
+    if info.kind != "can":
+        raise canlink.LinkError(
+            f"{name} has no bit timing (link kind {info.kind or 'none'!r}): nothing to probe"
+        )
     if info.listen_only_supported is False:
         raise canlink.LinkError(
             f"{name}: the controller has no listen-only mode: probing the bit rate would "

@@ -14,7 +14,7 @@ import pytest
 
 from fieldgate.can import link as canlink
 from fieldgate.can import rtnetlink
-from fieldgate.can.autobaud import STANDARD_RATES, BitrateProbe
+from fieldgate.can.autobaud import STANDARD_RATES, BitrateProbe, probe_bitrate
 from fieldgate.can.link import LinkError, LinkSettings, plan
 from fieldgate.can.rtnetlink import LinkChange, RawLink
 
@@ -243,3 +243,15 @@ def test_restart_refused_because_the_kernel_restarts_by_itself_says_so(monkeypat
     )
     with pytest.raises(LinkError, match="restart-ms is 100: the kernel restarts it by itself"):
         canlink.restart("can0")
+
+
+def test_probing_needs_a_controller_with_listen_only(monkeypatch):
+    for link, why in (
+        (controller(kind="vcan"), "vcan0 has no bit timing|can0 has no bit timing"),
+        (controller(listen_only_supported=False), "no listen-only mode: probing the bit rate"),
+    ):
+        route = FakeRoute(link)
+        monkeypatch.setattr(canlink, "_socket", lambda route=route: route)
+        with pytest.raises(LinkError, match=why):
+            probe_bitrate("can0", BitrateProbe())
+        assert route.sets == 0  # nothing was touched
