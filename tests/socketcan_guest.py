@@ -40,3 +40,20 @@ def in_guest(*buses: str) -> list[pytest.MarkDecorator]:
 
 
 IN_GUEST = in_guest()
+
+
+CONTROLLERS = os.environ.get("FIELDGATE_TEST_CAN_CONTROLLERS", "").split()
+"""The emulated CAN controllers' interfaces (`.ci/socketcan/run --can-controllers`), e.g. can0 can1."""
+
+
+def with_controllers(count: int = 2) -> list[pytest.MarkDecorator]:
+    """The `pytestmark` of a module that needs real CAN controller drivers: marker
+    `can_controller` (the stage's QEMU run with emulated controllers) and a skip elsewhere."""
+    return [
+        pytest.mark.can_controller,
+        pytest.mark.skipif(
+            len(CONTROLLERS) < count,
+            reason=f"needs {count} CAN controllers: .ci/socketcan/run --can-controllers"
+            " (scripts/test --socketcan runs it)",
+        ),
+    ]

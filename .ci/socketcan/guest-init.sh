@@ -45,6 +45,34 @@ for bus in vcan0 vcan1; do  # vcan1: a second bus for tests that run two devices
 done
 [ $ok = 1 ] || { say "SocketCAN set-up failed"; finish 125; }
 say "vcan0 and vcan1 up"
+# slcan (a serial-line adapter's driver, tests/socketcan/test_socketcan_slcan.py): optional
+if [ -n "$SOCKETCAN_INSMOD_OPTIONAL" ]; then
+    for m in $SOCKETCAN_INSMOD_OPTIONAL; do [ -e "$m" ] && insmod "$m" 2>/dev/null; done
+elif [ -z "$SOCKETCAN_INSMOD" ]; then
+    modprobe slcan 2>/dev/null
+fi
+
+# Emulated CAN controllers (QEMU, --can-controllers): the real kernel driver binds each
+# device; their interfaces (down, no bit timing yet) go to the tests in
+# FIELDGATE_TEST_CAN_CONTROLLERS, in PCI order.
+if [ -n "$SOCKETCAN_CONTROLLER_DRIVER" ]; then
+    modprobe "$SOCKETCAN_CONTROLLER_DRIVER" || { say "modprobe $SOCKETCAN_CONTROLLER_DRIVER failed"; finish 125; }
+    found=""
+    for i in $(seq 50); do
+        found=""
+        for dev in /sys/class/net/*; do
+            [ "$(basename "$(readlink "$dev/device/driver" 2>/dev/null)")" = "$SOCKETCAN_CONTROLLER_DRIVER" ] &&
+                found="$found ${dev##*/}"
+        done
+        [ "$(echo $found | wc -w)" -ge "$SOCKETCAN_CONTROLLER_COUNT" ] && break
+        sleep 0.1
+    done
+    found="$(echo $found)"
+    [ "$(echo $found | wc -w)" -ge "$SOCKETCAN_CONTROLLER_COUNT" ] ||
+        { say "the $SOCKETCAN_CONTROLLER_DRIVER driver bound only '$found'"; finish 125; }
+    export FIELDGATE_TEST_CAN_CONTROLLERS="$found"
+    say "CAN controllers ($SOCKETCAN_CONTROLLER_DRIVER): $found"
+fi
 
 # The vector guard: SSE state must survive; AVX state must too, unless the backend runs
 # without XSTATE (SOCKETCAN_NO_XSTATE=1), where the known answers must match the host's.

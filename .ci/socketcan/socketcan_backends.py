@@ -46,6 +46,21 @@ QEMU_PACKAGES = (
     "iproute2",
 )
 UML_PACKAGES = ("user-mode-linux", "kmod", "iproute2")
+# Emulated CAN controllers (`--can-controllers`): QEMU device models on one shared QEMU
+# can-bus, each with the guest kernel module that drives it. The distribution kernel of this
+# host (Debian 12, 6.1) has the SJA1000 family (kvaser_pci) but not ctucanfd.
+CONTROLLER_DRIVERS = {
+    "kvaser_pci": "kvaser_pci",
+    "pcm3680_pci": "plx_pci",
+    "ctucan_pci": "ctucanfd_pci",
+}
+CONTROLLER_COUNT = 2
+
+
+def controller_model() -> str | None:
+    """The emulated controller asked for (FIELDGATE_SOCKETCAN_CONTROLLERS), or None."""
+    model = os.environ.get("FIELDGATE_SOCKETCAN_CONTROLLERS", "").strip()
+    return model or None
 
 
 def say(text: str) -> None:
@@ -232,6 +247,10 @@ class Uml(Backend):
             reason = apt_install(UML_PACKAGES, "User-Mode Linux")
             if reason:
                 return reason
+        if controller_model():
+            return (
+                "User-Mode Linux has no PCI bus: emulated CAN controllers need QEMU (kvm or qemu)"
+            )
         if self.kernel() is None:
             return "linux.uml is not installed (package user-mode-linux)"
         if self.module_dir() is None:
@@ -245,7 +264,10 @@ class Uml(Backend):
     def guest_settings(self, work: Path) -> dict[str, str]:
         moddir = self.module_dir()
         assert moddir is not None
-        return {"SOCKETCAN_INSMOD": " ".join(str(moddir / m) for m in UML_CAN_MODULES)}
+        return {
+            "SOCKETCAN_INSMOD": " ".join(str(moddir / m) for m in UML_CAN_MODULES),
+            "SOCKETCAN_INSMOD_OPTIONAL": str(moddir / "kernel/drivers/net/can/slcan/slcan.ko"),
+        }
 
     def argv(self, work: Path, mem: str) -> list[str]:
         kernel = self.kernel()
@@ -327,7 +349,8 @@ class Qemu(Backend):
         return str(kernels[-1]) if kernels else None
 
     def fingerprint(self) -> str:
-        return host_fingerprint(file_identity(self.distribution_kernel()) + self.name)
+        extra = file_identity(self.distribution_kernel()) + self.name + (controller_model() or "")
+        return host_fingerprint(extra)
 
     def unavailable(self, install: bool) -> str | None:
         if os.uname().machine != "x86_64":
@@ -341,8 +364,33 @@ class Qemu(Backend):
         ]
         if missing:
             return f"not installed: {', '.join(missing)} (packages {' '.join(QEMU_PACKAGES)})"
-        if self.distribution_kernel() is None:
+        kernel = self.distribution_kernel()
+        if kernel is None:
             return "no distribution kernel /boot/vmlinuz-*-amd64 (package linux-image-amd64)"
+        return self.controllers_unavailable(kernel)
+
+    def controllers_unavailable(self, kernel: str) -> str | None:
+        """Why the emulated controllers asked for cannot run here: QEMU lacks the device
+        model, or the guest kernel the driver for it."""
+        model = controller_model()
+        if model is None:
+            return None
+        if model not in CONTROLLER_DRIVERS:
+            return (
+                f"unknown CAN controller model {model!r} (one of {', '.join(CONTROLLER_DRIVERS)})"
+            )
+        models = subprocess.run(
+            ["qemu-system-x86_64", "-device", "help"], capture_output=True, text=True
+        ).stdout
+        if f'"{model}"' not in models:
+            return f"this QEMU has no {model} device model"
+        kver = Path(kernel).name.removeprefix("vmlinuz-")
+        driver = CONTROLLER_DRIVERS[model]
+        found = subprocess.run(
+            ["modinfo", "-k", kver, "-F", "filename", driver], capture_output=True
+        )
+        if found.returncode != 0:
+            return f"the guest kernel {kver} has no {driver} module (the driver of {model})"
         return None
 
     def prepare(self) -> None:
@@ -352,6 +400,27 @@ class Qemu(Backend):
 
     def accel(self) -> list[str]:
         return ["-accel", "tcg,thread=multi", "-cpu", "max"]
+
+    def controllers(self) -> list[str]:
+        """QEMU arguments for the emulated CAN controllers: CONTROLLER_COUNT devices of the
+        model asked for, all on one QEMU can-bus (a wire the guest cannot tell from a real one
+        at the driver level; no bit-level timing, so no error frames are ever generated)."""
+        model = controller_model()
+        if model is None:
+            return []
+        argv = ["-object", "can-bus,id=canbus0"]
+        for _ in range(CONTROLLER_COUNT):
+            argv += ["-device", f"{model},canbus=canbus0"]
+        return argv
+
+    def guest_settings(self, work: Path) -> dict[str, str]:
+        model = controller_model()
+        if model is None:
+            return {}
+        return {
+            "SOCKETCAN_CONTROLLER_DRIVER": CONTROLLER_DRIVERS.get(model, model),
+            "SOCKETCAN_CONTROLLER_COUNT": str(CONTROLLER_COUNT),
+        }
 
     def argv(self, work: Path, mem: str) -> list[str]:
         opts = "trans=virtio,version=9p2000.L,msize=512000,cache=loose"
@@ -376,6 +445,7 @@ class Qemu(Backend):
             str(self.initrd),
             "-virtfs",
             "local,path=/,mount_tag=hostroot,security_model=passthrough,multidevs=remap",
+            *self.controllers(),
             "-append",
             f"console=ttyS0 quiet loglevel=1 panic=-1 vmrun={work} vm9p={opts}",
         ]

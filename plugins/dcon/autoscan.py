@@ -6,7 +6,13 @@ checksum setting it allows (``scan.baudrates`` / ``scan.checksums``, default the
 with ``$AA2`` then ``$AAM`` / ``$AAF``, and builds its modules from what answers, in
 address order. The line then runs at the first setting that found modules; modules that
 answered at another one are left out with a warning (one line has one baud rate and one
-checksum setting). Nothing answering stops the start with one line.
+checksum setting).
+
+A missing port or a line where no supported module answers does not stop the gateway (as
+the I-7231D and I-7241D come up on the fieldbus and show the error, seed-001 §1.6, seed-003
+§2.5 "1"): :class:`NothingFound` tells the back, which starts with the modules it expects
+(:func:`expected_modules`: the previous start's scan, else the scan file) offline, or with
+none, and scans again on a back-off (docs/dcon.md, "modules: auto without its line").
 
 The result is compared with the back's scan file (if the topology names one: the EDS made
 from it no longer matches when they differ) and with the previous start's scan, recorded
@@ -32,6 +38,10 @@ from .scan import Found, scan_line, scanned
 from .scanfile import ScanFile, ScanFileError, ScannedModule, differences
 
 log = logging.getLogger("fieldgate.dcon")
+
+
+class NothingFound(PluginStartError):
+    """No supported module answered (the line is silent, or only unsupported modules answer)."""
 
 
 @dataclass
@@ -97,7 +107,7 @@ async def find_modules(config: DconBackConfig, state_dir: Path, timeout_ms: int)
             by_setting[line] += await _probe(config, *line, timeout_ms, again)
             by_setting[line].sort(key=lambda f: f.address)
     if line is None:
-        raise PluginStartError(
+        raise NothingFound(
             f"modules: auto: no DCON module answered on {config.port} (addresses "
             f"{config.scan.addresses}; "
             + ", ".join(f"{b} bit/s checksum {'on' if c else 'off'}" for b, c in settings)
@@ -119,7 +129,7 @@ async def find_modules(config: DconBackConfig, state_dir: Path, timeout_ms: int)
                 f"module {m.address} answers $AAM {m.name!r}, a model fieldgate does not support: left out"
             )
     if not result.configs():
-        raise PluginStartError(
+        raise NothingFound(
             f"modules: auto: no supported DCON module on {config.port}: "
             + "; ".join(result.left_out)
         )
@@ -157,6 +167,26 @@ async def _probe(
         )
     finally:
         await serial.close()
+
+
+def expected_modules(config: DconBackConfig, state_dir: Path) -> tuple[list[DconModuleConfig], str]:
+    """The modules a back whose start scan found nothing expects, and where they come from:
+    the previous start's scan (the image the master last saw), else the topology's scan file
+    (the image the EDS was made from), else none."""
+    record = state_dir / f"{config.name}.dcon-scan.json"
+    for scan, source in (
+        (_previous(config, record), f"the previous start's scan ({record})"),
+        (config.scan_file, f"the scan file {config.scan.file}"),
+    ):
+        if scan is not None:
+            configs = [
+                DconModuleConfig.model_validate(entry)
+                for m in scan.supported()
+                if (entry := m.module_config()) is not None
+            ]
+            if configs:
+                return configs, source
+    return [], "nowhere (no earlier scan, no scan file)"
 
 
 def _previous(config: DconBackConfig, record: Path) -> ScanFile | None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import functools
 import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -31,21 +32,23 @@ from typing import Any
 from fieldgate.host_watchdog import ClearSteps, clear_timeout
 from fieldgate.image import ChannelSpec, Kind
 from fieldgate.module_info import ModuleIdentity
-from fieldgate.plugin import GatewayContext, PluginStartError
+from fieldgate.plugin import GatewayContext, PluginStartError, PortUnavailable
 from fieldgate.polling import CommError, LineJob, SerialBack
 from fieldgate.serial_link import AsyncSerial
 from fieldgate.topology import ModuleConfig
 
-from .autoscan import StartScan, find_modules
+from .autoscan import NothingFound, StartScan, expected_modules, find_modules
 from .codec import BAUD_CODES, HOST_OK
 from .config import DconBackConfig, DconModuleConfig, parse_addresses
 from .link import DconLink
 from .module import DconModule
 from .profiles import AIDIO, AO_SINGLE
 from .scan import scan_line, scanned
+from .scanfile import ScanFile
 
 log = logging.getLogger("fieldgate.dcon")
 SURVEY_PERIOD_S = 1.0  # listed modules: one other address probed a second
+RESCAN_FIRST_S, RESCAN_MAX_S = 2.0, 60.0  # modules: auto with nothing expected: scan back-off
 
 
 def configured_fields(
@@ -70,8 +73,14 @@ class DconBack(SerialBack):
         )
         self._requests: list[Request] = []
         self._host_ok_running = False
+        self._host_ok_was_allowed = True
         self.reply_timeout_ms = config.timeout_ms  # the I-7241D's Application class attribute 3
         self.start_scan: StartScan | None = None  # modules: auto, once per process
+        # modules: auto whose start scan found nothing (port missing, line silent): why, and
+        # what the back does about it (status "start_scan")
+        self.scan_problem: dict[str, Any] | None = None
+        self._rescan_delay = RESCAN_FIRST_S
+        self._rescan_due: float | None = None
         # listed modules: the other addresses of scan.addresses, probed once after start
         self.survey: list[str] = []
         self._survey_left: list[int] | None = None
@@ -80,21 +89,64 @@ class DconBack(SerialBack):
 
     # -- SerialBack -------------------------------------------------------------------
     async def start(self) -> None:
-        if self.config.auto and self.start_scan is None:
+        if self.config.auto and self.start_scan is None and self.scan_problem is None:
             await self._find_modules()
         await super().start()
 
     async def _find_modules(self) -> None:
         """``modules: auto``: the line's modules become the back's (a restart of the back
-        keeps them: the fronts built on them)."""
+        keeps them: the fronts built on them). A missing port or a silent line does not stop
+        the start: see :meth:`_start_without_scan`."""
         cfg = self.config
-        result = await find_modules(cfg, self.context.state_dir, self.reply_timeout_ms)
+        try:
+            result = await find_modules(cfg, self.context.state_dir, self.reply_timeout_ms)
+        except (PortUnavailable, NothingFound) as exc:
+            self._start_without_scan(str(exc))
+            return
         cfg.baudrate, cfg.checksum = result.baudrate, result.checksum
-        cfg.modules[:] = result.configs()
+        self._take_modules(result.configs())
+        self.start_scan = result
+
+    def _take_modules(self, modules: list[DconModuleConfig]) -> None:
+        cfg = self.config
+        cfg.modules[:] = modules
         for module in cfg.modules:
             self.register_health(module)
         self.context.add_channels(self.name, cfg.channel_specs())
-        self.start_scan = result
+
+    def _start_without_scan(self, why: str) -> None:
+        """The I-7231D/I-7241D way: come up on the fieldbus and show the error. The back
+        starts with the modules it expects (the previous start's scan, else the scan file)
+        offline; they come online when they answer, as listed modules do. With nothing to
+        expect it starts with no module and scans the line again on a back-off."""
+        expected, source = expected_modules(self.config, self.context.state_dir)
+        self._take_modules(expected)
+        self.scan_problem = {
+            "error": why,
+            "modules_from": source,
+            "modules": [f"{m.model} at {m.address}" for m in expected],
+            "rescans": 0,
+            "found_later": [],
+            "restart_needed": False,
+        }
+        if expected:
+            log.error(
+                "%s: %s; started with the %d module(s) of %s, offline until they answer",
+                self.name,
+                why,
+                len(expected),
+                source,
+            )
+        else:
+            self._rescan_due = self.context.clock() + RESCAN_FIRST_S
+            log.error(
+                "%s: %s; started with no module (nothing to expect: no earlier scan, no scan "
+                "file); scanning the line again every %.0f-%.0f s",
+                self.name,
+                why,
+                RESCAN_FIRST_S,
+                RESCAN_MAX_S,
+            )
 
     async def open_link(self) -> AsyncSerial:
         cfg = self.config
@@ -170,6 +222,8 @@ class DconBack(SerialBack):
         period = self.host_ok_period()
         jobs = [LineJob("requests", 0.0, self._run_request, lambda: bool(self._requests))]
         jobs.append(LineJob("host-ok", period or 1.0, self._host_ok, self._host_ok_wanted))
+        if self._rescan_due is not None:
+            jobs.append(LineJob("rescan", 0.5, self._rescan, self._rescan_wanted))
         cfg = self.config
         if self._survey_left is None:  # once per process, not at each restart of the back
             listed = {m.address for m in cfg.modules}
@@ -186,6 +240,41 @@ class DconBack(SerialBack):
                 LineJob("survey", SURVEY_PERIOD_S, self._survey_one, self._survey_wanted, start)
             )
         return jobs
+
+    def _rescan_wanted(self) -> bool:
+        return self._rescan_due is not None and self.context.clock() >= self._rescan_due
+
+    async def _rescan(self) -> None:
+        """modules: auto, nothing expected: probe the line's addresses at its setting. When
+        supported modules answer, the scan is recorded (the next start builds the image from
+        it) and the status asks for a restart: the fronts' images were built without them."""
+        assert self.dcon is not None and self.scan_problem is not None
+        cfg = self.config
+        found = await scan_line(
+            self.dcon, parse_addresses(cfg.scan.addresses), cfg.baudrate, report=lambda t: None
+        )
+        self.scan_problem["rescans"] += 1
+        modules = [scanned(f, cfg.checksum) for f in found]
+        if not any(m.model is not None for m in modules):
+            self._rescan_delay = min(self._rescan_delay * 2, RESCAN_MAX_S)
+            self._rescan_due = self.context.clock() + self._rescan_delay
+            return
+        self._rescan_due = None
+        record = self.context.state_dir / f"{cfg.name}.dcon-scan.json"
+        scan = ScanFile(cfg.port, modules, cfg.scan.addresses, [cfg.baudrate], [cfg.checksum])
+        try:
+            record.parent.mkdir(parents=True, exist_ok=True)
+            scan.write(record)
+        except OSError as exc:
+            log.error("%s: cannot record the scan in %s: %s", self.name, record, exc)
+        self.scan_problem["found_later"] = [m.describe() for m in modules]
+        self.scan_problem["restart_needed"] = True
+        log.error(
+            "%s: modules answer now (%s), but the image was built without them: restart the "
+            "gateway to serve them (the scan is recorded for the next start)",
+            self.name,
+            ", ".join(self.scan_problem["found_later"]),
+        )
 
     def _survey_wanted(self) -> bool:
         """Addresses left, and no host watchdog on: an empty address holds the line for a reply
@@ -260,12 +349,48 @@ class DconBack(SerialBack):
 
     def _host_ok_changed(self) -> None:
         allowed = self._host_ok_allowed()
+        stopping = self._host_ok_was_allowed and not allowed
+        self._host_ok_was_allowed = allowed
         for module in self.modules.values():
             module.watch_status = (
                 not allowed
             )  # read ~AA0 with the inputs while modules may time out
+            module.latch_after_write = not allowed and self._current_is_safe(module)
+        if stopping:
+            self._latch_current_outputs()
         if self.scheduler is not None:
             self.scheduler.wake()
+
+    def _current_is_safe(self, module: DconModule) -> bool:
+        """``safe_value: current`` (the I-7241D's rule) applies to this module: a watchdog, outputs,
+        and no safe value of its own in the topology."""
+        return (
+            self.config.safe_value == "current"
+            and module.config.safe_value is None
+            and module.has_outputs
+            and module.watchdog_enabled
+        )
+
+    def _latch_current_outputs(self) -> None:
+        """The host OK stops: each module whose safe value is its current output latches it
+        now, so its watchdog keeps the outputs as they are (writes from now on latch again)."""
+        for module in self.modules.values():
+            if not self._current_is_safe(module) or module.in_watchdog:
+                continue
+            try:
+                future = self._submit(module.latch_safe_value)
+            except PluginStartError:
+                return  # not running: nothing on the line to latch
+            future.add_done_callback(functools.partial(self._latched, module.address))
+
+    def _latched(self, address: int, future: asyncio.Future[Any]) -> None:
+        if not future.cancelled() and future.exception() is not None:
+            log.warning(
+                "%s: module %d: cannot latch its current outputs as safe values: %s",
+                self.name,
+                address,
+                future.exception(),
+            )
 
     # -- one-shot requests on the line (recovery, run-time watchdog settings) -------------------
     def _submit(self, action: Callable[[], Awaitable[Any]]) -> asyncio.Future[Any]:
@@ -417,6 +542,8 @@ class DconBack(SerialBack):
         status["reply_timeout_ms"] = self.reply_timeout_ms
         if self.start_scan is not None:
             status["start_scan"] = self.start_scan.status()
+        elif self.scan_problem is not None:
+            status["start_scan"] = dict(self.scan_problem)
         if not self.config.auto and self.config.scan.survey:
             status["survey"] = list(self.survey)
         period = self.host_ok_period()

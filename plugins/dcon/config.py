@@ -181,6 +181,13 @@ class DconBackConfig(SerialBackConfig):
     modules: list[DconModuleConfig] = Field(
         description="the modules, or auto: found on the line at start (scan)"
     )
+    safe_value: Literal["module", "current"] = Field(
+        "module",
+        description="what a module without its own safe_value applies at a host-watchdog "
+        "timeout: module = the value stored in it; current = its current outputs, as the "
+        "I-7241D (seed-003 §7.2.11): latched when the host OK stops and after each output "
+        "write while it is stopped",
+    )
     scan: ScanSettings = Field(default_factory=ScanSettings)
     _auto: bool = PrivateAttr(False)
     _scan_file: ScanFile | None = PrivateAttr(None)

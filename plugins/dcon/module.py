@@ -52,6 +52,7 @@ class DconModule(PolledModule):
         self.in_watchdog = False
         self.watchdog_events = 0
         self.safe_values_latched = 0
+        self.latch_after_write = False  # set by the back: safe_value current, host OK stopped
         self.last_clear = ""  # how the last clear went (status)
         self.watch_status = (
             watch_status  # poll ~AA0 with the inputs (set while host OK is suspended)
@@ -212,6 +213,8 @@ class DconModule(PolledModule):
             for index, cid in enumerate(self.by_kind[Kind.AO]):
                 if cid in values:
                     await self._write_analog(index, int(values[cid]))
+            if self.latch_after_write and not self.in_watchdog:
+                await self.latch_safe_value()  # safe_value: current while the host OK is off
         except CommError as exc:
             if exc.kind is ErrorKind.WATCHDOG:
                 self.enter_watchdog("an output write was answered '!'")

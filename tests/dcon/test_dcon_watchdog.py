@@ -183,3 +183,54 @@ async def test_a_clear_while_host_ok_is_off_goes_out_without_it_and_the_status_s
         status = next(m for m in back.status()["dcon_modules"] if m["address"] == 1)
         assert "switched off by the master" in status["watchdog"]["last_clear"]
         assert back.watchdog_status(1)  # the module timed out again at once: 0x2003 says 1
+
+
+async def test_safe_value_current_keeps_the_outputs_at_a_host_watchdog_timeout(gateway, wait_for):
+    """``safe_value: current`` (the I-7241D's rule, seed-003 §7.2.11, audit 003 #27): at the
+    timeout the outputs stay what they are, instead of the value stored in the module. The back
+    latches them (~AA5S, ~AA5 per AO) when the host OK stops and after each write made while it
+    is stopped; a module with its own safe_value keeps it."""
+    slow = {"enabled": True, "timeout_ms": 900}
+    modules = [
+        {"address": 1, "model": "I-7043", "watchdog": slow},
+        {"address": 2, "model": "I-7024", "watchdog": slow},
+        {"address": 3, "model": "I-7043", "watchdog": slow, "safe_value": 0x000F},
+    ]
+    async with gateway(modules, safe_value="current") as gw:
+        sim, back = gw.bench.simulator("rs485"), gw.component("rs485")
+        gw.write("rs485/m1/do0", True)
+        gw.write("rs485/m1/do5", True)
+        gw.write("rs485/m2/ao0", 1000)
+        gw.write("rs485/m3/do7", True)
+        await wait_for(
+            lambda: (
+                sim.module(1).do_bits == 0x21
+                and sim.module(2).ao_raw[0] == 1000
+                and sim.module(3).do_bits == 0x80
+                and sim.module(3).safe_do == 0x000F  # stored when it came online
+                and back.host_ok_sent > 2
+            )
+        )
+        assert sim.module(1).safe_do == 0  # nothing latched while the master is healthy
+        gw.component("plc").lose_master("heartbeat timeout")
+        await wait_for(lambda: sim.module(1).safe_do == 0x21 and sim.module(2).safe_ao[0] == 1000)
+        gw.write("rs485/m1/do2", True)  # a write while the host OK is off: latched as well
+        await wait_for(lambda: sim.module(1).safe_do == 0x25)
+        await wait_for(lambda: all(sim.module(a).timed_out for a in (1, 2, 3)), timeout=3)
+        assert sim.module(1).do_bits == 0x25 and sim.module(2).ao_raw[0] == 1000
+        assert sim.module(3).do_bits == 0x000F  # its own safe value
+        latched = {
+            m["address"]: m["safe_values_latched"]
+            for m in gw.status()["backs"]["rs485"]["dcon_modules"]
+        }
+        assert latched[1] >= 2 and latched[2] >= 1 and latched[3] == 0
+
+
+async def test_by_default_the_modules_stored_safe_value_applies(gateway, wait_for):
+    async with gateway([{"address": 1, "model": "I-7043", "watchdog": WD}]) as gw:
+        sim = gw.bench.simulator("rs485")
+        gw.write("rs485/m1/do0", True)
+        await wait_for(lambda: sim.module(1).do_bits == 0x01)
+        gw.component("plc").lose_master("heartbeat timeout")
+        await wait_for(lambda: sim.module(1).timed_out, timeout=2)
+        assert sim.module(1).do_bits == 0 and sim.module(1).safe_do == 0

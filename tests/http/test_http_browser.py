@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from httpkit import Running, load_gateway, start
+from httpkit import EXAMPLES, Running, load_gateway, start
 
 from fieldgate.plugins.modbus.simulator import Fault
 
@@ -203,5 +203,36 @@ async def test_the_page_shows_what_a_back_found_on_its_line(driver, tmp_path):
             "return [...document.querySelectorAll('#modules tbody tr')].map(r => r.dataset.module)",
         )
         assert rows == ["rs485/m1", "rs485/m2", "rs485/m3"]
+    finally:
+        await gw.stop()
+
+
+async def test_the_page_shows_a_start_scan_that_found_no_line(driver, tmp_path):
+    """examples/i7241d-style.yaml without its serial port (docs/dcon.md, "modules: auto without
+    its line"): the note says why and where the modules come from; the page has no error."""
+    from fieldgate import Gateway
+
+    gw = Gateway.load(
+        EXAMPLES / "i7241d-style.yaml",
+        overrides={
+            "gateway.state_dir": str(tmp_path / "state"),
+            "gateway.http.listen": "127.0.0.1:0",
+            "fronts.0.interface": "virtual",
+            "fronts.0.channel": f"fieldgate-http-noline-{os.getpid()}",
+            "backs.0.port": str(tmp_path / "no-such-ttyUSB0"),
+        },
+    )
+    running: Running = await start(gw)
+    try:
+        await asyncio.to_thread(driver.get, f"http://127.0.0.1:{running.port}/")
+        script = "document.querySelector('#line-notes li[data-back=\"rs485\"]')?.textContent"
+        text = await asyncio.to_thread(wait_js, driver, f"return {script}", 10)
+        assert text.startswith("rs485: start scan failed: cannot open serial port ")
+        assert (
+            "modules from the scan file " in text
+            and "I-7055 at 1, I-7017 at 2, I-7024 at 3" in text
+        )
+        severe = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+        assert severe == [], severe
     finally:
         await gw.stop()

@@ -117,6 +117,21 @@ def test_a_hung_guest_times_out_with_124_and_leaves_nothing_behind(chosen, tmp_p
     assert list(tmp_path.iterdir()) == []  # the work directory is gone
 
 
+def test_emulated_controllers_are_offered_by_qemu_only_with_a_model_it_knows(tmp_path):
+    """`--can-controllers=MODEL` (docs/socketcan.md): UML has no PCI bus; QEMU refuses a model it
+    lacks before booting anything (a cache of the test's own: no remembered verdicts)."""
+    env = {"FIELDGATE_SOCKETCAN_CACHE": str(tmp_path / "cache")}
+    done = run("--can-controllers=nosuch_pci", "--list", extra_env=env)
+    assert done.returncode == 0, done.stderr
+    lines = {line.split()[0]: line for line in done.stdout.splitlines() if line.strip()}
+    for name in ("uml", "uml-noxstate"):
+        if "x86_64 only" not in lines[name]:
+            assert "no PCI bus: emulated CAN controllers need QEMU" in lines[name]
+    if "not installed" not in lines["qemu"]:
+        assert "unknown CAN controller model 'nosuch_pci'" in lines["qemu"]
+    assert list(tmp_path.glob("fieldgate-socketcan.*")) == []  # nothing booted
+
+
 def test_install_only_boots_no_guest(tmp_path):
     done = run("--install", tmpdir=tmp_path)
     assert done.returncode == 0, done.stderr

@@ -151,7 +151,11 @@ function renderLineNotes(st) {
   notes.replaceChildren();
   for (const [name, b] of Object.entries(st.backs || {})) {
     const scan = b.start_scan;
-    if (scan) {
+    if (scan && scan.error) {  // modules: auto without its line (docs/dcon.md)
+      const from = scan.modules.length ? `: ${scan.modules.join(", ")}` : "";
+      notes.append(el("li", { class: "warn", "data-back": name, text: `${name}: start scan failed: ${scan.error}; modules from ${scan.modules_from}${from} (scanned again ${scan.rescans} time(s))` }));
+      if (scan.restart_needed) notes.append(el("li", { class: "warn", text: `${name}: modules answer now (${scan.found_later.join(", ")}): restart the gateway to serve them` }));
+    } else if (scan) {
       const cs = scan.checksum ? "on" : "off";
       notes.append(el("li", { "data-back": name, text: `${name}: found at start (${scan.baudrate} bit/s, checksum ${cs}): ${scan.modules.join(", ")}` }));
       for (const line of scan.left_out) notes.append(el("li", { class: "warn", text: `${name}: ${line}` }));
