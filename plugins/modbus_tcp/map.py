@@ -56,6 +56,7 @@ TABLE_OF_FC = {
 }
 TABLES = (COILS, DISCRETE_INPUTS, INPUT_REGISTERS, HOLDING_REGISTERS)
 WIDE = {DataType.INT32, DataType.UINT32, DataType.FLOAT32}
+_DTYPES = {d.value: d for d in DataType}  # a point's type by name, without Enum's lookup
 
 
 @dataclass(frozen=True)
@@ -154,7 +155,7 @@ class ModbusMap:
 
     # -- values ------------------------------------------------------------------------------
     def _words(self, point: Point, value: bool | int | float) -> list[int]:
-        dtype = DataType(point.dtype)
+        dtype = _DTYPES[point.dtype]
         if dtype is DataType.FLOAT32:
             raw = struct.unpack(">I", struct.pack(">f", float(value)))[0]
         else:
@@ -165,7 +166,7 @@ class ModbusMap:
         return words if self.word_order == "big" else words[::-1]
 
     def _value(self, point: Point, words: list[int]) -> int | float:
-        dtype = DataType(point.dtype)
+        dtype = _DTYPES[point.dtype]
         if point.width == 1:
             word = words[0]
             if dtype is DataType.INT16:
@@ -211,15 +212,19 @@ class ModbusMap:
         if table in (COILS, DISCRETE_INPUTS):
             return [bool(image[p.channel_id].value) for p, _ in part if p.channel_id is not None]
         out: list[int] = []
-        cache: dict[str, list[int]] = {}
+        words: list[int] = []
         for p, i in part:
-            if p.channel_id is None:
+            cid = p.channel_id
+            if cid is None:
                 out.append(self._module_word(p, image, health))
-                continue
-            words = cache.get(p.what)
-            if words is None:
-                words = cache[p.what] = self._words(p, image[p.channel_id].value)
-            out.append(words[i])
+            elif p.width == 1:  # int16, uint16, a byte: the value's low 16 bits
+                out.append(int(image[cid].value) & 0xFFFF)
+            else:  # a 32-bit value's two words, one after the other (a read may start at either)
+                if i == 0 or not words:
+                    words = self._words(p, image[cid].value)
+                out.append(words[i])
+                if i:
+                    words = []
         return out
 
     def write(
@@ -253,7 +258,7 @@ class ModbusMap:
                 if i != 0 or k + p.width > count:
                     return ILLEGAL_VALUE  # a 32-bit value is written whole
                 value = self._value(p, [int(v) for v in values[k : k + p.width]])
-                if DataType(p.dtype) is DataType.UINT8 and not 0 <= int(value) <= 0xFF:
+                if _DTYPES[p.dtype] is DataType.UINT8 and not 0 <= int(value) <= 0xFF:
                     return ILLEGAL_VALUE
                 assert p.channel_id is not None
                 updates.append((p.channel_id, value))
