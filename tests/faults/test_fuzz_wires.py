@@ -2,7 +2,8 @@
 
 Each target feeds its inputs to a real engine (the fronts' CANopen node and DeviceNet
 slave as ``fieldgate run`` builds them, the backs' Modbus and DCON link and module code,
-the topology loader) and checks after every input that it still answers a valid request.
+the Modbus TCP front's server in memory and on a socket, the topology loader) and checks
+after every input that it still answers a valid request.
 """
 
 from __future__ import annotations
@@ -15,7 +16,11 @@ from fuzz_targets import TARGETS, Bytes, Target
 
 from fieldgate import load_registry
 
-CI_INPUTS = {name: 5000 for name in TARGETS} | {"yaml": 300}
+CI_INPUTS = {name: 5000 for name in TARGETS} | {
+    "yaml": 300,
+    "modbus_tcp": 2500,
+    "modbus_tcp_socket": 400,
+}
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +31,10 @@ def registry():
 @pytest.mark.parametrize("name", list(TARGETS))
 def test_wire_survives_its_fuzz_inputs(name, registry, tmp_path):
     target = TARGETS[name](tmp_path, registry)
-    report = fuzz.fuzz(target, CI_INPUTS[name], seed=2026)
+    try:
+        report = fuzz.fuzz(target, CI_INPUTS[name], seed=2026)
+    finally:
+        target.close()
     assert report.examples == []
     assert (report.crashes, report.hangs, report.invariant_failures) == (0, 0, 0)
     assert report.inputs == CI_INPUTS[name]
