@@ -36,7 +36,7 @@ SOCKET_RCVBUF = 16 * 1024  # the kernel's buffers per connection (Linux doubles 
 SOCKET_SNDBUF = 32 * 1024  # client that sends without reading holds little there either
 BACKLOG = 128
 WARN_PEERS = 32  # refused addresses logged (each once); past them, refusals are counted only
-GRACEFUL = ("malformed",)  # closed with a FIN; a timeout or an eviction resets (below)
+GRACEFUL = (MALFORMED,)  # closed with a FIN; a timeout or an eviction resets (below)
 
 Handler = Callable[[Frame], bytes | Awaitable[bytes]]
 
@@ -322,6 +322,3 @@ def _listening_socket(host: str, port: int) -> socket.socket:
         sock.close()
         raise
     return sock
-
-
-__all__ = ["MALFORMED", "Connection", "ModbusTcpServer", "ServerLimits"]

@@ -149,18 +149,20 @@ async def test_a_connection_being_served_is_never_evicted_and_a_newcomer_waits_i
 
 async def test_idle_and_half_sent_connections_are_closed():
     async with serve(idle_timeout_s=1.0, request_timeout_s=0.5) as gw:
+        loop = asyncio.get_running_loop()
         idle_r, idle_w = await connect(gw)
         idle_w.write(mbap(READ))
         await read_frame(idle_r)
+        idle_since = loop.time()
         slow_r, slow_w = await connect(gw)
         slow_w.write(mbap(READ)[:5])  # a header never finished
-        loop = asyncio.get_running_loop()
-        started = loop.time()
+        slow_since = loop.time()
         assert await closed_by_server(slow_r, 3.0)
-        slow_after = loop.time() - started
+        slow_after = loop.time() - slow_since
         assert await closed_by_server(idle_r, 3.0)
-        idle_after = loop.time() - started
-        assert 0.4 <= slow_after < 2.0 and 0.9 <= idle_after < 2.5
+        idle_after = loop.time() - idle_since
+        assert slow_after > 0.35 and idle_after > 0.8  # not before their time (the client
+        # sees its answer a little after the server sent it); within 3 s: closed_by_server
         c = counters(gw)
         assert (c["closed_request_timeout"], c["closed_idle_timeout"]) == (1, 1)
         assert await fresh_read(gw)
@@ -208,7 +210,8 @@ async def test_every_function_code_outside_the_served_set_answers_exception_01()
         reader, writer = await connect(gw)
         outside = [fc for fc in range(256) if fc not in SERVED]
         for fc in outside:
-            writer.write(mbap(bytes([fc]) + bytes(4), tid=fc))
+            body = b"\x0e\x01\x00" if fc == 43 else bytes(4)  # FC 43/14: device identification
+            writer.write(mbap(bytes([fc]) + body, tid=fc))
             assert await read_frame(reader) == (fc, bytes([fc | 0x80, 0x01])), fc
         assert counters(gw)["unknown_function"] == len(outside) == 247
         writer.close()
@@ -245,10 +248,11 @@ async def test_a_client_that_never_reads_holds_a_bounded_amount_and_is_closed():
         sending = asyncio.create_task(
             loop.sock_sendall(sock, b"".join(mbap(READ, tid=i) for i in range(20_000)))
         )
-        await wait_until(lambda: any(c.write_paused for c in gw.component("mb").connections()))
-        conn = gw.component("mb").connections()[0]
+        conns = gw.component("mb").connections
+        await wait_until(lambda: any(c.write_paused and c.reading_paused for c in conns()))
+        conn = conns()[0]  # its answers wait in 16 KiB, its requests in the kernel
         assert conn.transport.get_write_buffer_size() <= 16 * 1024 + 260
-        assert conn.engine.pending <= 16 and conn.reading_paused
+        assert conn.engine.pending <= 16
         assert await fresh_read(gw)
         await wait_until(lambda: counters(gw).get("closed_idle_timeout") == 1, timeout=4)
         sending.cancel()

@@ -164,7 +164,7 @@ async def test_a_handshake_not_finished_in_time_is_closed(tmp_path):
         started = loop.time()
         async with asyncio.timeout(3):
             assert await reader.read(100) == b""
-        assert loop.time() - started < 1.5
+        assert loop.time() - started < 2.5  # request_timeout_s 0.5; asyncio alone: 60 s
         writer.close()
     finally:
         await gw.stop()
