@@ -36,9 +36,11 @@ _HEADER = struct.Struct(">HHHB")
 
 @dataclass(frozen=True)
 class Limits:
-    idle_timeout: float = 60.0  # no request for this long: closed
-    request_timeout: float = 5.0  # a frame begun must be complete within this
-    max_pending: int = 16  # requests decoded ahead of their answers
+    """A connection's limits (their defaults are the front's settings, config.py)."""
+
+    idle_timeout: float  # no request for this long: closed
+    request_timeout: float  # a frame begun must be complete within this
+    max_pending: int  # requests decoded ahead of their answers
 
 
 @dataclass(frozen=True, slots=True)

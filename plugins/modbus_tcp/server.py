@@ -43,9 +43,9 @@ Handler = Callable[[Frame], bytes | Awaitable[bytes]]
 
 @dataclass(frozen=True)
 class ServerLimits:
-    max_clients: int = 32
-    max_per_peer: int = 16
-    connection: Limits = Limits()
+    max_clients: int
+    max_per_peer: int
+    connection: Limits
 
 
 class Connection(asyncio.BufferedProtocol):

@@ -285,6 +285,22 @@ async def test_a_write_is_answered_only_once_applied_in_one_batch():
         writer.close()
 
 
+async def test_read_write_multiple_registers_writes_first_then_reads():
+    """FC23 (section 6.17): one batch written, then the read answered, after it applied."""
+    async with serve() as gw:
+        reader, writer = await connect(gw)
+        request = struct.pack(">BHHHHBHH", 23, 0, 4, 2, 2, 4, 222, 333)  # write ao2-3, read 0-3
+        writer.write(mbap(request, tid=3))
+        tid, pdu = await read_frame(reader)
+        assert tid == 3 and pdu[:2] == bytes([23, 8])
+        assert struct.unpack(">4h", pdu[2:])[2:] == (222, 333)
+        assert (gw.read("rs485/m4/ao2"), gw.read("rs485/m4/ao3")) == (222, 333)
+        writer.write(mbap(struct.pack(">BHHHHBH", 23, 3, 2, 1, 1, 2, 9), tid=4))  # read 3-4
+        assert await read_frame(reader) == (4, bytes([0x97, 0x02]))
+        assert gw.read("rs485/m4/ao1") != 9  # refused whole: nothing written
+        writer.close()
+
+
 @pytest.mark.parametrize(
     ("error", "code"),
     [(KeyError("no channel"), 0x02), (ValueError("out of range"), 0x03), (OSError("gone"), 0x04)],
