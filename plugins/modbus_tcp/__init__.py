@@ -1,1 +1,1 @@
-"""The ``modbus-tcp`` front: the process image served as a Modbus TCP server (pymodbus; docs/modbus-tcp.md)."""
+"""The ``modbus-tcp`` front: the process image served as a Modbus TCP server (docs/modbus-tcp.md)."""

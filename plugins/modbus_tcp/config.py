@@ -51,7 +51,40 @@ class ModbusTcpFrontConfig(FrontConfig):
         None,
         description="client addresses or networks accepted (unauthenticated); others are disconnected",
     )
-    max_clients: int = Field(16, ge=1, le=256, description="concurrent client connections")
+    max_clients: int = Field(
+        32,
+        ge=1,
+        le=1024,
+        description="connections in all; at the cap a new one closes the longest-idle connection "
+        "that has no request in progress, and is refused only when every one is busy",
+    )
+    max_clients_per_peer: int = Field(
+        16,
+        ge=1,
+        le=1024,
+        description="connections from one client address; a new one over it closes that "
+        "address's longest-idle connection",
+    )
+    idle_timeout_s: float = Field(
+        60.0,
+        ge=1.0,
+        le=86_400.0,
+        description="a connection with no request for this long is closed",
+    )
+    request_timeout_s: float = Field(
+        5.0,
+        ge=0.1,
+        le=60.0,
+        description="a request (MBAP frame) begun must be complete within this, and a TLS "
+        "handshake done; else the connection is closed",
+    )
+    max_pending_requests: int = Field(
+        16,
+        ge=1,
+        le=256,
+        description="pipelined requests taken from one connection ahead of their answers; "
+        "more wait in the client's socket (TCP flow control)",
+    )
 
     @field_validator("listen")
     @classmethod

@@ -1,196 +1,50 @@
-"""The ``modbus-tcp`` front: the process image as a Modbus TCP server (pymodbus 3.16.1).
+"""The ``modbus-tcp`` front: the process image as a Modbus TCP server.
 
-pymodbus does the TCP/TLS transport, MBAP framing and PDU decoding; every request reaches
-:class:`ImageContext`, which answers from the process image through the front's
-:class:`~.map.ModbusMap` (the map and the exception rules live there, without I/O). Reads never
-wait for an RS-485 transaction; a write goes to the process image and the back writes it to
-the module on its next turn.
+Our own server (docs/modbus-tcp.md, "Why our own server"): :mod:`.server` does the sockets
+and TLS, :mod:`.mbap` the framing, admission and timers (no I/O), :mod:`.pdu` the requests
+and answers, :mod:`.map` the map and its exception rules. This module answers each request:
+reads from the process image, in the loop turn the request arrived in (never an RS-485
+transaction); writes through ``context.set_outputs``, one batch per request, answered once
+the fieldbus side applied it.
+
+The front uses only what a north-facing front may use in a child process of its own:
+``context.image``, ``health``, ``topology``, ``front_channels`` and ``set_outputs``.
 """
 
 from __future__ import annotations
 
-import ipaddress
 import ssl
-import struct
 from collections import Counter
+from collections.abc import Coroutine
 from pathlib import Path
 from typing import Any
 
-from pymodbus.constants import ExcCodes
-from pymodbus.exceptions import NoSuchIdException
-from pymodbus.pdu import ExceptionResponse, ModbusPDU
-from pymodbus.pdu.bit_message import (
-    ReadCoilsRequest,
-    ReadDiscreteInputsRequest,
-    WriteMultipleCoilsRequest,
-    WriteSingleCoilRequest,
-)
-from pymodbus.pdu.register_message import (
-    ReadHoldingRegistersRequest,
-    ReadInputRegistersRequest,
-    WriteMultipleRegistersRequest,
-)
-from pymodbus.server import ModbusTcpServer, ModbusTlsServer
-from pymodbus.server.requesthandler import ServerRequestHandler
-from pymodbus.simulator import DataType as SimType
-from pymodbus.simulator import SimData, SimDevice
-
+from fieldgate.image import Value
 from fieldgate.metric_samples import Sample as MetricSample
 from fieldgate.metric_samples import counter, gauge
 from fieldgate.plugin import Front, GatewayContext, PluginStartError
 
 from .config import ModbusTcpFrontConfig
-from .map import TABLE_OF_FC, ModbusMap
+from .map import ModbusMap
+from .mbap import Frame, Limits
+from .pdu import (
+    GATEWAY_NO_RESPONSE,
+    ILLEGAL_ADDRESS,
+    ILLEGAL_FUNCTION,
+    ILLEGAL_VALUE,
+    SERVER_DEVICE_FAILURE,
+    Read,
+    ReadWrite,
+    Write,
+    decode,
+    encode_read,
+    encode_write,
+    exception,
+)
+from .server import ModbusTcpServer, ServerLimits
 
 THIS_DEVICE = (0, 255)  # unit ids a Modbus TCP server answers as itself
-
-
-class ImageContext:
-    """What pymodbus's request handler calls (in place of its SimCore): reads and writes on the map."""
-
-    def __init__(self, front: ModbusTcpFront, modbus_map: ModbusMap):
-        self.front = front
-        self.map = modbus_map
-
-    def device_ids(self) -> list[int]:
-        return [self.front.config.unit_id]
-
-    def _check(self, device_id: int) -> None:
-        if device_id != self.front.config.unit_id and device_id not in THIS_DEVICE:
-            self.front.counters["unknown_unit"] += 1
-            raise NoSuchIdException(f"unit id {device_id}")
-
-    async def async_getValues(
-        self, device_id: int, func_code: int, address: int, count: int = 1
-    ) -> Any:
-        self._check(device_id)
-        if func_code not in TABLE_OF_FC:
-            return ExcCodes.ILLEGAL_FUNCTION
-        result = self.map.read(
-            func_code, address, count, self.front.context.image, self.front.context.health
-        )
-        if isinstance(result, int):
-            self.front.counters[f"exception_{result:02x}"] += 1
-            return ExcCodes(result)
-        self.front.counters["reads"] += 1
-        return result
-
-    async def async_setValues(
-        self, device_id: int, func_code: int, address: int, values: list[Any]
-    ) -> Any:
-        self._check(device_id)
-        if func_code not in TABLE_OF_FC:
-            return ExcCodes.ILLEGAL_FUNCTION
-        result = self.map.write(func_code, address, list(values), self.front.write)
-        if result is not None:
-            self.front.counters[f"exception_{result:02x}"] += 1
-            return ExcCodes(result)
-        self.front.counters["writes"] += 1
-        return None
-
-
-class StrictWriteSingleCoil(WriteSingleCoilRequest):
-    """FC5 with the value the standard allows: FF00 (on) or 0000 (off); anything else is
-    exception 03. pymodbus 3.16.1 takes any non-zero value as "on", so a garbled request
-    would switch an output on."""
-
-    raw_value = 0
-
-    def decode(self, data: bytes) -> None:
-        self.address, self.raw_value = struct.unpack(">HH", data[:4])
-        self.bits = [self.raw_value == 0xFF00]
-
-    async def datastore_update(self, context: Any, device_id: int) -> ModbusPDU:
-        if self.raw_value not in (0xFF00, 0x0000):
-            return ExceptionResponse(self.function_code, ExcCodes.ILLEGAL_VALUE)
-        return await super().datastore_update(context, device_id)
-
-
-def _counted(base: type[ModbusPDU]) -> type[ModbusPDU]:
-    """``base`` answering a quantity outside its limits (FC1/2: 2000 bits, FC3/4: 125 registers,
-    FC15: 1968, FC16: 123) with exception 03, as the standard says; pymodbus 3.16.1 fails to
-    decode such a request and answers function code 0x80 with exception 01."""
-
-    class Counted(base):  # type: ignore[valid-type,misc]  # a class made from a variable base
-        bad_count = False
-
-        def decode(self, data: bytes) -> None:
-            try:
-                super().decode(data)
-            except ValueError:
-                self.bad_count = True
-
-        async def datastore_update(self, context: Any, device_id: int) -> ModbusPDU:
-            if self.bad_count:
-                return ExceptionResponse(self.function_code, ExcCodes.ILLEGAL_VALUE)
-            result: ModbusPDU = await super().datastore_update(context, device_id)
-            return result
-
-    Counted.__name__ = f"Counted{base.__name__}"
-    return Counted
-
-
-STRICT_PDUS = [
-    StrictWriteSingleCoil,
-    *(
-        _counted(base)
-        for base in (
-            ReadCoilsRequest,
-            ReadDiscreteInputsRequest,
-            ReadHoldingRegistersRequest,
-            ReadInputRegistersRequest,
-            WriteMultipleCoilsRequest,
-            WriteMultipleRegistersRequest,
-        )
-    ),
-]
-
-
-def _handler_class(front: ModbusTcpFront) -> type[ServerRequestHandler]:
-    class Handler(ServerRequestHandler):
-        def connection_made(self, transport: Any) -> None:
-            peer = transport.get_extra_info("peername")
-            host = peer[0] if isinstance(peer, tuple) else ""
-            if not front.peer_allowed(host):
-                front.counters["refused_peer"] += 1
-                front.log.warning(
-                    "Modbus TCP connection from %s refused: not in allowed_peers", host
-                )
-                self._refuse(transport)
-                return
-            if len(front.connections()) > front.config.max_clients:
-                front.counters["refused_busy"] += 1
-                self._refuse(transport)
-                return
-            front.counters["connections"] += 1
-            super().connection_made(transport)
-
-        def _refuse(self, transport: Any) -> None:
-            transport.close()  # (pymodbus never saw it open: forget it here)
-            listener = getattr(self, "listener", None)
-            if listener is not None:
-                listener.active_connections.pop(self.unique_id, None)
-
-        def callback_data(self, data: bytes, addr: tuple[str, int] | None = None) -> int:
-            """An unknown function code gets exception 01 with that code (pymodbus 3.16.1
-            answers function code 0x80); everything else is pymodbus's."""
-            if len(data) >= 8:
-                tid, proto, length, unit = struct.unpack(">HHHB", data[:7])
-                fc = data[7]
-                if (
-                    proto == 0
-                    and fc < 0x80
-                    and fc not in self.server.decoder.pdu_table
-                    and len(data) >= 6 + length
-                ):
-                    front.counters["exception_01"] += 1
-                    transport: Any = self.transport
-                    if transport is not None:
-                        transport.write(struct.pack(">HHHBBB", tid, 0, 3, unit, fc | 0x80, 1))
-                    return int(6 + length)
-            return int(super().callback_data(data, addr))
-
-    return Handler
+CLOSE_REASONS = ("evicted", "idle_timeout", "request_timeout", "malformed")
 
 
 class ModbusTcpFront(Front):
@@ -198,27 +52,15 @@ class ModbusTcpFront(Front):
         super().__init__(config, context)
         self.config: ModbusTcpFrontConfig = config
         self.map: ModbusMap | None = None
-        self.server: Any = None
+        self.server: ModbusTcpServer | None = None
         self.counters: Counter[str] = Counter()
-        self._networks = [ipaddress.ip_network(p, strict=False) for p in config.allowed_peers or []]
-
-    def peer_allowed(self, host: str) -> bool:
-        if not self._networks:
-            return True
-        try:
-            address = ipaddress.ip_address(host.split("%")[0])
-        except ValueError:
-            return False
-        return any(address in net for net in self._networks)
-
-    def write(self, channel_id: str, value: bool | int | float) -> None:
-        self.context.image.write_output(channel_id, value, origin=self.name)
+        self._write_errors_logged: set[str] = set()
 
     def connections(self) -> list[Any]:
-        server = self.server
-        return list(server.active_connections.values()) if server is not None else []
+        return list(self.server.connections) if self.server is not None else []
 
-    async def start(self) -> None:
+    def build(self) -> ModbusTcpServer:
+        """The map and the server, not yet listening (the fuzz target feeds it directly)."""
         cfg = self.config
         self.map = ModbusMap.from_channels(
             self.context.front_channels(cfg),
@@ -227,26 +69,32 @@ class ModbusTcpFront(Front):
             cfg.comm_fault == "exception",
         )
         host, port = cfg.host_port
-        placeholder = SimDevice(cfg.unit_id, simdata=[SimData(0, datatype=SimType.REGISTERS)])
-        kwargs: dict[str, Any] = {
-            "context": placeholder,
-            "address": (host, port),
-            "custom_pdu": STRICT_PDUS,
-        }
-        if cfg.tls is not None:
-            kwargs["sslctx"] = self._ssl_context()
-            server: Any = ModbusTlsServer(**kwargs)
-        else:
-            server = ModbusTcpServer(**kwargs)
-        server.context = ImageContext(self, self.map)
-        handler = _handler_class(self)
-        server.callback_new_connection = lambda: handler(
-            server, server.trace_packet, server.trace_pdu, server.trace_connect
+        limits = ServerLimits(
+            cfg.max_clients,
+            cfg.max_clients_per_peer,
+            Limits(cfg.idle_timeout_s, cfg.request_timeout_s, cfg.max_pending_requests),
         )
+        return ModbusTcpServer(
+            self.handle,
+            host,
+            port,
+            limits,
+            ssl_context=self._ssl_context() if cfg.tls is not None else None,
+            allowed_peers=cfg.allowed_peers,
+            counters=self.counters,
+            log=self.log,
+        )
+
+    async def start(self) -> None:
+        cfg = self.config
+        server = self.build()
+        assert self.map is not None
         try:
-            await server.serve_forever(background=True)
-        except (RuntimeError, OSError) as exc:
-            raise PluginStartError(f"cannot listen on {cfg.listen}: {exc}") from None
+            await server.start()
+        except OSError as exc:
+            raise PluginStartError(
+                f"cannot listen on {cfg.listen}: {exc.strerror or exc}"
+            ) from None
         self.server = server
         sizes = ", ".join(
             f"{self.map.size(t)} {t}s"
@@ -276,28 +124,93 @@ class ModbusTcpFront(Front):
 
     async def run(self) -> None:
         assert self.server is not None
-        await self.server.serving
+        await self.server.serve_forever()
 
     async def stop(self) -> None:
         server, self.server = self.server, None
         if server is not None:
-            await server.shutdown()
+            await server.stop()
+
+    # -- requests ----------------------------------------------------------------------------
+    def handle(self, frame: Frame) -> bytes | Coroutine[Any, Any, bytes]:
+        """The answer PDU to one request; a write's is a coroutine (answered once applied)."""
+        fc = frame.pdu[0]
+        unit = frame.unit
+        if unit != self.config.unit_id and unit not in THIS_DEVICE:
+            self.counters["unknown_unit"] += 1
+            return self._refuse(fc, GATEWAY_NO_RESPONSE)
+        request = decode(frame.pdu)
+        if isinstance(request, int):
+            if request == ILLEGAL_FUNCTION:
+                self.counters["unknown_function"] += 1
+            return self._refuse(fc, request)
+        if isinstance(request, Read):
+            return self._read(request)
+        assert self.map is not None
+        write = request.write if isinstance(request, ReadWrite) else request
+        values = self.map.write(write.fc, write.address, write.values)
+        if isinstance(values, int):
+            return self._refuse(fc, values)
+        if isinstance(request, ReadWrite):
+            read = request.read
+            error = self.map.read_error(read.fc, read.address, read.count)
+            if error is not None:
+                return self._refuse(fc, error)  # refused whole, before anything is written
+        return self._write(request, values, frame.pdu)
+
+    def _read(self, request: Read) -> bytes:
+        assert self.map is not None
+        result = self.map.read(
+            request.fc, request.address, request.count, self.context.image, self.context.health
+        )
+        if isinstance(result, int):
+            return self._refuse(request.fc, result)
+        self.counters["reads"] += 1
+        return encode_read(request.fc, result)
+
+    async def _write(
+        self, request: Write | ReadWrite, values: dict[str, Value], pdu: bytes
+    ) -> bytes:
+        try:
+            await self.context.set_outputs(values, origin=self.name)
+        except (KeyError, ValueError) as exc:
+            code = ILLEGAL_ADDRESS if isinstance(exc, KeyError) else ILLEGAL_VALUE
+            self._log_write_error(str(exc).strip("'\""))
+            return self._refuse(request.fc, code)
+        except Exception as exc:  # noqa: BLE001  (the fieldbus side could not be reached)
+            self._log_write_error(f"{type(exc).__name__}: {exc}")
+            return self._refuse(request.fc, SERVER_DEVICE_FAILURE)
+        self.counters["writes"] += 1
+        if isinstance(request, ReadWrite):
+            return self._read(request.read)
+        return encode_write(request, pdu)
+
+    def _log_write_error(self, reason: str) -> None:
+        if reason not in self._write_errors_logged and len(self._write_errors_logged) < 20:
+            self._write_errors_logged.add(reason)
+            self.log.warning("Modbus TCP write refused by the gateway: %s", reason)
+
+    def _refuse(self, fc: int, code: int) -> bytes:
+        self.counters[f"exception_{code:02x}"] += 1
+        return exception(fc, code)
 
     # -- observability -----------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
         if self.map is None:
             return {}
-        clients = []
-        for conn in self.connections():
-            transport = getattr(conn, "transport", None)
-            peer = transport.get_extra_info("peername") if transport is not None else None
-            if isinstance(peer, tuple):
-                clients.append({"peer": f"{peer[0]}:{peer[1]}"})
+        cfg = self.config
         return {
             "state": "listening" if self.server is not None else "stopped",
-            "endpoint": f"{'modbus+tls' if self.config.tls else 'modbus'}://{self.config.listen}",
-            "unit_id": self.config.unit_id,
-            "clients": clients,
+            "endpoint": f"{'modbus+tls' if cfg.tls else 'modbus'}://{cfg.listen}",
+            "unit_id": cfg.unit_id,
+            "clients": [c.state() for c in self.connections()],
+            "limits": {
+                "max_clients": cfg.max_clients,
+                "max_clients_per_peer": min(cfg.max_clients_per_peer, cfg.max_clients),
+                "idle_timeout_s": cfg.idle_timeout_s,
+                "request_timeout_s": cfg.request_timeout_s,
+                "max_pending_requests": cfg.max_pending_requests,
+            },
             "counters": dict(sorted(self.counters.items())),
         }
 
@@ -346,6 +259,24 @@ class ModbusTcpFront(Front):
             )
             for r in ("peer", "busy")
         ]
+        rows += [
+            counter(
+                "modbus_tcp_closed_total",
+                "connections the server closed, by reason",
+                self.counters[f"closed_{r}"],
+                front=front,
+                reason=r,
+            )
+            for r in CLOSE_REASONS
+        ]
+        rows.append(
+            counter(
+                "modbus_tcp_pipeline_full_total",
+                "times a connection's reading was paused at max_pending_requests",
+                self.counters["pipeline_full"],
+                front=front,
+            )
+        )
         return rows
 
     def point_locations(self) -> dict[str, list[str]]:

@@ -29,13 +29,13 @@ from __future__ import annotations
 
 import fnmatch
 import struct
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from fieldgate.health import HealthRegistry
-from fieldgate.image import Channel, DataType, Kind, ProcessImage, Quality
+from fieldgate.image import Channel, DataType, Kind, ProcessImage, Quality, Value
 
-ILLEGAL_FUNCTION, ILLEGAL_ADDRESS, ILLEGAL_VALUE, GATEWAY_NO_RESPONSE = 0x01, 0x02, 0x03, 0x0B
+from .pdu import GATEWAY_NO_RESPONSE, ILLEGAL_ADDRESS, ILLEGAL_FUNCTION, ILLEGAL_VALUE
 
 COILS, DISCRETE_INPUTS, HOLDING_REGISTERS, INPUT_REGISTERS = (
     "coil",
@@ -56,6 +56,7 @@ TABLE_OF_FC = {
 }
 TABLES = (COILS, DISCRETE_INPUTS, INPUT_REGISTERS, HOLDING_REGISTERS)
 WIDE = {DataType.INT32, DataType.UINT32, DataType.FLOAT32}
+_DTYPES = {d.value: d for d in DataType}  # a point's type by name, without Enum's lookup
 
 
 @dataclass(frozen=True)
@@ -154,7 +155,7 @@ class ModbusMap:
 
     # -- values ------------------------------------------------------------------------------
     def _words(self, point: Point, value: bool | int | float) -> list[int]:
-        dtype = DataType(point.dtype)
+        dtype = _DTYPES[point.dtype]
         if dtype is DataType.FLOAT32:
             raw = struct.unpack(">I", struct.pack(">f", float(value)))[0]
         else:
@@ -165,7 +166,7 @@ class ModbusMap:
         return words if self.word_order == "big" else words[::-1]
 
     def _value(self, point: Point, words: list[int]) -> int | float:
-        dtype = DataType(point.dtype)
+        dtype = _DTYPES[point.dtype]
         if point.width == 1:
             word = words[0]
             if dtype is DataType.INT16:
@@ -194,43 +195,49 @@ class ModbusMap:
         return int(online) | int(good) << 1
 
     # -- requests ----------------------------------------------------------------------------
+    def read_error(self, fc: int, address: int, count: int) -> int | None:
+        """02 when a read of ``count`` points from ``address`` leaves its table, else None."""
+        if count < 1 or address < 0 or address + count > len(self.slots[TABLE_OF_FC[fc]]):
+            return ILLEGAL_ADDRESS
+        return None
+
     def read(
         self, fc: int, address: int, count: int, image: ProcessImage, health: HealthRegistry
     ) -> list[bool] | list[int] | int:
         """Values for FC1-4 (and the read half of FC23), or an exception code."""
-        table = TABLE_OF_FC[fc]
-        slots = self.slots[table]
-        if count < 1 or address < 0 or address + count > len(slots):
-            return ILLEGAL_ADDRESS
+        error = self.read_error(fc, address, count)
+        if error is not None:
+            return error
+        slots = self.slots[TABLE_OF_FC[fc]]
         part = slots[address : address + count]
         if self.comm_fault_exception and any(
             p.channel_id is not None and image[p.channel_id].quality is Quality.COMM_FAULT
             for p, _ in part
         ):
             return GATEWAY_NO_RESPONSE
-        if table in (COILS, DISCRETE_INPUTS):
+        if TABLE_OF_FC[fc] in (COILS, DISCRETE_INPUTS):
             return [bool(image[p.channel_id].value) for p, _ in part if p.channel_id is not None]
         out: list[int] = []
-        cache: dict[str, list[int]] = {}
+        words: list[int] = []
         for p, i in part:
-            if p.channel_id is None:
+            cid = p.channel_id
+            if cid is None:
                 out.append(self._module_word(p, image, health))
-                continue
-            words = cache.get(p.what)
-            if words is None:
-                words = cache[p.what] = self._words(p, image[p.channel_id].value)
-            out.append(words[i])
+            elif p.width == 1:  # int16, uint16, a byte: the value's low 16 bits
+                out.append(int(image[cid].value) & 0xFFFF)
+            else:  # a 32-bit value's two words, one after the other (a read may start at either)
+                if i == 0 or not words:
+                    words = self._words(p, image[cid].value)
+                out.append(words[i])
+                if i:
+                    words = []
         return out
 
     def write(
-        self,
-        fc: int,
-        address: int,
-        values: list[bool] | list[int],
-        write: Callable[[str, bool | int | float], None],
-    ) -> int | None:
-        """Apply FC5/6/15/16 (and the write half of FC23) through ``write(channel_id, value)``;
-        None when done, else the exception code (nothing is written then)."""
+        self, fc: int, address: int, values: list[bool] | list[int]
+    ) -> dict[str, Value] | int:
+        """The outputs FC5/6/15/16 (and the write half of FC23) set, as one batch (channel id
+        -> value), or the exception code (nothing is to be written then)."""
         table = TABLE_OF_FC[fc]
         slots = self.slots[table]
         count = len(values)
@@ -240,27 +247,24 @@ class ModbusMap:
         if not all(p.writable for p, _ in part):
             return ILLEGAL_FUNCTION
         if table == COILS:
-            updates: list[tuple[str, bool | int | float]] = [
-                (p.channel_id, bool(v))
+            return {
+                p.channel_id: bool(v)
                 for (p, _), v in zip(part, values, strict=True)
                 if p.channel_id
-            ]
-        else:
-            updates = []
-            k = 0
-            while k < count:
-                p, i = part[k]
-                if i != 0 or k + p.width > count:
-                    return ILLEGAL_VALUE  # a 32-bit value is written whole
-                value = self._value(p, [int(v) for v in values[k : k + p.width]])
-                if DataType(p.dtype) is DataType.UINT8 and not 0 <= int(value) <= 0xFF:
-                    return ILLEGAL_VALUE
-                assert p.channel_id is not None
-                updates.append((p.channel_id, value))
-                k += p.width
-        for cid, value in updates:
-            write(cid, value)
-        return None
+            }
+        updates: dict[str, Value] = {}
+        k = 0
+        while k < count:
+            p, i = part[k]
+            if i != 0 or k + p.width > count:
+                return ILLEGAL_VALUE  # a 32-bit value is written whole
+            value = self._value(p, [int(v) for v in values[k : k + p.width]])
+            if _DTYPES[p.dtype] is DataType.UINT8 and not 0 <= int(value) <= 0xFF:
+                return ILLEGAL_VALUE
+            assert p.channel_id is not None
+            updates[p.channel_id] = value
+            k += p.width
+        return updates
 
     # -- the printed map -----------------------------------------------------------------------
     def rows(self) -> list[tuple[str, str, str, str, str]]:

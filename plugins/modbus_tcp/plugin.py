@@ -1,8 +1,7 @@
 """The ``modbus-tcp`` plugin's registration and its `fieldgate map` command.
 
-The front (:mod:`.front`) needs ``pymodbus.server``, which imports pymodbus's HTTP simulator
-and with it aiohttp (about 0.25 s): it is imported when a topology has a modbus-tcp front,
-not by every gateway, `validate` or `map` that loads the plugins.
+The front (:mod:`.front`, with its server) is imported when a topology has a modbus-tcp
+front, not by every gateway, `validate` or `map` that loads the plugins.
 """
 
 from __future__ import annotations
@@ -85,7 +84,7 @@ def fieldgate_register(registry: Any) -> None:
         "modbus-tcp",
         ModbusTcpFrontConfig,
         make_front,
-        "Modbus TCP server on the process image (pymodbus)",
+        "Modbus TCP server on the process image",
         north=True,
     )
     registry.add_command(("map",), "print the Modbus map of a modbus-tcp front", configure, run)

@@ -88,6 +88,9 @@ class Target(ABC):
     @abstractmethod
     def check(self) -> None: ...
 
+    def close(self) -> None:  # noqa: B027  (optional: a target that runs something of its own)
+        """Stop what the target started (a gateway on a thread); the campaign calls it last."""
+
 
 NODE = 5
 CO_TOPOLOGY_BACK = {

@@ -2,7 +2,8 @@
 
 Each target feeds its inputs to a real engine (the fronts' CANopen node and DeviceNet
 slave as ``fieldgate run`` builds them, the backs' Modbus and DCON link and module code,
-the topology loader) and checks after every input that it still answers a valid request.
+the Modbus TCP front's server in memory and on a socket, the topology loader) and checks
+after every input that it still answers a valid request.
 """
 
 from __future__ import annotations
@@ -15,7 +16,12 @@ from fuzz_targets import TARGETS, Bytes, Target
 
 from fieldgate import load_registry
 
-CI_INPUTS = {name: 5000 for name in TARGETS} | {"yaml": 300, "opcua": 2000}
+CI_INPUTS = {name: 5000 for name in TARGETS} | {
+    "yaml": 300,
+    "opcua": 2000,
+    "modbus_tcp": 2500,
+    "modbus_tcp_socket": 400,
+}
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +35,7 @@ def test_wire_survives_its_fuzz_inputs(name, registry, tmp_path):
     try:
         report = fuzz.fuzz(target, CI_INPUTS[name], seed=2026)
     finally:
-        getattr(target, "close", lambda: None)()
+        target.close()
     assert report.examples == []
     assert (report.crashes, report.hangs, report.invariant_failures) == (0, 0, 0)
     assert report.inputs == CI_INPUTS[name]

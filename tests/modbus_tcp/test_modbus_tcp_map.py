@@ -79,30 +79,20 @@ def test_reads_encode_values_and_module_status():
 def test_exceptions():
     img, health = image(), HealthRegistry()
     m = make(img)
-    written: list[tuple[str, object]] = []
-
-    def write(cid: str, value: object) -> None:
-        written.append((cid, value))
-
     assert m.read(1, 2, 2, img, health) == ILLEGAL_ADDRESS  # one past the end
     assert m.read(4, 7, 1, img, health) == ILLEGAL_ADDRESS
-    assert m.write(5, 0, [True], write) == ILLEGAL_FUNCTION  # do0 is served, not writable
-    assert m.write(15, 0, [True, True], write) == ILLEGAL_FUNCTION  # one refused point refuses all
-    assert m.write(15, 1, [True, True, True], write) == ILLEGAL_ADDRESS
-    assert m.write(6, 1, [5], write) == ILLEGAL_VALUE  # the low half of int32 ao0
-    assert m.write(6, 0, [5], write) == ILLEGAL_VALUE  # only the high half
-    assert m.write(6, 2, [5], write) == ILLEGAL_FUNCTION  # ao1 is not writable
-    assert m.write(6, 3, [256], write) == ILLEGAL_VALUE  # a byte
-    assert written == []
-    assert m.write(16, 0, [0xFFFE, 0x0000], write) is None
-    assert m.write(15, 1, [True, False], write) is None
-    assert m.write(6, 3, [255], write) is None
-    assert written == [
-        ("b/m2/ao0", -131072),
-        ("b/m1/do1", True),
-        ("b/m1/do2", False),
-        ("b/m2/so0", 255),
-    ]
+    assert m.read_error(3, 0, 5) == ILLEGAL_ADDRESS and m.read_error(3, 0, 4) is None
+    assert m.write(5, 0, [True]) == ILLEGAL_FUNCTION  # do0 is served, not writable
+    assert m.write(15, 0, [True, True]) == ILLEGAL_FUNCTION  # one refused point refuses all
+    assert m.write(15, 1, [True, True, True]) == ILLEGAL_ADDRESS
+    assert m.write(6, 1, [5]) == ILLEGAL_VALUE  # the low half of int32 ao0
+    assert m.write(6, 0, [5]) == ILLEGAL_VALUE  # only the high half
+    assert m.write(6, 2, [5]) == ILLEGAL_FUNCTION  # ao1 is not writable
+    assert m.write(6, 3, [256]) == ILLEGAL_VALUE  # a byte
+    # a write is one batch: channel id -> value
+    assert m.write(16, 0, [0xFFFE, 0x0000]) == {"b/m2/ao0": -131072}
+    assert m.write(15, 1, [True, False]) == {"b/m1/do1": True, "b/m1/do2": False}
+    assert m.write(6, 3, [255]) == {"b/m2/so0": 255}
 
 
 def test_comm_fault_exception_only_when_asked():

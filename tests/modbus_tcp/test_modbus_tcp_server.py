@@ -323,3 +323,58 @@ def test_fieldgate_map_prints_the_map_of_the_example():
         text=True,
     )
     assert wrong.returncode == 1 and "no modbus-tcp front named 'x'" in wrong.stderr
+
+
+class ChildContext:
+    """What a north-facing front has of the gateway in a child process of its own
+    (core/plugin.py, docs/architecture.md): these and nothing else (no ``backs``)."""
+
+    ALLOWED = frozenset(
+        (
+            "image",
+            "health",
+            "masters",
+            "events",
+            "topology",
+            "front_channels",
+            "set_outputs",
+            "point_locations",
+        )
+    )
+
+    def __init__(self, real: Any):
+        self._real = real
+        self.used: set[str] = set()
+
+    def __getattr__(self, name: str) -> Any:
+        if name not in self.ALLOWED:
+            raise AttributeError(f"{name!r} is not available to a front in a child process")
+        self.used.add(name)
+        return getattr(self._real, name)
+
+
+async def test_the_front_needs_only_what_a_child_process_has():
+    from fieldgate.plugin import GatewayContext
+    from fieldgate.topology import load_topology
+
+    port = free_port()
+    topo = load_topology(topology(port), REGISTRY)
+    real = GatewayContext.build(topo)
+    context = ChildContext(real)
+    front_type = REGISTRY.lookup("front", "modbus-tcp")
+    front = front_type.factory(topo.fronts[0], context)
+    await front.start()
+    serving = asyncio.create_task(front.run())
+    try:
+        client = AsyncModbusTcpClient("127.0.0.1", port=port, timeout=2, retries=0)
+        assert await client.connect()
+        assert not (await client.write_registers(1, [11, 12], device_id=1)).isError()
+        assert (await client.read_holding_registers(1, count=2, device_id=1)).registers == [11, 12]
+        client.close()
+        assert (real.image.value("rs485/m4/ao1"), real.image.value("rs485/m4/ao2")) == (11, 12)
+        assert front.status()["counters"]["writes"] == 1 and front.point_locations()
+        assert {"set_outputs", "image", "front_channels"} <= context.used
+    finally:
+        serving.cancel()
+        await asyncio.gather(serving, return_exceptions=True)
+        await front.stop()

@@ -8,6 +8,7 @@ or with one the CA did not sign, gets no answer.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import datetime
 import ipaddress
 import ssl
@@ -15,6 +16,7 @@ import struct
 from pathlib import Path
 from typing import Any
 
+import pytest
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
@@ -23,6 +25,7 @@ from netkit import free_port
 from pymodbus.client import AsyncModbusTlsClient
 
 from fieldgate import Gateway, load_registry
+from fieldgate.cli import loop_factory
 
 
 def issue(
@@ -66,13 +69,12 @@ def client_context(folder: Path, cert: str | None) -> ssl.SSLContext:
     return ctx
 
 
-async def test_tls_with_client_certificates(tmp_path):
+def tls_topology(tmp_path: Path, port: int, **front: Any) -> dict[str, Any]:
     ca = issue("ca", None, tmp_path)
     issue("server", ca, tmp_path, server=True)
     issue("scada", ca, tmp_path)
     issue("stranger", issue("other-ca", None, tmp_path), tmp_path)
-    port = free_port()
-    topology = {
+    return {
         "gateway": {"name": "cell"},
         "fronts": [
             {
@@ -85,6 +87,7 @@ async def test_tls_with_client_certificates(tmp_path):
                     "key_file": str(tmp_path / "server.key"),
                     "client_ca_file": str(tmp_path / "ca.pem"),
                 },
+                **front,
             }
         ],
         "backs": [
@@ -98,7 +101,11 @@ async def test_tls_with_client_certificates(tmp_path):
             }
         ],
     }
-    gw = Gateway.load(topology, registry=load_registry(), simulate=True)
+
+
+async def tls_with_client_certificates(tmp_path: Path) -> None:
+    port = free_port()
+    gw = Gateway.load(tls_topology(tmp_path, port), registry=load_registry(), simulate=True)
     await gw.start()
     try:
         client = AsyncModbusTlsClient(
@@ -127,5 +134,56 @@ async def test_tls_with_client_certificates(tmp_path):
                 pass
             assert answered == b"", who
         assert gw.read("rs485/m4/ao0") == 1234
+    finally:
+        await gw.stop()
+
+
+async def test_tls_with_client_certificates(tmp_path):
+    await tls_with_client_certificates(tmp_path)
+
+
+def test_tls_with_client_certificates_on_uvloop(tmp_path):
+    """``fieldgate run``'s loop: its start_tls and buffered protocols."""
+    pytest.importorskip("uvloop")
+    with asyncio.Runner(loop_factory=loop_factory("uvloop")) as runner:
+        runner.run(tls_with_client_certificates(tmp_path))
+
+
+async def test_a_handshake_not_finished_in_time_is_closed(tmp_path):
+    """A TLS client that connects and stays silent is closed after the request timeout
+    (asyncio's own default is 60 s), and holds no slot meanwhile."""
+    port = free_port()
+    topology = tls_topology(tmp_path, port, request_timeout_s=0.5)
+    gw = Gateway.load(topology, registry=load_registry(), simulate=True)
+    await gw.start()
+    try:
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)  # no handshake
+        await asyncio.sleep(0.1)
+        assert gw.component("mb").connections() == []
+        loop = asyncio.get_running_loop()
+        started = loop.time()
+        async with asyncio.timeout(3):
+            assert await reader.read(100) == b""
+        assert loop.time() - started < 2.5  # request_timeout_s 0.5; asyncio alone: 60 s
+        writer.close()
+    finally:
+        await gw.stop()
+
+
+async def test_a_peer_outside_allowed_peers_is_refused_even_with_a_certificate(tmp_path):
+    port = free_port()
+    topology = tls_topology(tmp_path, port, allowed_peers=["127.0.0.2"])
+    gw = Gateway.load(topology, registry=load_registry(), simulate=True)
+    await gw.start()
+    try:
+        reader, writer = await asyncio.open_connection(
+            "127.0.0.1", port, ssl=client_context(tmp_path, "scada"), server_hostname="127.0.0.1"
+        )
+        writer.write(struct.pack(">HHHB", 1, 0, 6, 1) + struct.pack(">BHH", 3, 0, 1))
+        async with asyncio.timeout(3):
+            with contextlib.suppress(ConnectionError, ssl.SSLError):
+                assert await reader.read(100) == b""
+        writer.close()
+        assert gw.status()["fronts"]["mb"]["counters"]["refused_peer"] == 1
     finally:
         await gw.stop()
