@@ -16,10 +16,15 @@ from netkit import free_port, wait_until
 from pymodbus.client import AsyncModbusTcpClient
 
 from fieldgate import Gateway, load_registry
+from fieldgate.testing import in_this_process
 
 from .test_modbus_tcp_server import topology
 
-REGISTRY = load_registry()
+# these tests reach into the front (its connections, its map) or stand in for the fieldbus
+# side (set_outputs): it is built in this process. Every gateway runs it in a child process
+# of its own: tests/opcua/test_plant_northbound_e2e.py, tests/http/test_http_northbound.py and
+# tests/faults/test_modbus_tcp_attacks.py (against `fieldgate run`) go that way.
+REGISTRY = in_this_process(load_registry(), "modbus-tcp")
 READ = struct.pack(">BHH", 3, 0, 1)
 SERVED = {1, 2, 3, 4, 5, 6, 15, 16, 23}
 

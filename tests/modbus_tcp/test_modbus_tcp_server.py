@@ -25,8 +25,13 @@ from fieldgate.plugins.modbus_tcp.map import (
     HOLDING_REGISTERS,
     INPUT_REGISTERS,
 )
+from fieldgate.testing import in_this_process
 
-REGISTRY = load_registry()
+# these tests reach into the front (its connections, its map) or stand in for the fieldbus
+# side (set_outputs): it is built in this process. Every gateway runs it in a child process
+# of its own: tests/opcua/test_plant_northbound_e2e.py, tests/http/test_http_northbound.py and
+# tests/faults/test_modbus_tcp_attacks.py (against `fieldgate run`) go that way.
+REGISTRY = in_this_process(load_registry(), "modbus-tcp")
 
 
 def topology(port: int, **front: Any) -> dict[str, Any]:

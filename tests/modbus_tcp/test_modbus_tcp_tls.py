@@ -26,6 +26,11 @@ from pymodbus.client import AsyncModbusTlsClient
 
 from fieldgate import Gateway, load_registry
 from fieldgate.cli import loop_factory
+from fieldgate.testing import in_this_process
+
+# the tests reach into the front's server: it is built in this process (every gateway runs it
+# in a child process of its own; tests/faults/test_modbus_tcp_attacks.py goes that way)
+REGISTRY = in_this_process(load_registry(), "modbus-tcp")
 
 
 def issue(
@@ -105,7 +110,7 @@ def tls_topology(tmp_path: Path, port: int, **front: Any) -> dict[str, Any]:
 
 async def tls_with_client_certificates(tmp_path: Path) -> None:
     port = free_port()
-    gw = Gateway.load(tls_topology(tmp_path, port), registry=load_registry(), simulate=True)
+    gw = Gateway.load(tls_topology(tmp_path, port), registry=REGISTRY, simulate=True)
     await gw.start()
     try:
         client = AsyncModbusTlsClient(
@@ -154,7 +159,7 @@ async def test_a_handshake_not_finished_in_time_is_closed(tmp_path):
     (asyncio's own default is 60 s), and holds no slot meanwhile."""
     port = free_port()
     topology = tls_topology(tmp_path, port, request_timeout_s=0.5)
-    gw = Gateway.load(topology, registry=load_registry(), simulate=True)
+    gw = Gateway.load(topology, registry=REGISTRY, simulate=True)
     await gw.start()
     try:
         reader, writer = await asyncio.open_connection("127.0.0.1", port)  # no handshake
@@ -173,7 +178,7 @@ async def test_a_handshake_not_finished_in_time_is_closed(tmp_path):
 async def test_a_peer_outside_allowed_peers_is_refused_even_with_a_certificate(tmp_path):
     port = free_port()
     topology = tls_topology(tmp_path, port, allowed_peers=["127.0.0.2"])
-    gw = Gateway.load(topology, registry=load_registry(), simulate=True)
+    gw = Gateway.load(topology, registry=REGISTRY, simulate=True)
     await gw.start()
     try:
         reader, writer = await asyncio.open_connection(

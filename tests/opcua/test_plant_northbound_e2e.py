@@ -27,6 +27,7 @@ from fieldgate.plugins.modbus_tcp.map import (
     DISCRETE_INPUTS,
     HOLDING_REGISTERS,
     INPUT_REGISTERS,
+    ModbusMap,
 )
 
 from .uaclient import UaClient, require_node_opcua
@@ -134,7 +135,8 @@ async def test_done_when(plant):
     # Modbus TCP: every mapped point read in maximal blocks, every writable one written
     mb = AsyncModbusTcpClient("127.0.0.1", port=mb_port, timeout=2, retries=0)
     assert await mb.connect()
-    m = gw.component("modbus").map
+    front = gw.topology.front("modbus")  # the map `fieldgate map` prints, as the front builds it
+    m = ModbusMap.from_channels(gw.context.front_channels(front), front.writable, front.word_order)
     try:
         reads = {
             COILS: (mb.read_coils, 2000),
