@@ -408,6 +408,7 @@ class ModbusTcpSocketTarget(Target):
         import threading
 
         from fieldgate.runtime import Gateway
+        from fieldgate.testing import in_this_process
 
         self.close()
         with socket.socket() as s:
@@ -427,7 +428,9 @@ class ModbusTcpSocketTarget(Target):
                 ],
                 "backs": [{**CO_TOPOLOGY_BACK, "port": "/dev/null"}],
             },
-            registry=self.registry,
+            # the front in this process: the target reads its counters (in a gateway it runs
+            # in a child process of its own; its server's code is the same)
+            registry=in_this_process(self.registry, "modbus-tcp"),
             simulate=True,
         )
         try:

@@ -57,6 +57,9 @@ BODIES = {43: bytes((0x0E, 0x01, 0x00))}  # FC 43/14: Read Device Identification
 LATE_S = 1.5  # a timeout counts as kept when the close comes within this after it (a busy host)
 
 
+REPORT_LAG_S = 2.2  # a child's status report and the status API's copy of it, a second each
+
+
 @dataclass
 class Target:
     """The gateway attacked: where its Modbus TCP front listens and what it reports."""
@@ -71,6 +74,12 @@ class Target:
 
     def counters(self) -> dict[str, int]:
         return dict(self.status().get("counters") or {})
+
+    async def counters_after(self) -> dict[str, int]:
+        """The counters once what just happened is in them: the front's child reports once a
+        second, and the status API gets the gateway's state once a second."""
+        await asyncio.sleep(REPORT_LAG_S)
+        return self.counters()
 
 
 @dataclass
@@ -389,7 +398,7 @@ async def case_pipeline(target: Target, n: int = 100) -> Outcome:
     except (TimeoutError, OSError, asyncio.IncompleteReadError):
         pass
     writer.close()
-    paused = target.counters().get("pipeline_full", 0) - before
+    paused = (await target.counters_after()).get("pipeline_full", 0) - before
     cap = target.limits().get("max_pending_requests")
     in_order = [tid for tid, _ in answers] == list(range(1, n + 1))
     consistent = all(
@@ -584,7 +593,7 @@ def main() -> int:
         print(f"Modbus TCP front at 127.0.0.1:{port}; limits {target.limits() or 'unknown'}")
         try:
             outcomes = asyncio.run(campaign(target, cases, args.flood))
-            counters = target.counters()
+            counters = asyncio.run(target.counters_after())
         finally:
             if proc is not None:
                 proc.terminate()

@@ -749,6 +749,7 @@ async def limits(gw: GatewayProcess, args: argparse.Namespace) -> Outcome:
                 break
         else:
             parts.append(f"subscriptions in a session -> {subs} (no limit met)")
+        await asyncio.sleep(2.2)  # the child's report and the status API's copy, a second each
         counters = gw.counters()
         parts.append(
             f"refused items counted {counters.get('rejected_too_many_monitored_items', 0):,}"
@@ -786,9 +787,14 @@ async def refusals_counted(gw: GatewayProcess, token: str, tries: int = 20) -> O
                 await client.disconnect()
             except Exception:  # noqa: BLE001  (refused, as expected)
                 refusals += 1
-    after = gw.counters()
-    grown = {k: after[k] - before.get(k, 0) for k in after if after[k] != before.get(k, 0)}
-    counted = sum(v for k, v in grown.items() if k.startswith("rejected_"))
+    deadline = time.monotonic() + 5  # the front's child reports once a second, so does the API
+    while True:
+        after = gw.counters()
+        grown = {k: after[k] - before.get(k, 0) for k in after if after[k] != before.get(k, 0)}
+        counted = sum(v for k, v in grown.items() if k.startswith("rejected_"))
+        if counted >= tries or time.monotonic() > deadline:
+            break
+        await asyncio.sleep(0.2)
     ok = refusals == tries and counted >= tries and costs.tracebacks == 0
     return Outcome(
         f"d9-{token}-refused",

@@ -40,9 +40,9 @@ async def test_case(case, target):
     assert outcome.ok, outcome.line()
 
 
-def test_the_refusals_are_counted(target):
+async def test_the_refusals_are_counted(target):
     """Run last: what the cases did shows in the front's counters (status API, /metrics)."""
-    counters = target.counters()
+    counters = await target.counters_after()
     for key in (
         "closed_evicted",
         "closed_idle_timeout",
