@@ -33,8 +33,8 @@ from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import ErrorMode
 from fieldgate.topology.model import StrictModel
 
-from .iodevice import IoDevice, IoSettings, build_io, check_pdo_settings
-from .layouts import LayoutError, PdoSetting
+from .cia401.iodevice import IoDevice, IoSettings, build_io, check_pdo_settings
+from .cia401.layouts import LayoutError, PdoSetting
 
 MAPPING_ENTRY = re.compile(
     r"^\s*(0x[0-9a-fA-F]{1,4}|\d+)\s*:\s*(0x[0-9a-fA-F]{1,2}|\d+)\s*/\s*(\d+)\s*$"

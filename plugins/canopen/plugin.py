@@ -32,16 +32,17 @@ from fieldgate.plugin import Front, GatewayContext, Registry, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
-from .cobid import restricted
+from .cia301.builder import Identity, NodeSettings, build_node
+from .cia301.cobid import restricted
+from .cia301.nmt import Frame, NmtState
+from .cia301.node import Node
+from .cia305.lss import BIT_TIMING_TABLES, LssService, LssStore
+from .cia401.layouts import device_type as io_device_type
 from .eds import eds_for
-from .frame import Frame, NmtState
 from .front401 import IoFrontOptions, check_io, io_settings
 from .front401 import install as install_io_device
-from .layouts import device_type as io_device_type
 from .locations import point_locations
-from .lss import BIT_TIMING_TABLES, LssService, LssStore
 from .master_state import MasterState
-from .node import Node
 from .profiles import (
     AnalogEvents,
     MasterLost,
@@ -51,7 +52,6 @@ from .profiles import (
     node_id_problem,
     resolve,
 )
-from .slave import Identity, NodeSettings, build_node
 
 MODULE_FAILURE_CODE = 0xFF00
 MODULE_FAILURE_REGISTER = 0x81

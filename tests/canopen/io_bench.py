@@ -10,8 +10,8 @@ from fieldgate.health import HealthRegistry, ModuleHealth
 from fieldgate.image import ChannelSpec, DataType, ErrorMode, Kind, ProcessImage, Source, channel_id
 from fieldgate.layout import default_order
 from fieldgate.masters import MasterMonitor
-from fieldgate.plugins.canopen.iodevice import IoDevice, IoSettings
-from fieldgate.plugins.canopen.slave import Identity, NodeSettings, build_node
+from fieldgate.plugins.canopen.cia301.builder import Identity, NodeSettings, build_node
+from fieldgate.plugins.canopen.cia401.iodevice import IoDevice, IoSettings
 
 BACK = "bus"
 
