@@ -33,8 +33,9 @@ from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import ErrorMode
 from fieldgate.topology.model import StrictModel
 
+from .cia301.pdo.defaults import PdoSetting
 from .cia401.iodevice import IoDevice, IoSettings, build_io, check_pdo_settings
-from .cia401.layouts import LayoutError, PdoSetting
+from .cia401.layouts import LayoutError
 
 MAPPING_ENTRY = re.compile(
     r"^\s*(0x[0-9a-fA-F]{1,4}|\d+)\s*:\s*(0x[0-9a-fA-F]{1,2}|\d+)\s*/\s*(\d+)\s*$"

@@ -126,8 +126,8 @@ def refuse_short_writes(self, index, length, convert):
             "icpdas.ao_error_two_byte_writes",
         ),
         (
-            "fieldgate.plugins.canopen.cia401.profile.Profile401",
-            "_ai_fires",
+            "fieldgate.plugins.canopen.cia401.analog.AnalogInterrupts",
+            "fires",
             lambda self, change: True,  # every analog change an event
             "icpdas.analog_change_no_tpdo",
         ),

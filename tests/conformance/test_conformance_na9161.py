@@ -116,8 +116,8 @@ def test_with_byte_granularity_the_bit_case_skips_and_the_byte_case_runs(tmp_pat
             "sync-pdo.dummy_mapping",
         ),
         (
-            "fieldgate.plugins.canopen.cia401.profile.Profile401",
-            "_ai_fires",
+            "fieldgate.plugins.canopen.cia401.analog.AnalogInterrupts",
+            "fires",
             lambda self, change: False,  # analog changes are no events
             "na9161.analog_change_tpdo",
         ),

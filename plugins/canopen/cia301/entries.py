@@ -15,10 +15,11 @@ another exception escape for bad input.
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
-from typing import Any
+from functools import partial
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from .abort import (
     LENGTH_TOO_HIGH,
@@ -31,6 +32,9 @@ from .abort import (
     WRITE_ONLY,
     SdoAbort,
 )
+
+if TYPE_CHECKING:
+    from .od import Dictionary
 
 # CiA 301 data type indices
 BOOLEAN, INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32 = (
@@ -172,6 +176,86 @@ def array(index: int, name: str, items: Iterable[Entry]) -> ObjectDef:
     return ObjectDef(index, name, "array", [count_entry(len(items), "Number of entries")] + items)
 
 
+Owner = TypeVar("Owner")  # the object that serves the entries (a profile, the manufacturer objects)
+
+
+@dataclass(frozen=True)
+class ObjectSpec(Generic[Owner]):
+    """One object as data, served by an owner of type ``Owner``.
+
+    ``over`` names a sequence of the owner (:func:`build_objects` asks ``items(over)``): the
+    object is an ARRAY with sub-index k + 1 for item k, and is left out when the sequence is
+    empty; ``over`` None makes a VAR (``get``/``put`` receive None as the item). ``get(owner,
+    item)`` reads an entry, ``put(owner, item, value)`` writes it (None: read-only).
+    ``entry`` names each entry: ``{n}`` is its sub-index, ``{i}`` the item's position, or a
+    function of (sub-index, item). ``default`` is the EDS default; None: the value ``get``
+    gives when the object is built.
+    """
+
+    index: int
+    name: str
+    entry: str | Callable[[int, Any], str]
+    dtype: int
+    access: str
+    over: str | None
+    get: Callable[[Owner, Any], Value]
+    put: Callable[[Owner, Any, Any], None] | None = None
+    default: Value | None = None
+    mappable: bool = False
+    high: int | None = None
+
+    def entry_for(self, owner: Owner, sub: int, item: Any) -> Entry:
+        name = (
+            self.entry(sub, item) if callable(self.entry) else self.entry.format(n=sub, i=sub - 1)
+        )
+        return Entry(
+            sub,
+            name,
+            self.dtype,
+            self.access,
+            partial(self.get, owner, item),
+            partial(self.put, owner, item) if self.put is not None else None,
+            default=self.get(owner, item) if self.default is None else self.default,
+            mappable=self.mappable,
+            high=self.high,
+        )
+
+
+def build_objects(
+    owner: Owner, specs: Iterable[ObjectSpec[Owner]], items: Callable[[str], Sequence[Any]]
+) -> list[ObjectDef]:
+    """The objects of ``specs`` bound to ``owner``: the one builder of every object table."""
+    objects: list[ObjectDef] = []
+    for spec in specs:
+        if spec.over is None:
+            objects.append(
+                ObjectDef(spec.index, spec.name, "var", [spec.entry_for(owner, 0, None)])
+            )
+            continue
+        sequence = items(spec.over)
+        if sequence:
+            objects.append(
+                array(
+                    spec.index,
+                    spec.name,
+                    (spec.entry_for(owner, k + 1, item) for k, item in enumerate(sequence)),
+                )
+            )
+    return objects
+
+
+def item(name: str) -> tuple[Callable[[Any, int], Any], Callable[[Any, int, Any], None]]:
+    """``get`` and ``put`` of an :class:`ObjectSpec` over a plain list attribute of the owner."""
+
+    def get(owner: Any, n: int) -> Any:
+        return getattr(owner, name)[n]
+
+    def put(owner: Any, n: int, value: Any) -> None:
+        getattr(owner, name)[n] = value
+
+    return get, put
+
+
 class Directory:
     """All objects of one node's I/O layer, by index and sub-index.
 
@@ -228,3 +312,57 @@ class Directory:
 
     def value(self, index: int, sub: int) -> Value:
         return self.entry(index, sub).get()
+
+
+def bind_object(od: Dictionary, obj: ObjectDef) -> None:
+    """Add one :class:`ObjectDef` to the node's dictionary with its getters and setters."""
+    if obj.kind == "var":
+        e = obj.entries[0]
+        od.add_variable(
+            obj.index,
+            obj.name,
+            e.dtype,
+            e.access,
+            _model_default(e),
+            minimum=e.low,
+            maximum=e.high,
+            mappable=e.mappable,
+        )
+    else:
+        members = [
+            (
+                e.sub,
+                e.name,
+                e.dtype,
+                e.access,
+                _model_default(e),
+                {
+                    "minimum": e.low,
+                    "maximum": e.high,
+                    "mappable": e.mappable,
+                    "relative": e.default_expr is not None,
+                },
+            )
+            for e in obj.entries
+            if e.sub != 0
+        ]
+        od.add_record(obj.index, obj.name, members, array=obj.kind == "array")
+        sub0 = obj.by_sub.get(0)
+        if sub0 is not None and sub0.writable:
+            var = od.variable(obj.index, 0)
+            var.access_type = sub0.access
+            var.default = int(_model_default(sub0))  # sub 0: UNSIGNED8, the highest sub-index
+    for e in obj.entries:
+        if e.sub == 0 and obj.kind != "var" and not e.writable:
+            continue  # the dictionary's own "highest sub-index" entry
+        od.bind(obj.index, e.sub, getter=e.get, setter=e.store if e.writable else None)
+
+
+def _model_default(e: Entry) -> Value:
+    """The EDS default: relative COB-IDs keep their base (the dictionary adds the node-ID)."""
+    if e.default_expr is not None:
+        return int(e.default_expr.split("+", 1)[1], 0)
+    if e.default is not None:
+        return e.default
+    value = e.get()
+    return int(value) if e.dtype == BOOLEAN else value

@@ -44,28 +44,22 @@ from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
 
 from ..cia301.cobid import check_cob_id
-from ..cia301.entries import BOOLEAN, Abort, Directory, Entry, ObjectDef, Value
+from ..cia301.entries import Abort, Directory, ObjectDef, bind_object
 from ..cia301.nmt import Frame, NmtState
-from ..cia301.od import Dictionary
+from ..cia301.pdo.defaults import PdoDefaults, PdoSetting
 from ..cia301.pdo.engine import PdoEngine
 from ..cia301.pdo.mapping import Pdo, PdoMapping
 from ..cia301.service import NodeHost, Service
 from ..master_state import MasterState
 from ..na9161.fnbus import FnBusRegister
 from ..na9161.slots import SlotObjects
+from ..na9161.special import SpecialBytes, input_events
 from ..profiles import STYLES
 from .iostore import IoStore
-from .layouts import (
-    STYLE_PDO_COUNT,
-    IoLayout,
-    PdoDefaults,
-    PdoSetting,
-    Style,
-    build_layout,
-    default_pdos,
-)
+from .layouts import STYLE_PDO_COUNT, IoLayout, Style, build_layout, default_pdos
 from .manufacturer import ManufacturerObjects
-from .profile import SHORT_WRITES, Profile401
+from .objects import SHORT_WRITES, cia401_objects
+from .profile import Profile401
 
 LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES = 0x8210, 0x10, b"\x09"
 
@@ -211,9 +205,10 @@ class IoDevice(Service):
     def _directory(self) -> Directory:
         fnbus = self.fnbus.objects() if self.fnbus is not None else []
         slots = self.slots.objects() if self.slots is not None else []
+        special = SpecialBytes(self.layout, self.profile.outputs).objects()
         return Directory(
-            self.profile.objects() + self.manufacturer.objects() + fnbus + slots,
-            batch=self.profile.batch,
+            cia401_objects(self.profile) + special + self.manufacturer.objects() + fnbus + slots,
+            batch=self.profile.outputs.batch,
         )
 
     def _new_engine(self, node: NodeHost) -> PdoEngine:
@@ -390,6 +385,7 @@ def build_io(
         origin,
         bit_objects=settings.bit_mapping,
         analog_events=settings.analog,
+        extra_events=input_events(layout),
     )
     return layout, defaults, profile
 
@@ -456,57 +452,3 @@ def _pdo_setting_problem(
 def _reason(exc: Abort) -> str:
     """An abort's text without its "SDO abort 0x..." prefix (a topology has no SDO)."""
     return str(exc).split(": ", 1)[-1]
-
-
-def bind_object(od: Dictionary, obj: ObjectDef) -> None:
-    """Add one :class:`ObjectDef` to the node's dictionary with its getters and setters."""
-    if obj.kind == "var":
-        e = obj.entries[0]
-        od.add_variable(
-            obj.index,
-            obj.name,
-            e.dtype,
-            e.access,
-            _model_default(e),
-            minimum=e.low,
-            maximum=e.high,
-            mappable=e.mappable,
-        )
-    else:
-        members = [
-            (
-                e.sub,
-                e.name,
-                e.dtype,
-                e.access,
-                _model_default(e),
-                {
-                    "minimum": e.low,
-                    "maximum": e.high,
-                    "mappable": e.mappable,
-                    "relative": e.default_expr is not None,
-                },
-            )
-            for e in obj.entries
-            if e.sub != 0
-        ]
-        od.add_record(obj.index, obj.name, members, array=obj.kind == "array")
-        sub0 = obj.by_sub.get(0)
-        if sub0 is not None and sub0.writable:
-            var = od.variable(obj.index, 0)
-            var.access_type = sub0.access
-            var.default = int(_model_default(sub0))  # sub 0: UNSIGNED8, the highest sub-index
-    for e in obj.entries:
-        if e.sub == 0 and obj.kind != "var" and not e.writable:
-            continue  # the dictionary's own "highest sub-index" entry
-        od.bind(obj.index, e.sub, getter=e.get, setter=e.store if e.writable else None)
-
-
-def _model_default(e: Entry) -> Value:
-    """The EDS default: relative COB-IDs keep their base (the dictionary adds the node-ID)."""
-    if e.default_expr is not None:
-        return int(e.default_expr.split("+", 1)[1], 0)
-    if e.default is not None:
-        return e.default
-    value = e.get()
-    return int(value) if e.dtype == BOOLEAN else value

@@ -47,13 +47,14 @@ from typing import Literal
 from fieldgate.image import Channel, Kind
 from fieldgate.layout import of_kind, pack_bits
 
+from ..cia301.pdo.defaults import PdoDefault, PdoDefaults, PdoSetting, mapping_entry
+
 Style = Literal["icpdas", "na9161"]
 
 DI_OBJECT, DO_OBJECT, AI_OBJECT, AO_OBJECT = 0x6000, 0x6200, 0x6401, 0x6411
 SI_OBJECT, SO_OBJECT = 0x3000, 0x3200  # NA-9161 special areas: one byte per sub-index
 MAX_SLOTS = 32  # NA-9161 expansion slots (0x4500:3 has a bit for each)
 MAX_IMAGE_BYTES = 64  # NA-9161 process image per direction (seed-004 §1.2, §2.6)
-COB_INVALID = 0x8000_0000
 DIGITAL_PER_PDO = 8  # bytes
 ANALOG_PER_PDO = 4  # 16-bit channels
 TPDO_BASES = (0x180, 0x280, 0x380, 0x480)
@@ -194,68 +195,6 @@ def _modules(channels: Sequence[Channel], models: dict[tuple[str, int], str]) ->
 
 
 # -- default PDOs ---------------------------------------------------------------------
-
-
-def mapping_entry(index: int, sub: int, bits: int) -> int:
-    return index << 16 | sub << 8 | bits
-
-
-@dataclass
-class PdoDefault:
-    """Communication and mapping defaults of one PDO. ``cob_id`` may hold ``node_id``."""
-
-    cob_base: int | None  # predefined COB-ID without node ID, None: none
-    valid: bool
-    trans_type: int
-    inhibit: int = 0
-    event_timer: int = 0
-    entries: list[int] = field(default_factory=list)
-    absolute: bool = False  # cob_base is the whole CAN-ID (set by the topology), no node-ID added
-
-    def cob_id(self, node_id: int) -> int:
-        if self.cob_base is None:
-            return COB_INVALID
-        base = self.cob_base if self.absolute else self.cob_base + node_id
-        return base | (0 if self.valid else COB_INVALID)
-
-
-@dataclass(frozen=True)
-class PdoSetting:
-    """What the topology sets for one PDO (``tpdos:`` / ``rpdos:``); None: the style's default."""
-
-    cob_id: int | None = None  # the CAN-ID itself, not counted from the node-ID
-    valid: bool | None = None
-    trans_type: int | None = None
-    inhibit: int | None = None  # 100 us
-    event_timer: int | None = None  # ms
-    entries: tuple[int, ...] | None = None  # index << 16 | sub << 8 | bits
-
-    def apply(self, pdo: PdoDefault) -> PdoDefault:
-        """``pdo`` with this setting's values; a COB-ID given, or data mapped on a PDO that has
-        a COB-ID, makes the PDO valid unless ``valid`` says otherwise."""
-        cob_base, absolute = pdo.cob_base, pdo.absolute
-        valid = pdo.valid
-        if self.cob_id is not None:
-            cob_base, absolute, valid = self.cob_id, True, True
-        elif self.entries:
-            valid = cob_base is not None
-        if self.valid is not None:
-            valid = self.valid
-        return PdoDefault(
-            cob_base,
-            valid,
-            pdo.trans_type if self.trans_type is None else self.trans_type,
-            pdo.inhibit if self.inhibit is None else self.inhibit,
-            pdo.event_timer if self.event_timer is None else self.event_timer,
-            list(pdo.entries) if self.entries is None else list(self.entries),
-            absolute,
-        )
-
-
-@dataclass
-class PdoDefaults:
-    tpdo: list[PdoDefault]
-    rpdo: list[PdoDefault]
 
 
 def _chunks(items: list[int], size: int) -> list[list[int]]:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import replace
 from functools import partial
 from typing import Any
 
@@ -41,7 +42,9 @@ from ..cia301.entries import (
     Abort,
     Entry,
     ObjectDef,
-    array,
+    ObjectSpec,
+    build_objects,
+    const,
     count_entry,
 )
 from .layouts import IoLayout, ModuleRef
@@ -58,15 +61,6 @@ MODULE_EMCY_CODE, MODULE_EMCY_REGISTER, MODULE_EMCY_BYTE = 0xFF00, 0x80, 0x0B
 
 Raise = Callable[[int, int, bytes], Any]  # (code, register bits, manufacturer bytes)
 Clear = Callable[[int, bytes], Any]  # (code, manufacturer bytes)
-
-
-def _channel_count(kind: str, module: ModuleRef) -> int:
-    count: int = getattr(module, kind)
-    return min(255, count)
-
-
-def _constant(value: int) -> Callable[[], int]:
-    return lambda: value
 
 
 def module_emcy_bytes(address: int) -> bytes:
@@ -125,11 +119,11 @@ class ManufacturerObjects:
             return None
 
     # -- 0x2000 ---------------------------------------------------------------------------
-    def _counter(self, module: ModuleRef) -> int:
+    def counter(self, module: ModuleRef) -> int:
         h = self._health(module)
         return 0 if h is None else h.error_counter
 
-    def _write_counter(self, module: ModuleRef, value: int) -> None:
+    def write_counter(self, module: ModuleRef, value: int) -> None:
         if value != 0:
             raise Abort(VALUE_RANGE, "an error counter can only be cleared (write 0)")
         h = self._health(module)
@@ -145,137 +139,87 @@ class ManufacturerObjects:
         except WatchdogUnavailable as exc:
             raise Abort(abort.HARDWARE_ERROR, str(exc)) from None
 
-    def _wd_enabled(self, module: ModuleRef) -> int:
+    def wd_enabled(self, module: ModuleRef) -> int:
         return int(self.host_watchdogs.enabled(module.back, module.address))
 
-    def _wd_time(self, module: ModuleRef) -> int:
+    def wd_time(self, module: ModuleRef) -> int:
         return self.host_watchdogs.timeout_tenths(module.back, module.address)
 
-    def _wd_status(self, module: ModuleRef) -> int:
+    def wd_status(self, module: ModuleRef) -> int:
         return int(self.host_watchdogs.expired(module.back, module.address))
 
-    def _write_wd_enabled(self, module: ModuleRef, value: int) -> None:
+    def write_wd_enabled(self, module: ModuleRef, value: int) -> None:
         self._wd_call(lambda: self.host_watchdogs.set_enabled(module.back, module.address, value))
 
-    def _write_wd_time(self, module: ModuleRef, value: int) -> None:
+    def write_wd_time(self, module: ModuleRef, value: int) -> None:
         self._wd_call(
             lambda: self.host_watchdogs.set_timeout_tenths(module.back, module.address, value)
         )
 
-    def _write_wd_status(self, module: ModuleRef, value: int) -> None:
+    def write_wd_status(self, module: ModuleRef, value: int) -> None:
         if value != 0:
             raise Abort(VALUE_RANGE, "write 0 to clear the watchdog status")
         self._wd_call(lambda: self.host_watchdogs.recover(module.back, module.address))
 
     # -- objects ----------------------------------------------------------------------------
+    def items(self, over: str) -> list[ModuleRef]:
+        return self.layout.modules  # every table row serves one entry per module
+
     def objects(self) -> list[ObjectDef]:
         mods = self.layout.modules
         if not mods:
             return []
-
-        def per_module(
-            index: int,
-            name: str,
-            dtype: int,
-            access: str,
-            get: Callable[[ModuleRef], Any],
-            put: Callable[[ModuleRef, int], None] | None = None,
-        ) -> ObjectDef:
-            return array(
-                index,
-                name,
-                (
-                    Entry(
-                        k + 1,
-                        f"{name} {k + 1}",
-                        dtype,
-                        access,
-                        partial(get, m),
-                        partial(put, m) if put else None,
-                        default=get(m),
-                    )
-                    for k, m in enumerate(mods)
-                ),
-            )
-
-        objs = [
-            per_module(
-                NA9161_ERROR_COUNTERS if self.style == "na9161" else ERROR_COUNTERS,
-                "Module error counter",
-                UNSIGNED16,
-                "rw",
-                self._counter,
-                self._write_counter,
-            )
-        ]
-        if self.host_watchdogs.any((m.back, m.address) for m in mods):
-            objs += [
-                per_module(
-                    WATCHDOG_ENABLE,
-                    "Host watchdog enable",
-                    UNSIGNED8,
-                    "rw",
-                    self._wd_enabled,
-                    self._write_wd_enabled,
-                ),
-                per_module(
-                    WATCHDOG_TIME,
-                    "Host watchdog time",
-                    UNSIGNED8,
-                    "rw",
-                    self._wd_time,
-                    self._write_wd_time,
-                ),
-                per_module(
-                    WATCHDOG_STATUS,
-                    "Host watchdog status",
-                    UNSIGNED8,
-                    "rw",
-                    self._wd_status,
-                    self._write_wd_status,
-                ),
-            ]
-        objs += [
-            per_module(
-                MODULE_ADDRESS, "Module address", UNSIGNED8, "ro", lambda m: m.address & 0xFF
-            ),
-            per_module(
-                MODULE_MODEL, "Module model", VISIBLE_STRING, "ro", lambda m: m.model or "-"
-            ),
-        ]
-        objs += [
-            per_module(
-                index,
-                f"Module {kind.upper()} channels",
-                UNSIGNED8,
-                "ro",
-                partial(_channel_count, kind),
-            )
-            for index, kind in MODULE_COUNTS.items()
-        ]
+        counters = MODULE_COUNTERS
         if self.style == "na9161":
-            di_bits = sum(1 for b in self.layout.di_bytes for c in b if c is not None)
-            do_bits = sum(1 for b in self.layout.do_bytes for c in b if c is not None)
-            for index, name, bits in (
-                (DI_BITS, "Input information", di_bits),
-                (DO_BITS, "Output information", do_bits),
-            ):
-                objs.append(
-                    ObjectDef(
-                        index,
-                        name,
-                        "record",
-                        [
-                            count_entry(1),
-                            Entry(
-                                1,
-                                "Digital bit size",
-                                UNSIGNED16,
-                                "ro",
-                                _constant(bits),
-                                default=bits,
-                            ),
-                        ],
-                    )
-                )
+            counters = replace(counters, index=NA9161_ERROR_COUNTERS)
+        rows = [counters]
+        if self.host_watchdogs.any((m.back, m.address) for m in mods):
+            rows += WATCHDOG_OBJECTS
+        objs = build_objects(self, [*rows, *MODULE_INFO_OBJECTS], self.items)
+        if self.style == "na9161":
+            objs += [
+                _bit_size(DI_BITS, "Input information", self.layout.di_bytes),
+                _bit_size(DO_BITS, "Output information", self.layout.do_bytes),
+            ]
         return objs
+
+
+def _channel_count(kind: str, owner: ManufacturerObjects, module: ModuleRef) -> int:
+    count: int = getattr(module, kind)
+    return min(255, count)
+
+
+def _bit_size(index: int, name: str, digital: list[list[Any]]) -> ObjectDef:
+    """0x2020 / 0x2220 (the NA-9161's): sub 1, the digital channels of one direction."""
+    bits = sum(1 for b in digital for c in b if c is not None)
+    entry = Entry(1, "Digital bit size", UNSIGNED16, "ro", const(bits), default=bits)
+    return ObjectDef(index, name, "record", [count_entry(1), entry])
+
+
+M = ManufacturerObjects
+# A documented table: (index, object name, entry name ({n}: the sub-index, one per module in
+# the front's order), data type, access, "modules", read, write); defaults: the values when built.
+# fmt: off
+MODULE_COUNTERS: ObjectSpec[ManufacturerObjects] = ObjectSpec(
+    ERROR_COUNTERS, "Module error counter", "Module error counter {n}", UNSIGNED16, "rw", "modules",
+    M.counter, M.write_counter)
+WATCHDOG_OBJECTS: tuple[ObjectSpec[ManufacturerObjects], ...] = (
+    ObjectSpec(WATCHDOG_ENABLE, "Host watchdog enable", "Host watchdog enable {n}", UNSIGNED8, "rw",
+               "modules", M.wd_enabled, M.write_wd_enabled),
+    ObjectSpec(WATCHDOG_TIME, "Host watchdog time", "Host watchdog time {n}", UNSIGNED8, "rw",
+               "modules", M.wd_time, M.write_wd_time),
+    ObjectSpec(WATCHDOG_STATUS, "Host watchdog status", "Host watchdog status {n}", UNSIGNED8, "rw",
+               "modules", M.wd_status, M.write_wd_status),
+)
+MODULE_INFO_OBJECTS: tuple[ObjectSpec[ManufacturerObjects], ...] = (
+    ObjectSpec(MODULE_ADDRESS, "Module address", "Module address {n}", UNSIGNED8, "ro", "modules",
+               lambda _, m: m.address & 0xFF),
+    ObjectSpec(MODULE_MODEL, "Module model", "Module model {n}", VISIBLE_STRING, "ro", "modules",
+               lambda _, m: m.model or "-"),
+    *(
+        ObjectSpec(index, f"Module {kind.upper()} channels", f"Module {kind.upper()} channels {{n}}",
+                   UNSIGNED8, "ro", "modules", partial(_channel_count, kind))
+        for index, kind in MODULE_COUNTS.items()
+    ),
+)
+# fmt: on

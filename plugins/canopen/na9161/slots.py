@@ -48,7 +48,7 @@ from fieldgate.image import Channel, ErrorMode, Kind, ProcessImage
 from ..cia301.abort import LENGTH_TOO_HIGH, LENGTH_TOO_LOW, NO_DATA, VALUE_RANGE
 from ..cia301.entries import DOMAIN, UNSIGNED32, Abort, Entry, ObjectDef, Value, array
 from ..cia401.layouts import ModuleRef
-from ..cia401.profile import from_int16, to_int16
+from ..cia401.values import from_int16, to_int16
 
 READ_MEMORY, WRITE_MEMORY = 0x2000, 0x2200
 READ_RANGE, SLOT_CONFIGURATION, CATALOG_CODES = 0x4501, 0x4502, 0x4504

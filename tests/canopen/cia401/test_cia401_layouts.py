@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from io_bench import BACK, Bench, Kind, make_image
+from io_bench import Bench, Kind, make_image
+from na9161_images import NA_DO_VALUES, NA_OUTPUTS, do_value, na_inputs, set_bits
 
-from fieldgate.image import channel_id
 from fieldgate.layout import default_order
 from fieldgate.plugins.canopen.cia401.iodevice import IoSettings
 from fieldgate.plugins.canopen.cia401.layouts import LayoutError, build_layout, default_pdos
@@ -13,15 +13,6 @@ from fieldgate.plugins.canopen.cia401.layouts import LayoutError, build_layout, 
 
 def entries(pdo):
     return [f"{e >> 16:04X}:{e >> 8 & 0xFF:02X}/{e & 0xFF}" for e in pdo.entries]
-
-
-def set_bits(image, address, kind, value, count):
-    for i in range(count):
-        cid = channel_id(BACK, address, kind, i)
-        if kind.is_output:
-            image.write_output(cid, bool(value >> i & 1))
-        else:
-            image.update_input(cid, bool(value >> i & 1))
 
 
 def test_tv25_object_fill_of_the_i7232d_example():
@@ -147,41 +138,6 @@ def test_too_many_channels_for_the_pdos_is_a_layout_error():
 
 # -- NA-9161 (seed-004 §2, TV-17..TV-21) ----------------------------------------------------
 
-NA_INPUTS = [
-    (1, 4, 0, 0, 0),
-    (2, 8, 0, 0, 0),
-    (3, 0, 0, 2, 0),
-    (4, 16, 0, 0, 0),
-    (5, 4, 0, 0, 0),
-    (6, 8, 0, 0, 0),
-    (7, 4, 0, 0, 0),
-    (8, 0, 0, 2, 0),
-    (9, 16, 0, 0, 0),
-]
-NA_DI_VALUES = {
-    1: (0xA, 4),
-    2: (0x5C, 8),
-    4: (0xBEEF, 16),
-    5: (0x3, 4),
-    6: (0x81, 8),
-    7: (0x6, 4),
-    9: (0x1234, 16),
-}
-
-
-def na_inputs(extra=()):
-    image = make_image(NA_INPUTS + list(extra))
-    for address, (value, count) in NA_DI_VALUES.items():
-        set_bits(image, address, Kind.DI, value, count)
-    for cid, value in (
-        ("bus/m3/ai0", 0x1234),
-        ("bus/m3/ai1", 0x0FFF),
-        ("bus/m8/ai0", 0),
-        ("bus/m8/ai1", -0x7FFF),
-    ):
-        image.update_input(cid, value)
-    return image
-
 
 def test_na9161_tv18_compressed_inputs_and_the_start_tpdos():
     bench = Bench(na_inputs(), IoSettings(style="na9161"), node_id=5)
@@ -204,34 +160,6 @@ def test_na9161_tv19_non_compressed_inputs():
         == "0A 5C EF BE 03 81 06 34 12 09"
     )
     assert bench.start()[0] == "185 [8] 0A 5C EF BE 03 81 06 34"
-
-
-NA_OUTPUTS = [
-    (1, 0, 4, 0, 0),
-    (2, 0, 8, 0, 0),
-    (3, 0, 0, 0, 2),
-    (4, 0, 16, 0, 0),
-    (5, 0, 4, 0, 0),
-    (6, 0, 8, 0, 0),
-    (7, 0, 2, 0, 0),
-    (8, 0, 2, 0, 0),
-    (9, 0, 0, 0, 2),
-    (10, 0, 16, 0, 0),
-]
-NA_DO_VALUES = {
-    1: (0x5, 4),
-    2: (0xF0, 8),
-    4: (0x1234, 16),
-    5: (0xC, 4),
-    6: (0xAA, 8),
-    7: (0b01, 2),
-    8: (0b10, 2),
-    10: (0xCAFE, 16),
-}
-
-
-def do_value(image, address, count):
-    return sum(int(image.value(channel_id(BACK, address, Kind.DO, i))) << i for i in range(count))
 
 
 def test_na9161_tv20_compressed_outputs_from_rpdos():

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 from io_bench import Bench, Kind, make_image, module_health
-from test_cia401_layouts import NA_DO_VALUES, NA_OUTPUTS, do_value, na_inputs, set_bits
+from na9161_images import NA_DO_VALUES, NA_OUTPUTS, do_value, na_inputs, set_bits
 
 from fieldgate.health import ErrorKind
 from fieldgate.plugins.canopen.cia401.iodevice import IoSettings

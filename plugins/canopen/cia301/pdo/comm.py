@@ -13,10 +13,10 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-from ...cia401.layouts import COB_INVALID
 from ..abort import VALUE_RANGE
 from ..cobid import check_cob_id
 from ..entries import UNSIGNED8, UNSIGNED16, UNSIGNED32, Abort, Entry, ObjectDef, count_entry
+from .defaults import COB_INVALID
 from .mapping import MAX_ENTRIES, Pdo, Slot
 
 log = logging.getLogger("fieldgate.canopen.pdo")

@@ -38,9 +38,9 @@ import time
 from collections.abc import Callable
 from typing import Any, Literal
 
-from ...cia401.layouts import PdoDefault
 from ..entries import Directory, ObjectDef
 from .comm import PdoCommParameters
+from .defaults import PdoDefault
 from .mapping import (
     COB_NO_RTR,
     MAX_BITS,

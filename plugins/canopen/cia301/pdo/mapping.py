@@ -24,7 +24,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import partial
 
-from ...cia401.layouts import COB_INVALID, PdoDefault
 from ..abort import DEVICE_STATE, NOT_MAPPABLE, PDO_TOO_LONG
 from ..entries import (
     BOOLEAN,
@@ -38,6 +37,7 @@ from ..entries import (
     decode,
     encode,
 )
+from .defaults import COB_INVALID, PdoDefault
 
 Frame = tuple[int, bytes]  # (can_id, data): what the PDO services return to send
 
