@@ -1,13 +1,13 @@
 """Wiring the CiA 401 I/O device into the ``canopen`` front.
 
-The front's configuration gains the :class:`IoFrontOptions` fields; :func:`install` is
-the node extension that adds an :class:`~.iodevice.IoDevice` to every canopen front's
-node before it boots. The front itself owns the master state (error control's
-monitoring and, with ``error_on_stopped``, NMT Stopped: :mod:`.master_state`) and the
-module-offline EMCY, so the I/O device only adds what is its own: the PDO engine, the
-CiA 401 and manufacturer objects (0x2001-0x2003 through the gateway's
-``HostWatchdogs.from_context``) and the acknowledgement of a module error by clearing
-its 0x2000 counter.
+The front's configuration gains the :class:`IoFrontOptions` fields; :func:`io_device`
+builds the :class:`~.cia401.iodevice.IoDevice` every canopen front adds to its node before
+it boots (its objects are what the node's PDO service maps). The front itself owns the
+master state (error control's monitoring and, with ``error_on_stopped``, NMT Stopped:
+:mod:`.master_state`) and the module-offline EMCY, so the I/O device only adds what is
+its own: the CiA 401 and manufacturer objects (0x2001-0x2003 through the gateway's
+``HostWatchdogs.from_context``), the events that become TPDOs and the acknowledgement of
+a module error by clearing its 0x2000 counter.
 
 YAML::
 
@@ -23,7 +23,6 @@ YAML::
 
 from __future__ import annotations
 
-import asyncio
 import re
 from typing import Any, Literal
 
@@ -229,7 +228,13 @@ def default_error_modes(front: Any) -> list[str]:
 
 
 def io_device(front: Any) -> IoDevice:
-    """The I/O device of a canopen front (``front.config``, ``front.context``)."""
+    """The I/O device of a canopen front (``front.config``, ``front.context``), replacing the
+    one of a previous start; outputs without an error mode of their own get the style's
+    (:func:`default_error_modes`) first, so the objects start with them."""
+    previous = getattr(front, "io", None)
+    if previous is not None:
+        previous.detach()
+    default_error_modes(front)
     cfg, ctx = front.config, front.context
     models = {(b.name, m.address): m.model or "" for b in ctx.topology.backs for m in b.modules}
     return IoDevice(
@@ -245,33 +250,3 @@ def io_device(front: Any) -> IoDevice:
         master_events=False,
         module_emcy=False,
     )
-
-
-def install(front: Any, node: Any) -> None:
-    """Node extension: add the I/O device (replacing the one of a previous start)."""
-    previous = getattr(front, "io", None)
-    if previous is not None:
-        previous.detach()
-    default_error_modes(front)
-    io = io_device(front)
-    scheduled = False
-
-    def flush() -> None:
-        """One loop turn after a process-image event: run the engine, send, re-arm timers."""
-        nonlocal scheduled
-        scheduled = False
-        adapter = getattr(front, "adapter", None)
-        if adapter is not None and getattr(front, "node", None) is node:
-            adapter.run_engine()
-
-    def wakeup() -> None:
-        # Coalesce the events of one loop turn (a back updating a module's channels), but
-        # never postpone them past the next turn, however fast the inputs keep changing.
-        nonlocal scheduled
-        if not scheduled:
-            scheduled = True
-            asyncio.get_running_loop().call_soon(flush)
-
-    io.wakeup = wakeup
-    node.add_service(io)
-    front.io = io

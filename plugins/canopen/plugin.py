@@ -1,8 +1,9 @@
 """The ``canopen`` front: a CiA 301 slave on any python-can bus, serving the process image.
 
-Start-up order: build the node (identity, EMCY, error control, SYNC, SDO, store), add
-LSS, run the *node extensions* (the PDO engine and CiA 401 objects register one with
-:func:`add_node_extension`), load the store, open the bus, boot. Master loss (life
+Start-up order: build the CiA 401 I/O device (:mod:`.front401`), build the node (identity,
+EMCY, error control, SYNC, SDO, store, the PDO service over the I/O device's objects), add
+CAN health, LSS and the I/O device, run the *node extensions* (:func:`add_node_extension`),
+load the store, open the bus, boot. Master loss (life
 guarding, heartbeat consumer, bus-off, and NMT Stopped with ``error_on_stopped``)
 goes to ``context.masters.lost`` with the outputs this front serves, through one
 owner (:class:`~.master_state.MasterState`); module health (offline / back online) raises and clears
@@ -24,6 +25,7 @@ from pydantic_core import PydanticCustomError
 from fieldgate import __version__
 from fieldgate.can.adapter import CanAdapter, open_bus
 from fieldgate.can.busmetrics import can_bus_samples
+from fieldgate.can.frame import Frame
 from fieldgate.events import BUS_OFF, BUS_ON, CAN_OVERRUN, CAN_STATE, EMCY_SENT, NMT_STATE
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.image import Channel
@@ -32,15 +34,16 @@ from fieldgate.plugin import Front, GatewayContext, Registry, hookimpl
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
 
+from .canhealth import CanHealth
 from .cia301.builder import Identity, NodeSettings, build_node
 from .cia301.cobid import restricted
-from .cia301.nmt import Frame, NmtState
+from .cia301.nmt import NmtState
 from .cia301.node import Node
 from .cia305.lss import BIT_TIMING_TABLES, LssService, LssStore
+from .cia401.iodevice import IoDevice
 from .cia401.layouts import device_type as io_device_type
 from .eds import eds_for
-from .front401 import IoFrontOptions, check_io, io_settings
-from .front401 import install as install_io_device
+from .front401 import IoFrontOptions, check_io, io_device, io_settings
 from .locations import point_locations
 from .master_state import MasterState
 from .profiles import (
@@ -66,8 +69,8 @@ _node_extensions: list[NodeExtension] = []
 def add_node_extension(extension: NodeExtension) -> None:
     """Register ``extension(front, node)``, run for every canopen front before boot.
 
-    This is where the PDO engine and the CiA 401 objects add their services: the node's
-    dictionary then has their objects when the store is loaded and the node boots.
+    This is where a service of another package adds itself: the node's dictionary then
+    has its objects when the store is loaded and the node boots.
     """
     if extension not in _node_extensions:
         _node_extensions.append(extension)
@@ -291,6 +294,8 @@ class CanopenFront(Front):
         self.adapter: CanAdapter | None = None
         self.outputs: list[str] = []
         self.master: MasterState | None = None
+        self.io: IoDevice | None = None
+        self._wake_scheduled = False
         self._modules: set[tuple[str, int]] = set()
         self._health_subscribed = False
         self._ports_subscribed = False
@@ -309,6 +314,7 @@ class CanopenFront(Front):
         cfg = self.config
         profile = cfg.profile
         channels = self.context.front_channels(cfg)
+        io = io_device(self)
         device_type = cfg.identity.device_type
         if device_type is None:
             device_type = io_device_type({c.kind for c in channels})
@@ -337,7 +343,6 @@ class CanopenFront(Front):
                 profile.on_master_lost
             ),
             sync_loss_error_event=profile.sync_loss == "error-event",
-            controller_emcy=profile.style.controller_emcy,
             sdo_timeout_s=cfg.sdo_timeout_ms / 1000.0,
             sdo_block_size=cfg.sdo_block_size,
             sdo_zero_extend=profile.sdo_zero_extend,
@@ -345,8 +350,11 @@ class CanopenFront(Front):
             sync_cob_id=cfg.sync_cob_id,
             store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),
             fingerprint=self.fingerprint(channels),
+            pdo=io.pdo_config,
         )
         node = build_node(settings, name=self.name)
+        if profile.style.controller_emcy:
+            node.add_service(CanHealth(profile.style.controller_emcy))
         node.add_service(
             LssService(
                 bitrate=cfg.bitrate,
@@ -354,6 +362,8 @@ class CanopenFront(Front):
                 store=LssStore(self._state_path(cfg.lss_store_file, f"{self.name}.lss.json")),
             )
         )
+        node.add_service(io)
+        self.io = io
         for extension in list(_node_extensions):
             extension(self, node)
         node.service("store").load()
@@ -432,6 +442,7 @@ class CanopenFront(Front):
             reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
         )
         self.adapter.start()
+        node.on_wake(self._wakeup)
         if cfg.module_emcy and not self._health_subscribed:
             self._health_subscribed = True
             self.context.health.subscribe(self._module_health)
@@ -450,6 +461,18 @@ class CanopenFront(Front):
             cfg.channel,
             bitrate,
         )
+
+    def _wakeup(self) -> None:
+        """Work queued from outside the node's calls (a TPDO, an EMCY): one engine run in the
+        next loop turn, however many wake-ups this turn brings, never postponed further."""
+        if not self._wake_scheduled:
+            self._wake_scheduled = True
+            asyncio.get_running_loop().call_soon(self._run_engine)
+
+    def _run_engine(self) -> None:
+        self._wake_scheduled = False
+        if self.adapter is not None:
+            self.adapter.run_engine()
 
     async def run(self) -> None:
         """Everything is callback-driven; raises only when receiving from the bus has died."""
@@ -506,7 +529,7 @@ class CanopenFront(Front):
 
     def point_locations(self) -> dict[str, list[str]]:
         """Where each point is served: CiA 401 object/sub and PDO byte/bit (status API)."""
-        io = getattr(self, "io", None)
+        io = self.io
         if io is None:
             return {}
         engine = io.engine
@@ -519,9 +542,9 @@ class CanopenFront(Front):
             return []
         node_status = self.node.status()
         services = node_status["services"]
-        io, emcy, sdo = (services.get(name, {}) for name in ("io", "emcy", "sdo"))
+        pdo, emcy, sdo = (services.get(name, {}) for name in ("pdo", "emcy", "sdo"))
         losses = self.master.status().get("losses", 0) if self.master else 0
-        ignored = node_status["counters"].get("ignored", 0) + io.get("frames_ignored", 0)
+        ignored = node_status["counters"].get("ignored", 0) + pdo.get("frames_ignored", 0)
         return [
             *state_gauges(
                 "canopen_nmt_state",
@@ -537,8 +560,8 @@ class CanopenFront(Front):
                 "SDO transfers aborted by the server",
                 sdo.get("aborts", 0),
             ),
-            counter("canopen_tpdo_sent_total", "TPDOs sent", io.get("tpdo_sent", 0)),
-            master_output_writes(io.get("rpdo_received", 0)),
+            counter("canopen_tpdo_sent_total", "TPDOs sent", pdo.get("tpdo_sent", 0)),
+            master_output_writes(pdo.get("rpdo_received", 0)),
             counter(
                 "master_losses_total",
                 "times the front lost its master (guarding, heartbeat, bus-off, ...)",
@@ -565,6 +588,3 @@ def fieldgate_register(registry: Registry) -> None:
         "canopen", CanopenFrontConfig, CanopenFront, "CANopen CiA 301 slave on any python-can bus"
     )
     registry.add_eds("canopen", eds_for)
-
-
-add_node_extension(install_io_device)  # CiA 401 I/O device: PDOs, 0x6000-, 0x2000- (see .front401)

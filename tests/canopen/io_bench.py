@@ -104,6 +104,7 @@ class Bench:
             guard_time_ms=guard[0],
             life_time_factor=guard[1],
             store_path=store_path,
+            pdo=self.io.pdo_config,
         )
         self.node = build_node(node_settings)
         self.node.add_service(self.io)

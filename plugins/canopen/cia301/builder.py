@@ -1,10 +1,11 @@
 """Assemble a CANopen slave Node with the CiA 301 communication services.
 
 ``build_node(settings)`` gives a :class:`~.node.Node` with identity objects, the SDO
-server, EMCY producer, error control, SYNC, store/restore, the TIME consumer and the
-additional SDO server channels (``settings.sdo_servers``). The front (and tests)
-add further services (LSS, PDO engine, CiA 401 objects) with ``node.add_service``,
-then call ``node.service("store").load()`` and ``node.boot(now)``.
+server, EMCY producer, error control, SYNC, store/restore, the TIME consumer, the
+additional SDO server channels (``settings.sdo_servers``) and, given ``settings.pdo`` (the
+application's objects and default PDOs), the PDO service. The front (and tests) add
+further services (LSS, the CiA 401 I/O device) with ``node.add_service``, then call
+``node.service("store").load()`` and ``node.boot(now)``.
 """
 
 from __future__ import annotations
@@ -14,11 +15,10 @@ from pathlib import Path
 
 from canopen.objectdictionary import datatypes as dt
 
-from ..canhealth import CanHealth
-from ..profiles import ControllerEmcy
 from .emcy import EmcyProducer
 from .errctl import ErrorControl
 from .node import Node
+from .pdo.service import PdoConfig, PdoService
 from .sdo import SdoServer
 from .sdo_channel import SdoChannel, channel_indices
 from .service import ALL_STATES, NodeHost, Service
@@ -52,7 +52,6 @@ class NodeSettings:
     sync_loss_error_event: bool = False  # SYNC loss drives outputs to error values (NA-9161)
     emcy_history: int = 5
     emcy_queue: int = 16
-    controller_emcy: dict[str, ControllerEmcy] = field(default_factory=dict)  # CAN health EMCYs
     sdo_timeout_s: float = 1.0
     sdo_block_size: int = 127
     sdo_zero_extend: bool = False
@@ -61,6 +60,7 @@ class NodeSettings:
     sync_cob_id: int = 0x80
     store_path: Path | None = None
     fingerprint: str = ""
+    pdo: PdoConfig | None = None  # the application's PDOs (the CiA 401 device's): none without
 
 
 class IdentityObjects(Service):
@@ -127,12 +127,12 @@ def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
     )
     node.add_service(StoreService(settings.store_path, settings.fingerprint))
     node.add_service(TimeConsumer())
-    if settings.controller_emcy:
-        node.add_service(CanHealth(settings.controller_emcy))
     for index in channel_indices(settings.sdo_servers):
         node.add_service(
             SdoChannel(
                 index, settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend
             )
         )
+    if settings.pdo is not None:
+        node.add_service(PdoService(settings.pdo))
     return node

@@ -53,9 +53,11 @@ from typing import Any
 
 from canopen.objectdictionary import datatypes as dt
 
+from fieldgate.can.frame import Frame
+
 from . import abort
 from .abort import SdoAbort
-from .nmt import Frame, NmtState
+from .nmt import NmtState
 from .service import ALL_STATES, NodeHost, Service
 
 LIFE_GUARD_CODE = 0x8130

@@ -35,18 +35,16 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
-from .nmt import UNCONFIGURED_NODE_ID, Frame, NmtState
+from fieldgate.can.frame import Frame
+
+from . import nmt
+from .nmt import NMT_RESET_NODE, RESETS, STATE_OF, UNCONFIGURED_NODE_ID, NmtState
 from .od import Dictionary
 from .service import QUIET, EmcyProducer, Service, Taken
 
 log = logging.getLogger("fieldgate.canopen")
 S = TypeVar("S", bound=Service)
 
-NMT_START = 0x01
-NMT_STOP = 0x02
-NMT_PRE_OPERATIONAL = 0x80
-NMT_RESET_NODE = 0x81
-NMT_RESET_COMMUNICATION = 0x82
 RESET_EMCY_CODE, RESET_EMCY_REGISTER, RESET_EMCY_MANUFACTURER = (
     0xFF00,
     0x80,
@@ -89,6 +87,7 @@ class Node:
         self._nmt_listeners: list[Callable[[NmtState, NmtState], None]] = []
         self._master_listeners: list[Callable[[bool, str], None]] = []
         self._bit_timing_listeners: list[Callable[[int, float], None]] = []
+        self._wake_listeners: tuple[Callable[[], None], ...] = ()
 
     # -- assembling ------------------------------------------------------------------
     def add_service(self, service: S) -> S:
@@ -116,6 +115,11 @@ class Node:
     def on_bit_timing(self, callback: Callable[[int, float], None]) -> None:
         self._bit_timing_listeners.append(callback)
 
+    def on_wake(self, callback: Callable[[], None]) -> None:
+        """``callback()`` after every :meth:`wake`: whoever drives the node (the CAN front)
+        runs it soon (:meth:`tick`, :meth:`flush`)."""
+        self._wake_listeners += (callback,)
+
     @property
     def configured(self) -> bool:
         return self.node_id != UNCONFIGURED_NODE_ID
@@ -128,8 +132,11 @@ class Node:
     def wake(self) -> None:
         """Work was queued from outside the engine's calls (a process-image event for a
         TPDO, an EMCY): the next call runs the timer pass, and :meth:`quick_answer` leaves
-        every frame to the event loop until then, so no answer overtakes that work."""
+        every frame to the event loop until then, so no answer overtakes that work. The
+        wake listeners (:meth:`on_wake`) hear of it."""
         self._deadline_hint = self.now
+        for listener in self._wake_listeners:
+            listener()
 
     def flush(self) -> list[Frame]:
         """Frames queued by calls from outside the engine (e.g. ``node.emcy.raise_error``).
@@ -306,21 +313,15 @@ class Node:
 
     # -- NMT ----------------------------------------------------------------------------
     def _nmt_command(self, frame: Frame, now: float) -> None:
-        if len(frame.data) < 2:
-            self.counters["nmt_malformed"] += 1
-            return
-        cs, target = frame.data[0], frame.data[1]
-        if not self.configured or target not in (0, self.node_id):
-            self.counters["nmt_other_node"] += 1
+        cs = nmt.command(frame.data, self.node_id if self.configured else None)
+        if isinstance(cs, str):  # not a command for this node: counted
+            self.counters[cs] += 1
             return
         self.counters["nmt"] += 1
-        if cs == NMT_START:
-            self.set_state(NmtState.OPERATIONAL, now)
-        elif cs == NMT_STOP:
-            self.set_state(NmtState.STOPPED, now)
-        elif cs == NMT_PRE_OPERATIONAL:
-            self.set_state(NmtState.PRE_OPERATIONAL, now)
-        elif cs in (NMT_RESET_NODE, NMT_RESET_COMMUNICATION):
+        state = STATE_OF.get(cs)
+        if state is not None:
+            self.set_state(state, now)
+        elif cs in RESETS:
             if self.reset_emcy and self.emcy is not None:
                 self.emcy.signal(RESET_EMCY_CODE, RESET_EMCY_REGISTER, RESET_EMCY_MANUFACTURER, now)
             self._reset(now, application=cs == NMT_RESET_NODE)

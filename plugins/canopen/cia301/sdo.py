@@ -37,9 +37,11 @@ from typing import Any
 from canopen.objectdictionary import datatypes as dt
 from canopen.objectdictionary.datatypes import UNSIGNED_TYPES
 
+from fieldgate.can.frame import Frame
+
 from . import abort
 from .abort import SdoAbort
-from .nmt import Frame, NmtState
+from .nmt import NmtState
 from .od import Dictionary, size_of
 from .service import QUIET, NodeHost, Service, Taken
 

@@ -26,10 +26,11 @@ from typing import Any
 
 from canopen.objectdictionary import datatypes as dt
 
+from fieldgate.can.frame import Frame
+
 from . import abort
 from .abort import SdoAbort
 from .cobid import check_cob_id
-from .nmt import Frame
 from .od import Dictionary
 from .sdo import DEFAULT_TIMEOUT_S, MAX_BLOCK_SIZE, Phase, SdoServer
 from .service import Taken

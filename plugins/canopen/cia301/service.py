@@ -68,7 +68,9 @@ from collections import Counter
 from collections.abc import Callable, Collection, Iterable
 from typing import Any, ClassVar, Protocol, TypeVar
 
-from .nmt import Frame, NmtState
+from fieldgate.can.frame import Frame
+
+from .nmt import NmtState
 from .od import Dictionary
 
 ALL_STATES = frozenset(NmtState)

@@ -34,10 +34,12 @@ from typing import Any
 
 from canopen.objectdictionary import datatypes as dt
 
+from fieldgate.can.frame import Frame
+
 from . import abort
 from .abort import SdoAbort
 from .cobid import check_cob_id
-from .nmt import Frame, NmtState
+from .nmt import NmtState
 from .service import COMMUNICATING, NodeHost, Service
 
 SYNC_LOSS_CODE = 0x8100

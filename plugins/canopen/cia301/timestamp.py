@@ -24,10 +24,11 @@ from typing import Any
 
 from canopen.objectdictionary import datatypes as dt
 
+from fieldgate.can.frame import Frame
+
 from . import abort
 from .abort import SdoAbort
 from .cobid import check_cob_id
-from .nmt import Frame
 from .service import NodeHost, Service
 
 CONSUME_BIT = 1 << 31

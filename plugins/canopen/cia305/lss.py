@@ -29,9 +29,9 @@ from enum import IntEnum
 from pathlib import Path
 from typing import Any
 
+from fieldgate.can.frame import Frame as CanFrame
 from fieldgate.persist import CorruptStore, read_json, write_json_atomic
 
-from ..cia301.nmt import Frame as CanFrame
 from ..cia301.service import ALL_STATES, NodeHost, Service
 
 log = logging.getLogger("fieldgate.canopen.lss")

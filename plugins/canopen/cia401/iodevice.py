@@ -1,42 +1,42 @@
-"""The CiA 401 I/O device as one Node service: PDO engine + profile objects + manufacturer objects.
+"""The CiA 401 I/O device as one node service: the profile and manufacturer objects over the
+process image, and what the node's PDOs may map.
 
 ::
 
     io = IoDevice(IoSettings(style="icpdas"), image, channels, origin="can", health=context.health,
                   masters=context.masters, front="can")
-    settings.identity.device_type = io.device_type          # 0x1000
+    settings = NodeSettings(node_id=5, identity=Identity(device_type=io.device_type),  # 0x1000
+                            pdo=io.pdo_config)   # the PDO service maps these objects
     node = build_node(settings); node.add_service(io)
 
 What it does on the node:
 
-* adds 0x1400-/0x1600-/0x1800-/0x1A00- (:mod:`.pdo`), the CiA 401 objects
-  (:mod:`.profile401`) and the manufacturer objects (:mod:`.manufacturer`) to ``node.od``,
-  each entry bound to its getter/setter (the process image is the truth);
-* passes RPDOs and TPDO remote requests to the engine (Operational only), SYNC, NMT
-  state changes, timers, and process-image events;
-* RPDO too short: EMCY 0x8210 (register 0x11, manufacturer byte 09), cleared by the next
-  good RPDO; module offline: EMCY 0xFF00 ``0B <address>``;
+* adds the CiA 401 objects (:mod:`.objects`), the special bytes (:mod:`..na9161.special`)
+  and the manufacturer objects (:mod:`.manufacturer`) to ``node.od``, each entry bound to
+  its getter/setter (the process image is the truth);
+* reports process-image events to the node's PDO service (``object_changed``: the one
+  call from CiA 401 into CiA 301 on the way from a DI change to a TPDO; the PDO service
+  wakes the node, whose driver runs it);
+* module offline: EMCY 0xFF00 ``0B <address>`` (unless the front raises it itself);
+* stores the PDO parameters and CiA 401 settings with 0x1010 (:mod:`.iostore`);
 * with ``master_events`` (a standalone device; the canopen front owns it itself), the
-  master state (:class:`~.master_state.MasterState`): master lost (``node.on_master``:
+  master state (:class:`~..master_state.MasterState`): master lost (``node.on_master``:
   life guarding, heartbeat consumer, bus-off) or, when ``error_on_stopped`` (the
   NA-9161), NMT Stopped: ``masters.lost(front, reason, outputs)`` drives every output
   with an error mode to its error value; ``masters.ok`` when neither holds any more.
   Outputs keep their error values until new data is written (NA-9161 §9.7.3).
 
-``na9161`` style: 0x4500 (:mod:`.fnbus`). A written data mode or slot deactivation takes
-effect at the next NMT Reset Node: the layout, the CiA 401 and special objects, 0x2020
-and the PDO engine (with its default mapping) are built again and bound in place of the
-old ones, before the stored settings are reloaded.
-
-Frames produced between node calls (a DI change from a back) are queued with
-``node.send`` and ``wakeup()`` is called so the adapter flushes the node.
+``na9161`` style: 0x4500 (:mod:`..na9161.fnbus`). A written data mode or slot deactivation
+takes effect at the next NMT Reset Node: the layout, the CiA 401 and special objects,
+0x2020 and the PDO set (with its default mapping: :meth:`PdoService.serve`) are built again
+and bound in place of the old ones, before the stored settings are reloaded.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from fieldgate.health import HealthRegistry
 from fieldgate.host_watchdog import HostWatchdogs
@@ -44,11 +44,12 @@ from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
 
 from ..cia301.cobid import check_cob_id
-from ..cia301.entries import Abort, Directory, ObjectDef, bind_object
-from ..cia301.nmt import Frame, NmtState
+from ..cia301.entries import Abort, Directory, bind_object
+from ..cia301.nmt import NmtState
 from ..cia301.pdo.defaults import PdoDefaults, PdoSetting
 from ..cia301.pdo.engine import PdoEngine
 from ..cia301.pdo.mapping import Pdo, PdoMapping
+from ..cia301.pdo.service import PdoConfig, PdoService
 from ..cia301.service import NodeHost, Service
 from ..master_state import MasterState
 from ..na9161.fnbus import FnBusRegister
@@ -60,8 +61,6 @@ from .layouts import STYLE_PDO_COUNT, IoLayout, Style, build_layout, default_pdo
 from .manufacturer import ManufacturerObjects
 from .objects import SHORT_WRITES, cia401_objects
 from .profile import Profile401
-
-LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES = 0x8210, 0x10, b"\x09"
 
 
 @dataclass
@@ -114,7 +113,7 @@ class IoSettings:
 
 class IoDevice(Service):
     name = "io"
-    active_states = frozenset({NmtState.OPERATIONAL})
+    active_states: ClassVar[frozenset[NmtState]] = frozenset()  # takes no frames, no SYNC
     layout: IoLayout
     defaults: PdoDefaults
     profile: Profile401
@@ -185,9 +184,9 @@ class IoDevice(Service):
             else None
         )
         self.directory = self._directory()
-        self.engine: PdoEngine | None = None
+        self.pdo: PdoService | None = None  # the node's, found when attached
         self.store = IoStore(self)
-        self.wakeup: Callable[[], None] | None = None
+        self._attached = False
         self._powered_on = False
 
     def _build_layout(self, compressed: bool, inactive: frozenset[int]) -> None:
@@ -211,59 +210,61 @@ class IoDevice(Service):
             batch=self.profile.outputs.batch,
         )
 
-    def _new_engine(self, node: NodeHost) -> PdoEngine:
-        return PdoEngine(
+    @property
+    def pdo_config(self) -> PdoConfig:
+        """What the node's PDO service maps and starts from (its ``NodeSettings.pdo``)."""
+        settings = self.settings
+        return PdoConfig(
             self.directory,
             self.defaults.tpdo,
             self.defaults.rpdo,
-            node.node_id if node.configured else 0,
-            start_policy=self.settings.policy,
-            rpdo_timing=self.settings.style == "na9161",
-            clock=lambda: node.now,
-            length_error=self._length_error,
-            wakeup=self._engine_wakeup,
-            exists=lambda index, sub: (index, sub) in node.od,
-            granularity=self.settings.granularity,
+            start_policy=settings.policy,
+            rpdo_timing=settings.style == "na9161",
+            granularity=settings.granularity,
         )
+
+    @property
+    def engine(self) -> PdoEngine | None:
+        """The node's PDO engine (its PDO service's), once attached."""
+        return self.pdo.engine if self.pdo is not None else None
 
     def _rebuild(self) -> None:
         """Reset node with a new data mode or slot set (0x4500): the image's objects again."""
         node = self.node
         assert self.fnbus is not None
-        for obj in self.objects():
+        for obj in self.directory:
             node.od.remove(obj.index)
         self.profile.detach()
         self.fnbus.apply()
         self._build_layout(self.fnbus.compressed, self.fnbus.inactive)
         self.manufacturer.layout = self.layout
         self.directory = self._directory()
-        self.engine = self._new_engine(node)
-        for obj in self.objects():
+        if self.pdo is not None:
+            self.pdo.serve(self.pdo_config)
+        for obj in self.directory:
             bind_object(node.od, obj)
         if (0x1000, 0) in node.od:  # the DI/DO/AI/AO bits of the new image (the reset reloads it)
             node.od.variable(0x1000, 0).default = self.device_type
             node.od.set(0x1000, 0, self.device_type, notify=False)
-        self.profile.attach(self.engine.object_changed)
+        self._report_events()
 
     @property
     def device_type(self) -> int:
         return self.layout.device_type
 
-    def objects(self) -> list[ObjectDef]:
-        """Every object this service serves (PDO parameters need :meth:`attach` first)."""
-        pdo = self.engine.objects() if self.engine is not None else []
-        return sorted(pdo + list(self.directory), key=lambda o: o.index)
-
     # -- Service ----------------------------------------------------------------------------
     def attach(self, node: NodeHost) -> None:
         super().attach(node)
-        self.engine = self._new_engine(node)
-        for obj in self.objects():
+        try:
+            self.pdo = node.service("pdo")
+        except KeyError:  # a node without PDOs: the objects are served by SDO only
+            self.pdo = None
+        for obj in self.directory:
             bind_object(node.od, obj)
         for index in self.settings.short_writes:
             node.od.accept_short_writes(index, 2, SHORT_WRITES[index])
         self.store.attach(node)
-        self.profile.attach(self.engine.object_changed)
+        self._report_events()
         emcy = node.emcy
         if emcy is not None:
             self.manufacturer.attach(
@@ -272,37 +273,23 @@ class IoDevice(Service):
             )
         if self.master_state is not None:
             self.master_state.attach(node)
+        self._attached = True
+
+    def _report_events(self) -> None:
+        """The profile's events go to the PDO service: the DI-change-to-TPDO path."""
+        if self.pdo is not None:
+            self.profile.attach(self.pdo.object_changed)
 
     def detach(self) -> None:
         self.profile.detach()
         self.manufacturer.detach()
 
-    def listen_ids(self) -> set[int]:
-        return self.engine.listen_ids() if self.engine is not None else set()
-
-    def on_frame(self, frame: Frame, now: float) -> bool:
-        engine = self.engine
-        if engine is None or not engine.listens_to(frame.can_id):
-            return False
-        self._send(engine.on_frame(frame.can_id, frame.data, now, rtr=frame.rtr))
-        return True
-
-    def on_sync(self, counter: int | None, now: float) -> None:
-        if self.engine is not None:
-            self._send(self.engine.on_sync(now, counter))
-
-    def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
-        if self.engine is None:
-            return
-        self._send(self.engine.set_operational(new == NmtState.OPERATIONAL, now))
-
     def on_reset_communication(self, now: float) -> None:
-        if self.engine is not None:
-            self.engine.reset(self.node.node_id if self.node.configured else 0)
+        if self._attached:  # (the PDO service has reset its PDOs: the stored ones apply)
             self.store.load_communication()
 
     def on_reset_application(self, now: float) -> None:
-        if self.engine is None:
+        if not self._attached:
             return
         if self.fnbus is not None:
             if not self._powered_on:  # power-on: the 0x4500 settings a 0x1010 save kept
@@ -312,42 +299,17 @@ class IoDevice(Service):
         self._powered_on = True
         self.store.load_application()
 
-    def deadline(self) -> float | None:
-        return self.engine.next_deadline() if self.engine is not None else None
-
-    def poll(self, now: float) -> None:
-        if self.engine is not None:
-            self._send(self.engine.on_timer(now))
-
     def status(self) -> dict[str, Any]:
+        """Its counters, the PDO service's (``services.io`` of the status API and the live
+        page show the PDO figures here) and the master state when it owns it."""
+        pdo = self.pdo.status() if self.pdo is not None else {}
         master = {"master_lost": self.master_state.lost} if self.master_state is not None else {}
-        return {**dict(self.counters), **(self.engine.status() if self.engine else {}), **master}
-
-    # -- glue ---------------------------------------------------------------------------------
-    def _send(self, frames: list[tuple[int, bytes]]) -> None:
-        for can_id, data in frames:
-            self.node.send(Frame(can_id, data))
-
-    def _engine_wakeup(self) -> None:
-        """A process-image event outside any node call: the adapter should tick the node."""
-        self.node.wake()
-        if self.wakeup is not None:
-            self.wakeup()
+        return {**dict(self.counters), **pdo, **master}
 
     def _outside(self, action: Callable[[], Any]) -> None:
+        """An EMCY from outside the node's calls (a module's health): the node is woken."""
         action()
         self.node.wake()
-        if self.wakeup is not None:
-            self.wakeup()
-
-    def _length_error(self, active: bool) -> None:
-        emcy = self.node.emcy
-        if emcy is None:
-            return
-        if active:
-            emcy.raise_error(LENGTH_ERROR_CODE, LENGTH_ERROR_REGISTER, LENGTH_ERROR_BYTES)
-        else:
-            emcy.clear_error(LENGTH_ERROR_CODE)
 
 
 def build_io(

@@ -6,7 +6,8 @@ import struct
 
 from canopen.objectdictionary import datatypes as dt
 
-from fieldgate.plugins.canopen.cia301.nmt import Frame, NmtState
+from fieldgate.can.frame import Frame
+from fieldgate.plugins.canopen.cia301.nmt import NmtState
 from fieldgate.plugins.canopen.cia301.node import Node
 from fieldgate.plugins.canopen.cia301.od import Dictionary
 from fieldgate.plugins.canopen.cia305.lss import LssService, LssStore, StoredLss
