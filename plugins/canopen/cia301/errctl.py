@@ -1,21 +1,15 @@
-"""Error control (CiA 301 §7.2.8.3): node/life guarding, heartbeat producer and consumer.
+"""Error control (CiA 301 §7.2.8.3): the one service of guarding and heartbeat, and what
+their errors mean for the node and its master.
 
-* Node guarding: an RTR on 0x700+ID is answered ``[toggle<<7 | state]`` with DLC 1;
-  the toggle is 0 in the first answer after boot-up / reset communication. While the
-  heartbeat producer time 0x1017 is non-zero, CiA 301 says heartbeat replaces
-  guarding: guard RTRs are then counted and not answered, and life guarding is off.
-* Life guarding: with guard time 0x100C (ms) and life time factor 0x100D both
-  non-zero, the node life time starts at the first guard RTR; when it passes with no
-  further RTR, the master is lost: EMCY ``30 81 11 07 00 00 00 00`` (TV-20). The next
-  guard RTR clears the error (error reset EMCY) and ends the loss.
-* Heartbeat producer 0x1017 (ms): ``[state]`` on 0x700+ID in every state after the
-  boot-up; a write restarts the period.
-* Heartbeat consumer 0x1016:1..N (bits 23-16 node-ID, 15-0 time in ms): monitoring of
-  a node starts at its first heartbeat; a timeout is a master-lost event with EMCY
-  0x8130 (register 0x11, manufacturer bytes ``07 <node-ID>``); its next heartbeat
-  clears it. Two entries with the same node-ID and non-zero times abort 0604 0043. An
-  entry rewritten with another time restarts that node's monitoring at its next
-  heartbeat; unchanged entries keep running.
+The protocols are apart: node and life guarding in :mod:`.guarding`, the heartbeat
+producer and consumer in :mod:`.heartbeat`. This service serves their objects (0x100C,
+0x100D, 0x1016, 0x1017, 0x1029), takes their frames, runs their timers and owns what they
+share:
+
+* Life guarding timeout: the master is lost, EMCY ``30 81 11 07 00 00 00 00`` (TV-20). The
+  next guard RTR clears the error (error reset EMCY) and ends the loss.
+* Heartbeat consumer timeout: a master-lost event with EMCY 0x8130 (register 0x11,
+  manufacturer bytes ``07 <node-ID>``); its next heartbeat clears it.
 * 0x1029:1 (error behaviour, communication error): on a master-lost event an
   operational node goes to pre-operational (0, the CiA 301 default value), stays as
   it is (1) or stops (2). The front's default is 1 (the I-7232D keeps its state);
@@ -55,8 +49,8 @@ from canopen.objectdictionary import datatypes as dt
 
 from fieldgate.can.frame import Frame
 
-from . import abort
-from .abort import SdoAbort
+from .guarding import GUARD_TIME, LIFE_TIME_FACTOR, Guarding
+from .heartbeat import CONSUMER_TIMES, PRODUCER_TIME, HeartbeatConsumer, HeartbeatProducer
 from .nmt import NmtState
 from .service import ALL_STATES, NodeHost, Service
 
@@ -64,6 +58,7 @@ LIFE_GUARD_CODE = 0x8130
 BUS_OFF_RECOVERED_CODE = 0x8140
 COMM_REGISTER = 0x11  # generic + communication, as the I-7232D
 ERROR_PRE_OPERATIONAL, ERROR_NO_CHANGE, ERROR_STOPPED = 0, 1, 2
+ERROR_BEHAVIOUR = 0x1029
 
 Error = tuple[int, bytes]  # (EMCY code, manufacturer bytes): one error of node.emcy
 LIFE_GUARDING_ERROR: Error = (LIFE_GUARD_CODE, b"\x07")
@@ -90,42 +85,32 @@ class ErrorControl(Service):
         super().__init__()
         self.defaults = (guard_time_ms, life_time_factor, heartbeat_ms)
         self.error_behaviour = error_behaviour
-        self.consumer_defaults = list(consumer_defaults)  # 0x1016:1.. defaults (node << 16 | ms)
-        self.consumers = max(consumers, len(self.consumer_defaults))
-        self.producer = heartbeat_ms is not None  # 0x1017 served (an I-7232D has guarding only)
-        self.toggle = 0
-        self.life_deadline: float | None = None
-        self.heartbeat_due: float | None = None
-        self.consumer_times: dict[
-            int, int
-        ] = {}  # producer node-ID -> consumer time (ms), from 0x1016
-        self.watched: dict[
-            int, float | None
-        ] = {}  # producer node-ID -> deadline (None: not yet heard)
+        self.consumer = HeartbeatConsumer(consumers, consumer_defaults)
+        self.producer_served = heartbeat_ms is not None  # 0x1017 (an I-7232D: guarding only)
         # what the master monitoring says now (each an active EMCY error, bus-off aside)
         self.sync_lost = False  # SYNC loss reported as an error event (the NA-9161's)
         self.guard_lost = False
         self.heartbeat_lost: set[int] = set()
         self.bus_off = False
         self.bus_off_recovered = False  # EMCY 0x8140 active: the master not heard since
-        self.unheard = (
-            False  # lost until heard (assume_master_lost); no EMCY: this node detected nothing
-        )
-        self._own_state_change = (
-            False  # 0x1029 at work: an NMT state change that is not the master's
-        )
+        self.unheard = False  # lost until heard (assume_master_lost); no EMCY: nothing detected
+        self._own_state_change = False  # 0x1029 at work: a state change not the master's
         self.master_lost = False  # as last told to node.master_state
 
     def attach(self, node: NodeHost) -> None:
         super().attach(node)
         od = node.od
+        self.guarding = Guarding(od)
+        self.heartbeat = HeartbeatProducer(od, self.producer_served)
         guard, factor, heartbeat = self.defaults
-        od.add_variable(0x100C, "Guard time", dt.UNSIGNED16, "rw", guard, maximum=32767)
-        od.add_variable(0x100D, "Life time factor", dt.UNSIGNED8, "rw", factor)
+        od.add_variable(GUARD_TIME, "Guard time", dt.UNSIGNED16, "rw", guard, maximum=32767)
+        od.add_variable(LIFE_TIME_FACTOR, "Life time factor", dt.UNSIGNED8, "rw", factor)
         if heartbeat is not None:
-            od.add_variable(0x1017, "Producer heartbeat time", dt.UNSIGNED16, "rw", heartbeat)
+            od.add_variable(
+                PRODUCER_TIME, "Producer heartbeat time", dt.UNSIGNED16, "rw", heartbeat
+            )
         od.add_array(
-            0x1029,
+            ERROR_BEHAVIOUR,
             "Error behaviour",
             [
                 (
@@ -138,38 +123,19 @@ class ErrorControl(Service):
                 )
             ],
         )
-        if self.consumers:
-            od.add_array(
-                0x1016,
-                "Consumer heartbeat time",
-                [
-                    (
-                        i,
-                        f"Consumer heartbeat time {i}",
-                        dt.UNSIGNED32,
-                        "rw",
-                        self.consumer_defaults[i - 1] if i <= len(self.consumer_defaults) else 0,
-                        {"maximum": 0x00FFFFFF},
-                    )
-                    for i in range(1, self.consumers + 1)
-                ],
-            )
-            od.add_validator(0x1016, self._check_consumer)
-            od.on_write(0x1016, lambda *_: self._consumers_written(node.now))
+        self.consumer.add_objects(od)
+        if self.consumer.entries:
+            od.on_write(CONSUMER_TIMES, lambda *_: self._consumers_written(node.now))
         if heartbeat is not None:
-            od.on_write(0x1017, lambda *_: self._heartbeat_time_written(node.now))
-        od.on_write(0x100C, lambda *_: self._guarding_written(node.now))
-        od.on_write(0x100D, lambda *_: self._guarding_written(node.now))
+            od.on_write(PRODUCER_TIME, lambda *_: self._heartbeat_time_written(node.now))
+        od.on_write(GUARD_TIME, lambda *_: self._guarding_written(node.now))
+        od.on_write(LIFE_TIME_FACTOR, lambda *_: self._guarding_written(node.now))
 
     # -- life cycle ---------------------------------------------------------------------
     def on_reset_communication(self, now: float) -> None:
-        self.toggle = 0
-        self.life_deadline = None
-        self.heartbeat_due = None
-        self.consumer_times = self._consumer_times()
-        self.watched = dict.fromkeys(
-            self.consumer_times
-        )  # each restarts at its producer's first heartbeat
+        self.guarding.reset()
+        self.heartbeat.due = None
+        self.consumer.reset()
 
     def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
         if not self._own_state_change:
@@ -187,7 +153,7 @@ class ErrorControl(Service):
                 others=self._ended_elsewhere(),
             )
         elif new is NmtState.INITIALISING:
-            self.heartbeat_due = None
+            self.heartbeat.due = None
         else:
             self._report_master(f"NMT {new.label}")
 
@@ -219,7 +185,7 @@ class ErrorControl(Service):
         """Guarding RTRs on 0x700 + node-ID, the heartbeats of the 0x1016 producers."""
         if not self.node.configured:
             return set()
-        return {self.cob_id, *(0x700 + p for p in self.watched if 1 <= p <= 127)}
+        return {self.cob_id, *(0x700 + p for p in self.consumer.watched if 1 <= p <= 127)}
 
     def on_frame(self, frame: Frame, now: float) -> bool:
         if not self.node.configured:
@@ -231,57 +197,41 @@ class ErrorControl(Service):
             self._heard("guard request")
             self._guard_request(now)
             return True
-        if (
-            0x701 <= frame.can_id <= 0x77F
-            and not frame.rtr
-            and frame.can_id - 0x700 in self.watched
-        ):
-            self._heard(f"heartbeat of node {frame.can_id - 0x700}")
-            self._heartbeat_from(frame.can_id - 0x700, frame.data, now)
+        producer = frame.can_id - 0x700
+        if 1 <= producer <= 0x7F and not frame.rtr and producer in self.consumer.watched:
+            self._heard(f"heartbeat of node {producer}")
+            self._heartbeat_from(producer, frame.data, now)
             return True
         return False
 
     def producer_time_ms(self) -> int:
         """0x1017 now; 0 when the node has no heartbeat producer."""
-        return self.node.od.integer(0x1017) if self.producer else 0
+        return self.heartbeat.period_ms()
 
     def _guard_request(self, now: float) -> None:
         if self.producer_time_ms():
             self.counters["guard_rtr_ignored_heartbeat_on"] += 1
             return
         self.counters["guard_requests"] += 1
-        self.node.send(Frame(self.cob_id, bytes([(self.toggle << 7) | int(self.node.state)])))
-        self.toggle ^= 1
-        self._rearm_life_guarding(now, started=True)
+        self.node.send(Frame(self.cob_id, self.guarding.answer(int(self.node.state))))
+        self.guarding.rearm(now, started=True)
         if self.guard_lost or self.bus_off_recovered:
             self._end(now, "life guarding resumed", guard=True, bus_off_recovered=True)
 
-    def _life_time_s(self) -> float:
-        return self.node.od.integer(0x100C) * self.node.od.integer(0x100D) / 1000.0
-
     def guarding_enabled(self) -> bool:
         """Life guarding configured: guard time and life time factor set, heartbeat producer off."""
-        return self._life_time_s() > 0 and not self.producer_time_ms()
+        return self.guarding.life_time_s() > 0 and not self.producer_time_ms()
 
     def monitoring(self) -> bool:
         """Whether anything here can hear the master: life guarding or a heartbeat consumer entry."""
-        return bool(self.consumer_times) or self.guarding_enabled()
-
-    def _rearm_life_guarding(self, now: float, started: bool = False) -> None:
-        if not started and self.life_deadline is None:
-            return  # not started yet: the first guard RTR starts it
-        life = self._life_time_s()
-        self.life_deadline = now + life if life > 0 else None
+        return bool(self.consumer.times) or self.guarding_enabled()
 
     def _heartbeat_from(self, producer: int, data: bytes, now: float) -> None:
         if len(data) < 1:
             self.counters["heartbeat_malformed"] += 1
             return
         self.counters["heartbeats_consumed"] += 1
-        if data[0] == 0x00:  # boot-up: monitoring restarts at its next heartbeat
-            self.watched[producer] = None
-        else:
-            self.watched[producer] = now + self.consumer_times[producer] / 1000.0
+        self.consumer.heard(producer, data[0], now)
         if producer in self.heartbeat_lost or self.bus_off_recovered:
             self._end(
                 now,
@@ -292,43 +242,34 @@ class ErrorControl(Service):
 
     # -- timers -------------------------------------------------------------------------
     def deadline(self) -> float | None:
-        earliest = None
-        for t in (self.life_deadline, self.heartbeat_due):
-            if t is not None and (earliest is None or t < earliest):
-                earliest = t
-        for t in self.watched.values() if self.watched else ():
-            if t is not None and (earliest is None or t < earliest):
-                earliest = t
+        earliest = self.guarding.life_deadline  # (a plain comparison: asked on every engine call)
+        due = self.heartbeat.due
+        if due is not None and (earliest is None or due < earliest):
+            earliest = due
+        if self.consumer.watched:
+            due = self.consumer.deadline()
+            if due is not None and (earliest is None or due < earliest):
+                earliest = due
         return earliest
 
     def poll(self, now: float) -> None:
-        if self.heartbeat_due is not None and now >= self.heartbeat_due:
+        if self.heartbeat.take_due(now):
             self.node.send(Frame(self.cob_id, bytes([int(self.node.state)])))
             self.counters["heartbeats_sent"] += 1
-            period = self.producer_time_ms() / 1000.0
-            self.heartbeat_due = (
-                (self.heartbeat_due + period) if self.heartbeat_due + period > now else now + period
-            )
-        if self.life_deadline is not None and now >= self.life_deadline:
-            self.life_deadline = None
+        if self.guarding.expired(now):
             self.guard_lost = True
             self.counters["life_guarding_events"] += 1
             self._master_lost(LIFE_GUARDING_ERROR, "life guarding timeout", now)
-        for producer, due in list(self.watched.items()):
-            if due is not None and now >= due:
-                self.watched[producer] = None
-                self.heartbeat_lost.add(producer)
-                self.counters["heartbeat_consumer_timeouts"] += 1
-                self._master_lost(
-                    heartbeat_error(producer), f"heartbeat of node {producer} timed out", now
-                )
+        for producer in self.consumer.timed_out(now):
+            self.heartbeat_lost.add(producer)
+            self.counters["heartbeat_consumer_timeouts"] += 1
+            self._master_lost(
+                heartbeat_error(producer), f"heartbeat of node {producer} timed out", now
+            )
 
     def _restart_heartbeat(self, now: float) -> None:
-        period = self.producer_time_ms()
-        if period and self.node.state is not NmtState.INITIALISING and self.node.configured:
-            self.heartbeat_due = now + period / 1000.0
-        else:
-            self.heartbeat_due = None
+        running = self.node.state is not NmtState.INITIALISING and self.node.configured
+        self.heartbeat.restart(now, running)
 
     # -- writes to the monitoring objects -------------------------------------------------
     def _heartbeat_time_written(self, now: float) -> None:
@@ -338,47 +279,19 @@ class ErrorControl(Service):
     def _guarding_written(self, now: float) -> None:
         self._heard("monitoring configured")
         if self.guarding_enabled():
-            self._rearm_life_guarding(now)
+            self.guarding.rearm(now)
             return
-        self.life_deadline = None  # a later first RTR starts it again
+        self.guarding.stop()
         self._end(
             now, "life guarding switched off", guard=True, bus_off_recovered=not self.monitoring()
         )
 
     def _consumers_written(self, now: float) -> None:
         self._heard("monitoring configured")
-        times = self._consumer_times()
-        # a producer whose time changed restarts at its next heartbeat; the others keep running
-        self.watched = {
-            p: self.watched.get(p) if self.consumer_times.get(p) == t else None
-            for p, t in times.items()
-        }
-        self.consumer_times = times
-        dropped = sorted(p for p in self.heartbeat_lost if p not in times)
+        self.consumer.rewritten()
+        dropped = sorted(p for p in self.heartbeat_lost if p not in self.consumer.times)
         reason = "heartbeat consumer for node " + ", ".join(map(str, dropped)) + " switched off"
         self._end(now, reason, producers=dropped, bus_off_recovered=not self.monitoring())
-
-    # -- heartbeat consumer objects -----------------------------------------------------------
-    def _consumer_times(self) -> dict[int, int]:
-        times = {}
-        for sub in range(1, self.consumers + 1):
-            entry = self.node.od.integer(0x1016, sub)
-            producer, period = (entry >> 16) & 0xFF, entry & 0xFFFF
-            if 1 <= producer <= 127 and period:
-                times[producer] = period
-        return times
-
-    def _check_consumer(self, sub: int, value: int) -> None:
-        producer, period = (value >> 16) & 0xFF, value & 0xFFFF
-        if not period or sub == 0:
-            return
-        for other in range(1, self.consumers + 1):
-            entry = self.node.od.integer(0x1016, other)
-            if other != sub and (entry >> 16) & 0xFF == producer and entry & 0xFFFF:
-                raise SdoAbort(
-                    abort.INCOMPATIBLE_PARAMETER,
-                    f"node {producer} is already monitored at sub {other}",
-                )
 
     # -- master lost / back -----------------------------------------------------------------
     def bus_state(self, bus_off: bool, now: float) -> None:
@@ -417,7 +330,7 @@ class ErrorControl(Service):
         self._apply_error_behaviour(now)
 
     def _apply_error_behaviour(self, now: float) -> None:
-        behaviour = self.node.od.integer(0x1029, 1)
+        behaviour = self.node.od.integer(ERROR_BEHAVIOUR, 1)
         self._own_state_change = True
         try:
             if behaviour == ERROR_PRE_OPERATIONAL and self.node.state is NmtState.OPERATIONAL:
@@ -470,7 +383,9 @@ class ErrorControl(Service):
             "lost"
             if self.guard_lost
             else (
-                "active" if self.life_deadline else ("armed" if self.guarding_enabled() else "off")
+                "active"
+                if self.guarding.life_deadline
+                else ("armed" if self.guarding_enabled() else "off")
             )
         )
         return {
