@@ -28,9 +28,9 @@ from .assembly import Assemblies, plural
 from .config import DeviceNetFrontConfig
 from .engine import DeviceNetSlave
 from .settings import BAUD_RATES, Settings
+from .slave_state import DEVICE_STATES
 from .store import NetworkStore
 
-DEVICE_STATES = ("offline", "dup-mac-check", "online", "comm-fault")  # DeviceNetSlave.state
 # receive counters of frames that were served (the other rx_ counters are frames dropped)
 SERVED_COUNTERS = frozenset(
     {"rx_poll_outputs", "rx_poll_idle", "rx_cos_cyclic_outputs", "rx_cos_cyclic_idle"}
