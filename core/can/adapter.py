@@ -382,13 +382,17 @@ class CanAdapter:
         self.counters["filter_updates"] += 1
 
     def status(self) -> dict[str, Any]:
+        counts = dict(
+            rx=self.rx_frames,
+            rx_ignored=self.rx_ignored,
+            tx=self.tx_frames,
+            quick_answers=self.quick_answers,
+        )
+        filters = None if self.filters is None else acceptance.describe(self.filters)
         return {
-            "rx": self.rx_frames,
-            "rx_ignored": self.rx_ignored,
-            "tx": self.tx_frames,
-            "quick_answers": self.quick_answers,
+            **counts,
             **self.counters,
-            "filters": None if self.filters is None else acceptance.describe(self.filters),
+            "filters": filters,
             **self.controller.status(),
             "rx_dropped": self.receiving.dropped,
         }

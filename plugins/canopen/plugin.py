@@ -74,10 +74,6 @@ class CanopenFront(CanFront):
         """The running node (None before start); :meth:`build` makes one."""
         return cast("Node | None", self.engine)
 
-    @node.setter
-    def node(self, node: Node | None) -> None:
-        self.engine = node
-
     # -- assembling ---------------------------------------------------------------------
     def _state_path(self, configured: str | None, default: str) -> Path:
         path = Path(configured or default)

@@ -298,9 +298,7 @@ class ErrorControl(Service):
         """The adapter reports the CAN controller's bus-off state."""
         if bus_off and not self.bus_off:
             self.bus_off = True
-            self.counters["bus_off"] += 1
-            self._report_master("CAN bus-off")
-            self._apply_error_behaviour(now)
+            self._event_began("bus_off", "CAN bus-off", now)
         elif not bus_off and self.bus_off:
             self.bus_off = False
             if self.node.emcy is not None:
@@ -316,12 +314,17 @@ class ErrorControl(Service):
         the SYNC service raises and clears its own EMCY. Called only when the style says so."""
         if lost and not self.sync_lost:
             self.sync_lost = True
-            self.counters["sync_error_events"] += 1
-            self._report_master("SYNC lost")
-            self._apply_error_behaviour(now)
+            self._event_began("sync_error_events", "SYNC lost", now)
         elif not lost and self.sync_lost:
             self.sync_lost = False
             self._report_master("SYNC back")
+
+    def _event_began(self, counter: str, reason: str, now: float) -> None:
+        """A master-lost event this service raises no EMCY for (bus-off, SYNC loss): counted,
+        reported, and 0x1029 applies."""
+        self.counters[counter] += 1
+        self._report_master(reason)
+        self._apply_error_behaviour(now)
 
     def _master_lost(self, error: Error, reason: str, now: float) -> None:
         if self.node.emcy is not None:
