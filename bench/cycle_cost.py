@@ -134,7 +134,7 @@ class SyncScenario:
         self.value = 0x55
 
     async def setup(self, state_dir: str) -> None:
-        from fieldgate.plugins.canopen.frame import Frame
+        from fieldgate.can.frame import Frame
 
         self.Frame = Frame
         topology = {
@@ -206,7 +206,7 @@ class PollScenario:
         self.components: dict[str, Any] = {}
 
     async def setup(self, state_dir: str) -> None:
-        from fieldgate.plugins.canopen.frame import Frame
+        from fieldgate.can.frame import Frame
         from fieldgate.plugins.modbus.back import ModbusBack
 
         self.link = link = _ReplyLink()

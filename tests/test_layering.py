@@ -118,12 +118,20 @@ MODULES = discover()
 
 def test_discovery_sees_the_three_trees() -> None:
     # the checks below are only as good as the module list they walk
-    assert {"fieldgate.image", "fieldgate.can.adapter", "fieldgate.plugins.canopen.sdo"} <= set(
-        MODULES
-    )
+    assert {
+        "fieldgate.image",
+        "fieldgate.can.adapter",
+        "fieldgate.plugins.canopen.cia301.sdo",
+    } <= set(MODULES)
     assert "fieldgate.conformance.catalog" in MODULES
-    assert "fieldgate.plugins.canopen.node" in MODULES and "fieldgate.canopen.node" not in MODULES
-    assert MODULES["fieldgate.plugins.canopen.sdo"].path == ROOT / "plugins" / "canopen" / "sdo.py"
+    assert (
+        "fieldgate.plugins.canopen.cia301.node" in MODULES
+        and "fieldgate.canopen.node" not in MODULES
+    )
+    assert (
+        MODULES["fieldgate.plugins.canopen.cia301.sdo"].path
+        == ROOT / "plugins" / "canopen" / "cia301" / "sdo.py"
+    )
 
 
 def core_modules() -> list[Module]:
@@ -157,7 +165,7 @@ def test_importing_every_core_module_loads_no_plugin_and_not_the_conformance_too
         f"for name in {names!r}:\n"
         "    importlib.import_module(name)\n"
         "print(loaded())\n"
-        "importlib.import_module('fieldgate.plugins.canopen.sdo')\n"
+        "importlib.import_module('fieldgate.plugins.canopen.cia301.sdo')\n"
         "print(loaded())\n"
     )
     run = subprocess.run(
@@ -166,7 +174,7 @@ def test_importing_every_core_module_loads_no_plugin_and_not_the_conformance_too
     assert run.returncode == 0, run.stderr
     after_core, after_plugin = run.stdout.split("\n")[:2]
     assert after_core == ""
-    assert "fieldgate.plugins.canopen.sdo" in after_plugin.split()
+    assert "fieldgate.plugins.canopen.cia301.sdo" in after_plugin.split()
 
 
 def find_cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:

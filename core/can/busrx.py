@@ -20,7 +20,7 @@ receive queue, which pinned python-can below 4.7 and bypassed its filtering.)
 
 ``quick(msg) -> bool``, given, runs on the receive thread first and returns True when it
 has handled the message completely (the CANopen front answers SDO reads there, see
-:meth:`fieldgate.plugins.canopen.node.Node.quick_answer`). It is asked only when every
+:meth:`fieldgate.plugins.canopen.cia301.node.Node.quick_answer`). It is asked only when every
 message handed to the loop before has been handled (:attr:`Receiver.idle`), so the
 answers keep the order of the requests; anything it declines goes to the loop.
 

@@ -31,8 +31,8 @@ from __future__ import annotations
 from collections import Counter
 from typing import Any
 
+from .cia301.service import ALL_STATES, NodeHost, Service
 from .profiles import ControllerEmcy
-from .service import ALL_STATES, NodeHost, Service
 
 OVERRUN_QUIET_S = 1.0  # an overrun error ends after this long without another overrun
 STATES = ("error-active", "warning", "passive")

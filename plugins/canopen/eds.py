@@ -30,8 +30,8 @@ import canopen
 from fieldgate.plugin import CommandError, EdsRequest, GatewayContext, Registry, load_registry
 from fieldgate.topology import FrontConfig, Topology, load_topology
 
-from .layouts import LayoutError
-from .pdo import dummy_types
+from .cia301.pdo.engine import dummy_types
+from .cia401.layouts import LayoutError
 
 STANDARD_BITRATES = {10e3, 20e3, 50e3, 125e3, 250e3, 500e3, 800e3, 1000e3}
 

@@ -1,164 +1,25 @@
 """Wiring the CiA 401 I/O device into the ``canopen`` front.
 
-The front's configuration gains the :class:`IoFrontOptions` fields; :func:`install` is
-the node extension that adds an :class:`~.iodevice.IoDevice` to every canopen front's
-node before it boots. The front itself owns the master state (error control's
-monitoring and, with ``error_on_stopped``, NMT Stopped: :mod:`.master_state`) and the
-module-offline EMCY, so the I/O device only adds what is its own: the PDO engine, the
-CiA 401 and manufacturer objects (0x2001-0x2003 through the gateway's
-``HostWatchdogs.from_context``) and the acknowledgement of a module error by clearing
-its 0x2000 counter.
-
-YAML::
-
-    fronts:
-      - name: can
-        type: canopen
-        node_id: 5
-        style: na9161          # or icpdas (default)
-        compressed: true       # na9161: digital bits packed across modules (0x4500:2)
-        bit_mapping: false     # 0x6020-/0x6220- bit objects, 1-bit PDO mapping
-        pdo_count: 8           # PDOs per direction (default 32 icpdas / 8 na9161)
+:func:`io_device` builds the :class:`~.cia401.iodevice.IoDevice` every canopen front adds to
+its node before it boots (its objects are what the node's PDO service maps), from the
+front's :class:`~.config.IoFrontOptions` (:func:`io_settings`); :func:`check_io` is what
+``fieldgate validate`` checks of it. The front itself owns the master state (error
+control's monitoring and, with ``error_on_stopped``, NMT Stopped: :mod:`.master_state`) and
+the module-offline EMCY, so the I/O device only adds what is its own: the CiA 401 and
+manufacturer objects (0x2001-0x2003 through the gateway's ``HostWatchdogs.from_context``),
+the events that become TPDOs and the acknowledgement of a module error by clearing its
+0x2000 counter.
 """
 
 from __future__ import annotations
 
-import asyncio
-import re
-from typing import Any, Literal
-
-from pydantic import Field, field_validator
+from typing import Any
 
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import ErrorMode
-from fieldgate.topology.model import StrictModel
 
-from .iodevice import IoDevice, IoSettings, build_io, check_pdo_settings
-from .layouts import LayoutError, PdoSetting
-
-MAPPING_ENTRY = re.compile(
-    r"^\s*(0x[0-9a-fA-F]{1,4}|\d+)\s*:\s*(0x[0-9a-fA-F]{1,2}|\d+)\s*/\s*(\d+)\s*$"
-)
-
-
-def mapping_entry_value(entry: int | str) -> int:
-    """A mapping entry as the topology writes it: ``"0x6401:2/16"`` (index:sub/bits) or the
-    CiA 301 value ``0x64010210``; ValueError when it is neither."""
-    if isinstance(entry, int):
-        if not 0 <= entry <= 0xFFFFFFFF:
-            raise ValueError(
-                f"{entry:#x} is not a 32-bit mapping entry (index << 16 | sub << 8 | bits)"
-            )
-        return entry
-    match = MAPPING_ENTRY.match(entry)
-    if match is None:
-        raise ValueError(
-            f"{entry!r}: write a mapping entry as 'index:sub/bits', e.g. '0x6401:2/16'"
-        )
-    index, sub, bits = (int(part, 0) for part in match.groups())
-    if index > 0xFFFF or sub > 0xFF or not 1 <= bits <= 64:
-        raise ValueError(f"{entry!r}: index 0..0xFFFF, sub-index 0..255, 1..64 bits")
-    return index << 16 | sub << 8 | bits
-
-
-class PdoSettings(StrictModel):
-    """One PDO's communication and mapping defaults (0x1400-/0x1800- and 0x1600-/0x1A00-)."""
-
-    cob_id: int | None = Field(
-        None,
-        ge=1,
-        le=0x7FF,
-        description="the CAN-ID (not counted from the node-ID); giving one makes the PDO valid unless valid: false",
-    )
-    valid: bool | None = Field(None, description="bit 31 of sub 1 clear (true) or set (false)")
-    transmission_type: int | None = Field(
-        None,
-        ge=0,
-        le=255,
-        description="sub 2: 0 acyclic SYNC, 1-240 every n-th SYNC, 252/253 RTR (TPDO), 254/255 event",
-    )
-    inhibit_time: int | None = Field(
-        None,
-        ge=0,
-        le=65535,
-        description="sub 3, in 100 us (TPDOs; RPDOs of the na9161 style store it)",
-    )
-    event_timer_ms: int | None = Field(
-        None,
-        ge=0,
-        le=65535,
-        description="sub 5, ms (TPDOs of type 254/255; RPDOs of the na9161 style store it)",
-    )
-    mapping: list[int | str] | None = Field(
-        None,
-        max_length=8,
-        description="the mapped objects, e.g. ['0x6000:1/8', '0x6401:1/16']; at most 64 bits",
-    )
-
-    @field_validator("transmission_type")
-    @classmethod
-    def _known_type(cls, value: int | None) -> int | None:
-        if value is not None and 241 <= value <= 251:
-            raise ValueError("transmission types 241..251 are reserved (CiA 301)")
-        return value
-
-    @field_validator("mapping")
-    @classmethod
-    def _entries(cls, value: list[int | str] | None) -> list[int | str] | None:
-        if value is not None:
-            for entry in value:
-                mapping_entry_value(entry)
-        return value
-
-    def setting(self) -> PdoSetting:
-        return PdoSetting(
-            cob_id=self.cob_id,
-            valid=self.valid,
-            trans_type=self.transmission_type,
-            inhibit=self.inhibit_time,
-            event_timer=self.event_timer_ms,
-            entries=None
-            if self.mapping is None
-            else tuple(mapping_entry_value(e) for e in self.mapping),
-        )
-
-
-class IoFrontOptions(StrictModel):
-    style: Literal["icpdas", "na9161"] = Field(
-        "icpdas",
-        description="object and default PDO layout: icpdas (I-7232D/I-7231D) or na9161 (CREVIS NA-9161)",
-    )
-    pdo_count: int | None = Field(
-        None, ge=1, le=512, description="RPDOs and TPDOs each; default 32 (icpdas) or 8 (na9161)"
-    )
-    mapping_closed: bool = Field(
-        False,
-        description="icpdas: analog data from PDO1 when a direction has no digital channels (the I-7232D utility's 'Mapping Closed')",
-    )
-    compressed: bool = Field(
-        True,
-        description="na9161: digital channels packed across modules (0x4500:2 = 1); false: each module starts a byte",
-    )
-    bit_mapping: bool = Field(
-        False,
-        description="CiA 401 bit objects 0x6020-/0x6220- and 1-bit PDO mapping (EDS Granularity=1, Dummy0001); default PDOs stay byte-aligned",
-    )
-    tpdo_on_start: Literal["async", "all", "none"] | None = Field(
-        None,
-        description="TPDOs sent once on entering Operational; default async (icpdas) / all (na9161)",
-    )
-    error_on_stopped: bool | None = Field(
-        None,
-        description="NMT Stopped drives outputs to their error values; default false (icpdas) / true (na9161)",
-    )
-    tpdos: dict[int, PdoSettings] = Field(
-        default_factory=dict,
-        description="TPDO number (1..) -> its communication and mapping defaults, replacing the style's; written into the EDS",
-    )
-    rpdos: dict[int, PdoSettings] = Field(
-        default_factory=dict,
-        description="RPDO number (1..) -> its communication and mapping defaults, replacing the style's; written into the EDS",
-    )
+from .cia401.iodevice import IoDevice, IoSettings, build_io, check_pdo_settings
+from .cia401.layouts import LayoutError
 
 
 def io_settings(options: Any) -> IoSettings:
@@ -228,7 +89,13 @@ def default_error_modes(front: Any) -> list[str]:
 
 
 def io_device(front: Any) -> IoDevice:
-    """The I/O device of a canopen front (``front.config``, ``front.context``)."""
+    """The I/O device of a canopen front (``front.config``, ``front.context``), replacing the
+    one of a previous start; outputs without an error mode of their own get the style's
+    (:func:`default_error_modes`) first, so the objects start with them."""
+    previous = getattr(front, "io", None)
+    if previous is not None:
+        previous.detach()
+    default_error_modes(front)
     cfg, ctx = front.config, front.context
     models = {(b.name, m.address): m.model or "" for b in ctx.topology.backs for m in b.modules}
     return IoDevice(
@@ -244,33 +111,3 @@ def io_device(front: Any) -> IoDevice:
         master_events=False,
         module_emcy=False,
     )
-
-
-def install(front: Any, node: Any) -> None:
-    """Node extension: add the I/O device (replacing the one of a previous start)."""
-    previous = getattr(front, "io", None)
-    if previous is not None:
-        previous.detach()
-    default_error_modes(front)
-    io = io_device(front)
-    scheduled = False
-
-    def flush() -> None:
-        """One loop turn after a process-image event: run the engine, send, re-arm timers."""
-        nonlocal scheduled
-        scheduled = False
-        adapter = getattr(front, "adapter", None)
-        if adapter is not None and getattr(front, "node", None) is node:
-            adapter.run_engine()
-
-    def wakeup() -> None:
-        # Coalesce the events of one loop turn (a back updating a module's channels), but
-        # never postpone them past the next turn, however fast the inputs keep changing.
-        nonlocal scheduled
-        if not scheduled:
-            scheduled = True
-            asyncio.get_running_loop().call_soon(flush)
-
-    io.wakeup = wakeup
-    node.add_service(io)
-    front.io = io

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .pdo_mapping import Pdo
+from .cia301.pdo.mapping import Pdo
 
 DI_OBJECT, DO_OBJECT, AI_OBJECT, AO_OBJECT = 0x6000, 0x6200, 0x6401, 0x6411
 

@@ -23,8 +23,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from .frame import NmtState
-from .service import NodeHost
+from .cia301.nmt import NmtState
+from .cia301.service import NodeHost
 
 RESTART_REASON = "master not heard since the front restarted"
 

@@ -16,7 +16,7 @@ from . import cip, ids
 from .allocation import UNALLOCATED
 from .connection_set import ConnectionSet
 from .objects import u16
-from .slave_state import SlaveState
+from .slave_state import DeviceState, SlaveState
 
 BIT_RATE_SWITCH_S = 0.01  # after a baud change at Reset: the adapter reopens the bus (at once) before the first duplicate MAC request
 SHUTDOWN_CODE = 0x0004
@@ -61,7 +61,7 @@ class NetworkAccess:
 
     def _faulted_reply(self) -> None:
         self.faulted_reply_at = None
-        if self.slave.state == "comm-fault":
+        if self.slave.state is DeviceState.COMM_FAULT:
             self.slave.send(
                 ids.group4_id(ids.G4_FAULTED_RESPONSE), self.identity_payload(response=False)
             )
@@ -71,7 +71,7 @@ class NetworkAccess:
         """Send the first duplicate MAC ID request now, or after ``delay`` (step 0 until then)."""
         slave = self.slave
         slave.now = now
-        slave.state = "dup-mac-check"
+        slave.move_to(DeviceState.DUP_MAC_CHECK)
         if delay > 0:
             self._dup_step, self.dup_at = 0, now + delay
             return
@@ -110,7 +110,7 @@ class NetworkAccess:
             self._send_dup_mac(response=False)
         else:
             self._dup_step, self.dup_at = 0, None
-            self.slave.state = "online"
+            self.slave.move_to(DeviceState.ONLINE)
             if self.heartbeat_s:
                 self.heartbeat_at = now + self.heartbeat_s
 
@@ -121,7 +121,7 @@ class NetworkAccess:
             slave.counters["rx_malformed"] += 1
             return
         response = bool(data[0] & 0x80)
-        if slave.state == "dup-mac-check":
+        if slave.state is DeviceState.DUP_MAC_CHECK:
             vendor, serial = (
                 int.from_bytes(data[1:3], "little"),
                 int.from_bytes(data[3:7], "little"),
@@ -138,7 +138,8 @@ class NetworkAccess:
             slave.counters["dup_mac_responses_ignored"] += 1
 
     def _enter_fault(self, reason: str) -> None:
-        self.slave.state, self.fault_reason = "comm-fault", reason
+        self.slave.move_to(DeviceState.COMM_FAULT)
+        self.fault_reason = reason
         self.dup_at = self.heartbeat_at = None
         self.slave.counters["dup_mac_faults"] += 1
         for listener in list(self._fault_listeners):
@@ -158,7 +159,9 @@ class NetworkAccess:
           the node restarts its duplicate MAC ID check there (TV-41/42).
         """
         slave = self.slave
-        if slave.state != "comm-fault":  # for faulted nodes only: counted, so a busy set shows
+        if (
+            slave.state is not DeviceState.COMM_FAULT
+        ):  # for faulted nodes only: counted, so a busy set shows
             slave.counters["rx_offline_not_faulted"] += 1
             return
         if len(data) in (2, 3) and data[1] == cip.ALLOCATE:

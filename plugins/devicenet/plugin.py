@@ -1,8 +1,8 @@
 """The ``devicenet`` front: a DeviceNet Group 2 Only slave on any python-can bus.
 
-The sans-I/O :class:`~.engine.DeviceNetSlave` runs on the event loop through the CAN
-adapter shared with the canopen front (``fieldgate.can.adapter``: receive
-path, timers, bus-off, bit-rate switching). Input changes reach change-of-state
+The sans-I/O :class:`~.engine.DeviceNetSlave` runs on the event loop through core's CAN
+front base, shared with the canopen front (:class:`fieldgate.can.front.CanFront`: the bus,
+receive path, timers, bus-off, bit-rate switching; configuration: :mod:`.config`). Input changes reach change-of-state
 connections through a process-image subscription; I/O connection timeouts and releases
 go to ``context.masters.lost`` with the outputs this front serves, a new allocation to
 ``masters.ok``. A duplicate MAC ID stops the slave (silent) and is logged and reported in
@@ -11,31 +11,26 @@ the front's status.
 
 from __future__ import annotations
 
-import asyncio
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, cast
 
-from pydantic import Field, field_validator
-
-from fieldgate.can.adapter import CanAdapter, open_bus
-from fieldgate.can.busmetrics import can_bus_samples
-from fieldgate.events import BUS_OFF, BUS_ON, FAULT
+from fieldgate.can.adapter import CanEngine
+from fieldgate.can.front import CanFront
+from fieldgate.events import FAULT
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Change, Subscription
 from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
 from fieldgate.module_info import ModuleInfo
-from fieldgate.plugin import Front, GatewayContext, PluginStartError, Registry, hookimpl
-from fieldgate.topology import FrontConfig
-from fieldgate.topology.model import StrictModel
+from fieldgate.plugin import GatewayContext, PluginStartError, Registry, hookimpl
 
 from .assembly import Assemblies, plural
+from .config import DeviceNetFrontConfig
 from .engine import DeviceNetSlave
-from .paths import DEFAULT_PATHS, check_selector
 from .settings import BAUD_RATES, Settings
+from .slave_state import DEVICE_STATES
 from .store import NetworkStore
 
-DEVICE_STATES = ("offline", "dup-mac-check", "online", "comm-fault")  # DeviceNetSlave.state
 # receive counters of frames that were served (the other rx_ counters are frames dropped)
 SERVED_COUNTERS = frozenset(
     {"rx_poll_outputs", "rx_poll_idle", "rx_cos_cyclic_outputs", "rx_cos_cyclic_idle"}
@@ -43,144 +38,31 @@ SERVED_COUNTERS = frozenset(
 CONNECTION_NAMES = ("explicit", "poll", "bit-strobe", "cos-cyclic", "cos-cyclic-data")
 
 
-class DeviceNetIdentity(StrictModel):
-    vendor_id: int = Field(
-        0,
-        ge=0,
-        le=0xFFFF,
-        description="Identity attr 1 (also in the duplicate MAC check); the I-7241D uses 803",
-    )
-    device_type: int = Field(0, ge=0, le=0xFFFF, description="Identity attr 2 (0 = generic device)")
-    product_code: int = Field(1, ge=0, le=0xFFFF, description="Identity attr 3")
-    major_revision: int = Field(1, ge=1, le=127, description="Identity attr 4, major")
-    minor_revision: int = Field(0, ge=0, le=255, description="Identity attr 4, minor")
-    serial: int = Field(
-        1,
-        ge=0,
-        le=0xFFFFFFFF,
-        description="Identity attr 6; make it unique per gateway on one network",
-    )
-    product_name: str = Field(
-        "fieldgate", min_length=1, max_length=32, description="Identity attr 7 (SHORT_STRING)"
-    )
-
-
-Selector = str | int
-
-
-class ConnectionPath(StrictModel):
-    """The assemblies one I/O connection type carries: ``di``, ``ai``, ``inputs`` (produce),
-    ``do``, ``ao``, ``outputs`` (consume), an assembly instance number, or ``none``."""
-
-    produce: Selector = Field("inputs", description="assembly the slave produces")
-    consume: Selector = Field("none", description="assembly the slave consumes (outputs)")
-
-    @field_validator("produce")
-    @classmethod
-    def _produce(cls, value: Selector) -> Selector:
-        check_selector(value, output=False)
-        return value
-
-    @field_validator("consume")
-    @classmethod
-    def _consume(cls, value: Selector) -> Selector:
-        check_selector(value, output=True)
-        return value
-
-
-class StrobePath(StrictModel):
-    produce: Selector = Field(
-        "inputs", description="assembly whose first 8 bytes answer the bit-strobe"
-    )
-
-    @field_validator("produce")
-    @classmethod
-    def _produce(cls, value: Selector) -> Selector:
-        check_selector(value, output=False)
-        return value
-
-
-def _path(kind: str) -> ConnectionPath:
-    produce, consume = DEFAULT_PATHS[kind]
-    return ConnectionPath(produce=produce, consume=consume)
-
-
-class IoPathsConfig(StrictModel):
-    """Which assembly each I/O connection produces and consumes (the I-7241D utility's
-    "I/O connection path"); docs/devicenet.md, "I/O connection paths"."""
-
-    poll: ConnectionPath = Field(default_factory=lambda: _path("poll"))
-    strobe: StrobePath = Field(default_factory=StrobePath)
-    cos: ConnectionPath = Field(default_factory=lambda: _path("cos"))
-    cyclic: ConnectionPath = Field(default_factory=lambda: _path("cyclic"))
-
-    def selection(self) -> dict[str, tuple[Selector, Selector]]:
-        return {
-            "poll": (self.poll.produce, self.poll.consume),
-            "strobe": (self.strobe.produce, "none"),
-            "cos": (self.cos.produce, self.cos.consume),
-            "cyclic": (self.cyclic.produce, self.cyclic.consume),
-        }
-
-
-class DeviceNetFrontConfig(FrontConfig):
-    type: Literal["devicenet"] = "devicenet"
-    interface: str = Field(
-        "socketcan",
-        description="python-can interface: socketcan, virtual, pcan, kvaser, slcan, ...",
-    )
-    channel: str | None = Field("can0", description="python-can channel")
-    baudrate: Literal[125_000, 250_000, 500_000] = Field(
-        125_000, description="DeviceNet bit rate in bit/s"
-    )
-    mac_id: int = Field(
-        ge=0,
-        le=63,
-        description="MAC ID 0..63, required: the I-7241D ships at 1, ODVA's default is 63",
-    )
-    bus_options: dict[str, Any] = Field(
-        default_factory=dict, description="extra keyword arguments for can.Bus"
-    )
-    dup_mac_timeout_ms: int = Field(
-        1000,
-        ge=10,
-        le=5000,
-        description="wait after each duplicate MAC ID request (DeviceNet: 1 s)",
-    )
-    store_file: str | None = Field(
-        None,
-        description="file keeping a MAC ID / baud rate set over the network (relative to the state dir); default <front name>.devicenet.json",
-    )
-    strict_lengths: bool = Field(
-        False,
-        description="refuse Set requests with trailing bytes (0x15); default tolerates them as the I-7241D does",
-    )
-    identity: DeviceNetIdentity = Field(default_factory=DeviceNetIdentity)
-    io_paths: IoPathsConfig = Field(
-        default_factory=IoPathsConfig,
-        description="assembly each I/O connection produces and consumes: poll, strobe, cos, cyclic",
-    )
-
-
-class DeviceNetFront(Front):
+class DeviceNetFront(CanFront):
     def __init__(self, config: DeviceNetFrontConfig, context: GatewayContext):
         super().__init__(config, context)
-        self.slave: DeviceNetSlave | None = None
-        self.adapter: CanAdapter | None = None
         self.outputs: list[str] = []
         self._modules: set[tuple[str, int]] = set()
         self._offline: set[tuple[str, int]] = set()
         self._subscription: Subscription | None = None
-        self._health_subscribed = False
+
+    @property
+    def slave(self) -> DeviceNetSlave | None:
+        """The running slave (None before start); :meth:`build` makes one."""
+        return cast("DeviceNetSlave | None", self.engine)
+
+    @slave.setter
+    def slave(self, slave: DeviceNetSlave | None) -> None:
+        self.engine = slave
 
     def build(self) -> DeviceNetSlave:
         cfg, ident = self.config, self.config.identity
         path = Path(cfg.store_file or f"{self.name}.devicenet.json")
         store = NetworkStore(
             path if path.is_absolute() else self.context.state_dir / path,
-            (cfg.mac_id, BAUD_RATES.index(cfg.baudrate)),
+            (cfg.mac_id, BAUD_RATES.index(cfg.bitrate)),
         )
-        mac_id, baud_code = store.load() or (cfg.mac_id, BAUD_RATES.index(cfg.baudrate))
+        mac_id, baud_code = store.load() or (cfg.mac_id, BAUD_RATES.index(cfg.bitrate))
         channels = self.context.front_channels(cfg)
         assemblies = Assemblies(self.context.image, channels, origin=f"{self.name}:devicenet")
         settings = Settings(
@@ -211,25 +93,19 @@ class DeviceNetFront(Front):
         slave.on_fault(self._fault)
         return slave
 
-    async def start(self) -> None:
-        cfg = self.config
-        loop = asyncio.get_running_loop()
-        self.slave = slave = self.build()
-        bus = open_bus(cfg.interface, cfg.channel, slave.bitrate, cfg.bus_options)
-        self.adapter = CanAdapter(
-            slave,
-            bus,
-            loop,
-            on_bus_state=self._bus_state,
-            reopen=lambda rate: open_bus(cfg.interface, cfg.channel, rate, cfg.bus_options),
-        )
-        self.adapter.start()
+    # -- life cycle (CanFront) -----------------------------------------------------------------
+    def start_bitrate(self, engine: CanEngine) -> int | None:
+        """The bit rate the network store kept (a baud rate set over DeviceNet), else the
+        configuration's."""
+        return cast(DeviceNetSlave, engine).bitrate
+
+    def after_start(self, engine: CanEngine, bitrate: int | None) -> None:
+        cfg, slave = self.config, cast(DeviceNetSlave, engine)
+        for note in cfg.validation_warnings():
+            self.log.warning("%s", note)
         self._subscription = self.context.image.subscribe_batch(
             self._inputs_changed, ids=slave.assemblies.input_ids()
         )
-        if not self._health_subscribed:
-            self._health_subscribed = True
-            self.context.health.subscribe(self._module_health)
         self.log.info(
             "DeviceNet MAC %d on %s/%s at %d bit/s: %s",
             slave.mac_id,
@@ -248,19 +124,10 @@ class DeviceNetFront(Front):
             ),
         )
 
-    async def run(self) -> None:
-        """Everything is callback-driven; raises only when receiving from the bus has died."""
-        if self.adapter is None:
-            raise RuntimeError(f"front {self.name}: run() before start()")
-        await self.adapter.failed
-
-    async def stop(self) -> None:
+    def before_stop(self) -> None:
         if self._subscription is not None:
             self._subscription.cancel()
             self._subscription = None
-        if self.adapter is not None:
-            self.adapter.close()
-            self.adapter = None
 
     def _inputs_changed(self, changes: list[Change]) -> None:
         """One batch of input changes (a poll reply): the slave hears of it once."""
@@ -274,13 +141,10 @@ class DeviceNetFront(Front):
         self.log.error("DeviceNet communication fault: %s", reason)
         self.context.events.publish(FAULT, self.name, f"DeviceNet communication fault: {reason}")
 
-    def _bus_state(self, bus_off: bool, now: float) -> None:
-        if bus_off:
-            if self.slave is not None:
-                self.slave.bus_off_count = min(255, self.slave.bus_off_count + 1)
-            self.context.events.publish(BUS_OFF, self.name, "CAN bus-off")
-        else:
-            self.context.events.publish(BUS_ON, self.name, "CAN bus recovered from bus-off")
+    def on_bus_state(self, bus_off: bool, now: float) -> None:
+        if bus_off and self.slave is not None:  # the DeviceNet object's BOI counter
+            self.slave.bus_off_count = min(255, self.slave.bus_off_count + 1)
+        super().on_bus_state(bus_off, now)
 
     def _master_state(self, ok: bool, reason: str) -> None:
         if ok:
@@ -294,7 +158,7 @@ class DeviceNetFront(Front):
         except KeyError:
             return 0
 
-    def _module_health(self, health: ModuleHealth, event: HealthEvent) -> None:
+    def module_health(self, health: ModuleHealth, event: HealthEvent) -> None:
         if health.key not in self._modules or self.slave is None:
             return
         if event is HealthEvent.OFFLINE:
@@ -401,18 +265,13 @@ class DeviceNetFront(Front):
                 "explicit requests answered with a CIP error",
                 st.get("cip_errors", 0),
             ),
-            *can_bus_samples(self.adapter.status() if self.adapter else None, ignored),
+            *self.bus_samples(ignored),
         ]
 
     def status(self) -> dict[str, Any]:
         if self.slave is None:
             return {}
-        return {
-            **self.slave.status(),
-            "bus": self.adapter.status() if self.adapter else None,
-            "interface": self.config.interface,
-            "channel": self.config.channel,
-        }
+        return {**self.slave.status(), **self.bus_status()}
 
 
 @hookimpl

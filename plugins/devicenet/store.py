@@ -1,7 +1,7 @@
 """MAC ID and baud rate set over the network, kept across gateway restarts (the I-7241D's EEPROM).
 
 The file also records the configured values it was written against: when the topology
-file changes ``mac_id`` or ``baudrate``, the topology wins and the stored values are
+file changes ``mac_id`` or ``bitrate``, the topology wins and the stored values are
 dropped. Writes are atomic; a corrupt file is reported and ignored.
 """
 

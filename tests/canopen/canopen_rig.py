@@ -5,7 +5,7 @@ from __future__ import annotations
 from canopen.objectdictionary import datatypes as dt
 
 from fieldgate.can.frame import Frame
-from fieldgate.plugins.canopen.slave import Identity, NodeSettings, build_node
+from fieldgate.plugins.canopen.cia301.builder import Identity, NodeSettings, build_node
 
 
 def frame(text: str) -> Frame:

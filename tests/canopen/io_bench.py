@@ -10,8 +10,8 @@ from fieldgate.health import HealthRegistry, ModuleHealth
 from fieldgate.image import ChannelSpec, DataType, ErrorMode, Kind, ProcessImage, Source, channel_id
 from fieldgate.layout import default_order
 from fieldgate.masters import MasterMonitor
-from fieldgate.plugins.canopen.iodevice import IoDevice, IoSettings
-from fieldgate.plugins.canopen.slave import Identity, NodeSettings, build_node
+from fieldgate.plugins.canopen.cia301.builder import Identity, NodeSettings, build_node
+from fieldgate.plugins.canopen.cia401.iodevice import IoDevice, IoSettings
 
 BACK = "bus"
 
@@ -104,6 +104,7 @@ class Bench:
             guard_time_ms=guard[0],
             life_time_factor=guard[1],
             store_path=store_path,
+            pdo=self.io.pdo_config,
         )
         self.node = build_node(node_settings)
         self.node.add_service(self.io)

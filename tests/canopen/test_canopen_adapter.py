@@ -114,22 +114,22 @@ async def test_dead_receiver_fails_the_adapter(setup):
     class FailingReader:
         errors = 0
 
-    real = adapter._receiver
+    real = adapter.receiving.receiver
     try:
-        adapter._receiver = FailingReader()
-        adapter._check_receiver()
+        adapter.receiving.receiver = FailingReader()
+        adapter.check_receiver()
         FailingReader.errors = 5
-        adapter._check_receiver()
+        adapter.check_receiver()
         assert not adapter.failed.done()  # a few errors are survivable
         FailingReader.errors = 5 + adapter_mod.RX_ERRORS_FATAL
-        adapter._check_receiver()
+        adapter.check_receiver()
         assert adapter.failed.done()
         with pytest.raises(RuntimeError, match="CAN receive failed: 100 receive errors"):
             adapter.failed.result()
 
         adapter.failed = asyncio.get_running_loop().create_future()
         bus = RaisingBus()
-        adapter._receiver = receiver = start_receiver(
+        adapter.receiving.receiver = receiver = start_receiver(
             bus, asyncio.get_running_loop(), lambda msg: None
         )
         assert receiver.mode == "thread"
@@ -137,13 +137,13 @@ async def test_dead_receiver_fails_the_adapter(setup):
         assert not receiver._thread.is_alive() and isinstance(
             receiver.exception, can.CanOperationError
         )
-        adapter._check_receiver()
+        adapter.check_receiver()
         with pytest.raises(RuntimeError, match="interface went down"):
             adapter.failed.result()
         receiver.stop()
         bus.shutdown()
     finally:
-        adapter._receiver = real
+        adapter.receiving.receiver = real
 
 
 async def test_pump_on_every_loop_turn_does_not_postpone_the_timers(setup):
@@ -205,7 +205,7 @@ async def _routed(adapter, peer) -> None:
     """One read through the loop's path, so the node has routed its SDO COB-ID."""
     peer.send(READ_1014)
     assert bytes((await _recv(peer, 0x581)).data)[:4] == bytes.fromhex("43141000")
-    assert adapter._quick(READ_1014)
+    assert adapter.receiving.quick(READ_1014)
 
 
 async def test_quick_answers_stop_while_the_bus_is_reopened_and_after_close(setup):
@@ -220,21 +220,23 @@ async def test_quick_answers_stop_while_the_bus_is_reopened_and_after_close(setu
     )  # heartbeat off: no timer falls due
     await _routed(adapter, peer)
     during = []
-    reopen = adapter._reopen
+    reopen = adapter.reopen
 
     def reopening(rate):
         would = adapter.node.quick_answer(0x601, READ_1014.data, adapter.now) is not None
-        during.append((would, adapter._quick(READ_1014)))  # the receive thread of the old bus, late
+        during.append(
+            (would, adapter.receiving.quick(READ_1014))
+        )  # the receive thread of the old bus, late
         return reopen(rate)
 
-    adapter._reopen = reopening
+    adapter.reopen = reopening
     adapter.node.request_bit_timing(250000, 0.0)
     await asyncio.sleep(0.05)
     assert during == [(True, False)] and adapter.counters["bit_timing_switches"] == 1
-    assert adapter._quick(READ_1014)  # the new bus's receive thread answers again
+    assert adapter.receiving.quick(READ_1014)  # the new bus's receive thread answers again
     adapter.close()
     answered = adapter.quick_answers
-    assert not adapter._quick(READ_1014) and adapter.quick_answers == answered
+    assert not adapter.receiving.quick(READ_1014) and adapter.quick_answers == answered
 
 
 async def test_a_quick_answer_whose_send_fails_is_not_answered_again(setup):
@@ -250,7 +252,7 @@ async def test_a_quick_answer_whose_send_fails_is_not_answered_again(setup):
         adapter.node.service("sdo").expedited_uploads,
     )
     adapter.bus.send = broken_send
-    assert adapter._quick(READ_1014)  # handled: the loop must not read and count it again
+    assert adapter.receiving.quick(READ_1014)  # handled: the loop must not read and count it again
     assert (adapter.rx_frames, adapter.quick_answers) == (rx + 1, answered + 1)
     assert adapter.node.service("sdo").expedited_uploads == uploads + 1
     assert adapter.counters["tx_errors"] == 1

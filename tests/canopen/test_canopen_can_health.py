@@ -18,7 +18,7 @@ from test_canopen_front import Peer
 from test_canopen_profiles import Dut
 
 from fieldgate import Gateway, load_registry
-from fieldgate.can.adapter import CAN_ERR_CNT, CAN_ERR_CRTL, CAN_ERR_RESTARTED
+from fieldgate.can.controller import CAN_ERR_CNT, CAN_ERR_CRTL, CAN_ERR_RESTARTED
 
 NODE = 5
 EMCY = 0x80 + NODE

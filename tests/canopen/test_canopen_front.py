@@ -192,10 +192,10 @@ async def test_the_receive_thread_never_waits_for_the_loop(gw):
     request = can.Message(arbitration_id=0x600 + NODE, data=READ_1000, is_extended_id=False)
     peer.send(0x600 + NODE, READ_1000)
     await peer.expect(0x580 + NODE)
-    assert await asyncio.to_thread(adapter._quick, request)  # answered on another thread
+    assert await asyncio.to_thread(adapter.receiving.quick, request)  # answered on another thread
     assert (await peer.expect(0x580 + NODE))[:4] == bytes.fromhex("43001000")
     with adapter.engine_lock:  # the loop is busy with the engine: declined at once, not waited for
-        assert not await asyncio.wait_for(asyncio.to_thread(adapter._quick, request), 1.0)
+        assert not await asyncio.wait_for(asyncio.to_thread(adapter.receiving.quick, request), 1.0)
     assert all(m.arbitration_id != 0x580 + NODE for m in await peer.quiet(0.05))
 
 
@@ -208,7 +208,7 @@ async def test_dead_bus_restarts_the_front(tmp_path, registry):
     try:
         assert await peer.expect(0x700 + NODE) == b"\x00"
         front = gateway.component("plc")
-        front.adapter._receive_failed(can.CanOperationError("interface went down"))
+        front.adapter.fail(can.CanOperationError("interface went down"))
         assert await peer.expect(0x700 + NODE, 3.0) == b"\x00"  # booted again
         assert gateway.status()["fronts"]["plc"]["restarts"] == 1
         peer.send(0x605, bytes.fromhex("4000100000000000"))

@@ -35,7 +35,7 @@ async def wait_until(predicate, timeout: float = 2.0) -> bool:
 
 async def restarted(gateway: Gateway, peer: Peer) -> None:
     """Kill the front's receiving (as a dead interface does) and wait for the new boot-up."""
-    gateway.component(FRONT).adapter._receive_failed(can.CanOperationError("interface went down"))
+    gateway.component(FRONT).adapter.fail(can.CanOperationError("interface went down"))
     assert await peer.expect(0x700 + NODE, 3.0) == b"\x00"
     assert gateway.status()["fronts"][FRONT]["restarts"] == 1
 

@@ -12,8 +12,8 @@ from io_bench import demo_7232d
 
 from fieldgate.image import ProcessImage
 from fieldgate.masters import MasterMonitor
-from fieldgate.plugins.canopen.frame import NmtState
-from fieldgate.plugins.canopen.iodevice import IoSettings
+from fieldgate.plugins.canopen.cia301.nmt import NmtState
+from fieldgate.plugins.canopen.cia401.iodevice import IoSettings
 from fieldgate.plugins.canopen.master_state import RESTART_REASON, MasterState
 
 FRONT = "can"

@@ -163,15 +163,15 @@ def test_process_image_entries_are_left_to_the_loop(io, index, sub):
 
 
 def test_a_read_and_clear_entry_is_never_read_on_the_receive_thread(io):
-    profile = io.io.profile
+    profile = io.io.profile.analog
     calls = []
-    original = profile._read_source
+    original = profile.read_source
 
     def counting(*args):
         calls.append(args)
         return original(*args)
 
-    profile._read_source = counting
+    profile.read_source = counting
     io.node.od.generation += 1  # the read cache holds the getter it looked up
     io.read(0x6000, 1)  # route again
     assert io_quick(io, 0x6422, 1) is None

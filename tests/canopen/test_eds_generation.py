@@ -14,7 +14,7 @@ import pytest
 
 from fieldgate import Gateway, load_registry
 from fieldgate.cli import main as cli_main
-from fieldgate.plugins.canopen.od import decode
+from fieldgate.plugins.canopen.cia301.od import decode
 
 DCFCHK = shutil.which("dcfchk") or str(Path(sys.executable).with_name("dcfchk"))
 

@@ -14,7 +14,8 @@ def test_every_module_that_registers_cases_is_in_the_catalog() -> None:
         importlib.import_module(info.name)
     registering = {c.fn.__module__ for c in CASES.values()}
     listed = {m.__name__ for m in catalog.CASE_MODULES}
-    assert registering == listed
+    # a listed package (cases/devicenet/, one module per service) registers through its modules
+    assert {m if m in listed else m.rsplit(".", 1)[0] for m in registering} == listed
     assert len(listed) == len(catalog.CASE_MODULES) >= 12
 
 

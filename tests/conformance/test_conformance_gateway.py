@@ -114,25 +114,25 @@ def refuse_short_writes(self, index, length, convert):
     "target, attribute, broken, case_id",
     [
         (
-            "fieldgate.plugins.canopen.emcy.EmcyProducer",
+            "fieldgate.plugins.canopen.cia301.emcy.EmcyProducer",
             "signal",
             lambda self, *args, **kwargs: None,  # no EMCY for the reset request
             "icpdas.nmt_reset_emcy",
         ),
         (
-            "fieldgate.plugins.canopen.od.Dictionary",
+            "fieldgate.plugins.canopen.cia301.od.Dictionary",
             "accept_short_writes",
             refuse_short_writes,
             "icpdas.ao_error_two_byte_writes",
         ),
         (
-            "fieldgate.plugins.canopen.profile401.Profile401",
-            "_ai_fires",
+            "fieldgate.plugins.canopen.cia401.analog.AnalogInterrupts",
+            "fires",
             lambda self, change: True,  # every analog change an event
             "icpdas.analog_change_no_tpdo",
         ),
         (
-            "fieldgate.plugins.canopen.errctl.ErrorControl",
+            "fieldgate.plugins.canopen.cia301.errctl.ErrorControl",
             "_master_lost",
             lambda self, error, reason, now: None,  # a consumer timeout reported nowhere
             "delta-as300.master_heartbeat_watched",

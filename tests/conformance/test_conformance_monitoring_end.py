@@ -21,35 +21,35 @@ TIMING = Timing(response=0.3, silence=0.1, heartbeat_ms=50, bootup=1.0, sdo_serv
 # fails, and the cases run with it: the same error ended another way must still pass
 FAULTS = {
     "guard_off_keeps_error": (
-        ("errctl", "ErrorControl"),
+        ("cia301.errctl", "ErrorControl"),
         "_guarding_written",
         "_end",
         {"errctl.guard_off_ends_error"},
         "errctl.guard_*",
     ),
     "consumer_off_keeps_error": (
-        ("errctl", "ErrorControl"),
+        ("cia301.errctl", "ErrorControl"),
         "_consumers_written",
         "_end",
         {"errctl.consumer_off_ends_error"},
         "errctl.consumer_*",
     ),
     "reset_keeps_errors": (
-        ("errctl", "ErrorControl"),
+        ("cia301.errctl", "ErrorControl"),
         "on_nmt_state",
         "_end",
         {"errctl.guard_reset_ends_error", "errctl.consumer_reset_ends_error"},
         "errctl.*_ends_error",
     ),
     "sync_keeps_loss": (
-        ("sync", "SyncService"),
+        ("cia301.sync", "SyncService"),
         "_consume",
         "_end_loss",
         {"sync-pdo.sync_loss_ends_on_sync"},
         "sync-pdo.sync_loss_*",
     ),
     "period_0_keeps_loss": (
-        ("sync", "SyncService"),
+        ("cia301.sync", "SyncService"),
         "_configure",
         "_end_loss",
         {"sync-pdo.sync_loss_ends_period_0"},
@@ -117,7 +117,7 @@ def test_each_fault_fails_exactly_its_cases(gateway, monkeypatch, fault):
 
 def test_an_error_reset_with_the_old_register_fails(gateway, monkeypatch):
     """The error-reset EMCY comes, but its byte 2 still shows the ended error (0x1001 is right)."""
-    from fieldgate.plugins.canopen.emcy import EmcyProducer
+    from fieldgate.plugins.canopen.cia301.emcy import EmcyProducer
 
     def stale_register(self, keys, now):
         register = self.register

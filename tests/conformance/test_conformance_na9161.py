@@ -19,7 +19,7 @@ from conformance_gateway import (
 
 from fieldgate.conformance import Options, SuiteConfig, Timing, Verdict, run_suite
 from fieldgate.conformance.report import text_report
-from fieldgate.plugins.canopen.abort import SdoAbort
+from fieldgate.plugins.canopen.cia301.abort import SdoAbort
 
 CASES = [
     "na9161.*",
@@ -98,26 +98,26 @@ def test_with_byte_granularity_the_bit_case_skips_and_the_byte_case_runs(tmp_pat
     "target, attribute, broken, case_id",
     [
         (
-            "fieldgate.plugins.canopen.fnbus.FnBusRegister",
+            "fieldgate.plugins.canopen.na9161.fnbus.FnBusRegister",
             "write_mode",
             refuse,
             "na9161.fnbus_register",  # TV-08: writing the mode back is refused
         ),
         (
-            "fieldgate.plugins.canopen.fnbus.FnBusRegister",
+            "fieldgate.plugins.canopen.na9161.fnbus.FnBusRegister",
             "apply",
             lambda self: None,  # the written mode never takes effect
             "na9161.data_mode_layout",
         ),
         (
-            "fieldgate.plugins.canopen.rpdo.RpdoService",
+            "fieldgate.plugins.canopen.cia301.pdo.rpdo.RpdoService",
             "_apply",
             lambda self, pdo, payload: None,  # RPDO data dropped
             "sync-pdo.dummy_mapping",
         ),
         (
-            "fieldgate.plugins.canopen.profile401.Profile401",
-            "_ai_fires",
+            "fieldgate.plugins.canopen.cia401.analog.AnalogInterrupts",
+            "fires",
             lambda self, change: False,  # analog changes are no events
             "na9161.analog_change_tpdo",
         ),
@@ -128,7 +128,7 @@ def test_with_byte_granularity_the_bit_case_skips_and_the_byte_case_runs(tmp_pat
             "na9161.heartbeat_loss_outputs",
         ),
         (
-            "fieldgate.plugins.canopen.sync.SyncService",
+            "fieldgate.plugins.canopen.cia301.sync.SyncService",
             "_error_event",
             lambda self, lost, now: None,  # SYNC loss only an EMCY (the CiA 301 way)
             "na9161.sync_loss_outputs",
@@ -140,13 +140,13 @@ def test_with_byte_granularity_the_bit_case_skips_and_the_byte_case_runs(tmp_pat
             "na9161.emcy_queue_overflow",
         ),
         (
-            "fieldgate.plugins.canopen.slots.SlotObjects",
+            "fieldgate.plugins.canopen.na9161.slots.SlotObjects",
             "read_memory",
             lambda self, slot: b"\x00",  # one byte whatever 0x4501 says
             "na9161.slot_objects",
         ),
         (
-            "fieldgate.plugins.canopen.sdo.SdoServer",
+            "fieldgate.plugins.canopen.cia301.sdo.SdoServer",
             "_zero_extended",
             lambda self, data: data,  # CiA 301-strict: short writes aborted
             "na9161.short_expedited_write",

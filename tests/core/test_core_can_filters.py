@@ -127,7 +127,9 @@ async def test_new_filters_are_on_the_bus_before_the_answer_that_confirms_them()
     adapter.start()
     try:
         assert log == [("filters", ["100/7FF"])]
-        adapter._receive(can.Message(arbitration_id=0x100, data=b"\x32", is_extended_id=False))
+        adapter.receiving.message(
+            can.Message(arbitration_id=0x100, data=b"\x32", is_extended_id=False)
+        )
         assert log[1:] == [("filters", ["100/7FF", "320/7FF"]), ("send", 0x101)]
         assert adapter.listen == {0x100, 0x320}
         status = adapter.status()
@@ -143,11 +145,17 @@ async def test_a_frame_outside_the_listen_set_is_counted_and_never_reaches_the_e
     adapter.start()
     try:
         for can_id in (0x181, 0x7E5, 0x320):  # a widened filter or a frame queued before a change
-            adapter._receive(can.Message(arbitration_id=can_id, data=b"\x00", is_extended_id=False))
+            adapter.receiving.message(
+                can.Message(arbitration_id=can_id, data=b"\x00", is_extended_id=False)
+            )
         assert engine.got == []
         assert adapter.status()["rx"] == 3 and adapter.status()["rx_ignored"] == 3
-        adapter._receive(can.Message(arbitration_id=0x100, data=b"\x32", is_extended_id=False))
-        adapter._receive(can.Message(arbitration_id=0x320, data=b"\x00", is_extended_id=False))
+        adapter.receiving.message(
+            can.Message(arbitration_id=0x100, data=b"\x32", is_extended_id=False)
+        )
+        adapter.receiving.message(
+            can.Message(arbitration_id=0x320, data=b"\x00", is_extended_id=False)
+        )
         assert engine.got == [0x100, 0x320]
     finally:
         adapter.close()
@@ -160,7 +168,9 @@ async def test_an_engine_without_a_listen_set_gets_every_frame_and_no_filters():
     adapter = CanAdapter(engine, LoggingBus(log), asyncio.get_running_loop())
     adapter.start()
     try:
-        adapter._receive(can.Message(arbitration_id=0x181, data=b"\x00", is_extended_id=False))
+        adapter.receiving.message(
+            can.Message(arbitration_id=0x181, data=b"\x00", is_extended_id=False)
+        )
         assert engine.got == [0x181] and log == []
         assert adapter.status()["filters"] is None
     finally:

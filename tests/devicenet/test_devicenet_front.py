@@ -213,20 +213,20 @@ async def test_a_baud_change_at_reset_answers_at_the_old_rate_and_checks_the_mac
     gateway, master = rig
     adapter = gateway.component("dnet").adapter
     sent = []  # (bit rate of the bus in use, CAN-ID)
-    real_send = adapter._send
+    real_send = adapter.send
 
     def recording_send(frames, now=None):
         sent.extend((adapter.bus_bitrate, f.can_id) for f in frames)
         real_send(frames, now)
 
     adapter.bus_bitrate = 500_000
-    real_reopen = adapter._reopen
+    real_reopen = adapter.reopen
 
     def reopen(rate):
         adapter.bus_bitrate = rate
         return real_reopen(rate)
 
-    adapter._reopen, adapter._send = reopen, recording_send
+    adapter.reopen, adapter.send = reopen, recording_send
     assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
     assert await master.request(bytes.fromhex("10 03 01 02 00")) == bytes.fromhex(
         "90"

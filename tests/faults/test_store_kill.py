@@ -45,7 +45,8 @@ def torn_writes(monkeypatch):
     def torn_json(path, obj):
         torn(path, json.dumps(obj).encode())
 
-    from fieldgate.plugins.canopen import lss, store
+    from fieldgate.plugins.canopen.cia301 import store
+    from fieldgate.plugins.canopen.cia305 import lss
     from fieldgate.plugins.devicenet import store as dn_store
 
     monkeypatch.setattr(store, "write_atomic", torn)

@@ -48,8 +48,8 @@ async def test_canopen_nmt_start_and_rpdo_show_up_as_event_metrics_and_written_b
 
 async def test_canopen_bus_off_and_recovery_are_events(running):
     front = running.gateway.component("can")
-    front._bus_state(True, 0.0)
-    front._bus_state(False, 1.0)
+    front.on_bus_state(True, 0.0)
+    front.on_bus_state(False, 1.0)
     kinds = [(e.kind, e.source) for e in running.events]
     assert (BUS_OFF, "can") in kinds and (BUS_ON, "can") in kinds
     status = (await running.get("/api/v1/status")).json()
@@ -84,7 +84,7 @@ async def test_devicenet_front_state_locations_and_fault_events(tmp_path):
         ]
         assert point["source"]["at"] == ["@01 reply bit 3"]
         front._fault("duplicate MAC ID 1 on the network")
-        front._bus_state(True, 0.0)
+        front.on_bus_state(True, 0.0)
         events = [(e.kind, e.source, e.level) for e in running.events]
         assert (FAULT, "dnet", "warning") in events and (BUS_OFF, "dnet", "warning") in events
     finally:

@@ -145,7 +145,7 @@ def test_canopen_integration_suite_passes_over_vcan0_with_gateway_as_a_process()
     """The same integration tests as in-process, over vcan0, the gateway run from the CLI."""
     # Every test module that starts its device through the shared DUT fixture.
     selected = sorted(
-        str(p) for p in CANOPEN_TESTS.glob("test_*.py") if "canopen_dut" in p.read_text()
+        str(p) for p in CANOPEN_TESTS.rglob("test_*.py") if "canopen_dut" in p.read_text()
     )
     assert len(selected) >= 2, f"the CANopen integration tests in {CANOPEN_TESTS} are missing"
     env = dict(os.environ, FIELDGATE_TEST_CAN=f"socketcan:{CHANNEL}")

@@ -145,7 +145,7 @@ async def canopen(request, tmp_path, monkeypatch):
         assert await client.expect(0x700 + NODE, 3.0) == b"\x00"  # boot-up
         front = gw.component("can")
         expected = "socketcan-raw" if request.param == "raw" else "add-reader"
-        assert front.adapter._receiver.mode == expected
+        assert front.adapter.receiving.receiver.mode == expected
         if request.param == "raw":  # room for bursts (root in the guest: beyond rmem_max)
             assert front.adapter.status()["rx_buffer_bytes"] >= 2 * 1024 * 1024
         yield gw, front, client
