@@ -3,7 +3,7 @@
 A back-end plugin supplies only its codec and module profiles:
 
 * a :class:`PolledModule` subclass per module kind, whose ``read_inputs`` and
-  ``write_outputs`` perform transactions over the plugin's link and raise
+  ``send_outputs`` perform transactions over the plugin's link and raise
   :class:`CommError` on failure;
 * a :class:`SerialBack` subclass that opens and closes the link and makes the modules.
 
@@ -92,10 +92,10 @@ class PolledModule(ABC):
         """Read the input channels that are due; returns {channel id: value or (value, Quality)},
         or :data:`NOTHING_DUE` when no transaction was made."""
 
-    async def write_outputs(self, values: dict[str, Any]) -> None:
-        """Write the given output channels (current process-image values)."""
+    async def send_outputs(self, values: dict[str, Any]) -> None:
+        """Send the given output channels to the module (their current process-image values)."""
         if values:
-            raise NotImplementedError(f"{type(self).__name__} has outputs but no write_outputs()")
+            raise NotImplementedError(f"{type(self).__name__} has outputs but no send_outputs()")
 
     async def probe(self) -> None:
         """Check the module answers (used while it is offline). Default: read its inputs."""
@@ -255,7 +255,7 @@ class LineScheduler:
                     st.dirty.update(st.module.outputs)
         for st in self._states:  # writes ahead of reads, for modules that answer
             if st.dirty and (st.health.online or st.due <= now):
-                await self._write(st)
+                await self._send_dirty_outputs(st)
                 return None
         for job in self.jobs:
             if job.due <= now and job.enabled():
@@ -384,11 +384,11 @@ class LineScheduler:
         st.due = started + (st.period if st.health.online else self.offline_probe_period)
         self._count_cycle(st)
 
-    async def _write(self, st: _ModuleState) -> None:
+    async def _send_dirty_outputs(self, st: _ModuleState) -> None:
         ids, st.dirty = st.dirty, set()
         values = {cid: self.image.value(cid) for cid in st.module.outputs if cid in ids}
         try:
-            ok, _ = await self._attempt(st, lambda: st.module.write_outputs(values))
+            ok, _ = await self._attempt(st, lambda: st.module.send_outputs(values))
         except LineLost:
             st.dirty |= ids  # written once the port is back
             raise

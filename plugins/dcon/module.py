@@ -83,7 +83,8 @@ class DconModule(PolledModule):
             await self.link.transact(codec.command(lead, self.address, body)), self.address
         )
 
-    async def _write(self, text: str) -> None:
+    async def _command(self, text: str) -> None:
+        """A command whose answer is an acknowledgement only (an output write, a setting)."""
         codec.write_ack(await self.link.transact(text))
 
     async def read_config(self) -> codec.ModuleConfigReply:
@@ -201,7 +202,7 @@ class DconModule(PolledModule):
         await self.read_config()
 
     # -- outputs --------------------------------------------------------------------
-    async def write_outputs(self, values: dict[str, Any]) -> None:
+    async def send_outputs(self, values: dict[str, Any]) -> None:
         if not values:
             return
         if self.in_watchdog:
@@ -233,7 +234,7 @@ class DconModule(PolledModule):
                     ErrorKind.WATCHDOG, "output write ignored: module in host-watchdog timeout"
                 )
             return
-        await self._write(codec.command("@", self.address, p.encode_do(bits)))
+        await self._command(codec.command("@", self.address, p.encode_do(bits)))
 
     async def _write_analog(self, index: int, raw: int) -> None:
         if self.range is None or self.data_format is None:
@@ -250,7 +251,7 @@ class DconModule(PolledModule):
             round_up=True,
         )
         body = text if p.ao_style == AO_SINGLE else f"{index}{text}"
-        await self._write(codec.command("#", self.address, body))
+        await self._command(codec.command("#", self.address, body))
 
     def output_quality(self) -> Quality:
         return Quality.WATCHDOG if self.in_watchdog else Quality.GOOD
@@ -393,9 +394,9 @@ class DconModule(PolledModule):
             codec.data(await self.link.transact(codec.command("@", self.address)), self.address)
         )
         for letter, value in missing:
-            await self._write(codec.command("@", self.address, p.encode_do(value)))
+            await self._command(codec.command("@", self.address, p.encode_do(value)))
             await self._ask(f"5{letter}", "~")
-        await self._write(codec.command("@", self.address, p.encode_do(before)))
+        await self._command(codec.command("@", self.address, p.encode_do(before)))
         return True
 
     async def _latch_analog(self) -> None:

@@ -183,21 +183,21 @@ class ModbusModule(PolledModule):
         return readings
 
     # -- writes -----------------------------------------------------------------------
-    async def write_outputs(self, values: dict[str, Any]) -> None:
+    async def send_outputs(self, values: dict[str, Any]) -> None:
         changes: list[tuple[Point, bool | int | float]] = [
             (self.outputs_by_id[cid], v) for cid, v in values.items() if cid in self.outputs_by_id
         ]
         for op in plan_writes(
             [(p, v) for p, v in changes if p.bit is None], self.allow_multiple_writes
         ):
-            await self._write(op.function, op.address, op.values, op.points)
+            await self._write_request(op.function, op.address, op.values, op.points)
         in_registers = sorted(
             ((p, v) for p, v in changes if p.bit is not None), key=lambda pv: pv[0].address
         )
         for address, items in groupby(in_registers, key=lambda pv: pv[0].address):
             await self._write_bits_of_register(address, list(items))
 
-    async def _write(
+    async def _write_request(
         self, function: int, address: int, words: list[bool] | list[int], points: list[Point]
     ) -> None:
         try:
@@ -224,7 +224,7 @@ class ModbusModule(PolledModule):
                     else Function.WRITE_SINGLE_REGISTER
                 )
                 for i, word in enumerate(words):
-                    await self._write(single, address + i, [word], points)
+                    await self._write_request(single, address + i, [word], points)
                 return
             # The module will not take this value: keep the line going, count it, say it once.
             self._log_once(
@@ -252,7 +252,7 @@ class ModbusModule(PolledModule):
             if any(p.write_fc == 16 for p, _ in items)
             else Function.WRITE_SINGLE_REGISTER
         )
-        await self._write(forced, address, [current], [p for p, _ in items])
+        await self._write_request(forced, address, [current], [p for p, _ in items])
 
     def _log_once(self, key: tuple[object, ...], message: str, *args: object) -> None:
         if key in self._logged:

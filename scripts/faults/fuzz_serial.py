@@ -156,7 +156,7 @@ class ModbusTarget(Target):
             if action == 0:
                 run_sync(module.probe())
             elif action == 3 and module.outputs:
-                run_sync(module.write_outputs(output_values(self.image, module.outputs, b)))
+                run_sync(module.send_outputs(output_values(self.image, module.outputs, b)))
             else:
                 run_sync(module.read_inputs())
         except CommError:
@@ -239,7 +239,7 @@ class DconTarget(Target):
                 elif action == 1:
                     run_sync(module.on_online())
                 elif action == 2 and module.outputs:
-                    run_sync(module.write_outputs(output_values(self.image, module.outputs, b)))
+                    run_sync(module.send_outputs(output_values(self.image, module.outputs, b)))
                 elif action == 3:
                     run_sync(module.read_status())
                 else:

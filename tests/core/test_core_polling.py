@@ -59,7 +59,7 @@ class ScriptedModule(PolledModule):
         self._maybe_fail()
         return {cid: self.inputs_value for cid in self.inputs}
 
-    async def write_outputs(self, values):
+    async def send_outputs(self, values):
         self.log.append(("write", self.address, dict(values)))
         self._maybe_fail()
 

@@ -55,7 +55,7 @@ async def test_a_write_cut_by_the_loss_is_kept_and_every_module_is_probed_after_
     await drain(line)
     image.write_output(modules[1].outputs[0], True, origin="can")
     with monkeypatch.context() as m:
-        m.setattr(modules[1], "write_outputs", Lost())
+        m.setattr(modules[1], "send_outputs", Lost())
         with pytest.raises(LineLost):
             await drain(line)
     assert line.pending_writes == 1  # not lost with the port
