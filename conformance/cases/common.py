@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 
 from ..device import NMT_PREOP, NMT_START, Device, SdoAbort, abort_text
-from ..framework import Context, Fail, Skip
+from ..framework import Context, Fail, Inconclusive, Skip
 from ..link import Frame
 
 EMCY_LENGTH_ERROR = 0x8210
@@ -266,6 +266,42 @@ class LengthError:
         return expect_emcy(self.ctx, 0x0000)
 
 
+CLAUSE_GENERIC = (
+    "CiA 301 §7.2.7.1 (EMCY byte 2 is the error register 0x1001) and §7.5.2.2 (bit 0, generic"
+    " error, is set whenever an error is present)"
+)
+
+
+def require_generic_bit(frame: Frame, what: str) -> None:
+    """The one rule for every EMCY that reports an error (code ≠ 0000), applied the same way by
+    every case: DLC 8, and byte 2 (the error register) with bit 0 (generic error) set."""
+    if len(frame.data) != 8 or not frame.data[2] & REGISTER_GENERIC:
+        raise Fail(
+            f"{what}: the error register must have the generic bit",
+            expected="[8] <code> <register with bit 0> ...",
+            seen=str(frame),
+            clause=CLAUSE_GENERIC,
+        )
+
+
+def error_free(ctx: Context, when: str) -> None:
+    """A precondition: the device reports no error (0x1001 = 0, and no error EMCY since the
+    case began). A device that does cannot be graded by a case that needs an error-free one
+    (CANopenNode's demo reports EMCY 0x5000 after its boot-up): INCONCLUSIVE, not FAIL."""
+    dev = ctx.device
+    dev.link.flush()
+    cob = emcy_cob(dev)
+    for _, direction, frame in dev.link.log:
+        if direction == "←" and frame.cob == cob and not frame.rtr and emcy_code(frame):
+            raise Inconclusive(
+                f"the device reports an error {when}: {frame} (EMCY {emcy_code(frame):04X})"
+            )
+    if dev.has(0x1001):
+        register = dev.read(0x1001, 0)
+        if register:
+            raise Inconclusive(f"the device reports an error {when}: 0x1001 = 0x{register:02X}")
+
+
 def require_abort(exc: SdoAbort, codes: tuple[int, ...], what: str) -> None:
     if exc.code not in codes:
         raise Fail(
@@ -333,6 +369,7 @@ def expect_error_reset(
             f"the error did not end when {what}",
             expected="EMCY 00 00 <error register left> ... (error reset)",
             seen="no error-reset EMCY",
+            clause="CiA 301 §7.2.7.1 (the EMCY state machine sends the error reset when an error ends)",
         )
     register = error_register(ctx)
     if register is None:
