@@ -151,7 +151,12 @@ def live_pdo(dev: Device, pdo: Pdo) -> Pdo:
     return Pdo(pdo.n, pdo.tx, cob, entries)
 
 
-def active_pdo(dev: Device, tx: bool, rtr: bool = False, n: int | None = None) -> Pdo:
+def active_pdo(where: Device | Context, tx: bool, rtr: bool = False, n: int | None = None) -> Pdo:
+    """A valid, mapped PDO the device serves now. Given the case's context (not just the
+    device), a device without one whose EDS shows writable communication and mapping
+    parameters gets one configured by the case (CiA 301 §7.2.2.3 procedure), restored at its
+    end; otherwise the case SKIPs, saying why."""
+    dev = where if isinstance(where, Device) else where.device
     kind = "TPDO" if tx else "RPDO"
     for p in pdos(dev, tx):
         if n is not None and p.n != n:
@@ -165,7 +170,66 @@ def active_pdo(dev: Device, tx: bool, rtr: bool = False, n: int | None = None) -
             continue
         return live
     which = f"{kind}{n + 1}" if n is not None else f"any {kind}"
-    raise Skip(f"EDS lists no valid, mapped {which}" + (" that allows RTR" if rtr else ""))
+    why = f"EDS lists no valid, mapped {which}" + (" that allows RTR" if rtr else "")
+    if isinstance(where, Device) or n is not None:
+        raise Skip(why)
+    return configure_pdo(where, tx, rtr, why)
+
+
+def mappable_entry(dev: Device, tx: bool) -> ODVariable | None:
+    """An application entry a PDO may carry: PDO-mappable in the EDS, 8-32 bits, readable for a
+    TPDO, writable for an RPDO; manufacturer and profile area first, and no 0x1xxx entry."""
+    wanted = ("ro", "rw", "rwr", "const") if tx else ("rw", "rww", "wo")
+    found = [
+        v
+        for v in dev.variables()
+        if v.pdo_mappable
+        and v.index >= 0x2000
+        and v.access_type in wanted
+        and v.fixed_size
+        and len(v) in (8, 16, 32)
+        and not is_count(v)
+    ]
+    return found[0] if found else None
+
+
+def configure_pdo(ctx: Context, tx: bool, rtr: bool, why: str) -> Pdo:
+    """Set up a PDO the EDS shows as configurable: invalid, mapping = one mappable entry, a
+    COB-ID of the pre-defined connection set (or its own), valid; restored when the case ends."""
+    dev = ctx.device
+    kind = "TPDO" if tx else "RPDO"
+    entry = mappable_entry(dev, tx)
+    if entry is None:
+        raise Skip(
+            f"{why}, and the EDS lists no PDO-mappable {'readable' if tx else 'writable'} entry to map"
+        )
+    for p in pdos(dev, tx):
+        comm, mapping = dev.var(p.comm, 1), dev.var(p.mapping, 0)
+        if comm is None or mapping is None or not dev.has(p.mapping, 1):
+            continue
+        if "w" not in comm.access_type or "w" not in mapping.access_type:
+            continue
+        mapped = entry.index << 16 | entry.subindex << 8 | len(entry)
+        try:
+            old = dev.read(p.comm, 1)
+            if tx and rtr and old & 0x40000000:
+                raise Skip(
+                    f"{why}; {p.name}'s COB-ID has bit 30 set (no RTR allowed): RTR on PDOs is"
+                    " optional (CiA 301 §7.5.2.35) and not recommended"
+                )
+            base = old & 0x7FF
+            if restricted(base) or not base:
+                base = (0x180 if tx else 0x200) + 0x100 * (p.n % 4) + dev.node_id
+            remap(ctx, p, [mapped])
+            # the cleanups run last-first: the PDO must be invalid before its mapping returns
+            ctx.cleanup(lambda p=p: dev.write(p.comm, 1, dev.read(p.comm, 1) | 0x80000000))
+            dev.write(p.comm, 1, base | (0x40000000 if tx and old & 0x40000000 else 0))
+        except SdoAbort as exc:
+            raise Skip(
+                f"{why}; configuring {p.name} to map 0x{entry.index:04X}:{entry.subindex} was refused: {abort_text(exc.code)}"
+            ) from None
+        return live_pdo(dev, p)
+    raise Skip(f"{why}, and no {kind} has writable communication and mapping parameters in the EDS")
 
 
 def set_pdo_type(ctx: Context, pdo: Pdo, ttype: int) -> None:
@@ -251,7 +315,7 @@ class LengthError:
         self.ctx = ctx
         dev = ctx.device
         dev.require(0x1014, why="EMCY producer")
-        self.rpdo = active_pdo(dev, tx=False)
+        self.rpdo = active_pdo(ctx, tx=False)
         self.good = mapped_values(dev, self.rpdo)
         operational(ctx)
 

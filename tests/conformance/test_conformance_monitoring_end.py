@@ -12,7 +12,7 @@ import can
 import pytest
 from conformance_gateway import NODE_ID, GatewayThread, front_unavailable, topology, write_eds
 
-from fieldgate.conformance import SuiteConfig, Timing, Verdict, failed, run_suite
+from fieldgate.conformance import SuiteConfig, Timing, Verdict, run_suite
 from fieldgate.conformance.report import text_report
 
 TIMING = Timing(response=0.3, silence=0.1, heartbeat_ms=50, bootup=1.0, sdo_server_timeout=1.0)
