@@ -384,6 +384,25 @@ class Device:
         time.sleep(0.01)
         return True
 
+    def monitoring_armed(self) -> bool:
+        """Whether the case's frames may have started a monitoring that outlives it: node
+        guarding remote frames arm life guarding (0x100C ≠ 0), another node's heartbeats a
+        heartbeat consumer (0x1016), SYNCs the SYNC-loss supervision (0x1006 ≠ 0). Each runs
+        on after the case and raises its error in the next one; reset communication (CiA 301
+        §7.3.2) stops them all until the master starts them again."""
+        sent = {f.cob for _, d, f in self.link.log if d == "→" and not f.data[:1] == b"\0"}
+        rtr = any(d == "→" and f.rtr and f.cob == 0x700 + self.node_id for _, d, f in self.link.log)
+        heartbeats = any(0x701 <= c <= 0x77F and c != 0x700 + self.node_id for c in sent)
+        sync = self.od_default(0x1005, 0, 0x80) & 0x7FF in sent
+        try:
+            return (
+                (rtr and self.has(0x100C) and bool(self.read(0x100C, 0)))
+                or (heartbeats and self.has(0x1016))
+                or (sync and self.has(0x1006) and bool(self.read(0x1006, 0)))
+            )
+        except Exception:  # unreadable: the answering check below decides
+            return False
+
     def restore(self, reset: bool = False) -> list[str]:
         """Leave the device as the next case must find it: no transfer open, LSS waiting,
         answering. A device that does not answer gets its SDO server timeout to end what it
@@ -392,6 +411,8 @@ class Device:
         notes = [n for n in (self.end_open_transfer(),) if n]
         self.leave_lss_configuration()
         self.link.flush()
+        asked = reset
+        reset = reset or self.monitoring_armed()
         if not reset:
             if self.answering():
                 return notes
@@ -403,6 +424,8 @@ class Device:
         boot = self.reset(NMT_RESET_COMM)
         self.settle()
         if self.answering():
+            if not notes and not asked:  # routine: a monitoring the case started is stopped
+                return notes
             seen = "" if boot is not None else " (no boot-up seen)"
             return notes + [f"the runner reset communication{seen} before the next case"]
         return notes + [f"{STOPPED_ANSWERING}: no SDO answer even after reset communication"]

@@ -6,6 +6,7 @@ import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 
@@ -193,6 +194,10 @@ def mappable_entry(dev: Device, tx: bool) -> ODVariable | None:
     return found[0] if found else None
 
 
+def invalid_again(dev: Device, comm: int) -> None:
+    dev.write(comm, 1, dev.read(comm, 1) | 0x80000000)
+
+
 def configure_pdo(ctx: Context, tx: bool, rtr: bool, why: str) -> Pdo:
     """Set up a PDO the EDS shows as configurable: invalid, mapping = one mappable entry, a
     COB-ID of the pre-defined connection set (or its own), valid; restored when the case ends."""
@@ -222,7 +227,7 @@ def configure_pdo(ctx: Context, tx: bool, rtr: bool, why: str) -> Pdo:
                 base = (0x180 if tx else 0x200) + 0x100 * (p.n % 4) + dev.node_id
             remap(ctx, p, [mapped])
             # the cleanups run last-first: the PDO must be invalid before its mapping returns
-            ctx.cleanup(lambda p=p: dev.write(p.comm, 1, dev.read(p.comm, 1) | 0x80000000))
+            ctx.cleanup(partial(invalid_again, dev, p.comm))
             dev.write(p.comm, 1, base | (0x40000000 if tx and old & 0x40000000 else 0))
         except SdoAbort as exc:
             raise Skip(
@@ -355,7 +360,15 @@ def error_free(ctx: Context, when: str) -> None:
     dev = ctx.device
     dev.link.flush()
     cob = emcy_cob(dev)
-    for _, direction, frame in dev.link.log:
+    log = [(d, f) for _, d, f in dev.link.log]
+    boots = [
+        i
+        for i, (d, f) in enumerate(log)
+        if d == "←" and f.cob == 0x700 + dev.node_id and f.data == b"\0"
+    ]
+    # what came before the last boot-up (an EMCY announcing the reset, as the I-7232D's
+    # 00 FF 80 0A) belongs to the device's previous life
+    for direction, frame in log[boots[-1] + 1 if boots else 0 :]:
         if direction == "←" and frame.cob == cob and not frame.rtr and emcy_code(frame):
             raise Inconclusive(
                 f"the device reports an error {when}: {frame} (EMCY {emcy_code(frame):04X})"

@@ -240,9 +240,15 @@ def configure_node_id(ctx: Context) -> None:
             expected=f"{0x700 + new:03X} [1] 00",
             seen="nothing",
         )
-    dev.link.flush()
-    dev.link.send(0x600 + new, b"\x40\x00\x10\x00\0\0\0\0")
-    if dev.link.expect(0x580 + new, ctx.timing.response) is None:
+    # asked twice: a request right after the boot-up may reach a device still opening its
+    # SDO channel on the new CAN-IDs (durand over SocketCAN: its receive filter follows the
+    # boot-up by a few ms)
+    for _ in range(2):
+        dev.link.flush()
+        dev.link.send(0x600 + new, b"\x40\x00\x10\x00\0\0\0\0")
+        if dev.link.expect(0x580 + new, ctx.timing.response) is not None:
+            break
+    else:
         raise Fail(
             "no SDO answer on the new node-ID", expected=f"{0x580 + new:03X} ..", seen="nothing"
         )

@@ -59,10 +59,14 @@ def test_every_case_passes_or_is_a_documented_skip(results):
     failures = {cid for cid, r in by_id.items() if r.verdict is Verdict.FAIL}
     assert failures <= set(KNOWN_FINDINGS), report
     for cid, r in by_id.items():
+        assert r.verdict in (Verdict.PASS, Verdict.FAIL, Verdict.SKIP), (
+            f"{cid}: {r.verdict} {r.reason}\n{report}"
+        )
         if r.verdict is Verdict.SKIP:
             assert cid in DOCUMENTED_SKIPS and DOCUMENTED_SKIPS[cid] in r.reason, (
                 f"undocumented SKIP {cid}: {r.reason}"
             )
+        assert not r.notes, f"{cid} left the device to be restored: {r.notes}\n{report}"
 
 
 def test_the_suite_really_exercised_the_gateway(results):
