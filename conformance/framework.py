@@ -137,6 +137,7 @@ class Context:
         self.timing = timing
         self.options = options
         self._cleanups: list[Callable[[], object]] = []
+        self.error_checked = False  # the case checked the device shows no error (cases.common)
 
     @property
     def under_test(self) -> Device | DnetDevice:
@@ -195,6 +196,7 @@ def run_case(c: Case, ctx: Context) -> CaseResult:
     link = ctx.under_test.link
     link.flush()
     link.start_log()
+    ctx.error_checked = False
     t0 = time.monotonic()
     try:
         c.fn(ctx)

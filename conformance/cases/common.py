@@ -178,19 +178,21 @@ def active_pdo(where: Device | Context, tx: bool, rtr: bool = False, n: int | No
 
 
 def mappable_entry(dev: Device, tx: bool) -> ODVariable | None:
-    """An application entry a PDO may carry: PDO-mappable in the EDS, 8-32 bits, readable for a
-    TPDO, writable for an RPDO; manufacturer and profile area first, and no 0x1xxx entry."""
+    """An entry a PDO may carry: PDO-mappable in the EDS, 8-32 bits, readable for a TPDO,
+    writable for an RPDO; the manufacturer and profile area first, else a communication entry
+    outside the SDO and PDO parameters (CANopenNode's demo maps only 0x1001)."""
     wanted = ("ro", "rw", "rwr", "const") if tx else ("rw", "rww", "wo")
     found = [
         v
         for v in dev.variables()
         if v.pdo_mappable
-        and v.index >= 0x2000
+        and not 0x1200 <= v.index <= 0x1BFF
         and v.access_type in wanted
         and v.fixed_size
         and len(v) in (8, 16, 32)
         and not is_count(v)
     ]
+    found.sort(key=lambda v: v.index < 0x2000)  # (stable: EDS order within each area)
     return found[0] if found else None
 
 
@@ -303,6 +305,12 @@ def mapped_values(dev: Device, pdo: Pdo) -> bytes:
 
 
 def operational(ctx: Context) -> None:
+    """NMT Start, once the device shows no error: a device may refuse Operational while its
+    error register shows one (CANopenNode does), so a case that needs Operational on such a
+    device gives no verdict (checked at the case's first Start, before it raises any error)."""
+    if not ctx.error_checked:
+        ctx.error_checked = True
+        error_free(ctx, "before the case (a device with an error may refuse Operational)")
     ctx.device.nmt(NMT_START)
     time.sleep(0.02)
 

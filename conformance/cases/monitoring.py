@@ -19,6 +19,7 @@ from ..link import Frame
 from .common import (
     EMCY_LIFE_GUARD,
     REGISTER_COMMUNICATION,
+    emcy_cob,
     emcy_code,
     error_register,
     expect_emcy,
@@ -170,10 +171,18 @@ def raise_sync_loss(ctx: Context) -> int | None:
     dev.patch(ctx, 0x1006, 0, ctx.timing.heartbeat_ms * 1000)
     operational(ctx)
     for _ in range(3):
-        dev.link.send(*sync)
+        last = dev.link.send(*sync)
         time.sleep(period)
     wait = 3 * period + ctx.timing.slack(period) + ctx.timing.response
-    frame = expect_emcy(ctx, ERROR, wait)
+    # the loss is the EMCY after the last SYNC: canopend reports one at once when 0x1006 is
+    # set (no SYNC seen yet) and ends it at the first SYNC; that one is not the loss to end
+    cob = emcy_cob(dev)
+    frame = dev.link.expect(
+        lambda f: (
+            f.cob == cob and not f.rtr and emcy_code(f) != 0 and f.timestamp >= last.timestamp
+        ),
+        wait,
+    )
     if frame is None:
         raise Skip(
             f"no EMCY within {wait * 1000:.0f} ms after SYNC stopped (0x1006 = {ctx.timing.heartbeat_ms} ms): the device does not report SYNC loss"
