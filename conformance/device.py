@@ -86,6 +86,7 @@ class Device:
         self.sdo_rx, self.sdo_tx = self.sdo_cobs()
         self.nmt_sent_at = 0.0  # when the last NMT command went out (time.time())
         self.eds_notes: list[str] = []  # what reading the EDS passed over (.eds)
+        self.register_at_start: int | None = None  # 0x1001 when the case began
 
     @classmethod
     def from_eds(cls, link: Link, node_id: int, eds: str, timing: Timing) -> Device:
@@ -384,6 +385,23 @@ class Device:
         time.sleep(0.01)
         return True
 
+    def begin(self) -> None:
+        """Before a case: what 0x1001 shows (errors the case did not cause are not its to end)."""
+        self.register_at_start = None
+        if self.has(0x1001):
+            frame = self.sdo_request(bytes([0x40]) + mux(0x1001, 0))
+            if frame is not None and frame.data[:4] == bytes([0x4F]) + mux(0x1001, 0):
+                self.register_at_start = frame.data[4]
+
+    def new_errors(self) -> int:
+        """Error register bits the device shows now and did not when the case began."""
+        if self.register_at_start is None:
+            return 0
+        frame = self.sdo_request(bytes([0x40]) + mux(0x1001, 0))
+        if frame is None or frame.data[:4] != bytes([0x4F]) + mux(0x1001, 0):
+            return 0
+        return frame.data[4] & ~self.register_at_start
+
     def monitoring_armed(self) -> bool:
         """Whether the case's frames may have started a monitoring that outlives it: node
         guarding remote frames arm life guarding (0x100C ≠ 0), another node's heartbeats a
@@ -413,6 +431,8 @@ class Device:
         self.link.flush()
         asked = reset
         reset = reset or self.monitoring_armed()
+        if not reset and self.answering() and self.new_errors():
+            reset = True  # an error the case raised is still shown: it must not meet the next
         if not reset:
             if self.answering():
                 return notes
@@ -424,7 +444,12 @@ class Device:
         boot = self.reset(NMT_RESET_COMM)
         self.settle()
         if self.answering():
-            if not notes and not asked:  # routine: a monitoring the case started is stopped
+            left = self.new_errors()
+            if left:
+                notes.append(
+                    f"0x1001 shows 0x{left:02X} the case raised, also after reset communication"
+                )
+            if not notes and not asked:  # routine: a monitoring or an error the case started
                 return notes
             seen = "" if boot is not None else " (no boot-up seen)"
             return notes + [f"the runner reset communication{seen} before the next case"]

@@ -358,6 +358,9 @@ class DnetDevice:
             self.unconnected(RELEASE, bytes([choice]))
         self.link.flush()
 
+    def begin(self) -> None:
+        """Before a case: nothing to note (every case starts unallocated)."""
+
     def restore(self, reset: bool = False) -> list[str]:
         """Isolation between cases: :meth:`settle` already released every connection."""
         return []

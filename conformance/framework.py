@@ -194,6 +194,7 @@ def run_cases(
 
 def run_case(c: Case, ctx: Context) -> CaseResult:
     link = ctx.under_test.link
+    ctx.under_test.begin()
     link.flush()
     link.start_log()
     ctx.error_checked = False

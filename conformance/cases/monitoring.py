@@ -21,6 +21,7 @@ from .common import (
     REGISTER_COMMUNICATION,
     emcy_cob,
     emcy_code,
+    error_free,
     error_register,
     expect_emcy,
     expect_error_reset,
@@ -165,6 +166,10 @@ def raise_sync_loss(ctx: Context) -> int | None:
     if cob_id & SYNC_PRODUCER_BIT:
         raise Skip("the device produces SYNC itself (0x1005 bit 30): there is no SYNC to lose")
     before = quiet_register(ctx)
+    # the Start below needs a device without error; checked before 0x1006 is set (canopend
+    # reports a SYNC loss at once when it is, before any SYNC)
+    error_free(ctx, "before the case (a device with an error may refuse Operational)")
+    ctx.error_checked = True
     sync = sync_frame(ctx)
     period = ctx.timing.heartbeat_ms / 1000
     ctx.cleanup(lambda: dev.reset(NMT_RESET_COMM))
