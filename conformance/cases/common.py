@@ -262,14 +262,21 @@ def invalidate(ctx: Context, pdo: Pdo) -> None:
     ctx.cleanup(restore)
 
 
-def keep_mapping(ctx: Context, pdo: Pdo) -> list[int]:
-    """The PDO's current mapping entries; they are written back when the case ends."""
+def keep_mapping(ctx: Context, pdo: Pdo, beyond: int = 0) -> list[int]:
+    """The PDO's current mapping entries; they are written back when the case ends, and so
+    are the sub-entries up to ``beyond`` past the count (a device keeps what was written
+    there, and a later 'save' would store it)."""
     dev = ctx.device
     entries = [dev.read(pdo.mapping, s) for s in range(1, dev.read(pdo.mapping, 0) + 1)]
+    unused = {
+        s: dev.read(pdo.mapping, s)
+        for s in range(len(entries) + 1, beyond + 1)
+        if dev.has(pdo.mapping, s)
+    }
 
     def restore() -> None:
         dev.write(pdo.mapping, 0, 0)
-        for s, e in enumerate(entries, 1):
+        for s, e in [*enumerate(entries, 1), *unused.items()]:
             dev.write(pdo.mapping, s, e)
         dev.write(pdo.mapping, 0, len(entries))
 
@@ -281,7 +288,7 @@ def remap(ctx: Context, pdo: Pdo, entries: list[int]) -> None:
     """CiA 301 mapping procedure: invalid, sub 0 = 0, entries, sub 0 = n; restored afterwards."""
     dev = ctx.device
     invalidate(ctx, pdo)
-    keep_mapping(ctx, pdo)
+    keep_mapping(ctx, pdo, beyond=len(entries))
     dev.write(pdo.mapping, 0, 0)
     for s, e in enumerate(entries, 1):
         dev.write(pdo.mapping, s, e)
