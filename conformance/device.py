@@ -500,38 +500,36 @@ class StateProbe:
     def reports(self) -> list[int]:
         """The states reported after the last NMT command until two in a row agree (at most
         four reports, or none when nothing comes)."""
-        dev = self.dev
         seen: list[int] = []
-        if self.method == "guarding":
-            for _ in range(4):
-                frame = dev.guard()
-                if frame is None or not frame.data:
-                    break
-                seen.append(frame.data[0] & 0x7F)
-                if len(seen) >= 2 and seen[-1] == seen[-2]:
-                    break
-            return seen
-        # a heartbeat received before the last NMT command went out can still be queued
-        # here (a busy tester reads late): it shows the state before the command
-        since = dev.nmt_sent_at
-        period = self.period_ms / 1000
-        deadline = time.monotonic() + 4 * period + self.ctx.timing.response
-        while len(seen) < 4 and (left := deadline - time.monotonic()) > 0:
-            frame = dev.link.expect(
-                lambda f: (
-                    f.cob == 0x700 + dev.node_id
-                    and not f.rtr
-                    and f.data[:1] != b"\0"
-                    and f.timestamp >= since
-                ),
-                min(left, 2 * period + self.ctx.timing.response),
-            )
+        deadline = time.monotonic() + 4 * self.period_ms / 1000 + self.ctx.timing.response
+        while len(seen) < 4:
+            frame = self._next_report(deadline)
             if frame is None or not frame.data:
                 break
             seen.append(frame.data[0] & 0x7F)
             if len(seen) >= 2 and seen[-1] == seen[-2]:
                 break
         return seen
+
+    def _next_report(self, deadline: float) -> Frame | None:
+        dev = self.dev
+        if self.method == "guarding":
+            return dev.guard()
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return None
+        # a heartbeat received before the last NMT command went out can still be queued
+        # here (a busy tester reads late): it shows the state before the command
+        since = dev.nmt_sent_at
+        return dev.link.expect(
+            lambda f: (
+                f.cob == 0x700 + dev.node_id
+                and not f.rtr
+                and f.data[:1] != b"\0"
+                and f.timestamp >= since
+            ),
+            min(left, 2 * self.period_ms / 1000 + self.ctx.timing.response),
+        )
 
     def state(self) -> int | None:
         """The confirmed state (two reports in a row), else the last report, else None."""
