@@ -9,6 +9,7 @@ so nothing below it depends on the cases. Add a module to the import line and to
 from __future__ import annotations
 
 import fnmatch
+from typing import TYPE_CHECKING
 
 from .cases import (
     cia401,
@@ -37,6 +38,9 @@ from .framework import (
     Case,
 )
 
+if TYPE_CHECKING:
+    from .identity import DeviceFacts
+
 CASE_MODULES = (
     cia401,
     devicenet,
@@ -57,14 +61,24 @@ CASE_MODULES = (
 
 
 def select(
-    profiles: list[str] | None = None, patterns: list[str] | None = None, protocol: str = "canopen"
+    profiles: list[str] | None = None,
+    patterns: list[str] | None = None,
+    protocol: str = "canopen",
+    facts: DeviceFacts | None = None,
 ) -> list[Case]:
     """Cases of the given profiles whose id matches any -k pattern. No profiles: every profile
-    of the protocol but the opt-in ones (``seed``); ``"all"``: every profile of the protocol
-    but the master-fit ones (``delta-as300``), which run only when named (beside ``all`` too)."""
+    of the protocol but the device-specific ones (``seed``, ...); ``"all"``: with ``facts``
+    (the device's EDS and identity, :mod:`.identity`) the CiA profiles its EDS supports and the
+    device-specific ones its identity matches, without: every profile but the master-fit ones
+    (``delta-as300``); a profile named beside ``all`` runs too."""
     available = PROTOCOL_PROFILES[protocol]
     if not profiles:
         wanted = set(available) - set(OPT_IN)
+    elif "all" in profiles and facts is not None and protocol == "canopen":
+        from .identity import chosen_profiles
+
+        runs = {p for p, why in chosen_profiles(facts).items() if why.startswith("runs")}
+        wanted = runs | (set(profiles) & set(available))
     elif "all" in profiles:
         wanted = (set(available) - set(MASTER_PROFILES)) | (set(profiles) & set(available))
     else:

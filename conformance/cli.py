@@ -73,7 +73,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         action="append",
         choices=PROFILES + DEVICENET_PROFILES + ("all",),
         default=[],
-        help=f"run only these profiles (repeatable): {', '.join(PROFILES)} (canopen), {', '.join(DEVICENET_PROFILES)} (devicenet); default: all of the protocol's but {', '.join(OPT_IN)}; 'all': every profile of the protocol but the master-fit {', '.join(MASTER_PROFILES)}, which runs only when named",
+        help=f"run only these profiles (repeatable): {', '.join(PROFILES)} (canopen), {', '.join(DEVICENET_PROFILES)} (devicenet); default: all of the protocol's but the device-specific {', '.join(OPT_IN)}; 'all': the CiA profiles the device's EDS supports and the device-specific ones its identity (0x1018 vendor-ID, 0x1008 name) matches; the master-fit {', '.join(MASTER_PROFILES)} runs only when named",
     )
     p.add_argument(
         "-k",
@@ -84,6 +84,13 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="run only cases whose id contains PATTERN (or matches a glob); repeatable",
     )
     p.add_argument("--list", action="store_true", help="list the selected cases and exit")
+    p.add_argument(
+        "--shuffle",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="run the cases in an order shuffled with SEED (every verdict must be the same as in order)",
+    )
     p.add_argument("--junit", metavar="FILE", help="also write a JUnit XML report")
     p.add_argument(
         "--loopback",
@@ -160,7 +167,15 @@ def config_from_args(args: argparse.Namespace) -> SuiteConfig:
         sdo_server_timeout=args.sdo_server_timeout,
     )
     options = Options(loopback=args.loopback, lss_spare_node_id=args.lss_spare_node_id)
-    return SuiteConfig(args.node_id, args.eds, args.profile, args.patterns, timing, options)
+    return SuiteConfig(
+        args.node_id,
+        args.eds,
+        args.profile,
+        args.patterns,
+        timing,
+        options,
+        shuffle=getattr(args, "shuffle", None),
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -223,13 +238,17 @@ def _run_and_report(
 
     def progress(result: CaseResult) -> None:
         print(line(result), flush=True)
-        if result.verdict is Verdict.FAIL:
+        if result.verdict in (Verdict.FAIL, Verdict.INFO):
             print("\n".join(details(result)), flush=True)
 
-    def on_start(ident: dict[str, str]) -> None:
-        properties.update(ident)
+    def on_start(header: dict[str, str]) -> None:
+        properties.update(header)
+        ident = {k: v for k, v in header.items() if k not in RUN_KEYS}
         if ident:
             print("device: " + ", ".join(f"{k} {v}" for k, v in ident.items()), flush=True)
+        for key in RUN_KEYS:
+            if header.get(key):
+                print(f"{key}: {header[key]}", flush=True)
 
     try:
         results = start(progress, on_start)
@@ -251,6 +270,9 @@ def _run_and_report(
     if args.junit:
         write_junit(results, args.junit, properties)
     return ExitCode.FAILED if any(r.verdict is Verdict.FAIL for r in results) else ExitCode.OK
+
+
+RUN_KEYS = ("profiles", "left out", "EDS notes")  # header lines beside the device's identity
 
 
 def run_devicenet(args: argparse.Namespace) -> int:

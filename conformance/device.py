@@ -15,7 +15,7 @@ from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 from canopen.sdo.client import SdoClient
 
 from .link import Frame, Link
-from .outcome import Fail, Skip, Timing
+from .outcome import STOPPED_ANSWERING, Fail, Skip, Timing
 
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
 STATE_NAMES = {0x00: "boot-up", 0x04: "Stopped", 0x05: "Operational", 0x7F: "Pre-operational"}
@@ -85,10 +85,17 @@ class Device:
         self.timing = timing
         self.sdo_rx, self.sdo_tx = self.sdo_cobs()
         self.nmt_sent_at = 0.0  # when the last NMT command went out (time.time())
+        self.eds_notes: list[str] = []  # what reading the EDS passed over (.eds)
+        self.register_at_start: int | None = None  # 0x1001 when the case began
 
     @classmethod
     def from_eds(cls, link: Link, node_id: int, eds: str, timing: Timing) -> Device:
-        return cls(link, node_id, canopen.import_od(eds, node_id), timing)
+        from .eds import load_eds
+
+        reading = load_eds(eds, node_id)
+        device = cls(link, node_id, reading.od, timing)
+        device.eds_notes = reading.notes
+        return device
 
     # -- EDS -----------------------------------------------------------------
     def has(self, index: int, sub: int | None = None) -> bool:
@@ -345,6 +352,109 @@ class Device:
         time.sleep(0.01)
         self.link.flush()
 
+    # -- isolation between cases -------------------------------------------------------
+    def answering(self) -> bool:
+        """Whether the SDO server is idle and answers: an upload of 0x1000 is answered (a value
+        or an abort echoing 1000:00), twice tried."""
+        for _ in range(2):
+            frame = self.sdo_request(bytes([0x40]) + mux(0x1000, 0))
+            if frame is not None and len(frame.data) == 8 and frame.data[1:4] == mux(0x1000, 0):
+                if frame.data[0] >> 5 == 2 or frame.data[0] == 0x80:
+                    if frame.data[0] & 0x03 == 0x01:  # a segmented answer: end that transfer too
+                        self.link.send(self.sdo_rx, client_abort(0x1000, 0))
+                    return True
+        return False
+
+    def end_open_transfer(self) -> str | None:
+        """Abort the SDO transfer the case's frames leave open (a failed case stops mid-transfer;
+        NMT Enter Pre-operational does not end a transfer): what was done, or None."""
+        open_mux = open_transfer(self.link.log, self.sdo_rx, self.sdo_tx)
+        if open_mux is None:
+            return None
+        self.link.send(self.sdo_rx, bytes([0x80]) + open_mux + ABORT_GENERAL)
+        time.sleep(0.01)
+        index, sub = struct.unpack("<HB", open_mux)
+        return f"the runner aborted the SDO transfer of 0x{index:04X}:{sub} the case left open"
+
+    def leave_lss_configuration(self) -> bool:
+        """Switch state global to waiting (CiA 305) if the case spoke LSS: an LSS slave left in
+        configuration state answers what the next case does not expect."""
+        if not any(d == "→" and f.cob == LSS_MASTER for _, d, f in self.link.log):
+            return False
+        self.link.send(LSS_MASTER, bytes([0x04, 0x00]).ljust(8, b"\0"))
+        time.sleep(0.01)
+        return True
+
+    def begin(self) -> None:
+        """Before a case: what 0x1001 shows (errors the case did not cause are not its to end)."""
+        self.register_at_start = None
+        if self.has(0x1001):
+            frame = self.sdo_request(bytes([0x40]) + mux(0x1001, 0))
+            if frame is not None and frame.data[:4] == bytes([0x4F]) + mux(0x1001, 0):
+                self.register_at_start = frame.data[4]
+
+    def new_errors(self) -> int:
+        """Error register bits the device shows now and did not when the case began."""
+        if self.register_at_start is None:
+            return 0
+        frame = self.sdo_request(bytes([0x40]) + mux(0x1001, 0))
+        if frame is None or frame.data[:4] != bytes([0x4F]) + mux(0x1001, 0):
+            return 0
+        return frame.data[4] & ~self.register_at_start
+
+    def monitoring_armed(self) -> bool:
+        """Whether the case's frames may have started a monitoring that outlives it: node
+        guarding remote frames arm life guarding (0x100C ≠ 0), another node's heartbeats a
+        heartbeat consumer (0x1016), SYNCs the SYNC-loss supervision (0x1006 ≠ 0). Each runs
+        on after the case and raises its error in the next one; reset communication (CiA 301
+        §7.3.2) stops them all until the master starts them again."""
+        sent = {f.cob for _, d, f in self.link.log if d == "→" and not f.data[:1] == b"\0"}
+        rtr = any(d == "→" and f.rtr and f.cob == 0x700 + self.node_id for _, d, f in self.link.log)
+        heartbeats = any(0x701 <= c <= 0x77F and c != 0x700 + self.node_id for c in sent)
+        sync = self.od_default(0x1005, 0, 0x80) & 0x7FF in sent
+        try:
+            return (
+                (rtr and self.has(0x100C) and bool(self.read(0x100C, 0)))
+                or (heartbeats and self.has(0x1016))
+                or (sync and self.has(0x1006) and bool(self.read(0x1006, 0)))
+            )
+        except Exception:  # unreadable: the answering check below decides
+            return False
+
+    def restore(self, reset: bool = False) -> list[str]:
+        """Leave the device as the next case must find it: no transfer open, LSS waiting,
+        answering. A device that does not answer gets its SDO server timeout to end what it
+        holds, then NMT reset communication; ``reset`` (a case could not restore what it
+        wrote) resets at once. What was done, as notes for the report."""
+        notes = [n for n in (self.end_open_transfer(),) if n]
+        self.leave_lss_configuration()
+        self.link.flush()
+        asked = reset
+        reset = reset or self.monitoring_armed()
+        if not reset and self.answering() and self.new_errors():
+            reset = True  # an error the case raised is still shown: it must not meet the next
+        if not reset:
+            if self.answering():
+                return notes
+            time.sleep(self.timing.sdo_server_timeout)
+            self.link.flush()
+            if self.answering():
+                return notes + ["the device answered SDO again only after its SDO server timeout"]
+            notes.append("the device did not answer an SDO read of 0x1000 after the case")
+        boot = self.reset(NMT_RESET_COMM)
+        self.settle()
+        if self.answering():
+            left = self.new_errors()
+            if left:
+                notes.append(
+                    f"0x1001 shows 0x{left:02X} the case raised, also after reset communication"
+                )
+            if not notes and not asked:  # routine: a monitoring or an error the case started
+                return notes
+            seen = "" if boot is not None else " (no boot-up seen)"
+            return notes + [f"the runner reset communication{seen} before the next case"]
+        return notes + [f"{STOPPED_ANSWERING}: no SDO answer even after reset communication"]
+
     def guard(self) -> Frame | None:
         self.link.flush()
         self.link.send(0x700 + self.node_id, rtr=True, dlc=1)
@@ -352,11 +462,17 @@ class Device:
 
 
 class StateProbe:
-    """Reads the NMT state from heartbeats (0x1017) or, failing that, node guarding (0x100C)."""
+    """Reads the NMT state from heartbeats (0x1017) or, failing that, node guarding (0x100C).
+
+    A state counts only when two reports in a row agree, both sent after the last NMT command:
+    a device may send one more heartbeat with its old state after the command reached it (it
+    was already queued, or its heartbeat timer ran before it processed the command), and CiA
+    301 gives the device no deadline for acting on a command other than its next report."""
 
     def __init__(self, ctx: CaseContext):
         self.ctx = ctx
         self.dev = ctx.device
+        self.period_ms = ctx.timing.heartbeat_ms
         if self.dev.has(0x1017):
             self.method = "heartbeat"
             self.arm()
@@ -370,42 +486,111 @@ class StateProbe:
 
     def arm(self) -> None:
         if self.method == "heartbeat":
-            self.dev.write(0x1017, 0, self.ctx.timing.heartbeat_ms)
+            try:
+                self.dev.write(0x1017, 0, self.ctx.timing.heartbeat_ms)
+                self.period_ms = self.ctx.timing.heartbeat_ms
+            except SdoAbort:  # a fixed producer time: use the device's own
+                self.period_ms = int(self.dev.read(0x1017, 0))
+                if not self.period_ms:
+                    raise Skip("0x1017 refuses a producer time and is 0: no heartbeat") from None
 
     def _disarm(self) -> None:
         self.dev.write(0x1017, 0, self.dev.od_default(0x1017, 0, 0))
 
-    def state(self) -> int | None:
+    def reports(self) -> list[int]:
+        """The states reported after the last NMT command until two in a row agree (at most
+        four reports, or none when nothing comes)."""
+        seen: list[int] = []
+        deadline = time.monotonic() + 4 * self.period_ms / 1000 + self.ctx.timing.response
+        while len(seen) < 4:
+            frame = self._next_report(deadline)
+            if frame is None or not frame.data:
+                break
+            seen.append(frame.data[0] & 0x7F)
+            if len(seen) >= 2 and seen[-1] == seen[-2]:
+                break
+        return seen
+
+    def _next_report(self, deadline: float) -> Frame | None:
         dev = self.dev
         if self.method == "guarding":
-            frame = dev.guard()
-        else:
-            dev.link.flush()
-            wait = 2 * self.ctx.timing.heartbeat_ms / 1000 + self.ctx.timing.response
-            # a heartbeat received before the last NMT command went out can still be queued
-            # here (a busy tester reads late): it shows the state before the command
-            since = dev.nmt_sent_at
-            frame = dev.link.expect(
-                lambda f: (
-                    f.cob == 0x700 + dev.node_id
-                    and not f.rtr
-                    and f.data[:1] != b"\0"
-                    and f.timestamp >= since
-                ),
-                wait,
-            )
-        if frame is None or not frame.data:
+            return dev.guard()
+        left = deadline - time.monotonic()
+        if left <= 0:
             return None
-        return frame.data[0] & 0x7F
+        # a heartbeat received before the last NMT command went out can still be queued
+        # here (a busy tester reads late): it shows the state before the command
+        since = dev.nmt_sent_at
+        return dev.link.expect(
+            lambda f: (
+                f.cob == 0x700 + dev.node_id
+                and not f.rtr
+                and f.data[:1] != b"\0"
+                and f.timestamp >= since
+            ),
+            min(left, 2 * self.period_ms / 1000 + self.ctx.timing.response),
+        )
+
+    def state(self) -> int | None:
+        """The confirmed state (two reports in a row), else the last report, else None."""
+        seen = self.reports()
+        return seen[-1] if seen else None
 
     def expect(self, state: int, after: str) -> None:
-        seen = self.state()
-        if seen != state:
+        seen = self.reports()
+        if not seen or seen[-1] != state or (len(seen) >= 2 and seen[-2] != state):
+            shown = ", ".join(f"{s:#04x} {STATE_NAMES.get(s, '')}".strip() for s in seen)
             raise Fail(
                 f"after {after} the {self.method} reports the wrong state",
-                expected=f"{state:#04x} {STATE_NAMES.get(state, '')}",
-                seen="no frame" if seen is None else f"{seen:#04x} {STATE_NAMES.get(seen, '')}",
+                expected=f"{state:#04x} {STATE_NAMES.get(state, '')} twice in a row",
+                seen=shown or "no frame",
+                clause="CiA 301 §7.3.2 (NMT state machine), §7.2.8.3.2 (error control reports the state)",
             )
+
+
+LSS_MASTER = 0x7E5
+ABORT_GENERAL = struct.pack("<I", 0x08000000)
+
+
+def client_abort(index: int, sub: int) -> bytes:
+    return bytes([0x80]) + mux(index, sub) + ABORT_GENERAL
+
+
+def open_transfer(log: list[tuple[float, str, Frame]], rx: int, tx: int) -> bytes | None:
+    """The multiplexer of an SDO transfer the logged frames leave open, or None: a transfer is
+    open after an initiate that is not followed by its end (an abort either way, an expedited
+    answer, the last segment and its answer, the block end and its answer)."""
+    sdo = [(d, f) for _, d, f in log if (d, f.cob) in (("→", rx), ("←", tx)) and len(f.data) == 8]
+    current: bytes | None = None
+    block = False
+    last_client = 0
+    for direction, frame in sdo:
+        b0 = frame.data[0]
+        if direction == "→":
+            last_client = b0
+            if b0 == 0x80:
+                current, block = None, False
+            elif block:
+                if b0 == 0xA1 and current is not None:  # block upload: the client's end response
+                    current, block = None, False
+            elif b0 >> 5 in (1, 2, 5, 6):
+                current, block = bytes(frame.data[1:4]), b0 >> 5 in (5, 6)
+            continue
+        if b0 == 0x80:
+            current, block = None, False
+        elif current is None:
+            continue
+        elif b0 >> 5 == 2 and b0 & 0x02:  # expedited upload response
+            current = None
+        elif b0 >> 5 == 3 and last_client >> 5 == 1 and last_client & 0x02:  # expedited download
+            current = None
+        elif b0 >> 5 == 0 and b0 & 0x01 and last_client >> 5 == 3:  # last upload segment
+            current = None
+        elif b0 >> 5 == 1 and last_client >> 5 == 0 and last_client & 0x01:  # last download segment
+            current = None
+        elif block and b0 == 0xA1:  # block download end response
+            current, block = None, False
+    return current
 
 
 def expect_cs(frame: Frame, cs: int, what: str) -> None:

@@ -358,6 +358,13 @@ class DnetDevice:
             self.unconnected(RELEASE, bytes([choice]))
         self.link.flush()
 
+    def begin(self) -> None:
+        """Before a case: nothing to note (every case starts unallocated)."""
+
+    def restore(self, reset: bool = False) -> list[str]:
+        """Isolation between cases: :meth:`settle` already released every connection."""
+        return []
+
     def wait_online(self, within: float) -> bool:
         """Whether the device answers an Allocate of the explicit connection within ``within`` seconds
         (it may still be checking its MAC ID); the connection is released again."""

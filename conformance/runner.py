@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -10,7 +11,8 @@ import can
 from .catalog import select
 from .device import NMT_PREOP, Device
 from .dnet import CHOICE_EXPLICIT, G2_UNCONNECTED, DnetDevice
-from .framework import CaseResult, Context, Options, Timing, Verdict, run_cases
+from .framework import Case, CaseResult, Context, Options, Timing, Verdict, run_cases
+from .identity import DeviceFacts, chosen_profiles
 from .link import Link
 from .outcome import DeviceSilent
 
@@ -23,6 +25,7 @@ class SuiteConfig:
     patterns: list[str] = field(default_factory=list)
     timing: Timing = field(default_factory=Timing)
     options: Options = field(default_factory=Options)
+    shuffle: int | None = None  # run the cases in an order shuffled with this seed
 
 
 def identity(device: Device) -> dict[str, str]:
@@ -34,6 +37,7 @@ def identity(device: Device) -> dict[str, str]:
         ("product code", 0x1018, 2),
         ("revision", 0x1018, 3),
         ("serial number", 0x1018, 4),
+        ("device type", 0x1000, 0),
     ):
         if not device.has(index, sub):
             continue
@@ -45,6 +49,30 @@ def identity(device: Device) -> dict[str, str]:
             continue
         out[key] = value.rstrip("\0") if isinstance(value, str) else f"0x{value:08X}"
     return out
+
+
+def device_facts(device: Device, ident: dict[str, str]) -> DeviceFacts:
+    """What selects the profiles of ``--profile all`` (:mod:`.identity`)."""
+    info = device.od.device_information
+    profile = device.od_default(0x1000, 0, -1)
+    if profile < 0 and "device type" in ident:
+        profile = int(ident["device type"], 16)
+    return DeviceFacts(
+        vendor_id=int(ident["vendor-ID"], 16) if "vendor-ID" in ident else None,
+        product_code=int(ident["product code"], 16) if "product code" in ident else None,
+        name=ident.get("device name") or (info.product_name or ""),
+        lss_supported=bool(info.LSS_supported),
+        device_profile=profile & 0xFFFF if profile >= 0 else None,
+        has_store=device.has(0x1010) or device.has(0x1011),
+    )
+
+
+def order(cases: list[Case], seed: int | None) -> list[Case]:
+    if seed is None:
+        return cases
+    shuffled = list(cases)
+    random.Random(seed).shuffle(shuffled)
+    return shuffled
 
 
 def run_suite(
@@ -68,9 +96,23 @@ def run_suite(
             raise DeviceSilent(
                 f"node {config.node_id} does not answer an SDO read of 0x1000 on 0x{device.sdo_rx:03X}: wrong node-ID or bus, or the device is not running"
             )
+        ident = identity(device)
+        facts = device_facts(device, ident)
+        header = dict(ident)
+        if "all" in config.profiles:
+            choice = chosen_profiles(facts)
+            header["profiles"] = ", ".join(p for p, why in choice.items() if why.startswith("runs"))
+            header["left out"] = "; ".join(
+                f"{p} ({why.removeprefix('left out: ')})"
+                for p, why in choice.items()
+                if not why.startswith("runs") and p not in config.profiles
+            )
+        if device.eds_notes:
+            header["EDS notes"] = "; ".join(device.eds_notes)
         if on_start:
-            on_start(identity(device))
-        return run_cases(select(config.profiles, config.patterns), ctx, progress)
+            on_start(header)
+        selected = order(select(config.profiles, config.patterns, facts=facts), config.shuffle)
+        return run_cases(selected, ctx, progress)
     finally:
         link.close()
 

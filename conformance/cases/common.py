@@ -6,11 +6,12 @@ import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 
 from ..device import NMT_PREOP, NMT_START, Device, SdoAbort, abort_text
-from ..framework import Context, Fail, Skip
+from ..framework import Context, Fail, Inconclusive, Skip
 from ..link import Frame
 
 EMCY_LENGTH_ERROR = 0x8210
@@ -151,7 +152,12 @@ def live_pdo(dev: Device, pdo: Pdo) -> Pdo:
     return Pdo(pdo.n, pdo.tx, cob, entries)
 
 
-def active_pdo(dev: Device, tx: bool, rtr: bool = False, n: int | None = None) -> Pdo:
+def active_pdo(where: Device | Context, tx: bool, rtr: bool = False, n: int | None = None) -> Pdo:
+    """A valid, mapped PDO the device serves now. Given the case's context (not just the
+    device), a device without one whose EDS shows writable communication and mapping
+    parameters gets one configured by the case (CiA 301 §7.2.2.3 procedure), restored at its
+    end; otherwise the case SKIPs, saying why."""
+    dev = where if isinstance(where, Device) else where.device
     kind = "TPDO" if tx else "RPDO"
     for p in pdos(dev, tx):
         if n is not None and p.n != n:
@@ -165,7 +171,72 @@ def active_pdo(dev: Device, tx: bool, rtr: bool = False, n: int | None = None) -
             continue
         return live
     which = f"{kind}{n + 1}" if n is not None else f"any {kind}"
-    raise Skip(f"EDS lists no valid, mapped {which}" + (" that allows RTR" if rtr else ""))
+    why = f"EDS lists no valid, mapped {which}" + (" that allows RTR" if rtr else "")
+    if isinstance(where, Device) or n is not None:
+        raise Skip(why)
+    return configure_pdo(where, tx, rtr, why)
+
+
+def mappable_entry(dev: Device, tx: bool) -> ODVariable | None:
+    """An entry a PDO may carry: PDO-mappable in the EDS, 8-32 bits, readable for a TPDO,
+    writable for an RPDO; the manufacturer and profile area first, else a communication entry
+    outside the SDO and PDO parameters (CANopenNode's demo maps only 0x1001)."""
+    wanted = ("ro", "rw", "rwr", "const") if tx else ("rw", "rww", "wo")
+    found = [
+        v
+        for v in dev.variables()
+        if v.pdo_mappable
+        and not 0x1200 <= v.index <= 0x1BFF
+        and v.access_type in wanted
+        and v.fixed_size
+        and len(v) in (8, 16, 32)
+        and not is_count(v)
+    ]
+    found.sort(key=lambda v: v.index < 0x2000)  # (stable: EDS order within each area)
+    return found[0] if found else None
+
+
+def invalid_again(dev: Device, comm: int) -> None:
+    dev.write(comm, 1, dev.read(comm, 1) | 0x80000000)
+
+
+def configure_pdo(ctx: Context, tx: bool, rtr: bool, why: str) -> Pdo:
+    """Set up a PDO the EDS shows as configurable: invalid, mapping = one mappable entry, a
+    COB-ID of the pre-defined connection set (or its own), valid; restored when the case ends."""
+    dev = ctx.device
+    kind = "TPDO" if tx else "RPDO"
+    entry = mappable_entry(dev, tx)
+    if entry is None:
+        raise Skip(
+            f"{why}, and the EDS lists no PDO-mappable {'readable' if tx else 'writable'} entry to map"
+        )
+    for p in pdos(dev, tx):
+        comm, mapping = dev.var(p.comm, 1), dev.var(p.mapping, 0)
+        if comm is None or mapping is None or not dev.has(p.mapping, 1):
+            continue
+        if "w" not in comm.access_type or "w" not in mapping.access_type:
+            continue
+        mapped = entry.index << 16 | entry.subindex << 8 | len(entry)
+        try:
+            old = dev.read(p.comm, 1)
+            if tx and rtr and old & 0x40000000:
+                raise Skip(
+                    f"{why}; {p.name}'s COB-ID has bit 30 set (no RTR allowed): RTR on PDOs is"
+                    " optional (CiA 301 §7.5.2.35) and not recommended"
+                )
+            base = old & 0x7FF
+            if restricted(base) or not base:
+                base = (0x180 if tx else 0x200) + 0x100 * (p.n % 4) + dev.node_id
+            remap(ctx, p, [mapped])
+            # the cleanups run last-first: the PDO must be invalid before its mapping returns
+            ctx.cleanup(partial(invalid_again, dev, p.comm))
+            dev.write(p.comm, 1, base | (0x40000000 if tx and old & 0x40000000 else 0))
+        except SdoAbort as exc:
+            raise Skip(
+                f"{why}; configuring {p.name} to map 0x{entry.index:04X}:{entry.subindex} was refused: {abort_text(exc.code)}"
+            ) from None
+        return live_pdo(dev, p)
+    raise Skip(f"{why}, and no {kind} has writable communication and mapping parameters in the EDS")
 
 
 def set_pdo_type(ctx: Context, pdo: Pdo, ttype: int) -> None:
@@ -191,14 +262,21 @@ def invalidate(ctx: Context, pdo: Pdo) -> None:
     ctx.cleanup(restore)
 
 
-def keep_mapping(ctx: Context, pdo: Pdo) -> list[int]:
-    """The PDO's current mapping entries; they are written back when the case ends."""
+def keep_mapping(ctx: Context, pdo: Pdo, beyond: int = 0) -> list[int]:
+    """The PDO's current mapping entries; they are written back when the case ends, and so
+    are the sub-entries up to ``beyond`` past the count (a device keeps what was written
+    there, and a later 'save' would store it)."""
     dev = ctx.device
     entries = [dev.read(pdo.mapping, s) for s in range(1, dev.read(pdo.mapping, 0) + 1)]
+    unused = {
+        s: dev.read(pdo.mapping, s)
+        for s in range(len(entries) + 1, beyond + 1)
+        if dev.has(pdo.mapping, s)
+    }
 
     def restore() -> None:
         dev.write(pdo.mapping, 0, 0)
-        for s, e in enumerate(entries, 1):
+        for s, e in [*enumerate(entries, 1), *unused.items()]:
             dev.write(pdo.mapping, s, e)
         dev.write(pdo.mapping, 0, len(entries))
 
@@ -210,7 +288,7 @@ def remap(ctx: Context, pdo: Pdo, entries: list[int]) -> None:
     """CiA 301 mapping procedure: invalid, sub 0 = 0, entries, sub 0 = n; restored afterwards."""
     dev = ctx.device
     invalidate(ctx, pdo)
-    keep_mapping(ctx, pdo)
+    keep_mapping(ctx, pdo, beyond=len(entries))
     dev.write(pdo.mapping, 0, 0)
     for s, e in enumerate(entries, 1):
         dev.write(pdo.mapping, s, e)
@@ -234,6 +312,12 @@ def mapped_values(dev: Device, pdo: Pdo) -> bytes:
 
 
 def operational(ctx: Context) -> None:
+    """NMT Start, once the device shows no error: a device may refuse Operational while its
+    error register shows one (CANopenNode does), so a case that needs Operational on such a
+    device gives no verdict (checked at the case's first Start, before it raises any error)."""
+    if not ctx.error_checked:
+        ctx.error_checked = True
+        error_free(ctx, "before the case (a device with an error may refuse Operational)")
     ctx.device.nmt(NMT_START)
     time.sleep(0.02)
 
@@ -251,7 +335,7 @@ class LengthError:
         self.ctx = ctx
         dev = ctx.device
         dev.require(0x1014, why="EMCY producer")
-        self.rpdo = active_pdo(dev, tx=False)
+        self.rpdo = active_pdo(ctx, tx=False)
         self.good = mapped_values(dev, self.rpdo)
         operational(ctx)
 
@@ -264,6 +348,50 @@ class LengthError:
         self.ctx.device.link.flush()
         self.ctx.device.link.send(self.rpdo.cob & 0x7FF, self.good)
         return expect_emcy(self.ctx, 0x0000)
+
+
+CLAUSE_GENERIC = (
+    "CiA 301 §7.2.7.1 (EMCY byte 2 is the error register 0x1001) and §7.5.2.2 (bit 0, generic"
+    " error, is set whenever an error is present)"
+)
+
+
+def require_generic_bit(frame: Frame, what: str) -> None:
+    """The one rule for every EMCY that reports an error (code ≠ 0000), applied the same way by
+    every case: DLC 8, and byte 2 (the error register) with bit 0 (generic error) set."""
+    if len(frame.data) != 8 or not frame.data[2] & REGISTER_GENERIC:
+        raise Fail(
+            f"{what}: the error register must have the generic bit",
+            expected="[8] <code> <register with bit 0> ...",
+            seen=str(frame),
+            clause=CLAUSE_GENERIC,
+        )
+
+
+def error_free(ctx: Context, when: str) -> None:
+    """A precondition: the device reports no error (0x1001 = 0, and no error EMCY since the
+    case began). A device that does cannot be graded by a case that needs an error-free one
+    (CANopenNode's demo reports EMCY 0x5000 after its boot-up): INCONCLUSIVE, not FAIL."""
+    dev = ctx.device
+    dev.link.flush()
+    cob = emcy_cob(dev)
+    log = [(d, f) for _, d, f in dev.link.log]
+    boots = [
+        i
+        for i, (d, f) in enumerate(log)
+        if d == "←" and f.cob == 0x700 + dev.node_id and f.data == b"\0"
+    ]
+    # what came before the last boot-up (an EMCY announcing the reset, as the I-7232D's
+    # 00 FF 80 0A) belongs to the device's previous life
+    for direction, frame in log[boots[-1] + 1 if boots else 0 :]:
+        if direction == "←" and frame.cob == cob and not frame.rtr and emcy_code(frame):
+            raise Inconclusive(
+                f"the device reports an error {when}: {frame} (EMCY {emcy_code(frame):04X})"
+            )
+    if dev.has(0x1001):
+        register = dev.read(0x1001, 0)
+        if register:
+            raise Inconclusive(f"the device reports an error {when}: 0x1001 = 0x{register:02X}")
 
 
 def require_abort(exc: SdoAbort, codes: tuple[int, ...], what: str) -> None:
@@ -333,6 +461,7 @@ def expect_error_reset(
             f"the error did not end when {what}",
             expected="EMCY 00 00 <error register left> ... (error reset)",
             seen="no error-reset EMCY",
+            clause="CiA 301 §7.2.7.1 (the EMCY state machine sends the error reset when an error ends)",
         )
     register = error_register(ctx)
     if register is None:

@@ -9,8 +9,19 @@ from __future__ import annotations
 import time
 
 from ..device import NMT_RESET_COMM, SdoAbort, abort_text
-from ..framework import Context, Fail, Skip, case
-from .common import EMCY_LENGTH_ERROR, LengthError, emcy_code, expect_emcy
+from ..framework import Context, Fail, Inconclusive, Info, Skip, case
+from .common import (
+    EMCY_LENGTH_ERROR,
+    LengthError,
+    emcy_code,
+    error_free,
+    expect_emcy,
+    require_generic_bit,
+)
+
+# the EMCY cases provoke an error with a short RPDO; without its EMCY only
+# emcy.error_and_reset and sync-pdo.rpdo_length grade the device, the others give no verdict
+NO_TRIGGER = "no EMCY 0x8210 for a short RPDO, the error these cases provoke (emcy.error_and_reset and sync-pdo.rpdo_length grade that)"
 
 
 @case("emcy", "cobid", "0x1014 holds 0x80 + node-ID with the valid bit clear")
@@ -30,7 +41,11 @@ def cobid(ctx: Context) -> None:
 def error_register_idle(ctx: Context) -> None:
     dev = ctx.device
     dev.require(0x1001)
-    dev.reset(NMT_RESET_COMM)
+    if dev.reset(NMT_RESET_COMM) is None:
+        raise Inconclusive(
+            "no boot-up after reset communication (nmt.bootup_reset_comm grades that)"
+        )
+    error_free(ctx, "after the boot-up")
     value = dev.read(0x1001, 0)
     if value != 0:
         raise Fail("error register after reset communication", expected="0", seen=f"0x{value:02X}")
@@ -51,10 +66,7 @@ def error_and_reset(ctx: Context) -> None:
             expected=f"EMCY 0x8210 on 0x{dev.od_default(0x1014, 0, 0x80 + dev.node_id):03X}",
             seen="nothing",
         )
-    if len(frame.data) != 8 or not frame.data[2] & 0x01:
-        raise Fail(
-            "EMCY frame", expected="DLC 8, error register with bit 0 (generic) set", seen=str(frame)
-        )
+    require_generic_bit(frame, f"EMCY for a short {trigger.rpdo.name}")
     if dev.has(0x1001) and dev.read(0x1001, 0) != frame.data[2]:
         raise Fail(
             "0x1001 does not match the EMCY's error register",
@@ -78,12 +90,14 @@ def error_and_reset(ctx: Context) -> None:
 def same_error_once(ctx: Context) -> None:
     trigger = LengthError(ctx)
     if trigger.raise_error() is None:
-        raise Fail("no EMCY for a short RPDO", seen="nothing")
+        raise Inconclusive(NO_TRIGGER)
     again = trigger.raise_error()
     trigger.clear()
     if again is not None:
-        raise Fail(
-            "EMCY repeated for an error that is still active", expected="one EMCY", seen=str(again)
+        raise Info(
+            "EMCY repeated for a short RPDO while the first one's error is still active: CiA 301"
+            " §7.2.7.1 sends one EMCY per error event, and leaves open whether each short RPDO is one",
+            seen=str(again),
         )
 
 
@@ -95,7 +109,7 @@ def history(ctx: Context) -> None:
     dev.require(0x1003, 1, why="pre-defined error field")
     trigger = LengthError(ctx)
     if trigger.raise_error() is None:
-        raise Fail("no EMCY for a short RPDO", seen="nothing")
+        raise Inconclusive(NO_TRIGGER)
     count = dev.read(0x1003, 0)
     newest = dev.read(0x1003, 1)
     trigger.clear()
@@ -140,7 +154,7 @@ def cobid_valid_bit(ctx: Context) -> None:
         raise Fail("EMCY sent while 0x1014 is invalid", expected="none", seen=str(silent))
     dev.write(0x1014, 0, original)
     if trigger.raise_error() is None:
-        raise Fail("no EMCY after 0x1014 was made valid again", seen="nothing")
+        raise Inconclusive(NO_TRIGGER)
     trigger.clear()
 
 
@@ -177,14 +191,15 @@ def inhibit(ctx: Context) -> None:
     trigger = LengthError(ctx)
     first = trigger.raise_error()
     if first is None:
-        raise Fail("no EMCY for a short RPDO", seen="nothing")
+        raise Inconclusive(NO_TRIGGER)
     dev.link.send(trigger.rpdo.cob & 0x7FF, trigger.good)
     second = expect_emcy(ctx, 0x0000, inhibit_s + ctx.timing.slack(inhibit_s) + ctx.timing.response)
     if second is None:
         raise Fail(
-            "the error-reset EMCY was lost instead of delayed",
+            "no error-reset EMCY after the error ended (0x1015 set: it may come late, not never)",
             expected="EMCY 0x0000 after the inhibit time",
             seen="nothing",
+            clause="CiA 301 §7.2.7.1 (the error-reset EMCY when the error ends), §7.5.2.17 (the inhibit time delays EMCYs)",
         )
     gap = second.timestamp - first.timestamp
     if gap < inhibit_s - ctx.timing.slack(inhibit_s):

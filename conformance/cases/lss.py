@@ -138,7 +138,11 @@ def identify_remote(ctx: Context) -> None:
 
     for frame in request(s, s)[:-1]:
         lss(ctx, frame)
-    must(ctx, request(s, s)[-1], 0x4F, "identify remote slave (serial in range)")
+    if lss(ctx, request(s, s)[-1], 0x4F) is None:
+        raise Skip(
+            "no answer to identify remote slave: an optional LSS service (CiA 305 §5.4 lists"
+            " identification as optional), not offered"
+        )
     lo = (s + 1) & 0xFFFFFFFF
     for frame in request(lo, max(lo, 0xFFFFFFFF if lo else 1))[:-1]:
         lss(ctx, frame)
@@ -168,9 +172,14 @@ def identify_non_configured(ctx: Context) -> None:
 def configure_bit_timing(ctx: Context) -> None:
     require_lss(ctx)
     switch(ctx, CONFIGURATION)
-    frame = must(
-        ctx, [0x13, 0x00, 0x04], 0x13, "configure bit timing 125 kbit/s (CiA table index 4)"
-    )
+    frame = lss(ctx, [0x13, 0x00, 0x04], 0x13)
+    if frame is None:
+        raise Fail(
+            "no LSS answer to configure bit timing 125 kbit/s (CiA table index 4)",
+            expected="7E4 [8] 13 <0 supported or 1 not> ..",
+            seen="nothing",
+            clause="CiA 305 §5.3.3 / §6.4.3 (configure bit timing parameters is a confirmed service: the slave answers 0 or 1, also when it does not support the table)",
+        )
     if frame.data[1] not in (0, 1):
         raise Fail("configure bit timing error code", expected="0 or 1", seen=str(frame))
     frame = must(
@@ -231,9 +240,15 @@ def configure_node_id(ctx: Context) -> None:
             expected=f"{0x700 + new:03X} [1] 00",
             seen="nothing",
         )
-    dev.link.flush()
-    dev.link.send(0x600 + new, b"\x40\x00\x10\x00\0\0\0\0")
-    if dev.link.expect(0x580 + new, ctx.timing.response) is None:
+    # asked twice: a request right after the boot-up may reach a device still opening its
+    # SDO channel on the new CAN-IDs (durand over SocketCAN: its receive filter follows the
+    # boot-up by a few ms)
+    for _ in range(2):
+        dev.link.flush()
+        dev.link.send(0x600 + new, b"\x40\x00\x10\x00\0\0\0\0")
+        if dev.link.expect(0x580 + new, ctx.timing.response) is not None:
+            break
+    else:
         raise Fail(
             "no SDO answer on the new node-ID", expected=f"{0x580 + new:03X} ..", seen="nothing"
         )
@@ -256,8 +271,13 @@ def fastscan(ctx: Context) -> None:
     lss(ctx, [0x04, WAITING])
     dev.nmt(NMT_RESET_COMM)
     time.sleep(0.05)
-    must(ctx, [0x4C], 0x50, "identify non-configured remote slave while unconfigured")
-    must(ctx, struct.pack("<BIBBB", 0x51, 0, 0x80, 0, 0), 0x4F, "fastscan reset (bit check 0x80)")
+    # identify non-configured remote slave is optional (CiA 305): asked, not required
+    lss(ctx, [0x4C], 0x50)
+    if lss(ctx, struct.pack("<BIBBB", 0x51, 0, 0x80, 0, 0), 0x4F) is None:
+        raise Skip(
+            "no answer to a fastscan reset (bit check 0x80) from the unconfigured device:"
+            " fastscan is an optional LSS service (CiA 305), not offered"
+        )
     silent(
         ctx, struct.pack("<BIBBB", 0x51, ident[0] ^ 1, 0, 0, 1), "fastscan with a wrong vendor-ID"
     )

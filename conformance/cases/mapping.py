@@ -69,7 +69,7 @@ def dummy_mapping(ctx: Context) -> None:
     byte_dummies = [i for i in dummies(ctx) if DUMMY_BITS[i] % 8 == 0]
     if not byte_dummies:
         raise Skip("the EDS declares no whole-byte dummy entry ([DummyUsage])")
-    pdo = active_pdo(dev, tx=False)
+    pdo = active_pdo(ctx, tx=False)
     target = pdo.entries[0]
     index, sub, bits = target >> 16, target >> 8 & 0xFF, target & 0xFF
     if bits % 8 or bits > 32:
@@ -102,7 +102,7 @@ def dummy_undeclared(ctx: Context) -> None:
     missing = [i for i in DUMMY_BITS if i not in dummies(ctx)]
     if not missing:
         raise Skip("the EDS declares every dummy entry")
-    pdo = active_pdo(dev, tx=False)
+    pdo = active_pdo(ctx, tx=False)
     invalidate(ctx, pdo)
     keep_mapping(ctx, pdo)
     dev.write(pdo.mapping, 0, 0)
@@ -135,7 +135,7 @@ def bit_mapping(ctx: Context) -> None:
             dev.write(v.index, v.subindex, value)
 
     ctx.cleanup(restore_bits)
-    rpdo = active_pdo(dev, tx=False)
+    rpdo = active_pdo(ctx, tx=False)
     entries = [entry(a, 1), entry(b, 1)]
     remap(ctx, rpdo, entries)
     live = Pdo(rpdo.n, rpdo.tx, rpdo.cob, entries)
@@ -152,7 +152,7 @@ def bit_mapping(ctx: Context) -> None:
     ins = [v for v in ins if v.index in range(0x6020, 0x6028)] or ins
     if len(ins) < 2 or not dev.has(0x6000, 1):
         return  # outputs checked; no input bits to check
-    tpdo = active_pdo(dev, tx=True, rtr=True)
+    tpdo = active_pdo(ctx, tx=True, rtr=True)
     tx_entries = [entry(ins[0], 1), entry(ins[1], 1), 0x60000108]
     remap(ctx, tpdo, tx_entries)
     tlive = Pdo(tpdo.n, tpdo.tx, tpdo.cob, tx_entries)
@@ -182,7 +182,7 @@ def granularity_whole_bytes(ctx: Context) -> None:
     dev = ctx.device
     if bit_entries(ctx, writable=True) or bit_entries(ctx, writable=False):
         raise Skip("the device maps single bits (BOOLEAN mappable entries)")
-    pdo = active_pdo(dev, tx=True)
+    pdo = active_pdo(ctx, tx=True)
     target = next((e for e in pdo.entries if (e & 0xFF) >= 8), None)
     if target is None:
         raise Skip(f"{pdo.name} maps no whole-byte object")

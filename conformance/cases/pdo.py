@@ -9,7 +9,7 @@ from functools import partial
 from itertools import pairwise
 
 from ..device import NMT_PREOP, NMT_STOP, SdoAbort, abort_text
-from ..framework import Context, Fail, Skip, case
+from ..framework import Context, Fail, Info, Skip, case
 from ..link import Frame
 from .common import (
     EMCY_LENGTH_ERROR,
@@ -156,7 +156,7 @@ def mapping_params(ctx: Context) -> None:
 )
 def cobid_change_while_valid(ctx: Context) -> None:
     dev = ctx.device
-    pdo = active_pdo(dev, tx=True) if pdos(dev, True) else active_pdo(dev, tx=False)
+    pdo = active_pdo(ctx, tx=True) if pdos(dev, True) else active_pdo(ctx, tx=False)
     new = (0x180 if pdo.tx else 0x200) + (ctx.options.lss_spare_node_id or dev.node_id % 127 + 1)
     dev.expect_write_abort(
         pdo.comm,
@@ -183,7 +183,7 @@ def cobid_change_while_valid(ctx: Context) -> None:
 )
 def restricted_cobid(ctx: Context) -> None:
     dev = ctx.device
-    pdo = active_pdo(dev, tx=True) if pdos(dev, True) else active_pdo(dev, tx=False)
+    pdo = active_pdo(ctx, tx=True) if pdos(dev, True) else active_pdo(ctx, tx=False)
     invalidate(ctx, pdo)
     for cob in (0x000, 0x601, 0x701, 0x7E5):
         dev.expect_write_abort(
@@ -196,7 +196,7 @@ def restricted_cobid(ctx: Context) -> None:
 
 
 def _mapping_target(ctx: Context) -> Pdo:
-    pdo = active_pdo(ctx.device, tx=True)
+    pdo = active_pdo(ctx, tx=True)
     invalidate(ctx, pdo)
     keep_mapping(ctx, pdo)
     return pdo
@@ -303,7 +303,7 @@ def mapping_too_long(ctx: Context) -> None:
 
 @case("sync-pdo", "tpdo_rtr", "RTR on a TPDO in Operational is answered with the mapped length")
 def tpdo_rtr(ctx: Context) -> None:
-    pdo = active_pdo(ctx.device, tx=True, rtr=True)
+    pdo = active_pdo(ctx, tx=True, rtr=True)
     operational(ctx)
     frame = rtr(ctx, pdo)
     if frame is None:
@@ -318,7 +318,7 @@ def tpdo_rtr(ctx: Context) -> None:
 @case("sync-pdo", "nmt_gating", "no TPDO on RTR or SYNC in Pre-operational or Stopped")
 def nmt_gating(ctx: Context) -> None:
     dev = ctx.device
-    pdo = active_pdo(dev, tx=True)
+    pdo = active_pdo(ctx, tx=True)
     set_pdo_type(ctx, pdo, 1)
     for cs, name in ((NMT_PREOP, "Pre-operational"), (NMT_STOP, "Stopped")):
         dev.nmt(cs)
@@ -334,7 +334,7 @@ def nmt_gating(ctx: Context) -> None:
 
 @case("sync-pdo", "sync_type1", "transmission type 1: one TPDO after every SYNC")
 def sync_type1(ctx: Context) -> None:
-    pdo = active_pdo(ctx.device, tx=True)
+    pdo = active_pdo(ctx, tx=True)
     set_pdo_type(ctx, pdo, 1)
     operational(ctx)
     for i in range(3):
@@ -351,7 +351,7 @@ def sync_type1(ctx: Context) -> None:
 
 @case("sync-pdo", "sync_type_n", "transmission type 3: one TPDO every third SYNC")
 def sync_type_n(ctx: Context) -> None:
-    pdo = active_pdo(ctx.device, tx=True)
+    pdo = active_pdo(ctx, tx=True)
     set_pdo_type(ctx, pdo, 3)
     operational(ctx)
     hits = []
@@ -372,7 +372,7 @@ def sync_type_n(ctx: Context) -> None:
     "sync-pdo", "sync_acyclic", "transmission type 0: no TPDO on SYNC while the data do not change"
 )
 def sync_acyclic(ctx: Context) -> None:
-    pdo = active_pdo(ctx.device, tx=True)
+    pdo = active_pdo(ctx, tx=True)
     set_pdo_type(ctx, pdo, 0)
     operational(ctx)
     sync(ctx)
@@ -399,7 +399,7 @@ def sync_acyclic(ctx: Context) -> None:
 
 
 def _rtr_only(ctx: Context, ttype: int) -> None:
-    pdo = active_pdo(ctx.device, tx=True, rtr=True)
+    pdo = active_pdo(ctx, tx=True, rtr=True)
     set_pdo_type(ctx, pdo, ttype)
     operational(ctx)
     ctx.device.link.flush()
@@ -435,7 +435,7 @@ def type253(ctx: Context) -> None:
     "sync-pdo", "event_timer", "event timer (sub 5) sends a type-254 TPDO periodically; 0 stops it"
 )
 def event_timer(ctx: Context) -> None:
-    pdo = active_pdo(ctx.device, tx=True)
+    pdo = active_pdo(ctx, tx=True)
     period = ctx.timing.heartbeat_ms / 1000
     set_pdo_type(ctx, pdo, 254)
     values = {5: (ctx.timing.heartbeat_ms, "event timer")}
@@ -484,8 +484,7 @@ def event_timer(ctx: Context) -> None:
 
 @case("sync-pdo", "inhibit_time", "inhibit time (sub 3, ×100 µs) spaces event-timer TPDOs")
 def inhibit_time(ctx: Context) -> None:
-    dev = ctx.device
-    pdo = active_pdo(dev, tx=True)
+    pdo = active_pdo(ctx, tx=True)
     inhibit_s = 2 * ctx.timing.heartbeat_ms / 1000
     set_pdo_type(ctx, pdo, 254)
     set_while_invalid(
@@ -520,19 +519,16 @@ def inhibit_time(ctx: Context) -> None:
 )
 def rpdo_length(ctx: Context) -> None:
     dev = ctx.device
-    pdo = active_pdo(dev, tx=False)
+    pdo = active_pdo(ctx, tx=False)
     good = mapped_values(dev, pdo)
     operational(ctx)
     dev.link.flush()
     dev.link.send(pdo.cob & 0x7FF, good + b"\0" * (8 - len(good)))
     if dev.has(0x1014):
         extra = expect_emcy(ctx, None, ctx.timing.silence)
-        if extra is not None:
-            raise Fail(
-                f"EMCY for an {pdo.name} longer than its mapping",
-                expected="no EMCY (extra bytes are ignored)",
-                seen=str(extra),
-            )
+        if extra is not None:  # let its error end before the short RPDO
+            dev.link.send(pdo.cob & 0x7FF, good)
+            dev.link.collect(None, ctx.timing.silence)
     else:
         raise Skip("EDS lists no 0x1014: length errors cannot be observed")
     dev.link.send(pdo.cob & 0x7FF, good[:-1])
@@ -544,6 +540,14 @@ def rpdo_length(ctx: Context) -> None:
             f"no EMCY for an {pdo.name} of {len(good) - 1} bytes (mapped {len(good)})",
             expected=f"{emcy_cob(dev):03X} [8] 10 82 ..",
             seen="nothing",
+            clause="CiA 301 §7.2.2.2 (an RPDO with fewer bytes than mapped is not processed) and Table 21 (8210)",
+        )
+    if extra is not None:
+        raise Info(
+            f"EMCY for an {pdo.name} longer than its mapping: CiA 301 has the device use the mapped"
+            " bytes; whether it also reports the extra length (8210, or 8220 'PDO length exceeded')"
+            " is left to it",
+            seen=str(extra),
         )
 
 
@@ -554,7 +558,7 @@ def rpdo_length(ctx: Context) -> None:
 )
 def rpdo_gated(ctx: Context) -> None:
     dev = ctx.device
-    pdo = active_pdo(dev, tx=False)
+    pdo = active_pdo(ctx, tx=False)
     good = mapped_values(dev, pdo)
     ctx.cleanup(partial(_write_mapped, ctx, pdo, good))
     changed = bytes(b ^ 0x01 for b in good)
@@ -599,7 +603,7 @@ def _split(pdo: Pdo, data: bytes) -> Iterator[tuple[int, bytes]]:
 @case("sync-pdo", "rtr_not_allowed", "with COB-ID bit 30 set a TPDO ignores RTR")
 def rtr_not_allowed(ctx: Context) -> None:
     dev = ctx.device
-    pdo = active_pdo(dev, tx=True, rtr=True)
+    pdo = active_pdo(ctx, tx=True, rtr=True)
     operational(ctx)
     if rtr(ctx, pdo) is None:
         raise Skip(f"{pdo.name} does not answer RTR even with bit 30 clear (see sync-pdo.tpdo_rtr)")
@@ -635,7 +639,7 @@ def rtr_not_allowed(ctx: Context) -> None:
 def sync_counter(ctx: Context) -> None:
     dev = ctx.device
     dev.require(0x1019, why="SYNC counter overflow value")
-    pdo = active_pdo(dev, tx=True)
+    pdo = active_pdo(ctx, tx=True)
     dev.require(pdo.comm, 6, why="SYNC start value")
     if dev.has(0x1006) and dev.read(0x1006, 0) != 0:
         raise Skip("0x1006 is not 0: 0x1019 may not be changed")
@@ -643,6 +647,9 @@ def sync_counter(ctx: Context) -> None:
     set_pdo_type(ctx, pdo, 2)
     set_while_invalid(ctx, pdo, {6: (3, "SYNC start value")})
     operational(ctx)
+    # what a device sends on entering Operational (its TPDOs' first values) is no answer to
+    # SYNC 1: seen 25 ms late in a loaded SocketCAN guest, right after the first SYNC
+    dev.link.collect(None, ctx.timing.silence)
     cob = dev.od_default(0x1005, 0, 0x80) & 0x7FF
     hits = []
     for counter in range(1, 9):
@@ -703,7 +710,7 @@ def restricted_sync_emcy_cobid(ctx: Context) -> None:
 )
 def rpdo_sync(ctx: Context) -> None:
     dev = ctx.device
-    pdo = active_pdo(dev, tx=False)
+    pdo = active_pdo(ctx, tx=False)
     good = mapped_values(dev, pdo)
     ctx.cleanup(partial(_write_mapped, ctx, pdo, good))
     set_pdo_type(ctx, pdo, 1)

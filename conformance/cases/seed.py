@@ -199,13 +199,13 @@ def tv05(ctx: Context) -> None:
     dev = ctx.device
     frame = dev.sdo(b"\xc0\x00\x14\x02")
     if (
-        frame.data[0] != 0xA0
+        frame.data[0] & 0xFB != 0xA0  # A4: the server offers CRC (CiA 301 §7.2.4.3.11)
         or bytes(frame.data[1:4]) != b"\x00\x14\x02"
         or not 1 <= frame.data[4] <= 127
     ):
         raise Fail(
             "block download initiate response",
-            expected="A0 00 14 02 <blksize 1..127>",
+            expected="A0 (or A4) 00 14 02 <blksize 1..127>",
             seen=str(frame),
         )
     replay(

@@ -141,3 +141,37 @@ class LocalNodeDevice:
     def __exit__(self, *exc) -> None:
         self.node.nmt.stop_heartbeat()
         self.network.disconnect()
+
+
+def main() -> None:
+    """Serve the LocalNode on a real bus until stopped (the SocketCAN stage runs it as its
+    own process): ``python tests/conformance/conformance_localnode.py --channel vcan0 --eds F``."""
+    import argparse
+    import signal
+    import threading
+
+    p = argparse.ArgumentParser(description=main.__doc__)
+    p.add_argument("--interface", default="socketcan")
+    p.add_argument("--channel", default="vcan0")
+    p.add_argument("--eds", type=Path, required=True, help="write the node's EDS here first")
+    args = p.parse_args()
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    eds = write_eds(args.eds)
+    network = canopen.Network()
+    network.connect(interface=args.interface, channel=args.channel)
+    node = canopen.LocalNode(NODE_ID, str(eds))
+    network.add_node(node)
+    node.nmt.state = "INITIALISING"
+    node.nmt.state = "PRE-OPERATIONAL"  # sends the boot-up message
+    print("LocalNode up", flush=True)
+    try:
+        stop.wait()
+    except KeyboardInterrupt:
+        pass
+    node.nmt.stop_heartbeat()
+    network.disconnect()
+
+
+if __name__ == "__main__":
+    main()

@@ -41,17 +41,19 @@ TYPES = {1: "0x0005", 2: "0x0006", 4: "0x0007", None: "0x0009"}
 ACCESS = {"ro": "ro", "rw": "rw", "const": "const"}
 
 
-def eds_text() -> str:
-    """The slave's EDS, written by hand from OBJECTS."""
+def eds_text(objects: dict | None = None, device_info: list[str] | None = None) -> str:
+    """The slave's EDS, written by hand from ``objects`` (OBJECTS)."""
+    objects = OBJECTS if objects is None else objects
     out = [
         "[FileInfo]",
         "FileName=tiny.eds",
         "EDSVersion=4.0",
         "",
         "[DeviceInfo]",
-        "VendorName=fieldgate tests",
-        "ProductName=TinySlave",
-        "LSS_Supported=0",
+        *(
+            device_info
+            or ["VendorName=fieldgate tests", "ProductName=TinySlave", "LSS_Supported=0"]
+        ),
         "",
         "[MandatoryObjects]",
         "SupportedObjects=2",
@@ -60,16 +62,19 @@ def eds_text() -> str:
         "",
         "[OptionalObjects]",
     ]
-    opt = sorted({i for i, _ in OBJECTS if i not in (0x1000, 0x1001, 0x2000, 0x2001)})
+    opt = sorted({i for i, _ in objects if i not in (0x1000, 0x1001) and i < 0x2000})
+    man = sorted({i for i, _ in objects if i >= 0x2000})
     out += (
         [f"SupportedObjects={len(opt)}"]
         + [f"{n}=0x{i:04X}" for n, i in enumerate(opt, 1)]
-        + ["", "[ManufacturerObjects]", "SupportedObjects=2", "1=0x2000", "2=0x2001", ""]
+        + ["", "[ManufacturerObjects]", f"SupportedObjects={len(man)}"]
+        + [f"{n}=0x{i:04X}" for n, i in enumerate(man, 1)]
+        + [""]
     )
-    for index in sorted({i for i, _ in OBJECTS}):
-        subs = sorted(s for i, s in OBJECTS if i == index)
+    for index in sorted({i for i, _ in objects}):
+        subs = sorted(s for i, s in objects if i == index)
         if subs == [0]:
-            out += _var(f"{index:04X}", index, 0)
+            out += _var(f"{index:04X}", index, 0, objects)
         else:
             out += [
                 f"[{index:04X}]",
@@ -79,19 +84,19 @@ def eds_text() -> str:
                 "",
             ]
             for s in subs:
-                out += _var(f"{index:04X}sub{s}", index, s)
+                out += _var(f"{index:04X}sub{s}", index, s, objects)
     return "\n".join(out) + "\n"
 
 
-def _var(section: str, index: int, sub: int) -> list[str]:
-    size, access, default, lo, hi = OBJECTS[(index, sub)]
+def _var(section: str, index: int, sub: int, objects: dict) -> list[str]:
+    size, access, default, lo, hi = objects[(index, sub)]
     lines = [
         f"[{section}]",
         f"ParameterName=Entry {index:04X}:{sub}",
         "ObjectType=0x7",
         f"DataType={TYPES[size]}",
         f"AccessType={ACCESS[access]}",
-        f"DefaultValue={default.decode() if isinstance(default, bytes) else hex(default)}",
+        f"DefaultValue={default.decode() if isinstance(default, bytes) else default if isinstance(default, str) else hex(default)}",
         "PDOMapping=0",
     ]
     if lo is not None:
@@ -103,12 +108,24 @@ def encode(size, value) -> bytes:
     return value if size is None else value.to_bytes(size, "little")
 
 
+def initial(size, default, node_id: int):
+    """An entry's value at boot: a ``"$NODEID+0x80"`` default is the offset plus the node-ID."""
+    if isinstance(default, str):
+        return encode(size, int(default.split("+", 1)[1], 0) + node_id)
+    return encode(size, default)
+
+
 class TinySlave:
+    objects = OBJECTS
+    sdo_timeout = 0.3  # a stalled segmented transfer is aborted after this
+
     def __init__(self, channel: str, node_id: int = 5, faults: set[str] | None = None):
         self.node_id = node_id
         self.faults = faults or set()
         self.bus = can.Bus(interface="virtual", channel=channel)
-        self.values = {key: encode(spec[0], spec[2]) for key, spec in OBJECTS.items()}
+        self.values = {
+            key: initial(spec[0], spec[2], node_id) for key, spec in self.objects.items()
+        }
         self.state = 0x7F
         self.toggle = 0
         self.transfer = None  # (kind, index, sub, data, toggle, last_activity)
@@ -143,13 +160,13 @@ class TinySlave:
         if period and self.next_heartbeat is not None and now >= self.next_heartbeat:
             self.send(0x700 + self.node_id, bytes([self.state]))
             self.next_heartbeat = now + period * (2.0 if "late_heartbeat" in self.faults else 1.0)
-        if self.transfer and now - self.transfer[5] > 0.3:
+        if self.transfer and now - self.transfer[5] > self.sdo_timeout:
             self._abort(self.transfer[1], self.transfer[2], 0x05040000)
 
     def _boot(self, comm_only: bool = False) -> None:
-        for key, spec in OBJECTS.items():
+        for key, spec in self.objects.items():
             if not comm_only or key[0] < 0x2000:
-                self.values[key] = encode(spec[0], spec[2])
+                self.values[key] = initial(spec[0], spec[2], self.node_id)
         self.toggle = 0
         self.transfer = None
         self.send(0x700 + self.node_id, b"\x00")
@@ -184,9 +201,9 @@ class TinySlave:
         self.send(0x580 + self.node_id, data.ljust(8, b"\0"))
 
     def _lookup(self, index: int, sub: int) -> int | None:
-        if (index, sub) in OBJECTS:
+        if (index, sub) in self.objects:
             return None
-        if any(i == index for i, _ in OBJECTS):
+        if any(i == index for i, _ in self.objects):
             return 0x06020000 if "wrong_abort_missing_sub" in self.faults else 0x06090011
         return 0x06020000
 
@@ -241,7 +258,7 @@ class TinySlave:
             n = (b0 >> 2) & 3 if b0 & 0x01 else 0
             self._store(index, sub, data[4 : 8 - n])
             return
-        if OBJECTS[(index, sub)][1] != "rw":
+        if self.objects[(index, sub)][1] != "rw":
             return self._abort(index, sub, 0x06010002)
         self.transfer = ("down", index, sub, b"", 0, time.monotonic())
         self._reply(bytes([0x60]) + struct.pack("<HB", index, sub))
@@ -263,7 +280,7 @@ class TinySlave:
 
     def _store(self, index: int, sub: int, value: bytes, reply: bool = True) -> bool:
         """Write an entry; an abort is sent and False returned if the value is refused."""
-        size, access, _, lo, hi = OBJECTS[(index, sub)]
+        size, access, _, lo, hi = self.objects[(index, sub)]
         number = int.from_bytes(value, "little")
         error = None
         if access != "rw":

@@ -22,6 +22,7 @@ from conformance_gateway import (
 )
 
 from fieldgate.conformance import Options, SuiteConfig, Timing, Verdict, run_suite
+from fieldgate.conformance.framework import OPT_IN
 from fieldgate.conformance.report import text_report
 
 
@@ -49,7 +50,7 @@ def run_gateway(work, style: str = "icpdas", **select):
 
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    return run_gateway(tmp_path_factory.mktemp("gateway"), profiles=["all", "delta-as300"])
+    return run_gateway(tmp_path_factory.mktemp("gateway"), profiles=["all", *OPT_IN])
 
 
 def test_every_case_passes_or_is_a_documented_skip(results):
@@ -58,10 +59,14 @@ def test_every_case_passes_or_is_a_documented_skip(results):
     failures = {cid for cid, r in by_id.items() if r.verdict is Verdict.FAIL}
     assert failures <= set(KNOWN_FINDINGS), report
     for cid, r in by_id.items():
+        assert r.verdict in (Verdict.PASS, Verdict.FAIL, Verdict.SKIP), (
+            f"{cid}: {r.verdict} {r.reason}\n{report}"
+        )
         if r.verdict is Verdict.SKIP:
             assert cid in DOCUMENTED_SKIPS and DOCUMENTED_SKIPS[cid] in r.reason, (
                 f"undocumented SKIP {cid}: {r.reason}"
             )
+        assert not r.notes, f"{cid} left the device to be restored: {r.notes}\n{report}"
 
 
 def test_the_suite_really_exercised_the_gateway(results):
@@ -143,5 +148,5 @@ def test_a_broken_front_fails_the_profile_case_that_checks_it(
     tmp_path, monkeypatch, target, attribute, broken, case_id
 ):
     patch_out(monkeypatch, target, attribute, broken)
-    results = run_gateway(tmp_path, profiles=["all", "delta-as300"], patterns=[case_id])
+    results = run_gateway(tmp_path, profiles=["all", *OPT_IN], patterns=[case_id])
     assert {r.case.id: r.verdict for r in results} == {case_id: Verdict.FAIL}, text_report(results)

@@ -54,7 +54,7 @@ def run(work, *, bit_mapping: bool = True, patterns=CASES):
                     str(eds),
                     timing=timing,
                     options=Options(loopback=True),
-                    profiles=["all"],
+                    profiles=["all", "seed", "icpdas", "na9161"],
                     patterns=patterns,
                 ),
                 bus=bus,
