@@ -140,8 +140,8 @@ class GatewayThread:
 async def loop_cost(gw: GatewayThread, n: int = 200) -> dict[str, float]:
     """Event-loop time of one scrape's rendering and of one event-stream batch (seconds),
     measured on the gateway's loop: what the observers take from the protocol engines."""
+    from fieldgate.http.explain import compact
     from fieldgate.http.sse import _frame
-    from fieldgate.http.views import compact
 
     service = gw.gateway.http
     image = gw.gateway.image

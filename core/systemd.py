@@ -117,7 +117,7 @@ def watchdog_period(environ: Mapping[str, str]) -> float | None:
 
 def status_line(gateway: Gateway) -> str:
     """The gateway in one line, for ``systemctl status``: readiness, modules, masters."""
-    from .http.views import readiness
+    from .http.explain import readiness
 
     ready, reasons = readiness(gateway)
     if not ready:

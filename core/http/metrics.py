@@ -39,7 +39,7 @@ from prometheus_client.core import (
 from ..health import RTT_BUCKETS, ErrorKind, LineStats
 from ..image import Quality
 from ..version import __version__
-from .views import readiness
+from .explain import readiness
 
 if TYPE_CHECKING:
     from .view import GatewayView

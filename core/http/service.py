@@ -36,7 +36,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 
 from ..image import Kind
 from ..topology.model import HttpSettings, is_loopback, split_listen
-from . import views
+from . import explain
 from .metrics import CONTENT_TYPE, GatewayMetrics
 from .server import Handler, HttpServer, Request, Response, Stream, text_response
 from .sse import EventStreams
@@ -305,13 +305,13 @@ class HttpService:
         return Response(200, f"ok: {ahead}event loop {lag * 1000:.1f} ms late\n".encode())
 
     async def _readyz(self, request: Request) -> Response:
-        ready, reasons = views.readiness(self.gateway)
+        ready, reasons = explain.readiness(self.gateway)
         if ready:
             return Response(200, b"ready\n")
         return text_response(503, "not ready: " + "; ".join(reasons))
 
     async def _status(self, request: Request) -> Response:
-        body = views.status(self.gateway, self.started_at)
+        body = explain.status(self.gateway, self.started_at)
         body["http"] = self.stats()
         return self._json(body)
 
@@ -330,7 +330,7 @@ class HttpService:
         now = image.clock()
         points, started = [], time.perf_counter()
         for channel in channels:
-            points.append(views.point(self.gateway, channel, places, now))
+            points.append(explain.point(self.gateway, channel, places, now))
             if time.perf_counter() - started >= SLICE_S:  # a big image: let frames through
                 await asyncio.sleep(0)
                 started = time.perf_counter()
@@ -340,7 +340,7 @@ class HttpService:
         cid = request.path[len("/api/v1/points/") :]
         if cid not in self.gateway.image:
             return text_response(404, f"no point {cid!r} (ids look like rs485/m3/do0)")
-        return self._json(views.point(self.gateway, self.gateway.image[cid], self._places()))
+        return self._json(explain.point(self.gateway, self.gateway.image[cid], self._places()))
 
     async def _events(self, request: Request) -> Response | Stream:
         ids: list[str] | None = None
@@ -404,7 +404,7 @@ class HttpService:
         changes shows up that much later; hovering the page's grid asks for one point at a time)."""
         now = time.monotonic()
         if self._places_cache is None or now - self._places_cache[0] > PLACES_TTL_S:
-            self._places_cache = (now, views.locations(self.gateway.backs + self.gateway.fronts))
+            self._places_cache = (now, explain.locations(self.gateway.backs + self.gateway.fronts))
         return self._places_cache[1]
 
     @staticmethod

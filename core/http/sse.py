@@ -24,8 +24,8 @@ from typing import TYPE_CHECKING, Any
 
 from ..events import Event
 from ..image import Change
+from .explain import compact
 from .server import WRITE_TIMEOUT, Stream, StreamWriter
-from .views import compact
 
 if TYPE_CHECKING:
     from .view import GatewayView

@@ -40,7 +40,7 @@ class FrontPart:
         await self.front.stop()
 
     def report(self) -> dict[str, Any]:
-        from ..http.views import json_safe
+        from ..http.explain import json_safe
 
         front = self.front
         metrics = getattr(front, "metrics", None)

@@ -273,10 +273,10 @@ async def test_a_failing_back_is_down_then_restarted_with_events_and_causes(runn
     assert failed.level == "warning" and "rs485" not in gw.down and gw.restarts("rs485") == 1
     # while a back is down its points say so (as the supervisor leaves them); checked in
     # one go, before the restarted back's next poll makes the point good again
-    from fieldgate.http import views
+    from fieldgate.http import explain
 
     gw.down["rs485"] = "RuntimeError: line driver crashed"
     gw.image.set_quality(["rs485/m1/di0"], Quality.COMM_FAULT)
-    point = views.point(gw, gw.image["rs485/m1/di0"])
+    point = explain.point(gw, gw.image["rs485/m1/di0"])
     assert point["cause"] == "back rs485 not running: RuntimeError: line driver crashed"
     del gw.down["rs485"]

@@ -1,4 +1,4 @@
-"""What the status API shows: the gateway's status, each point explained, readiness.
+"""What the status API shows, explained: the gateway's status, each point with its cause, readiness.
 
 Everything here reads what the gateway already keeps (``status()`` dicts, the process
 image, module health): building a view never touches a bus.
