@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import itertools
 import json
 import os
 import resource
@@ -92,8 +93,32 @@ def rss_of(pid: int) -> int:
 
 
 # == the attackers (separate processes) ===================================================
+ATTACKER_ADDRESSES = [f"127.0.0.{i}" for i in range(2, 12)]
+"""Where the attackers' connections come from: other loopback addresses than the plant's
+own clients (127.0.0.1), as hostile or clumsy machines elsewhere on the plant network; the
+servers' per-address budgets see them as the 10 machines they stand for."""
+
+
+def from_other_addresses(loop: asyncio.AbstractEventLoop) -> None:
+    """Every connection this loop opens (asyncio's streams, asyncua's client, pymodbus's)
+    gets its source address from ATTACKER_ADDRESSES in turn."""
+    original = loop.create_connection
+    sources = itertools.cycle(ATTACKER_ADDRESSES)
+
+    async def create_connection(*args: Any, **kwargs: Any) -> Any:
+        kwargs.setdefault("local_addr", (next(sources), 0))
+        return await original(*args, **kwargs)
+
+    loop.create_connection = create_connection  # type: ignore[method-assign]
+
+
+RECONNECT_S = 1.0  # an idle connection the server closed is opened again after this long
+
+
 async def hold_idle(host: str, port: int, count: int, counts: dict[str, int]) -> None:
-    """``count`` connections that never send a byte, reopened when the server closes them."""
+    """``count`` connections that never send a byte, each opened again RECONNECT_S after the
+    server closes it (as a client's retry would: the servers evict idle connections to make
+    room, so holding more than they admit is a stream of new connections)."""
 
     async def one() -> None:
         while True:
@@ -107,7 +132,7 @@ async def hold_idle(host: str, port: int, count: int, counts: dict[str, int]) ->
             await reader.read()  # until the server closes it
             writer.close()
             counts["closed_by_server"] += 1
-            await asyncio.sleep(0.1)
+            await asyncio.sleep(RECONNECT_S)
 
     await asyncio.gather(*(one() for _ in range(count)))
 
@@ -244,6 +269,8 @@ def attack(name: str, ports: dict[str, int]) -> None:
     ua_url = f"opc.tcp://{host}:{ports['opcua']}/"
 
     async def main() -> None:
+        if name != "writer":  # the plant's own client (the acknowledged writes) stays on .1
+            from_other_addresses(asyncio.get_running_loop())
         jobs: list[Any] = []
         if name in ("d1", "all"):
             jobs += [monitored(ua_url, 10_000, True, counts) for _ in range(4)]
@@ -302,7 +329,14 @@ class GatewayThread:
     """examples/plant-northbound.yaml on its own loop in a thread of this process (the
     fieldbus process), its listeners on ``ports``; ``fast``: the line polled as fast as it goes."""
 
-    def __init__(self, loop_choice: str, state_dir: str, ports: dict[str, int], fast: bool = True):
+    def __init__(
+        self,
+        loop_choice: str,
+        state_dir: str,
+        ports: dict[str, int],
+        fast: bool = True,
+        fieldbus_nice: int | None = None,
+    ):
         from fieldgate.cli import loop_factory
         from fieldgate.runtime import Gateway
 
@@ -317,6 +351,8 @@ class GatewayThread:
         }
         if fast:
             overrides["backs.rs485.poll_ms"] = 0
+        if fieldbus_nice is not None:  # as the systemd unit's Nice= would (docs/deploy.md)
+            overrides["gateway.isolation.fieldbus_nice"] = fieldbus_nice
         self.gateway = Gateway.load(
             ROOT / "examples" / "plant-northbound.yaml",
             overrides=overrides,

@@ -23,6 +23,9 @@ settle, then runs together, for ``--duration`` seconds, in an attacker process:
 
 Meanwhile this process checks what the plant must see (the issue's "done when"):
 
+The attackers connect from 10 other loopback addresses (127.0.0.2-11: machines elsewhere on the
+plant network), the plant's fresh clients from 127.0.0.1.
+
 * the RS-485 points never older than 2 poll periods (every input's age in the fieldbus
   process's image, sampled every 50 ms; what the status page shows is printed beside it);
 * a fresh Modbus TCP client (FC3) and a fresh OPC UA client (connect, read one value) each
@@ -184,7 +187,7 @@ def probe(ports: dict[str, int], duration: float) -> None:
 def attack(ports: dict[str, int]) -> None:
     import resource
 
-    from isolation import chunk_flood, hold_idle, monitored
+    from isolation import chunk_flood, from_other_addresses, hold_idle, monitored
 
     resource.setrlimit(resource.RLIMIT_NOFILE, (resource.getrlimit(resource.RLIMIT_NOFILE)[1],) * 2)
     counts: dict[str, int] = {}
@@ -198,7 +201,10 @@ def attack(ports: dict[str, int]) -> None:
     ua = f"opc.tcp://{host}:{ports['opcua']}/"
 
     async def main() -> None:
+        from_other_addresses(asyncio.get_running_loop())  # elsewhere on the plant network
         jobs = [monitored(ua, 10_000, True, counts) for _ in range(4)]
+        if os.environ.get("FIELDGATE_CAMPAIGN_QUIET"):  # the baseline: every check, no attack
+            jobs = []
         jobs += [chunk_flood(host, ports["opcua"], counts) for _ in range(4)]
         jobs += [hold_idle(host, ports[p], 500, counts) for p in ("opcua", "modbus", "http")]
         jobs += [modbus_slowloris(host, ports["modbus"], counts) for _ in range(16)]
@@ -281,7 +287,9 @@ def run(args: argparse.Namespace) -> int:
         import logging
 
         logging.basicConfig(level=logging.INFO, stream=sys.stderr, force=True)
-        gw = GatewayThread("auto", f"{work}/state", ports, fast=False)
+        gw = GatewayThread(
+            "auto", f"{work}/state", ports, fast=False, fieldbus_nice=args.fieldbus_nice
+        )
         try:
             gw.start()
             return campaign(args, gw, ports, log_path)
@@ -316,12 +324,14 @@ def campaign(args: argparse.Namespace, gw: Any, ports: dict[str, int], log_path:
         [sys.executable, __file__, "--probe", json.dumps(ports), "--duration", str(args.duration)],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
     )  # fmt: skip
-    oldest, samples = 0.0, 0
+    oldest_each: list[float] = []  # the oldest input at each sample
     started = time.monotonic()
     while time.monotonic() - started < args.duration:
-        oldest = max([oldest, *input_ages(gw)])
-        samples += 1
+        oldest_each.append(max(input_ages(gw), default=0.0))
         time.sleep(0.05)
+    oldest, samples = max(oldest_each, default=0.0), len(oldest_each)
+    ordered = sorted(oldest_each)
+    median = ordered[len(ordered) // 2] if ordered else 0.0
     rss_after, log_after = rss_of(me), log_path.stat().st_size
     probed_out, _ = prober.communicate(timeout=120)
     probed = json.loads(probed_out.strip().splitlines()[-1])
@@ -332,7 +342,8 @@ def campaign(args: argparse.Namespace, gw: Any, ports: dict[str, int], log_path:
     checks = [
         (oldest <= limit and samples > 0,
          f"RS-485 points in the fieldbus process: oldest {oldest * 1000:.0f} ms over {samples} "
-         f"samples, limit 2 poll periods = {limit * 1000:.0f} ms"),
+         f"samples (median of the oldest {median * 1000:.0f} ms), limit 2 poll periods = "
+         f"{limit * 1000:.0f} ms"),
         (probed["modbus_ok"] >= 9, f"fresh Modbus TCP client served {probed['modbus_ok']}/{TRIES}"),
         (probed["opcua_ok"] >= 9, f"fresh OPC UA client served {probed['opcua_ok']}/{TRIES}"),
         ((log_after - log_before) < 20e6,
@@ -362,6 +373,12 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--warmup-s", type=float, default=5.0)
+    parser.add_argument(
+        "--fieldbus-nice",
+        type=int,
+        default=None,
+        help="niceness the fieldbus process asks for (the unit's Nice=-5; below 0 needs root)",
+    )
     parser.add_argument("--attack", help=argparse.SUPPRESS)
     parser.add_argument("--probe", help=argparse.SUPPRESS)
     args = parser.parse_args()
