@@ -65,8 +65,6 @@ sys.path.insert(0, str(ROOT / "bench"))
 TARGET = 1.2
 NODE_ID = 4  # examples/plant-northbound.yaml's node-ID
 ATTACKS = ("d1", "d2", "idle", "items", "kill", "all")
-PAGE = os.sysconf("SC_PAGE_SIZE")
-TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def free_port() -> int:
@@ -76,20 +74,15 @@ def free_port() -> int:
 
 
 def cpu_of(pid: int) -> float:
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            fields = f.read().rsplit(b")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / TICKS
-    except (OSError, IndexError, ValueError):
-        return 0.0
+    from fieldgate.procstat import cpu_seconds
+
+    return cpu_seconds(pid) or 0.0
 
 
 def rss_of(pid: int) -> int:
-    try:
-        with open(f"/proc/{pid}/statm", "rb") as f:
-            return int(f.read().split()[1]) * PAGE
-    except (OSError, IndexError, ValueError):
-        return 0
+    from fieldgate.procstat import resident_bytes
+
+    return resident_bytes(pid) or 0
 
 
 # == the attackers (separate processes) ===================================================

@@ -25,6 +25,7 @@ from .cancellation import raise_if_cancelled
 from .events import COMPONENT_FAILED, COMPONENT_RESTARTED
 from .image import Quality
 from .plugin import Component, GatewayContext, PluginStartError, Registry, load_registry
+from .procstat import own_process
 from .simulation import SimulationBench
 from .topology import Topology, load_topology
 
@@ -391,6 +392,7 @@ class Gateway:
                 for c in self.backs
             },
             "modules": [m.as_dict() for m in self.health.modules()],
+            "process": own_process(),
             "children": self.children_status(),
         }
 

@@ -21,7 +21,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import os
 import signal
 import socket
 import subprocess
@@ -33,6 +32,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..plugin import PluginStartError
+from ..procstat import cpu_seconds, resident_bytes
 from ..topology.model import IsolationSettings
 from . import wire
 from .feed import GatewayFeed, Outbox
@@ -43,8 +43,6 @@ MAX_WRITES_WAITING = 64
 MAX_STATUS_BYTES = 512 * 1024  # a status frame larger than this is dropped unread
 WRITE_CHUNK = 256 * 1024  # bytes handed to the socket per wake-up
 STOP_GRACE_S = 3.0
-PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
-TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
 WriteHandler = Callable[[dict[str, bool | int | float]], str | None]
 
@@ -252,14 +250,10 @@ class ChildProcess:
         proc = self.process
         if proc is None or proc.returncode is not None:
             return
-        try:
-            with open(f"/proc/{proc.pid}/statm", "rb") as f:
-                self.rss = int(f.read().split()[1]) * PAGE
-            with open(f"/proc/{proc.pid}/stat", "rb") as f:
-                fields = f.read().rsplit(b")", 1)[1].split()
-            self.cpu_s = (int(fields[11]) + int(fields[12])) / TICKS
-        except (OSError, ValueError, IndexError):
+        rss, cpu = resident_bytes(proc.pid), cpu_seconds(proc.pid)
+        if rss is None or cpu is None:
             return
+        self.rss, self.cpu_s = rss, cpu
         self.peak_rss = max(self.peak_rss, self.rss)
         limit = self.settings.memory_limit_mb * 1024 * 1024
         if self.rss > limit:

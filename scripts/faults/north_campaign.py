@@ -58,18 +58,12 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 POLL_MS = 100  # examples/plant-northbound.yaml's poll period
 TRIES = 10
-PAGE = os.sysconf("SC_PAGE_SIZE")
 
 
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def rss_of(pid: int) -> int:
-    with open(f"/proc/{pid}/statm", "rb") as f:
-        return int(f.read().split()[1]) * PAGE
 
 
 # == the attacker process =====================================================================
@@ -311,8 +305,10 @@ def input_ages(gw: Any) -> list[float]:
 
 def campaign(args: argparse.Namespace, gw: Any, ports: dict[str, int], log_path: Path) -> int:
     time.sleep(args.warmup_s)
+    from fieldgate.procstat import resident_bytes
+
     me = os.getpid()
-    rss_before, log_before = rss_of(me), log_path.stat().st_size
+    rss_before, log_before = resident_bytes(me) or 0, log_path.stat().st_size
     attacker = subprocess.Popen(
         [sys.executable, __file__, "--attack", json.dumps(ports)],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
@@ -332,7 +328,7 @@ def campaign(args: argparse.Namespace, gw: Any, ports: dict[str, int], log_path:
     oldest, samples = max(oldest_each, default=0.0), len(oldest_each)
     ordered = sorted(oldest_each)
     median = ordered[len(ordered) // 2] if ordered else 0.0
-    rss_after, log_after = rss_of(me), log_path.stat().st_size
+    rss_after, log_after = resident_bytes(me) or 0, log_path.stat().st_size
     probed_out, _ = prober.communicate(timeout=120)
     probed = json.loads(probed_out.strip().splitlines()[-1])
     out, _ = attacker.communicate("", timeout=60)

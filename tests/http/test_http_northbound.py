@@ -118,3 +118,16 @@ async def test_the_live_page_lists_the_clients(northbound, driver):  # noqa: F81
         and "counters" in facts
         and "master" not in facts
     )
+    # the processes: the fieldbus process and each north-facing front's child
+    await asyncio.to_thread(
+        wait_js,
+        driver,
+        "return document.querySelectorAll('#processes tr[data-process]').length >= 4",
+        10,
+    )
+    rows = await asyncio.to_thread(
+        driver.execute_script,
+        "return [...document.querySelectorAll('#processes tr[data-process]')].map(r => [r.dataset.process, r.dataset.state])",
+    )
+    assert rows[0] == ["fieldbus", "running"]
+    assert {name for name, state in rows[1:] if state == "running"} >= {"opcua", "modbus", "plant"}

@@ -71,6 +71,7 @@ function renderStatus(st) {
   $("#uptime").textContent = `${fmtUptime(st.uptime_s)} · v${st.version}`;
   renderFronts(st);
   renderModules(st);
+  renderProcesses(st);
   for (const event of st.events || []) addEvent(event);
 }
 
@@ -143,6 +144,27 @@ function renderModules(st) {
   }
   if (!st.modules.length) body.append(el("tr", {}, el("td", { class: "empty", colspan: "7", text: "no modules" })));
   renderLineNotes(st);
+}
+
+// the fieldbus process and the children beside it (docs/architecture.md, "Process layout")
+function renderProcesses(st) {
+  const body = $("#processes tbody");
+  body.replaceChildren();
+  const rows = [];
+  if (st.process) rows.push(["fieldbus", { ...st.process, state: "running" }]);
+  for (const [name, c] of Object.entries(st.children || {})) rows.push([name, c]);
+  for (const [name, c] of rows) {
+    const limit = c.memory_limit_mb ? ` of ${c.memory_limit_mb}` : "";
+    const kills = Object.entries(c.kills || {}).map(([k, n]) => `${k} ${n}`).join(", ");
+    body.append(el("tr", { "data-process": name, "data-state": c.state },
+      el("td", { text: name }),
+      el("td", { class: "num", text: c.pid ? String(c.pid) : "-" }),
+      el("td", {}, el("span", { class: `pill ${c.state === "running" ? "online" : "offline"}`, text: c.state })),
+      el("td", { class: "num", text: `${Math.round(c.rss_mb)}${limit} MB` }),
+      el("td", { class: "num", text: `${c.cpu_s.toFixed(1)} s` }),
+      el("td", { class: "num", text: c.resyncs === undefined ? "-" : String(c.resyncs) }),
+      el("td", { text: kills || "-" })));
+  }
 }
 
 // what a back found on its line: a start scan (modules: auto), modules it does not list
