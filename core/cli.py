@@ -380,9 +380,44 @@ def _with_parents(
     return subparsers
 
 
+def topology_types(argv: list[str]) -> set[str] | None:
+    """The front and back types of the topology ``fieldgate run FILE`` names, read from the
+    file before anything else is loaded (None: not a run, or not that simple: load every
+    plugin). A gateway then loads only the plugins it runs."""
+    words = iter(argv)
+    for word in words:
+        if word in ("--log-level", "--log-format"):
+            next(words, None)
+        elif word.startswith("-"):
+            continue
+        elif word != "run":
+            return None
+        else:
+            break
+    else:
+        return None
+    rest = list(words)
+    if any(w.startswith("--set") and ".type" in w for w in rest) or any(
+        ".type=" in w for w in rest
+    ):
+        return None  # a type changed from the command line
+    file = next((w for w in rest if not w.startswith("-")), None)
+    if file is None:
+        return None
+    try:
+        from .topology.loader import read_yaml
+
+        data = read_yaml(file)
+        types = {str(c["type"]) for part in ("fronts", "backs") for c in data[part]}
+    except Exception:  # the full load reports the problem properly
+        return None
+    return types or None
+
+
 def main(argv: list[str] | None = None) -> int:
     setup_logging("warning")
-    registry = load_registry()
+    args_given = sys.argv[1:] if argv is None else argv
+    registry = load_registry(only=topology_types(args_given))
     parser = build_parser(registry)
     args = parser.parse_args(argv)
     setup_logging(args.log_level, args.log_format)

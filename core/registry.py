@@ -14,7 +14,7 @@ import argparse
 import copy
 import importlib.metadata
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -291,8 +291,15 @@ def _dist_summary(dist: importlib.metadata.Distribution | None) -> str:
     return str(dist.metadata.json.get("summary", ""))
 
 
-def load_registry(extra_plugins: list[object] | None = None) -> Registry:
+def load_registry(
+    extra_plugins: list[object] | None = None, *, only: Iterable[str] | None = None
+) -> Registry:
     """Discover plugins through the entry-point group and collect what they register.
+
+    ``only``: the front and back types a topology uses (``fieldgate run``): only the plugins
+    of those names are loaded (a built-in plugin is named like its type), so a gateway pays
+    the imports of what it runs and no other; when a type is not provided that way (a
+    third-party plugin named otherwise), every plugin is loaded after all.
 
     A plugin that fails to import or to register is recorded with its error in one line and
     provides nothing (what it registered before failing is undone); it never prevents the
@@ -301,9 +308,22 @@ def load_registry(extra_plugins: list[object] | None = None) -> Registry:
     (:meth:`Registry.why_missing`). ``extra_plugins`` lets tests and embedding code add
     plugin objects directly.
     """
+    if only is not None:
+        wanted = set(only)
+        entry_points = importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)
+        if wanted <= {ep.name for ep in entry_points}:
+            registry = _load(extra_plugins, wanted)
+            if all(registry.lookup("front", t) or registry.lookup("back", t) for t in wanted):
+                return registry
+    return _load(extra_plugins, None)
+
+
+def _load(extra_plugins: list[object] | None, names: set[str] | None) -> Registry:
     registry = Registry()
     pm = _make_manager()
     for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        if names is not None and ep.name not in names:
+            continue
         dist = ep.dist.name if ep.dist else "?"
         version = ep.dist.version if ep.dist else "?"
         info = PluginInfo(ep.name, version, dist)

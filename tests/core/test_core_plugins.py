@@ -76,3 +76,19 @@ def test_fieldgate_plugins_lists_name_version_and_what_each_provides():
     assert line.split()[1:3] == ["1.0.0", "fieldgate-loopback"]
     assert "back:loopback, front:memory" in line
     assert line.endswith("a loopback back and a memory front, used by fieldgate's tests.")
+
+
+def test_a_run_loads_only_the_plugins_of_its_topology_s_types():
+    from fieldgate.cli import topology_types
+
+    types = topology_types(["run", "examples/i7232d-style.yaml", "--simulate"])
+    assert types == {"canopen", "modbus"}
+    registry = load_registry(only=types)
+    assert sorted(registry.plugins) == ["canopen", "modbus"]  # no conformance, dcon, opcua, ...
+    assert registry.lookup("front", "canopen") and registry.lookup("back", "modbus")
+    # a type no plugin of that name provides (the test package's "memory" front): every plugin
+    everything = load_registry(only={"memory", "loopback"})
+    assert "canopen" in everything.plugins and everything.lookup("front", "memory")
+    assert topology_types(["validate", "examples/i7232d-style.yaml"]) is None
+    assert topology_types(["run", "x.yaml", "--set", "fronts.can.type=devicenet"]) is None
+    assert topology_types(["--log-level", "debug", "run", "/no/such/file.yaml"]) is None
