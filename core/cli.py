@@ -130,20 +130,26 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
     notifier = Notifier.from_environment()  # systemd's Type=notify service (docs/deploy.md)
     with stopped_by_signals() as stop:
         log.info("event loop: %s", loop_name(asyncio.get_running_loop()))
+        tasks = []
+
+        def fieldbus_up() -> None:
+            """READY as soon as the fieldbus side runs (the north-facing children follow)."""
+            if notifier is not None:
+                notifier.ready(status_line(gateway))
+                tasks.append(asyncio.create_task(notifier.keep_alive(lambda: status_line(gateway))))
+
         try:
-            await gateway.start()
+            await gateway.start(on_fieldbus_up=fieldbus_up)
         except GatewayStartError as exc:
             log.error("cannot start: %s", exc)
+            for task in tasks:
+                task.cancel()
             if notifier is not None:
                 notifier.status(f"cannot start: {exc}")
                 notifier.close()
             return ExitCode.CANNOT_RUN
-        tasks = []
         if args.status_every:
             tasks.append(asyncio.create_task(_print_status(gateway, args.status_every)))
-        if notifier is not None:
-            notifier.ready(status_line(gateway))
-            tasks.append(asyncio.create_task(notifier.keep_alive(lambda: status_line(gateway))))
         await wait_until(stop, args.duration)
         log.info("stopping")
         if notifier is not None:

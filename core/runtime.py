@@ -72,6 +72,8 @@ class Gateway:
             None  # fieldgate.isolation.front.HttpChild while gateway.http is configured
         )
         self._feed: Any = None  # fieldgate.isolation.feed.GatewayFeed, once a child needs it
+        self.fieldbus_up = False  # the backs and the fieldbus fronts run
+        self._on_fieldbus_up: Callable[[], None] | None = None
 
     @classmethod
     def load(
@@ -86,13 +88,17 @@ class Gateway:
         return cls(load_topology(source, registry, overrides), registry, **options)
 
     # -- life cycle -----------------------------------------------------------
-    async def start(self) -> None:
+    async def start(self, on_fieldbus_up: Callable[[], None] | None = None) -> None:
         """Start every back, then every fieldbus front, then the north-facing fronts (each in
         a child process, together). On any failure, stop what started and raise.
 
-        The HTTP server (``gateway.http``, a child process too) starts beside them and
-        answers /readyz 503 until everything runs.
+        ``on_fieldbus_up`` is called as soon as the backs and the fieldbus fronts run (the
+        CANopen boot-up is on the bus), before the north-facing children are up: `fieldgate
+        run` tells systemd READY then, so a restart's fieldbus downtime never waits for an
+        OPC UA certificate or a broker. The HTTP server (``gateway.http``, a child process
+        too) starts beside them and answers /readyz 503 until everything runs.
         """
+        self._on_fieldbus_up = on_fieldbus_up
         self._ask_priority()
         http_started: asyncio.Future[None] | None = None
         if self.topology.gateway.http is not None and self.http is None:
@@ -139,6 +145,9 @@ class Gateway:
             for comp in self.backs + self.fronts:
                 if not self._north(comp):
                     await self._start_one(comp)
+            self.fieldbus_up = True
+            if self._on_fieldbus_up is not None:
+                self._on_fieldbus_up()
             # the fieldbus is up; the north-facing children start together
             results = await asyncio.gather(
                 *(self._start_one(c) for c in self.fronts if self._north(c)),

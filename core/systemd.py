@@ -120,7 +120,11 @@ def status_line(gateway: Gateway) -> str:
     from .http.explain import readiness
 
     ready, reasons = readiness(gateway)
-    if not ready:
+    starting: list[str] = []
+    if not ready and gateway.fieldbus_up and not gateway.running:
+        # READY went out with the fieldbus side; the north-facing children are starting
+        starting = [c.name for c in gateway.fronts if not getattr(c, "started", False)]
+    elif not ready:
         return "not ready: " + "; ".join(reasons)
     modules = gateway.health.modules()
     online = sum(m.online for m in modules)
@@ -129,4 +133,5 @@ def status_line(gateway: Gateway) -> str:
         f"running: {len(gateway.fronts)} front(s), {len(gateway.backs)} back(s), "
         f"{online}/{len(modules)} module(s) online"
     )
-    return text + (f"; master lost: {', '.join(lost)}" if lost else "")
+    text += f"; master lost: {', '.join(lost)}" if lost else ""
+    return text + (f"; starting: {', '.join(starting)}" if starting else "")

@@ -124,6 +124,41 @@ def test_ready_watchdog_from_the_loop_status_and_stopping(systemd, tmp_path):
     assert "Traceback" not in stderr
 
 
+def test_ready_goes_out_with_the_fieldbus_side_before_the_north_facing_parts(systemd, tmp_path):
+    """A north-facing front that takes seconds to start (an OPC UA certificate) never delays
+    READY: systemd hears it when the backs and the fieldbus fronts run, the STATUS says what
+    still starts, and changes when it runs."""
+    (tmp_path / "etc").mkdir()
+    (tmp_path / "etc" / "lab.yaml").write_text(
+        "gateway: {name: lab}\n"
+        "fronts:\n"
+        "  - {name: plc, type: memory}\n"
+        "  - {name: scada, type: probe, start_s: 3}\n"
+        "backs: [{name: io, type: loopback, modules: [{address: 1, digital: 2}]}]\n"
+    )
+    env = {**os.environ, "NOTIFY_SOCKET": systemd.name, "WATCHDOG_USEC": "1000000"}
+    env.pop("WATCHDOG_PID", None)
+    proc = subprocess.Popen(
+        unit_command(tmp_path, "lab"), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+    try:
+        ready = systemd.next()
+        assert ready.splitlines() == [
+            "READY=1",
+            "STATUS=running: 2 front(s), 1 back(s), 0/0 module(s) online; starting: scada",
+        ]
+        running = systemd.until(lambda m: "STATUS=" in m)
+        assert "STATUS=running: 2 front(s), 1 back(s), 0/0 module(s) online" in running
+        assert "starting" not in running
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
+
+
 def test_without_notify_socket_nothing_is_sent_and_a_bad_socket_never_stops_the_gateway(
     tmp_path, caplog
 ):

@@ -167,6 +167,7 @@ class ProbeFrontConfig(FrontConfig):
     listen: str = Field("127.0.0.1:0", description="HOST:PORT of the line server")
     writable: list[str] = Field(default_factory=list, description="outputs it may write")
     fail_start: str | None = Field(None, description="test hook: start() fails with this cause")
+    start_s: float = Field(0.0, ge=0, description="test hook: start() takes this long")
 
     def written_outputs(self) -> list[str] | None:
         return self.writable
@@ -185,6 +186,7 @@ class ProbeFront(Front):
     async def start(self) -> None:
         if self.config.fail_start:
             raise PluginStartError(self.config.fail_start)
+        await asyncio.sleep(self.config.start_s)  # a server that takes long (certificates, ...)
         host, port = self.config.listen.rsplit(":", 1)
         self.context.image.subscribe_batch(self._changed)
         self.server = await asyncio.start_server(self._serve, host, int(port))
