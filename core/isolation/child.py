@@ -73,7 +73,10 @@ def main(argv: list[str]) -> int:
         os.nice(settings.nice)
     except OSError:
         pass
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C on a terminal: the parent stops us
+    # Ctrl-C on a terminal, or systemd's SIGTERM to the whole control group: the fieldbus
+    # process stops us through the channel (and PR_SET_PDEATHSIG when it dies)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     budget = LogBudget(settings.log_lines_per_minute)
     setup_logging(
         init["log_level"],

@@ -21,6 +21,7 @@ the gateway: ``context.image`` (its channels and change stream), ``health``, ``m
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import datetime
 import logging
 import socket
@@ -442,6 +443,14 @@ class OpcUaFront(Front):
         self._pending.clear()
         if server is not None and self._listening:
             self._listening = False
+            # asyncua stops its server-time task by a flag it reads after a 1 s sleep: cancel
+            # it instead, so a gateway's stop does not wait that second
+            clock = server.iserver.time_task
+            if clock is not None:
+                clock.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await clock
+                server.iserver.time_task = None
             await server.stop()
 
     # -- image -> nodes ----------------------------------------------------------------------
