@@ -207,9 +207,9 @@ CIA_BITRATES = tuple(sorted(set().union(*(table.values() for table in BIT_TIMING
 
 class CanopenFrontConfig(FrontConfig, CanBusConfig, IoFrontOptions):
     type: Literal["canopen"] = "canopen"
-    bitrate: int | None = Field(
+    bitrate: int | Literal["auto"] | None = Field(
         125_000,
-        description="CAN bit rate in bit/s, one of CiA 301's (passed to can.Bus; LSS may change it); null for an interface configured outside fieldgate",
+        description="CAN bit rate in bit/s, one of CiA 301's (LSS may change it); auto: found by listening (listen-only) at each standard rate before boot-up (SocketCAN, the NA-9161's switch code 9); null for an interface configured outside fieldgate",
     )
     node_id: int | None = Field(
         ...,
@@ -320,11 +320,11 @@ class CanopenFrontConfig(FrontConfig, CanBusConfig, IoFrontOptions):
 
     @field_validator("bitrate")
     @classmethod
-    def _standard_bitrate(cls, value: int | None) -> int | None:
-        if value is not None and value not in CIA_BITRATES:
+    def _standard_bitrate(cls, value: int | str | None) -> int | str | None:
+        if value is not None and value != "auto" and value not in CIA_BITRATES:
             raise ValueError(
                 f"expected one of the CiA 301 bit rates {', '.join(map(str, CIA_BITRATES))} bit/s, "
-                f"or null when the interface's own configuration sets it"
+                f", auto (found by listening), or null when the interface's own configuration sets it"
             )
         return value
 

@@ -93,7 +93,7 @@ class CanopenFront(CanFront):
             node.add_service(CanHealth(profile.style.controller_emcy))
         node.add_service(
             LssService(
-                bitrate=cfg.bitrate,
+                bitrate=cfg.bitrate if isinstance(cfg.bitrate, int) else None,
                 table=cfg.lss_table,
                 store=LssStore(self._state_path(cfg.lss_store_file, f"{self.name}.lss.json")),
             )
@@ -177,6 +177,15 @@ class CanopenFront(CanFront):
             data=data[3:].hex(),
         )
 
+    def _can_health(self) -> CanHealth | None:
+        """The node's CAN health service (None: no node, or a style without controller EMCYs)."""
+        if self.node is None:
+            return None
+        try:
+            return cast(CanHealth, self.node.service("can_health"))
+        except KeyError:
+            return None
+
     def _controller(self, event: str, now: float) -> None:
         """The adapter saw the CAN controller's error state change, or frames lost."""
         if self.node is None:
@@ -199,11 +208,29 @@ class CanopenFront(CanFront):
         if self.node is not None:
             self.node.service("error_control").bus_state(bus_off, now)
 
+    def link_problem(self, problem: str | None, now: float) -> None:
+        """The interface not set as configured (at start, at an LSS bit-rate switch): EMCY
+        ``00 81 11 0D`` while so (docs/can-link.md)."""
+        health = self._can_health()
+        if health is not None:
+            health.link(problem, now)
+
     # -- life cycle (CanFront) -----------------------------------------------------------------
     def start_bitrate(self, engine: CanEngine) -> int | None:
         """The bit rate LSS stored, else the configuration's."""
         bitrate: int | None = cast(Node, engine).service("lss").bitrate
-        return bitrate or self.config.bitrate
+        configured = self.config.bitrate
+        return bitrate or (configured if isinstance(configured, int) else None)
+
+    def wants_autobaud(self, engine: CanEngine) -> bool:
+        """``bitrate: auto`` and no rate stored by LSS: listen for the bus's rate before boot-up."""
+        return self.config.bitrate == "auto" and not cast(Node, engine).service("lss").bitrate
+
+    def found_bitrate(self, engine: CanEngine, bitrate: int | None) -> None:
+        """The rate auto-baud found is the one LSS reports and stores."""
+        lss = cast(Node, engine).service("lss")
+        if lss.slave is not None:
+            lss.slave.bitrate = bitrate
 
     def adapter_options(self, engine: CanEngine) -> dict[str, Any]:
         lss = cast(Node, engine).service("lss")

@@ -142,9 +142,28 @@ class DeviceNetFront(CanFront):
         self.context.events.publish(FAULT, self.name, f"DeviceNet communication fault: {reason}")
 
     def on_bus_state(self, bus_off: bool, now: float) -> None:
-        if bus_off and self.slave is not None:  # the DeviceNet object's BOI counter
+        if bus_off and self.slave is not None:  # the DeviceNet object's bus-off counter
             self.slave.bus_off_count = min(255, self.slave.bus_off_count + 1)
         super().on_bus_state(bus_off, now)
+
+    # -- the interface (CanFront) ------------------------------------------------------------
+    def link_restart_ms(self) -> int | None:
+        """0: the kernel never restarts the controller by itself; the DeviceNet object's BOI
+        attribute decides (:meth:`bus_off_restart_s`)."""
+        return 0
+
+    def bus_off_restart_s(self) -> float | None:
+        """ODVA's BOI (DeviceNet object attribute 3): 0 (the default) holds the controller in
+        bus-off, 1 restarts it, ``restart_ms`` after bus-off, and communication continues."""
+        if self.slave is None or not self.slave.bus_off_interrupt:
+            return None
+        return float(self.config.restart_ms) / 1000.0
+
+    def link_problem(self, problem: str | None, now: float) -> None:
+        """The interface not set as configured (a baud rate not applied): the Identity status's
+        minor recoverable fault bit, the status API's ``link_fault``."""
+        if self.slave is not None:
+            self.slave.link_fault = problem
 
     def _master_state(self, ok: bool, reason: str) -> None:
         if ok:
