@@ -391,6 +391,7 @@ class Gateway:
                 for c in self.backs
             },
             "modules": [m.as_dict() for m in self.health.modules()],
+            "back_errors": dict(self.health.back_errors),
             "children": self.children_status(),
         }
 

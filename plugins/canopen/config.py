@@ -154,7 +154,7 @@ class IoFrontOptions(StrictModel):
     )
     tpdo_on_start: Literal["async", "all", "none"] | None = Field(
         None,
-        description="TPDOs sent once on entering Operational; default async (icpdas) / all (na9161)",
+        description="TPDOs sent once on entering Operational; default none (icpdas: TV-07, no frame after Start) / all (na9161); async under master delta-as300 (E2)",
     )
     error_on_stopped: bool | None = Field(
         None,

@@ -31,7 +31,7 @@ def io_settings(options: Any) -> IoSettings:
         pdo_count=options.pdo_count,
         mapping_closed=options.mapping_closed,
         compressed=options.compressed,
-        start_policy=options.tpdo_on_start,
+        start_policy=getattr(profile, "tpdo_on_start", None) or options.tpdo_on_start,
         error_on_stopped=options.error_on_stopped,
         bit_mapping=options.bit_mapping,
         tpdo_settings={n: p.setting() for n, p in options.tpdos.items()},
@@ -41,6 +41,7 @@ def io_settings(options: Any) -> IoSettings:
         settings.analog_events = profile.analog_events
         settings.short_ao_error_writes = profile.style.short_ao_error_writes
         settings.empty_pdos_invalid = profile.empty_pdos_invalid
+        settings.analog_event_timer_ms = profile.analog_event_timer_ms
     return settings
 
 

@@ -45,6 +45,9 @@ MODULE_FAILURE_REGISTER = 0x81
 # seed-000 §2.5: "COM port access error" (the I-7232D's RS-485 port); both styles, as the
 # NA-9161's table is missing from its manual
 COM_PORT_ERROR = (0x5000, 0x81, b"\x03")
+# a back behind the front reports an error of its own (a DCON back that found no module: the
+# I-7231D's "DCON modules init error"): ours, the next number of the same 0x5000 family
+BACK_ERROR = (0x5000, 0x81, b"\x04")
 
 NodeExtension = Callable[["CanopenFront", Node], None]
 _node_extensions: list[NodeExtension] = []
@@ -156,6 +159,8 @@ class CanopenFront(CanFront):
             sync_cob_id=cfg.sync_cob_id,
             store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),
             fingerprint=self.fingerprint(channels),
+            announce_defaults=profile.style.hw_config_emcy_unsaved,
+            keep_node_id_entries=profile.style.stored_cob_ids_kept,
             pdo=io.pdo_config,
         )
 
@@ -248,7 +253,9 @@ class CanopenFront(CanFront):
         if not self._ports_subscribed:
             self._ports_subscribed = True
             self.context.health.subscribe_ports(lambda *_: self._ports_changed())
+            self.context.health.subscribe_backs(lambda *_: self._backs_changed())
         self._ports_changed()  # a port already missing (the front restarted meanwhile)
+        self._backs_changed()
         self.log.info(
             "CANopen node %s on %s/%s at %s bit/s",
             node.node_id if node.configured else "unconfigured",
@@ -283,11 +290,25 @@ class CanopenFront(CanFront):
         this front serves is missing; its error reset when every such port is open again."""
         if self.node is None or self.node.emcy is None:
             return
+        lost = self.context.health.ports_lost
+        self._error_while(COM_PORT_ERROR, any(b in lost for b in self._backs()))
+
+    def _backs_changed(self) -> None:
+        """EMCY ``00 50 81 04`` (with 0x1001) while a back this front serves reports an error of
+        its own (a ``modules: auto`` DCON back that found no module), its reset when none does."""
+        errors = self.context.health.back_errors
+        self._error_while(BACK_ERROR, any(b in errors for b in self._backs()))
+
+    def _backs(self) -> list[str]:
+        """The backs this front serves, with or without channels yet."""
+        return self.context.front_backs(self.config)
+
+    def _error_while(self, error: tuple[int, int, bytes], active: bool) -> None:
+        if self.node is None or self.node.emcy is None:
+            return
         emcy = self.node.emcy
-        backs = {back for back, _ in self._modules}
-        missing = sorted(b for b in backs if b in self.context.health.ports_lost)
-        code, register, manufacturer = COM_PORT_ERROR
-        if missing:
+        code, register, manufacturer = error
+        if active:
             self.pump(partial(emcy.raise_error, code, register, manufacturer))
         else:
             self.pump(partial(emcy.clear_error, code, manufacturer))

@@ -227,6 +227,12 @@ class DeviceNetSlave(SlaveState):
             | (0x0400 if self.back_fault is not None else 0)
         )
 
+    @property
+    def operation_state(self) -> str:
+        """The I-7241D 7-segment's first digit: ``1`` DCON modules init error (a back behind the
+        front reports an error of its own), else ``n`` normal."""
+        return "1" if self.back_fault is not None else "n"
+
     def set_heartbeat(self, seconds: int) -> None:
         self.network.set_heartbeat(seconds)
 

@@ -80,6 +80,7 @@ class IoSettings:
     analog_events: Literal["change", "interrupt"] | None = None  # default: the style's
     short_ao_error_writes: tuple[int, ...] | None = None  # 2-byte writes taken (0x6443/0x6444)
     empty_pdos_invalid: bool = False  # default PDOs without data start invalid (master profile)
+    analog_event_timer_ms: int = 0  # analog TPDOs' event timer where the style has none (master)
     tpdo_settings: dict[int, PdoSetting] = field(default_factory=dict)  # the topology's tpdos:
     rpdo_settings: dict[int, PdoSetting] = field(default_factory=dict)  # the topology's rpdos:
 
@@ -104,7 +105,7 @@ class IoSettings:
 
     @property
     def policy(self) -> Literal["async", "all", "none"]:
-        return self.start_policy or ("all" if self.style == "na9161" else "async")
+        return self.start_policy or STYLES[self.style].tpdo_on_start
 
     @property
     def stopped_is_error(self) -> bool:
@@ -340,6 +341,7 @@ def build_io(
         empty_invalid=settings.empty_pdos_invalid,
         tpdo_settings=settings.tpdo_settings,
         rpdo_settings=settings.rpdo_settings,
+        analog_event_timer_ms=settings.analog_event_timer_ms,
     )
     profile = Profile401(
         image,
