@@ -177,13 +177,7 @@ class GatewayContext:
         """The backs whose channels a front serves or would serve: every back without an
         ``expose`` list, else those an ``expose`` pattern's back part matches (a back with no
         channel yet, e.g. one that found no module, still counts)."""
-        from fnmatch import fnmatchcase
-
-        names = [b.name for b in self.topology.backs]
-        if front.expose is None:
-            return names
-        parts = [pattern.split("/", 1)[0] for pattern in front.expose]
-        return [n for n in names if any(fnmatchcase(n, part) for part in parts)]
+        return front.served_backs([b.name for b in self.topology.backs])
 
     def front_channels(self, front: FrontConfig) -> list[Any]:
         """The channels a front serves, in order (its ``expose`` list, or all in the seeds' order)."""

@@ -93,6 +93,8 @@ class Gateway:
         answers /readyz 503 until everything runs.
         """
         self._ask_priority()
+        for text in self.topology.warnings():
+            log.warning("%s", text)
         http_started: asyncio.Future[None] | None = None
         if self.topology.gateway.http is not None and self.http is None:
             from .isolation.front import HttpChild

@@ -17,6 +17,7 @@ from typing import Any
 
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import ErrorMode
+from fieldgate.module_info import ModuleInfo
 
 from .cia401.iodevice import IoDevice, IoSettings, build_io, check_pdo_settings
 from .cia401.layouts import LayoutError
@@ -111,4 +112,5 @@ def io_device(front: Any) -> IoDevice:
         models=models,
         master_events=False,
         module_emcy=False,
+        module_info=ModuleInfo.from_context(ctx),
     )

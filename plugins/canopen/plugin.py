@@ -13,6 +13,7 @@ the EMCY ``00 FF 81 0B <address> 00 00 00``.
 from __future__ import annotations
 
 import hashlib
+import logging
 from collections.abc import Callable, Iterable
 from functools import partial
 from pathlib import Path
@@ -23,7 +24,7 @@ from fieldgate.can.frame import Frame
 from fieldgate.can.front import CanFront
 from fieldgate.events import CAN_OVERRUN, CAN_STATE, EMCY_SENT, NMT_STATE
 from fieldgate.health import HealthEvent, ModuleHealth
-from fieldgate.image import Channel
+from fieldgate.image import Channel, Quality, Subscription
 from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
 from fieldgate.plugin import GatewayContext, Registry, hookimpl
 
@@ -48,6 +49,9 @@ COM_PORT_ERROR = (0x5000, 0x81, b"\x03")
 # a back behind the front reports an error of its own (a DCON back that found no module: the
 # I-7231D's "DCON modules init error"): ours, the next number of the same 0x5000 family
 BACK_ERROR = (0x5000, 0x81, b"\x04")
+# the 24 V field supply missing (the field_power input): CiA 301's 0x3300 "output voltage",
+# error register bits generic and voltage (the NA-9161's field power LED; its table is missing)
+FIELD_POWER_ERROR = (0x3300, 0x05, b"")
 
 NodeExtension = Callable[["CanopenFront", Node], None]
 _node_extensions: list[NodeExtension] = []
@@ -71,6 +75,8 @@ class CanopenFront(CanFront):
         self.io: IoDevice | None = None
         self._modules: set[tuple[str, int]] = set()
         self._ports_subscribed = False
+        self.field_power: bool | None = None  # None: not sensed (no field_power), or not read yet
+        self._field_power_sub: Subscription | None = None
 
     @property
     def node(self) -> Node | None:
@@ -90,6 +96,7 @@ class CanopenFront(CanFront):
         cfg = self.config
         profile = cfg.profile
         channels = self.context.front_channels(cfg)
+        self.field_power = None  # read again into this node (and its 0x4500)
         self.io = io = io_device(self)
         node = build_node(self._node_settings(channels, io), name=self.name)
         if profile.style.controller_emcy:
@@ -256,6 +263,11 @@ class CanopenFront(CanFront):
             self.context.health.subscribe_backs(lambda *_: self._backs_changed())
         self._ports_changed()  # a port already missing (the front restarted meanwhile)
         self._backs_changed()
+        if cfg.field_power is not None and self._field_power_sub is None:
+            self._field_power_sub = self.context.image.subscribe_batch(
+                lambda _: self._field_power_changed(), ids=[cfg.field_power]
+            )
+        self._field_power_changed()
         self.log.info(
             "CANopen node %s on %s/%s at %s bit/s",
             node.node_id if node.configured else "unconfigured",
@@ -298,6 +310,38 @@ class CanopenFront(CanFront):
         its own (a ``modules: auto`` DCON back that found no module), its reset when none does."""
         errors = self.context.health.back_errors
         self._error_while(BACK_ERROR, any(b in errors for b in self._backs()))
+
+    def _field_power_changed(self) -> None:
+        """The ``field_power`` input: false with good quality, or its module offline (the
+        modules usually hang on the same supply), is "field power missing"; not read yet is
+        not known. Missing: 0x4500:1 byte 3 = 0x80 (na9161) and EMCY ``00 33 05``."""
+        cid = self.config.field_power
+        if cid is None or cid not in self.context.image:
+            return
+        channel = self.context.image[cid]
+        if channel.quality is Quality.GOOD:
+            present: bool | None = bool(channel.value)
+        elif channel.quality is Quality.COMM_FAULT:
+            present = False
+        else:
+            present = self.field_power  # not read yet, stale: as known before
+        if present is None or present == self.field_power:
+            return
+        self.field_power = present
+        self.log.log(
+            logging.INFO if present else logging.WARNING,
+            "field power %s (%s)",
+            "present" if present else "missing",
+            cid,
+        )
+        if self.io is not None and self.io.fnbus is not None:
+            self.io.fnbus.field_power_missing = not present
+        self._error_while(FIELD_POWER_ERROR, not present)
+
+    def before_stop(self) -> None:
+        if self._field_power_sub is not None:
+            self._field_power_sub.cancel()
+            self._field_power_sub = None
 
     def _backs(self) -> list[str]:
         """The backs this front serves, with or without channels yet."""
@@ -354,6 +398,11 @@ class CanopenFront(CanFront):
                 losses,
             ),
             *self.bus_samples(ignored),
+            *(
+                [gauge("canopen_field_power", "1 while the field supply is present", self.field_power)]
+                if self.field_power is not None
+                else []
+            ),
         ]
 
     def status(self) -> dict[str, Any]:
@@ -362,6 +411,7 @@ class CanopenFront(CanFront):
         return {
             **self.node.status(),
             "master": self.master.status() if self.master else None,
+            "field_power": self.field_power,
             **self.bus_status(),
         }
 

@@ -297,12 +297,7 @@ def resolve(cfg: Any) -> Resolved:
     # analog TPDOs' event timer: what the master needs where the style leaves it 0
     analog_timer = 0
     if master.analog_event_timer_ms and analog_events_of(cfg, style) == "interrupt":
-        analog_timer = master.analog_event_timer_ms
-        notes.append(
-            f"master {master.name} needs analog data to keep flowing (REQ-AS-15) and the "
-            f"{style.name} style sends analog changes as no TPDO event: analog TPDOs get an "
-            f"event timer of {analog_timer} ms (tpdos: sets another)"
-        )
+        analog_timer = master.analog_event_timer_ms  # (validate's note: the config's, with AI)
     if master.bitrates and isinstance(cfg.bitrate, int) and cfg.bitrate not in master.bitrates:
         notes.append(
             f"master {master.name} offers {', '.join(f'{r // 1000}k' for r in master.bitrates)} "

@@ -16,8 +16,9 @@
   I-7232D's EEPROM error), other module set ``00 63 81 0C ..`` (0x6300 "data set").
   A successful save clears them. A device that announces running on defaults
   (``announce_defaults``, the NA-9161: "Changed HW configuration" at power-on until a save)
-  sends ``00 63 81 0C`` once at power-on as an event (0x1001 stays 0: nothing is wrong with
-  a head on its defaults) while nothing was saved, or after a "load".
+  sends ``00 63 81 0C`` once at power-on as an event (0x1001 stays 0 and 0x1003 does not
+  keep it: nothing is wrong with a head on its defaults) while nothing was saved, or after a
+  "load".
 * ``keep_node_id_entries`` (the NA-9161, [AMBIG-24]): a "save" stores the node-ID-dependent
   entries (0x1014, the PDO COB-IDs) whatever their value, so after a node-ID change the
   stored values stay instead of following the new node-ID.
@@ -275,7 +276,7 @@ class StoreService(Service):
             self.node.emcy.raise_error(self.problem[0], 0x81, self.problem[1], now)
         elif self.announce_defaults and self.on_defaults:
             self.counters["defaults_announced"] += 1
-            self.node.emcy.signal(OTHER_SET_CODE, 0x81, OTHER_SET_MFR, now)
+            self.node.emcy.signal(OTHER_SET_CODE, 0x81, OTHER_SET_MFR, now, record=False)
 
     def status(self) -> dict[str, Any]:
         return {

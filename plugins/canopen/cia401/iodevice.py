@@ -42,6 +42,7 @@ from fieldgate.health import HealthRegistry
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
+from fieldgate.module_info import ModuleInfo
 
 from ..cia301.cobid import check_cob_id
 from ..cia301.entries import Abort, Directory, bind_object
@@ -133,6 +134,7 @@ class IoDevice(Service):
         models: dict[tuple[str, int], str] | None = None,
         master_events: bool = True,
         module_emcy: bool = True,
+        module_info: ModuleInfo | None = None,
     ):
         super().__init__()
         self.settings = settings
@@ -162,7 +164,7 @@ class IoDevice(Service):
         # the NA-9161's per-slot objects (0x2000/0x2200 memory, 0x4501, 0x4502, 0x4504): every
         # slot keeps its number, deactivated or not, so they are built once
         self.slots = (
-            SlotObjects(image, self.layout.modules, self.channels, origin)
+            SlotObjects(image, self.layout.modules, self.channels, origin, module_info)
             if settings.style == "na9161"
             else None
         )
