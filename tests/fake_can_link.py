@@ -9,13 +9,9 @@ a real kernel; the real drivers are exercised in the SocketCAN stage's QEMU gues
 from __future__ import annotations
 
 import errno
-from functools import partial
 
-import pytest
-
-from fieldgate.can import front as canfront
 from fieldgate.can import link as canlink
-from fieldgate.can.interface import InterfaceControl, LinkOps
+from fieldgate.can.interface import LinkOps
 from fieldgate.can.link import Applied, LinkError, LinkSettings
 from fieldgate.can.rtnetlink import RawLink
 
@@ -92,13 +88,3 @@ class FakeKernel:
 
     def applied_rates(self) -> list[int]:
         return [w.bitrate for kind, w in self.calls if kind == "apply"]  # type: ignore[union-attr]
-
-
-@pytest.fixture
-def kernel(monkeypatch: pytest.MonkeyPatch) -> FakeKernel:
-    """Every CAN front started in this test controls its interface through this fake kernel
-    (whatever its python-can interface: the tests' buses are virtual)."""
-    fake = FakeKernel()
-    monkeypatch.setattr(canfront, "controls", lambda interface, channel, configure: configure)
-    monkeypatch.setattr(canfront, "InterfaceControl", partial(InterfaceControl, ops=fake.ops))
-    return fake

@@ -14,9 +14,17 @@ from __future__ import annotations
 
 from ..device import SdoAbort
 from ..framework import Context, Fail, Inconclusive, Info, Skip, case
-from .common import expect_emcy, live_pdo, log_mark, operational, pdos
+from .common import (
+    LOAD,
+    SAVE,
+    error_free,
+    expect_emcy,
+    live_pdo,
+    log_mark,
+    operational,
+    pdos,
+)
 from .profiles import require_icpdas
-from .store import LOAD, SAVE
 
 HARDWARE_ERROR = 0x06060000
 EMCY_5000 = bytes.fromhex("00 50")
@@ -29,7 +37,9 @@ def _inputs(ctx: Context) -> dict[tuple[int, int], int]:
     values = {}
     for index in (0x6000, 0x6401):
         if dev.has(index, 1):
-            values.update({(index, s): dev.read(index, s) for s in range(1, dev.read(index, 0) + 1)})
+            values.update(
+                {(index, s): dev.read(index, s) for s in range(1, dev.read(index, 0) + 1)}
+            )
     return values
 
 
@@ -47,9 +57,7 @@ def icpdas_no_tpdo_at_start(ctx: Context) -> None:
             "needs each TPDO after Start, E2)"
         )
     cobs = {
-        live.cob & 0x7FF
-        for p in pdos(dev, True)
-        if not (live := live_pdo(dev, p)).cob & 0x80000000
+        live.cob & 0x7FF for p in pdos(dev, True) if not (live := live_pdo(dev, p)).cob & 0x80000000
     }
     if not cobs:
         raise Skip("no valid TPDO")
@@ -77,34 +85,40 @@ def icpdas_store_write_emcy(ctx: Context) -> None:
     require_icpdas(ctx)
     dev = ctx.device
     dev.require(0x1010, 1, why="store parameters (the I-7232D has none: an extension)")
+    error_free(ctx, "before the case (an EEPROM error already active sends no new EMCY)")
     mark = log_mark(ctx)
     try:
         dev.write(0x1010, 1, SAVE)
     except SdoAbort as exc:
-        if exc.code != HARDWARE_ERROR:
-            raise Fail(
-                "a save refused",
-                expected="0606 0000 (hardware error: the store cannot be written)",
-                seen=str(exc),
-            ) from None
-        frame = expect_emcy(ctx, 0x5000)
-        if frame is None:
-            for _, direction, seen in dev.link.log[mark:]:  # (it may precede the abort)
-                if direction == "←" and seen.cob == 0x80 + dev.node_id and bytes(seen.data[:2]) == EMCY_5000:
-                    frame = seen
-        if frame is None or bytes(frame.data[2:4]) != b"\x81\x02":
-            raise Fail(
-                "no EEPROM access error EMCY for the failed save",
-                expected=f"{0x80 + dev.node_id:03X} [8] 00 50 81 02 00 00 00 00 (§2.5)",
-                seen=str(frame) if frame else "nothing",
-                clause="I-7232D manual §2.5 EMCY table",
-            )
-        return
-    ctx.cleanup(lambda: dev.write(0x1011, 1, LOAD))
-    raise Skip(
-        "the store could be written: the case needs a device whose store cannot be (a full "
-        "or read-only state directory)"
-    )
+        refused = exc
+    else:
+        ctx.cleanup(lambda: dev.write(0x1011, 1, LOAD))
+        raise Skip(
+            "the store could be written: the case needs a device whose store cannot be (a full "
+            "or read-only state directory)"
+        )
+    if refused.code != HARDWARE_ERROR:
+        raise Fail(
+            "a save refused",
+            expected="0606 0000 (hardware error: the store cannot be written)",
+            seen=str(refused),
+        )
+    frame = expect_emcy(ctx, 0x5000)
+    if frame is None:
+        for _, direction, seen in dev.link.log[mark:]:  # (it may precede the abort)
+            if (
+                direction == "←"
+                and seen.cob == 0x80 + dev.node_id
+                and bytes(seen.data[:2]) == EMCY_5000
+            ):
+                frame = seen
+    if frame is None or bytes(frame.data[2:4]) != b"\x81\x02":
+        raise Fail(
+            "no EEPROM access error EMCY for the failed save",
+            expected=f"{0x80 + dev.node_id:03X} [8] 00 50 81 02 00 00 00 00 (§2.5)",
+            seen=str(frame) if frame else "nothing",
+            clause="I-7232D manual §2.5 EMCY table",
+        )
 
 
 @case(
@@ -125,4 +139,3 @@ def icpdas_module_limits(ctx: Context) -> None:
             "go back onto the real box",
             seen=f"0x2000:0 = {count}",
         )
-

@@ -21,10 +21,19 @@ import time
 from ..device import NMT_RESET_COMM, NMT_RESET_NODE, mux
 from ..framework import Context, Fail, Skip, case
 from .cia401 import require_loopback
-from .common import Pdo, active_pdo, expect_emcy, operational, pdos, remap
+from .common import (
+    LOAD,
+    SAVE,
+    Pdo,
+    active_pdo,
+    expect_emcy,
+    operational,
+    pdos,
+    remap,
+    require_store,
+)
 from .lss import CONFIGURATION, WAITING, lss, must, require_lss, restore_node_id, spare_id
 from .lss import switch as lss_switch
-from .store import LOAD, SAVE, require_store
 from .mapping import revalidate
 from .od import RO_WRITE_ABORTS
 from .pdo import rtr
@@ -298,6 +307,7 @@ def field_power_bit(ctx: Context) -> None:
 )
 def slot_memory_not_io(ctx: Context) -> None:
     dev = ctx.device
+    require_fnbus(ctx)  # (0x2000 of an ICP DAS-style head holds error counters)
     dev.require(0x2000, 1, why="slot memory")
     require_loopback(ctx)
     dev.require(0x6411, 1, why="an AO looped back to an AI")

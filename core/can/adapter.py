@@ -160,7 +160,9 @@ class CanAdapter:
         self.transmit_allowed = transmit_allowed
         self.reopen = reopen  # a new bus at another bit rate (LSS, DeviceNet baud rate)
         self.interface = interface  # the SocketCAN interface fieldgate controls, if any
-        self.bus_off_restart = bus_off_restart  # the front's restart delay after bus-off (None: hold)
+        self.bus_off_restart = (
+            bus_off_restart  # the front's restart delay after bus-off (None: hold)
+        )
         self.on_link = on_link  # the interface set as configured (None) or why not
         self.counters: Counter[str] = Counter()
         self.rx_frames = self.tx_frames = 0  # the two per-frame counts, kept as plain integers

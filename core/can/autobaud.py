@@ -208,7 +208,8 @@ class AutoBaud:
     async def run(self, log: Any) -> int | None:
         if not self.controlled:
             return self._not_probed(
-                log, "fieldgate does not control this interface (SocketCAN with configure_interface only)"
+                log,
+                "fieldgate does not control this interface (SocketCAN with configure_interface only)",
             )
         self.state = "probing"
         log.info(
@@ -217,7 +218,9 @@ class AutoBaud:
             ", ".join(str(r) for r in self.probe.rates),
         )
         try:
-            found = await asyncio.to_thread(self._probing, self.channel, self.probe, on_step=self._step)
+            found = await asyncio.to_thread(
+                self._probing, self.channel, self.probe, on_step=self._step
+            )
         except canlink.LinkError as exc:
             return self._not_probed(log, str(exc))
         except _Stopped:
@@ -229,7 +232,8 @@ class AutoBaud:
         log.info("%s: bit rate auto: %d bit/s found, normal mode", self.channel, found)
         return found
 
-    def _not_probed(self, log: Any, why: str) -> None:
+    def _not_probed(self, log: Any, why: str) -> int | None:
+        """Auto-baud could not run: said once; the bus opens with the interface as it is."""
         self.state, self.why = "not-probed", why
         log.warning("bit rate auto: %s; the bus opens with the interface as it is", why)
         return None

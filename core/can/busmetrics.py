@@ -96,7 +96,9 @@ def _link_samples(link: dict[str, Any] | None) -> list[Sample]:
             "restarts after bus-off fieldgate asked for (where the kernel has restart-ms 0)",
             link.get("restarts_by_fieldgate", 0),
         ),
-        gauge("can_link_error", "1 while the interface is not as configured", bool(link.get("error"))),
+        gauge(
+            "can_link_error", "1 while the interface is not as configured", bool(link.get("error"))
+        ),
     ]
     for direction in ("tx", "rx"):
         value = link.get(f"{direction}_errors")

@@ -84,6 +84,7 @@ class ControllerHost(Protocol):
     def send(self, frames: list[Frame] | tuple[Frame, ...], now: float | None = None) -> None: ...
     def pump_unless_closed(self) -> None: ...
     def bind_bus(self) -> None: ...
+    def fail(self, exc: BaseException) -> None: ...
     def apply_filters(self) -> None: ...
 
 
@@ -287,7 +288,7 @@ class Controller:
             problem = await adapter.interface.apply(bitrate)
             if problem is not None:
                 log.error("%s; the node runs with the interface as it is", problem)
-        if adapter.closed:
+        if self._closed():  # (closed while the interface was set)
             return
         try:
             adapter.bus = reopen(bitrate)
@@ -303,6 +304,9 @@ class Controller:
         adapter.switching = False
         self.counters["bit_timing_switches" if problem is None else "bit_timing_failures"] += 1
         self._switched(bitrate, problem)
+
+    def _closed(self) -> bool:
+        return self.adapter.closed
 
     def _switched(self, bitrate: int, problem: str | None) -> None:
         """The engine (``bit_timing_done``, e.g. DeviceNet's duplicate MAC check waits for it) and

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import can
 from pydantic import Field
@@ -59,9 +59,9 @@ class CanBusConfig(StrictModel):
         "can0",
         description="python-can channel (can0, vcan0, PCAN_USBBUS1, a virtual channel name, ...)",
     )
-    bitrate: int | None = Field(
+    bitrate: int | Literal["auto"] | None = Field(
         125_000,
-        description="CAN bit rate in bit/s (passed to can.Bus); null for an interface configured outside fieldgate",
+        description="CAN bit rate in bit/s (SocketCAN: set on the interface; other interfaces: passed to can.Bus); auto: found by listening before the engine boots (SocketCAN); null for an interface configured outside fieldgate",
     )
     bus_options: dict[str, Any] = Field(
         default_factory=dict, description="extra keyword arguments for can.Bus"
@@ -95,8 +95,13 @@ class CanFront(Front):
         self._wake_scheduled = False
         cfg = self.config
         self.interface: InterfaceControl | None = (
-            InterfaceControl(cfg.channel, cfg.sample_point, self.link_restart_ms())
-            if controls(cfg.interface, cfg.channel, cfg.configure_interface)
+            InterfaceControl(
+                cfg.channel,
+                cfg.sample_point,
+                self.link_restart_ms(),
+                managed=cfg.configure_interface,
+            )
+            if controls(cfg.interface, cfg.channel)
             else None
         )
         self.autobaud: AutoBaud | None = None
@@ -109,8 +114,8 @@ class CanFront(Front):
 
     def start_bitrate(self, engine: CanEngine) -> int | None:
         """The bit rate the bus opens at: the configuration's."""
-        bitrate: int | None = self.config.bitrate
-        return bitrate
+        bitrate = self.config.bitrate
+        return bitrate if isinstance(bitrate, int) else None
 
     def adapter_options(self, engine: CanEngine) -> dict[str, Any]:
         """More keyword arguments for :class:`~.adapter.CanAdapter` (``on_controller``,
@@ -155,8 +160,9 @@ class CanFront(Front):
         shows it the way its device would (an EMCY, a status bit)."""
 
     def wants_autobaud(self, engine: CanEngine) -> bool:
-        """Whether the bit rate is found by listening (:mod:`.autobaud`) before the engine boots."""
-        return False
+        """Whether the bit rate is found by listening (:mod:`.autobaud`) before the engine boots:
+        ``bitrate: auto``."""
+        return bool(self.config.bitrate == "auto")
 
     def found_bitrate(self, engine: CanEngine, bitrate: int | None) -> None:
         """Auto-baud ended: the engine learns the rate found (None: none, the bus opens as it is)."""

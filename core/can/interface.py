@@ -4,9 +4,11 @@ bus-off recovery and what the kernel says of the controller (docs/can-link.md).
 :class:`InterfaceControl` is what :class:`~.front.CanFront` and the adapter's controller
 call; it runs :mod:`.link`'s blocking calls in a thread (``asyncio.to_thread``) so the
 event loop never waits for the kernel. It manages an interface only where that makes sense:
-python-can's ``socketcan`` interface with ``configure_interface`` on (the default; off where
-systemd-networkd or ``ip link`` owns the interface), and a link of kind ``can`` (a
-``vcan`` has no bit timing: nothing to do). Everything else is left as it is.
+python-can's ``socketcan`` interface with ``configure_interface`` on (the default), and a link
+of kind ``can`` (a ``vcan`` has no bit timing: nothing to do). With ``configure_interface:
+false`` (systemd-networkd or ``ip link`` owns the interface) it only reads: a rate the
+protocol asks for that the interface does not have is said (one line, the front's EMCY or
+status), never set. Other python-can interfaces are left to their drivers.
 
 A failure is never an exception to the caller: :meth:`InterfaceControl.apply` returns the
 one line saying why (no CAP_NET_ADMIN, a rate the controller cannot make), the front logs it
@@ -51,6 +53,7 @@ class InterfaceControl:
     sample_point: float | None = None
     restart_ms: int | None = None
     ops: LinkOps = field(default_factory=LinkOps)
+    managed: bool = True  # False: read only (configure_interface: false)
     link: CanLink | None = None  # as last read
     error: str | None = None  # the last apply that failed (None once one succeeded)
     note: str = ""  # what the last apply said besides its differences (a virtual interface)
@@ -61,6 +64,8 @@ class InterfaceControl:
     async def apply(self, bitrate: int) -> str | None:
         """Bring the interface to ``bitrate`` (and the sample point, restart-ms): None when it
         is there now, else the one line saying why not (the interface is left as it is)."""
+        if not self.managed:
+            return await self._compare(bitrate)
         wanted = LinkSettings(
             bitrate,
             sample_point=self.sample_point,
@@ -89,6 +94,19 @@ class InterfaceControl:
             log.debug("%s: %s", self.channel, done.note)
         return None
 
+    async def _compare(self, bitrate: int) -> str | None:
+        """Read only: whether the interface runs at ``bitrate``."""
+        info = await self.refresh()
+        if info is None or info.kind != "can" or info.bitrate in (None, bitrate):
+            self.error = None
+            return None
+        self.counters["apply_failures"] += 1
+        self.error = (
+            f"{self.channel}: bit rate {bitrate} asked, the interface runs at {info.bitrate} "
+            "(configure_interface: false: fieldgate leaves it to ip link / systemd-networkd)"
+        )
+        return self.error
+
     # -- reading and restarting --------------------------------------------------------------
     async def refresh(self) -> CanLink | None:
         """Read the interface again (bus-off, restarted, after a change); None if it cannot be read."""
@@ -108,6 +126,11 @@ class InterfaceControl:
     async def restart(self) -> str | None:
         """Restart the controller after bus-off (the front's own recovery where restart-ms is
         0); None when done, else why not."""
+        if not self.managed:
+            return (
+                f"{self.channel}: not restarted: configure_interface is false (give the "
+                "interface a restart-ms: RestartSec= in systemd-networkd's [CAN] section)"
+            )
         try:
             how = await asyncio.to_thread(self.ops.restart, self.channel)
         except LinkError as exc:
@@ -149,6 +172,7 @@ class InterfaceControl:
         return out
 
 
-def controls(interface: str, channel: str | None, configure: bool) -> bool:
-    """Whether a front configures its interface: SocketCAN, a channel, not switched off."""
-    return configure and interface == "socketcan" and bool(channel)
+def controls(interface: str, channel: str | None) -> bool:
+    """Whether a front has a SocketCAN interface to read (and, with ``configure_interface``,
+    to set): python-can's ``socketcan`` with a channel."""
+    return interface == "socketcan" and bool(channel)

@@ -8,9 +8,8 @@ same common fields.
 
 from __future__ import annotations
 
-from fnmatch import fnmatchcase
-
 from collections.abc import Sequence
+from fnmatch import fnmatchcase
 from typing import Annotated, Any, Literal, overload
 
 from pydantic import (

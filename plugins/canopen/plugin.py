@@ -399,7 +399,13 @@ class CanopenFront(CanFront):
             ),
             *self.bus_samples(ignored),
             *(
-                [gauge("canopen_field_power", "1 while the field supply is present", self.field_power)]
+                [
+                    gauge(
+                        "canopen_field_power",
+                        "1 while the field supply is present",
+                        self.field_power,
+                    )
+                ]
                 if self.field_power is not None
                 else []
             ),

@@ -5,7 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, PrivateAttr, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    Field,
+    ModelWrapValidatorHandler,
+    PrivateAttr,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 from pydantic_core import PydanticCustomError
 
 from fieldgate.image import ChannelSpec, DataType, Kind, Scaling, Source, channel_id
@@ -194,7 +201,9 @@ class DconBackConfig(SerialBackConfig):
 
     @model_validator(mode="wrap")
     @classmethod
-    def _modules_auto(cls, data: Any, handler: Any, info: ValidationInfo) -> DconBackConfig:
+    def _modules_auto(
+        cls, data: Any, handler: ModelWrapValidatorHandler[Any], info: ValidationInfo
+    ) -> Any:
         """``modules: auto``: no list; the scan file (if any) is read here, relative to the
         topology file (the loader's ``base_dir`` context)."""
         auto = isinstance(data, dict) and data.get("modules") == "auto"

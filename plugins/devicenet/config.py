@@ -14,8 +14,8 @@ from fieldgate.topology.model import StrictModel
 
 from .paths import DEFAULT_PATHS, check_selector
 
-
 I7241D_MAX_MODULES = 15  # seed-003 §1.3
+
 
 class DeviceNetIdentity(StrictModel):
     vendor_id: int = Field(

@@ -58,7 +58,13 @@ def test_the_i7231d_takes_15_dcon_modules_and_the_na9161_style_has_no_such_note(
 
 
 def test_the_i7241d_takes_15_dcon_modules():
-    front = {"name": "dnet", "type": "devicenet", "interface": "virtual", "channel": "x", "mac_id": 1}
+    front = {
+        "name": "dnet",
+        "type": "devicenet",
+        "interface": "virtual",
+        "channel": "x",
+        "mac_id": 1,
+    }
     assert warnings(front, dcon(15)) == []
     (note,) = warnings(front, dcon(16))
     assert "16 DCON modules; the I-7241D holds at most 15" in note

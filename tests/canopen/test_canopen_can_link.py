@@ -12,7 +12,6 @@ import uuid
 
 import pytest
 from canopen_dut import topology
-from fake_can_link import kernel  # noqa: F401  (the fixture)
 from test_canopen_front import Peer
 
 from fieldgate import Gateway, load_registry
@@ -77,9 +76,11 @@ async def test_without_the_capability_the_node_runs_on_and_shows_an_emcy(start, 
     assert kernel.bitrate == 250_000  # left as it is
 
 
-async def test_configure_interface_false_leaves_the_interface_alone(start, kernel):
-    gateway, _ = await start(bitrate=125_000, configure_interface=False)
-    assert kernel.calls == [] and gateway.component("plc").interface is None
+async def test_configure_interface_false_leaves_the_interface_alone_and_says_so(start, kernel):
+    gateway, peer = await start(bitrate=125_000, configure_interface=False)
+    assert kernel.calls == [] and kernel.bitrate == 250_000
+    assert await peer.expect(EMCY) == LINK_EMCY  # the rate asked is not the interface's
+    assert "configure_interface: false" in gateway.component("plc").status()["bus"]["link"]["error"]
 
 
 def lss(cs: int, *data: int) -> bytes:

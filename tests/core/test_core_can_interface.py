@@ -22,12 +22,21 @@ from fieldgate.can.interface import InterfaceControl, controls
 from fieldgate.can.link import LinkError
 
 
-def test_only_socketcan_with_a_channel_and_the_switch_on_is_controlled():
-    assert controls("socketcan", "can0", True)
-    assert not controls("socketcan", "can0", False)  # systemd-networkd owns it
-    assert not controls("virtual", "demo", True)
-    assert not controls("pcan", "PCAN_USBBUS1", True)  # the adapter's driver sets its rate
-    assert not controls("socketcan", None, True)
+def test_only_socketcan_with_a_channel_is_controlled():
+    assert controls("socketcan", "can0")
+    assert not controls("virtual", "demo")
+    assert not controls("pcan", "PCAN_USBBUS1")  # the adapter's driver sets its rate
+    assert not controls("socketcan", None)
+
+
+async def test_an_unmanaged_interface_is_only_read_and_a_different_rate_said():
+    kernel = FakeKernel(bitrate=125_000, restart_ms=0)
+    control = InterfaceControl("can0", ops=kernel.ops, managed=False)  # systemd-networkd's
+    assert await control.apply(125_000) is None
+    problem = await control.apply(250_000)
+    assert problem is not None and "runs at 125000" in problem and "configure_interface" in problem
+    assert kernel.calls == [] and kernel.bitrate == 125_000
+    assert "configure_interface is false" in (await control.restart() or "")
 
 
 async def test_apply_reports_what_differed_and_says_why_it_could_not():
@@ -121,7 +130,7 @@ async def test_a_canopen_front_with_bitrate_auto_boots_at_the_rate_found(tmp_pat
         on_step(Step("found", 500_000))
         return 500_000
 
-    monkeypatch.setattr(canfront, "controls", lambda interface, channel, configure: configure)
+    monkeypatch.setattr(canfront, "controls", lambda interface, channel: True)
     monkeypatch.setattr(canfront, "InterfaceControl", partial(InterfaceControl, ops=kernel.ops))
     monkeypatch.setattr(canfront, "AutoBaud", partial(AutoBaud, probing=probing))
     channel = f"auto-{uuid.uuid4().hex[:8]}"
@@ -157,7 +166,10 @@ async def test_a_canopen_front_with_bitrate_auto_boots_at_the_rate_found(tmp_pat
         assert boot is not None and (boot.arbitration_id, bytes(boot.data)) == (0x705, b"\x00")
         assert kernel.bitrate == 500_000  # normal mode at the rate found
         status = front.status()
-        assert status["autobaud"]["state"] == "found" and status["services"]["lss"]["bitrate"] == 500_000
+        assert (
+            status["autobaud"]["state"] == "found"
+            and status["services"]["lss"]["bitrate"] == 500_000
+        )
     finally:
         await gateway.stop()
         peer.shutdown()

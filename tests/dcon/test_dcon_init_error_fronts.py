@@ -103,7 +103,9 @@ async def test_the_devicenet_node_is_online_with_the_7_segment_1(tmp_path, chann
         await master.wait_online()
         status = gateway.component("dnet").status()
         assert status["state"] == "online" and status["display"] == "10103"
-        assert status["identity_status"] & 0x0400 and "DCON modules init error" in status["back_fault"]
+        assert (
+            status["identity_status"] & 0x0400 and "DCON modules init error" in status["back_fault"]
+        )
         assert await master.allocate(0x01) == bytes.fromhex("0A CB 00")
         assert (await master.number(0x01, 1, 5)) & 0x0400  # Identity status: major recoverable
         assert await master.get(0x64, 0, 5) == b"1"  # object 0x64: the operation state

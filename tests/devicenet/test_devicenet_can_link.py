@@ -12,20 +12,19 @@ import uuid
 import can
 import pytest
 from dnet_master import Master
-from fake_can_link import kernel  # noqa: F401  (the fixture)
-from test_devicenet_front import SLAVE, registry, topology  # noqa: F401
+from test_devicenet_front import SLAVE, topology
 
-from fieldgate import Gateway
+from fieldgate import Gateway, load_registry
 from fieldgate.can.controller import CAN_ERR_BUSOFF
 
 DUP_MAC = 0x400 | SLAVE << 3 | 7
 
 
 @pytest.fixture
-async def rig(tmp_path, registry, kernel):  # noqa: F811
+async def rig(tmp_path, kernel):
     channel = f"dnet-{uuid.uuid4().hex[:8]}"
     master = Master(channel, SLAVE)
-    gateway = Gateway.load(topology(tmp_path, channel), registry=registry)
+    gateway = Gateway.load(topology(tmp_path, channel), registry=load_registry())
     await gateway.start()
     await master.wait_online()
     gateway.component("dnet").adapter.bus.set_filters(None)  # error frames (see the CANopen test)

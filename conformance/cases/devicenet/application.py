@@ -85,7 +85,9 @@ def application_module_limit(ctx: Context) -> None:
     try:
         count = number(d.get(APPLICATION, 0, 2))
     except CipErrorSeen as err:
-        raise Skip(f"no class 0x64 ({status_text(err.general)}): not an I-7241D-style device") from None
+        raise Skip(
+            f"no class 0x64 ({status_text(err.general)}): not an I-7241D-style device"
+        ) from None
     if count > I7241D_MODULES:
         raise Info(
             f"{count} modules: more than the I-7241D holds ({I7241D_MODULES}); a superset that "
