@@ -26,8 +26,7 @@ import subprocess
 import time
 
 import can
-import pytest
-from socketcan_guest import CONTROLLERS, scaled, with_controllers
+from socketcan_guest import scaled, with_controllers
 
 from fieldgate import Gateway, load_registry
 from fieldgate.can import link as canlink
@@ -35,14 +34,6 @@ from fieldgate.can.link import LinkSettings
 
 pytestmark = with_controllers(2)
 NODE, MAC = 5, 5
-
-
-@pytest.fixture
-def pair():
-    a, b = CONTROLLERS[:2]
-    yield a, b
-    for name in (a, b):
-        subprocess.run(["ip", "link", "set", name, "down"], check=False)
 
 
 def canopen_topology(state_dir, channel: str, **front) -> dict:
