@@ -11,11 +11,12 @@ from __future__ import annotations
 import fnmatch
 from typing import TYPE_CHECKING
 
-from .cases import (
+from .cases import (  # (the order the cases are registered: each module's after its imports)
     cia401,
     devicenet,
     emcy,
     errctl,
+    icpdas,  # after profiles, whose icpdas cases it extends
     lss,
     mapping,
     monitoring,
@@ -57,6 +58,7 @@ CASE_MODULES = (
     sdo,
     seed,
     store,
+    icpdas,
 )
 
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from fieldgate.exitcodes import ExitCode
@@ -33,6 +35,17 @@ VIRTUAL_HINT = (
     "; note: python-can's virtual bus exists only inside one process, so a gateway started in another"
     " process is not on it (use socketcan with a vcan channel, or a real adapter)"
 )
+
+
+def _shell(command: str) -> Callable[[], None]:
+    """``--power-cycle``: run the command; one that fails stops the case with its exit code."""
+
+    def run() -> None:
+        done = subprocess.run(command, shell=True, check=False)
+        if done.returncode:
+            raise RuntimeError(f"--power-cycle {command!r} exited {done.returncode}")
+
+    return run
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -104,6 +117,13 @@ def configure(p: argparse.ArgumentParser) -> None:
         metavar="ID",
         help="a free node-ID the LSS cases may configure temporarily (default: node-ID + 1)",
     )
+    p.add_argument(
+        "--power-cycle",
+        metavar="COMMAND",
+        default=None,
+        help="a shell command that restarts the device as at power-on (a relay, 'systemctl "
+        "restart fieldgate@plc'); enables the cases that need a power-on",
+    )
     t = Timing()
     g = p.add_argument_group("timing")
     g.add_argument(
@@ -166,7 +186,11 @@ def config_from_args(args: argparse.Namespace) -> SuiteConfig:
         bootup=args.bootup_timeout,
         sdo_server_timeout=args.sdo_server_timeout,
     )
-    options = Options(loopback=args.loopback, lss_spare_node_id=args.lss_spare_node_id)
+    options = Options(
+        loopback=args.loopback,
+        lss_spare_node_id=args.lss_spare_node_id,
+        power_cycle=_shell(args.power_cycle) if args.power_cycle else None,
+    )
     return SuiteConfig(
         args.node_id,
         args.eds,

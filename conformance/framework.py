@@ -114,6 +114,9 @@ class Options:
         False  # the device's outputs are wired to its inputs (DO n → DI n, AO n → AI n)
     )
     lss_spare_node_id: int | None = None  # node-ID the LSS cases may configure temporarily
+    # restarts the device as at power-on (a bench's relay, a service restart): the cases that
+    # need a power-on (na9161.hw_config_emcy) run only with it
+    power_cycle: Callable[[], None] | None = None
 
 
 @dataclass

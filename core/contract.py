@@ -173,6 +173,12 @@ class GatewayContext:
     def state_dir(self) -> Path:
         return self.topology.state_dir
 
+    def front_backs(self, front: FrontConfig) -> list[str]:
+        """The backs whose channels a front serves or would serve: every back without an
+        ``expose`` list, else those an ``expose`` pattern's back part matches (a back with no
+        channel yet, e.g. one that found no module, still counts)."""
+        return front.served_backs([b.name for b in self.topology.backs])
+
     def front_channels(self, front: FrontConfig) -> list[Any]:
         """The channels a front serves, in order (its ``expose`` list, or all in the seeds' order)."""
         from .layout import default_order

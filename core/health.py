@@ -170,6 +170,30 @@ class HealthRegistry:
         self._listeners: list[Callable[[ModuleHealth, HealthEvent], None]] = []
         self.ports_lost: dict[str, str] = {}  # back -> why its serial port is missing
         self._port_listeners: list[Callable[[str, bool, str], None]] = []
+        self.back_errors: dict[str, str] = {}  # back -> what it reports as wrong with it
+        self._back_listeners: list[Callable[[str, str | None], None]] = []
+
+    # -- a back's own error: protocol-neutral, each front shows it its way --------------------
+    def back_error(self, back: str, error: str | None) -> None:
+        """A back reports an error of its own, beyond a module or its port (``error``: one line,
+        e.g. "DCON modules init error: no module answered ..."), or that it ended (None). The
+        fronts serving the back show it the way their device does (a CANopen EMCY 0x5000, the
+        DeviceNet Identity status); listeners (:meth:`subscribe_backs`) hear each change once."""
+        if self.back_errors.get(back) == error:
+            return
+        if error is None:
+            del self.back_errors[back]
+        else:
+            self.back_errors[back] = error
+        for listener in list(self._back_listeners):
+            try:
+                listener(back, error)
+            except Exception:
+                log.exception("back error listener failed for %s", back)
+
+    def subscribe_backs(self, listener: Callable[[str, str | None], None]) -> None:
+        """``listener(back, error)`` on every change of a back's own error (None: it ended)."""
+        self._back_listeners.append(listener)
 
     # -- serial ports: a back's whole line, missing at start or lost at run time -------------
     def port_state(self, back: str, ok: bool, text: str = "") -> None:

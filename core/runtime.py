@@ -100,6 +100,8 @@ class Gateway:
         """
         self._on_fieldbus_up = on_fieldbus_up
         self._ask_priority()
+        for text in self.topology.warnings():
+            log.warning("%s", text)
         http_started: asyncio.Future[None] | None = None
         if self.topology.gateway.http is not None and self.http is None:
             from .isolation.front import HttpChild
@@ -412,6 +414,7 @@ class Gateway:
                 for c in self.backs
             },
             "modules": [m.as_dict() for m in self.health.modules()],
+            "back_errors": dict(self.health.back_errors),
             "process": own_process(),
             "children": self.children_status(),
         }

@@ -57,3 +57,20 @@ def pytest_collection_modifyitems(config, items):
         limit = marker.args[0] if marker is not None and marker.args else default
         if limit:
             item.add_marker(pytest.mark.timeout(limit * SLOWDOWN), append=False)
+
+
+@pytest.fixture
+def kernel(monkeypatch: pytest.MonkeyPatch):
+    """Every CAN front started in this test controls its interface through a fake kernel
+    (tests/fake_can_link.py), whatever its python-can interface: the tests' buses are virtual."""
+    from functools import partial
+
+    from fake_can_link import FakeKernel
+
+    from fieldgate.can import front as canfront
+    from fieldgate.can.interface import InterfaceControl
+
+    fake = FakeKernel()
+    monkeypatch.setattr(canfront, "controls", lambda interface, channel: True)
+    monkeypatch.setattr(canfront, "InterfaceControl", partial(InterfaceControl, ops=fake.ops))
+    return fake

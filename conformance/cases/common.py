@@ -479,3 +479,15 @@ def expect_error_reset(
             seen=f"0x{register:02X}",
         )
     return found
+
+
+# -- store (0x1010 / 0x1011), for every profile that saves --------------------------------------
+SAVE = 0x65766173  # "save"
+LOAD = 0x64616F6C  # "load"
+
+
+def require_store(ctx: Context) -> None:
+    dev = ctx.device
+    dev.require(0x1010, 1, why="store parameters")
+    if not dev.read(0x1010, 1) & 0x01:
+        raise Skip("0x1010:1 bit 0 is 0: the device does not save on command")

@@ -7,13 +7,33 @@ one bit stream, non-compressed = a byte per module), the special-module areas
 Where the seed is silent the cases grade what fieldgate chose and documents
 (docs/na9161.md): a written data mode or slot flag takes effect at the next NMT Reset
 Node ([AMBIG-35]). Opt-in like ``seed``: run with ``--profile na9161`` (or ``all``).
+
+The rows of the seed audit issue 32 closed: the field-power bit of 0x4500:1 (§5.3), slot
+memory that is the module's and not its I/O (§3.3), "Changed HW configuration" at power-on on
+defaults (§4.5; needs ``--power-cycle``), saved COB-IDs kept across a node-ID change (0x1010,
+[AMBIG-24]; the node-ID changed by LSS).
 """
 
 from __future__ import annotations
 
-from ..device import NMT_RESET_NODE, mux
+import time
+
+from ..device import NMT_RESET_COMM, NMT_RESET_NODE, mux
 from ..framework import Context, Fail, Skip, case
-from .common import Pdo, active_pdo, operational, pdos, remap
+from .cia401 import require_loopback
+from .common import (
+    LOAD,
+    SAVE,
+    Pdo,
+    active_pdo,
+    expect_emcy,
+    operational,
+    pdos,
+    remap,
+    require_store,
+)
+from .lss import CONFIGURATION, WAITING, lss, must, require_lss, restore_node_id, spare_id
+from .lss import switch as lss_switch
 from .mapping import revalidate
 from .od import RO_WRITE_ABORTS
 from .pdo import rtr
@@ -261,4 +281,122 @@ def special_tpdo(ctx: Context) -> None:
             f"{tpdo.name} mapping 0x3000:1..{n}",
             expected=before.hex(" ") + (f" (or {after.hex(' ')})" if after != before else ""),
             seen=str(frame),
+        )
+
+
+# -- the rows of the seed audit issue 32 closed (docs/na9161.md) -------------------------------
+@case(
+    "na9161",
+    "field_power_bit",
+    "0x4500:1 byte 3 reports the field supply: 0x00 present, 0x80 missing (§5.3, TV-06)",
+)
+def field_power_bit(ctx: Context) -> None:
+    require_fnbus(ctx, 1)
+    status = ctx.device.read(FNBUS, 1)
+    power = status >> 24 & 0xFF
+    if power not in (0x00, 0x80):
+        raise Fail(
+            "0x4500:1 byte 3", expected="0x00 (supplied) or 0x80 (missing)", seen=f"0x{power:02X}"
+        )
+
+
+@case(
+    "na9161",
+    "slot_memory_not_io",
+    "0x2000:n is the slot module's memory, not its I/O: an input change leaves it as it was (§3.3)",
+)
+def slot_memory_not_io(ctx: Context) -> None:
+    dev = ctx.device
+    require_fnbus(ctx)  # (0x2000 of an ICP DAS-style head holds error counters)
+    dev.require(0x2000, 1, why="slot memory")
+    require_loopback(ctx)
+    dev.require(0x6411, 1, why="an AO looped back to an AI")
+    count = int(dev.read(0x2000, 0))
+    before = [dev.upload(0x2000, n) for n in range(1, count + 1)]
+    old = dev.read(0x6411, 1)
+    ctx.cleanup(lambda: dev.write(0x6411, 1, old))
+    new = (old + 0x321) & 0x7FFF
+    dev.write(0x6411, 1, new)
+    deadline = time.monotonic() + ctx.timing.bootup
+    while dev.read(0x6401, 1) != new and time.monotonic() < deadline:
+        time.sleep(0.02)
+    after = [dev.upload(0x2000, n) for n in range(1, count + 1)]
+    changed = [n for n, (a, b) in enumerate(zip(before, after, strict=True), 1) if a != b]
+    if changed:
+        raise Fail(
+            f"0x2000:{changed[0]} follows the slot's inputs",
+            expected="the module's memory (parameters), unchanged by an I/O change",
+            seen=f"{before[changed[0] - 1].hex(' ')} -> {after[changed[0] - 1].hex(' ')}",
+            clause="NA-9161 manual §3.3 (0x2000 read memory), §9.6",
+        )
+
+
+@case(
+    "na9161",
+    "hw_config_emcy",
+    "a head on its defaults sends 'Changed HW configuration' at power-on (§4.5, 0x1010)",
+)
+def hw_config_emcy(ctx: Context) -> None:
+    dev = ctx.device
+    require_fnbus(ctx)
+    dev.require(0x1011, 1, why="restore default parameters")
+    if ctx.options.power_cycle is None:
+        raise Skip("needs --power-cycle COMMAND: the EMCY comes at power-on only")
+    dev.write(0x1011, 1, LOAD)  # the defaults at the next power-on
+    dev.link.flush()
+    ctx.options.power_cycle()
+    if dev.wait_bootup() is None:
+        raise Fail("no boot-up after the power cycle", expected="700+ID [1] 00")
+    frame = expect_emcy(ctx, 0x6300)
+    if frame is None:
+        raise Fail(
+            "no 'Changed HW configuration' EMCY at power-on on defaults",
+            expected=f"{0x80 + dev.node_id:03X} [8] 00 63 .. (0x6300 data set)",
+            seen="nothing",
+            clause="NA-9161 manual §4.5, §9.7.1 (0x1010)",
+        )
+
+
+@case(
+    "na9161",
+    "stored_cob_ids_kept",
+    "saved COB-IDs keep their values when only the node-ID changes (0x1010, [AMBIG-24])",
+)
+def stored_cob_ids_kept(ctx: Context) -> None:
+    dev = ctx.device
+    require_fnbus(ctx)
+    require_store(ctx)
+    require_lss(ctx)  # (the NA-9161 changes it by switch; the tester can only by LSS)
+    tpdo1 = dev.read(0x1800, 1) if dev.has(0x1800, 1) else None
+    if tpdo1 is None or tpdo1 & 0x7FF != 0x180 + dev.node_id:
+        raise Skip("TPDO1 is not at its predefined COB-ID 0x180 + node-ID")
+    ctx.cleanup(lambda: reset_node(ctx, "defaults back"))
+    ctx.cleanup(lambda: dev.write(0x1011, 1, LOAD))
+    dev.write(0x1010, 1, SAVE)
+    new = spare_id(ctx)
+    lss_switch(ctx, CONFIGURATION)
+    if must(ctx, [0x11, new], 0x11, f"configure node-ID {new}").data[1] != 0:
+        raise Skip(f"the device refuses node-ID {new} by LSS")
+    ctx.cleanup(lambda: restore_node_id(ctx, new))
+    lss(ctx, [0x04, WAITING])
+    dev.link.flush()
+    dev.nmt(NMT_RESET_COMM)
+    if dev.wait_bootup(new) is None:
+        raise Fail("no boot-up on the new node-ID", expected=f"{0x700 + new:03X} [1] 00")
+    seen = None
+    for _ in range(2):  # (a device may open its new SDO channel just after the boot-up)
+        dev.link.flush()
+        dev.link.send(0x600 + new, bytes.fromhex("40 00 18 01 00 00 00 00"))
+        answer = dev.link.expect(0x580 + new, ctx.timing.response)
+        if answer is not None:
+            seen = int.from_bytes(answer.data[4:8], "little")
+            break
+    if seen is None:
+        raise Fail("no SDO answer on the new node-ID", expected=f"{0x580 + new:03X} ..")
+    if seen & 0x7FF != tpdo1 & 0x7FF:
+        raise Fail(
+            "TPDO1's saved COB-ID followed the new node-ID",
+            expected=f"0x{tpdo1 & 0x7FF:03X} (the stored value)",
+            seen=f"0x{seen & 0x7FF:03X}",
+            clause="NA-9161 manual §9.7.1 (0x1010)",
         )

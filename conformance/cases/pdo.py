@@ -617,15 +617,17 @@ def rtr_not_allowed(ctx: Context) -> None:
     operational(ctx)
     # A live device may send the TPDO by itself while the tester listens (event-driven, an
     # input changed): that frame carries data other than the TPDO's frame before it, where an
-    # answer to the RTR would repeat it. Up to three tries tell the two apart.
+    # answer to the RTR would repeat it. Up to three tries tell the two apart; a device that
+    # sends nothing on entering Operational (the I-7232D, TV-07) gives no frame to compare the
+    # first with, so that one only sets what the next must repeat.
     started = tpdo_frames(ctx, pdo, ctx.timing.silence)
     last = bytes(started[-1].data) if started else None
     for _ in range(3):
         frame = rtr(ctx, pdo, ctx.timing.silence)
         if frame is None:
             return
-        if last is not None and bytes(frame.data) != last:
-            last = bytes(frame.data)  # sent by itself on a change: not an answer
+        if last is None or bytes(frame.data) != last:
+            last = bytes(frame.data)  # sent by itself on a change, or nothing to compare yet
             continue
         raise Fail(f"{pdo.name} answered RTR with bit 30 set", expected="nothing", seen=str(frame))
     raise Skip(f"{pdo.name} changed by itself after each of three RTRs: no verdict")

@@ -6,17 +6,9 @@ from canopen.objectdictionary import ODVariable
 
 from ..device import NMT_RESET_NODE
 from ..framework import Context, Fail, Skip, case
-from .common import int_default, other_value, rw_ints, subindex_numbers
+from .common import LOAD, SAVE, int_default, other_value, require_store, rw_ints, subindex_numbers
 
-SAVE = 0x65766173  # "save"
-LOAD = 0x64616F6C  # "load"
-
-
-def require_store(ctx: Context) -> None:
-    dev = ctx.device
-    dev.require(0x1010, 1, why="store parameters")
-    if not dev.read(0x1010, 1) & 0x01:
-        raise Skip("0x1010:1 bit 0 is 0: the device does not save on command")
+__all__ = ["LOAD", "SAVE", "require_store"]
 
 
 def reset_node(ctx: Context) -> None:

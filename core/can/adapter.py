@@ -61,6 +61,7 @@ from . import filters as acceptance
 from . import socketcan_raw as raw
 from .controller import Controller
 from .frame import Frame
+from .interface import InterfaceControl
 from .receive import RX_ERRORS_FATAL, ReceivePath, to_frame
 
 log = logging.getLogger("fieldgate.can.adapter")
@@ -149,12 +150,20 @@ class CanAdapter:
         transmit_allowed: Callable[[float], bool] | None = None,
         reopen: Callable[[int], can.BusABC] | None = None,
         on_controller: Callable[[str, float], None] | None = None,
+        interface: InterfaceControl | None = None,
+        bus_off_restart: Callable[[], float | None] | None = None,
+        on_link: Callable[[str | None, float], None] | None = None,
     ):
         self.node = node
         self.bus = bus
         self.loop = loop
         self.transmit_allowed = transmit_allowed
         self.reopen = reopen  # a new bus at another bit rate (LSS, DeviceNet baud rate)
+        self.interface = interface  # the SocketCAN interface fieldgate controls, if any
+        self.bus_off_restart = (
+            bus_off_restart  # the front's restart delay after bus-off (None: hold)
+        )
+        self.on_link = on_link  # the interface set as configured (None) or why not
         self.counters: Counter[str] = Counter()
         self.rx_frames = self.tx_frames = 0  # the two per-frame counts, kept as plain integers
         self.rx_ignored = 0  # received, but not on an identifier the engine listens to
@@ -197,6 +206,7 @@ class CanAdapter:
         # a read being answered on the receive thread finishes first; none after
         with self.engine_lock:
             self.closed = True
+        self.controller.close()
         for handle in (self._timer, self._state_timer):
             if handle is not None:
                 handle.cancel()

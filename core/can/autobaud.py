@@ -12,12 +12,15 @@ SocketCAN interface through :mod:`.link` (blocking: call it in a thread from asy
 
 from __future__ import annotations
 
+import asyncio
 import select
 import socket
 import struct
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from . import link as canlink
 from .socketcan_raw import CAN_ERR_FLAG, FRAME
@@ -166,3 +169,85 @@ def _listen(name: str, probe: BitrateProbe, clock: Callable[[], float]) -> Step:
                 return step
     finally:
         sock.close()
+
+
+class _Stopped(Exception):
+    """The front stopped while probing."""
+
+
+class AutoBaud:
+    """A CAN front's auto-baud (``bitrate: auto``): :func:`probe_bitrate` in a thread before the
+    engine boots, its progress for the front's status. Where the interface cannot be probed
+    (not SocketCAN, ``configure_interface: false``, a ``vcan`` without bit timing, a
+    controller without listen-only mode, no CAP_NET_ADMIN) one line says why and the bus opens
+    with the interface as it is (:meth:`run` returns None)."""
+
+    def __init__(
+        self,
+        channel: str,
+        interface: object | None,
+        probe: BitrateProbe | None = None,
+        probing: Callable[..., int | None] | None = None,
+    ) -> None:
+        self.channel = channel
+        self.controlled = interface is not None
+        self.probe = probe or BitrateProbe()
+        self._probing = probing or probe_bitrate
+        self.state = "waiting"  # probing, found, not-probed
+        self.listening_at: int | None = None
+        self.found: int | None = None
+        self.why: str = ""
+        self._stop = threading.Event()
+
+    def _step(self, step: Step) -> None:
+        if self._stop.is_set():
+            raise _Stopped
+        if step.action == "listen":
+            self.listening_at = step.bitrate
+
+    async def run(self, log: Any) -> int | None:
+        if not self.controlled:
+            return self._not_probed(
+                log,
+                "fieldgate does not control this interface (SocketCAN with configure_interface only)",
+            )
+        self.state = "probing"
+        log.info(
+            "%s: bit rate auto: listening (listen-only) at %s bit/s until frames are seen",
+            self.channel,
+            ", ".join(str(r) for r in self.probe.rates),
+        )
+        try:
+            found = await asyncio.to_thread(
+                self._probing, self.channel, self.probe, on_step=self._step
+            )
+        except canlink.LinkError as exc:
+            return self._not_probed(log, str(exc))
+        except _Stopped:
+            return None
+        self.listening_at = None
+        if found is None:  # (a probe without a round limit never gives up)
+            return self._not_probed(log, "no rate had valid frames")
+        self.state, self.found = "found", found
+        log.info("%s: bit rate auto: %d bit/s found, normal mode", self.channel, found)
+        return found
+
+    def _not_probed(self, log: Any, why: str) -> int | None:
+        """Auto-baud could not run: said once; the bus opens with the interface as it is."""
+        self.state, self.why = "not-probed", why
+        log.warning("bit rate auto: %s; the bus opens with the interface as it is", why)
+        return None
+
+    def stop(self) -> None:
+        """Ends a probe running in its thread at its next step (within one dwell)."""
+        self._stop.set()
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "state": self.state,
+            "listening_at": self.listening_at,
+            "found": self.found,
+            "tried": len(self.probe.tried),
+            "round": self.probe.round + 1,
+            "why": self.why or None,
+        }

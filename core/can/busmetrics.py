@@ -49,6 +49,12 @@ def can_bus_samples(status: dict[str, Any] | None, ignored: int = 0) -> list[Sam
             "times the CAN controller went bus-off",
             status.get("bus_off_events", 0),
         ),
+        counter(
+            "can_bus_off_recoveries_total",
+            "times the CAN controller recovered from bus-off",
+            status.get("bus_off_recoveries", 0),
+        ),
+        *_link_samples(status.get("link")),
         *(
             counter("can_frames_dropped_total", dropped, status.get(key, 0), reason=reason)
             for key, reason in _DROPPED.items()
@@ -70,3 +76,32 @@ def can_bus_samples(status: dict[str, Any] | None, ignored: int = 0) -> list[Sam
             for kind, value in (status.get("overruns") or {}).items()
         ),
     ]
+
+
+def _link_samples(link: dict[str, Any] | None) -> list[Sample]:
+    """What the kernel reports of a SocketCAN interface fieldgate controls (docs/can-link.md):
+    the controller's error counters and the restarts after bus-off, the kernel's and ours."""
+    if not link:
+        return []
+    errors = "the CAN controller's transmit / receive error counter (as last read)"
+    samples = [
+        counter(
+            "can_controller_restarts_total",
+            "restarts of the CAN controller after bus-off, as the kernel counts them (its own "
+            "after restart-ms, and fieldgate's)",
+            link.get("restarts") or 0,
+        ),
+        counter(
+            "can_controller_restarts_by_fieldgate_total",
+            "restarts after bus-off fieldgate asked for (where the kernel has restart-ms 0)",
+            link.get("restarts_by_fieldgate", 0),
+        ),
+        gauge(
+            "can_link_error", "1 while the interface is not as configured", bool(link.get("error"))
+        ),
+    ]
+    for direction in ("tx", "rx"):
+        value = link.get(f"{direction}_errors")
+        if value is not None:
+            samples.append(gauge("can_error_counter", errors, value, direction=direction))
+    return samples

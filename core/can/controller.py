@@ -34,6 +34,7 @@ import can
 from fieldgate.plugin import PluginStartError
 
 from .frame import Frame
+from .interface import InterfaceControl
 
 log = logging.getLogger("fieldgate.can.adapter")
 
@@ -70,6 +71,9 @@ class ControllerHost(Protocol):
     counters: Counter[str]
     reopen: Callable[[int], can.BusABC] | None
     receiving: Receiving
+    interface: InterfaceControl | None
+    bus_off_restart: Callable[[], float | None] | None
+    on_link: Callable[[str | None, float], None] | None
 
     @property
     def node(self) -> Flushing: ...  # the engine
@@ -80,6 +84,7 @@ class ControllerHost(Protocol):
     def send(self, frames: list[Frame] | tuple[Frame, ...], now: float | None = None) -> None: ...
     def pump_unless_closed(self) -> None: ...
     def bind_bus(self) -> None: ...
+    def fail(self, exc: BaseException) -> None: ...
     def apply_filters(self) -> None: ...
 
 
@@ -100,6 +105,30 @@ class Controller:
         self._state_passive = False  # set from bus.state (not from error frames)
         self._state_bus_off = False  # set from bus.state
         self._rx_overruns_seen = 0
+        self._tasks: set[asyncio.Task[None]] = set()  # link work in flight (reads, switches)
+        self._restart: asyncio.TimerHandle | None = None  # the front's restart after bus-off
+
+    def close(self) -> None:
+        """The adapter closes: nothing scheduled runs any more."""
+        if self._restart is not None:
+            self._restart.cancel()
+        for task in list(self._tasks):
+            task.cancel()
+
+    def _spawn(self, work: Callable[[], Any]) -> None:
+        """Run ``work()`` (a coroutine) on the adapter's loop, from any thread."""
+
+        def start() -> None:
+            if self.adapter.closed:
+                return
+            task = self.adapter.loop.create_task(work())
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+        try:
+            self.adapter.loop.call_soon_threadsafe(start)
+        except RuntimeError:  # the loop is closed: the gateway is stopping
+            pass
 
     # -- what the bus says ---------------------------------------------------------------
     def error_frame(self, msg: can.Message) -> None:
@@ -178,16 +207,68 @@ class Controller:
         if self.on_bus_state is not None:
             self.on_bus_state(bus_off, self.adapter.now)
         self.adapter.send(self.adapter.node.flush())
+        if self.adapter.interface is not None:
+            self._spawn(self._read_link_after_bus_state)
+
+    # -- the interface (SocketCAN under fieldgate's control) -----------------------------------
+    async def _read_link_after_bus_state(self) -> None:
+        """Bus-off or its end: the kernel's view (state, error counters, its bus-off and restart
+        counts); after bus-off, the front's own restart where the kernel has none (restart-ms 0)."""
+        interface = self.adapter.interface
+        assert interface is not None
+        await interface.refresh()
+        self._reconcile()
+        if not self.bus_off or interface.kernel_restarts or self._restart is not None:
+            return
+        delay = self.adapter.bus_off_restart() if self.adapter.bus_off_restart else None
+        if delay is None:
+            log.warning(
+                "%s: bus-off: the controller stays off (no automatic recovery)", interface.channel
+            )
+            return
+        self._restart = self.adapter.loop.call_later(
+            delay, lambda: self._spawn(self._restart_after_bus_off)
+        )
+
+    async def _restart_after_bus_off(self) -> None:
+        self._restart = None
+        interface = self.adapter.interface
+        if interface is None or not self.bus_off or self.adapter.closed:
+            return
+        problem = await interface.restart()
+        if problem is not None:
+            log.error("%s: bus-off not recovered: %s", interface.channel, problem)
+        self._reconcile()
+
+    def _reconcile(self) -> None:
+        """Take the kernel's word for bus-off where its error frame did not come (a restart by
+        down/up sends none; a driver without error frames)."""
+        interface = self.adapter.interface
+        link = interface.link if interface is not None else None
+        if link is None or link.state is None or self.adapter.closed:
+            return
+        with self.adapter.engine_lock:
+            if link.state == "bus-off":
+                self.set_bus_off(True)
+            elif link.up and link.state in ("error-active", "error-warning", "error-passive"):
+                if self.bus_off:
+                    self.set_bus_off(False)
+                    self.set_state("error-active")
 
     # -- bit rate ---------------------------------------------------------------------------
     def bit_timing(self, bitrate: int, delay_s: float) -> None:
         """The engine asks for another bit rate in ``delay_s``."""
         if self.adapter.reopen is None:
             self.counters["bit_timing_ignored"] += 1
+            self.adapter.loop.call_soon(self._switched, bitrate, None)
             return
-        self.adapter.loop.call_later(delay_s, self.switch_bitrate, bitrate)
+        self.adapter.loop.call_later(
+            delay_s, lambda: self._spawn(lambda: self.switch_bitrate(bitrate))
+        )
 
-    def switch_bitrate(self, bitrate: int) -> None:
+    async def switch_bitrate(self, bitrate: int) -> None:
+        """Close the bus, set the interface to ``bitrate`` (where fieldgate controls it: through
+        netlink, in a thread), open the bus again; the engine and the front hear how it went."""
         adapter = self.adapter
         reopen = adapter.reopen
         if adapter.closed or reopen is None:  # (None: bit_timing schedules no switch)
@@ -200,21 +281,51 @@ class Controller:
         adapter.receiving.stop()
         try:
             adapter.bus.shutdown()
+        except Exception as exc:  # a broken driver: the bus is reopened anyway
+            log.warning("CAN bus shutdown failed: %s", exc)
+        problem = None
+        if adapter.interface is not None:
+            problem = await adapter.interface.apply(bitrate)
+            if problem is not None:
+                log.error("%s; the node runs with the interface as it is", problem)
+        if self._closed():  # (closed while the interface was set)
+            return
+        try:
             adapter.bus = reopen(bitrate)
             adapter.bind_bus()
         except PluginStartError as exc:
             log.error("cannot reopen the CAN bus at %d bit/s: %s", bitrate, exc)
             self.counters["bit_timing_failures"] += 1
+            adapter.fail(exc)  # the front restarts on its configured settings
             return
         with adapter.engine_lock:
             adapter.apply_filters()
         adapter.receiving.start()
         adapter.switching = False
-        self.counters["bit_timing_switches"] += 1
+        self.counters["bit_timing_switches" if problem is None else "bit_timing_failures"] += 1
+        self._switched(bitrate, problem)
+
+    def _closed(self) -> bool:
+        return self.adapter.closed
+
+    def _switched(self, bitrate: int, problem: str | None) -> None:
+        """The engine (``bit_timing_done``, e.g. DeviceNet's duplicate MAC check waits for it) and
+        the front (``on_link``: an EMCY, a status bit) hear the switch's outcome."""
+        adapter = self.adapter
+        done: Callable[[bool, float], None] | None = getattr(adapter.node, "bit_timing_done", None)
+        with adapter.engine_lock:
+            if adapter.interface is not None and adapter.on_link is not None:
+                adapter.on_link(problem, adapter.now)
+            if done is not None:
+                done(problem is None, adapter.now)
+        adapter.pump_unless_closed()
 
     def status(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "bus_off": self.bus_off,
             "controller": "bus-off" if self.bus_off else self.state,
             "overruns": {kind: self.overruns[kind] for kind in OVERRUNS},
         }
+        if self.adapter.interface is not None:
+            out["link"] = self.adapter.interface.status()
+        return out

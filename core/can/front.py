@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import can
 from pydantic import Field
@@ -42,7 +42,9 @@ from fieldgate.plugin import Front, GatewayContext
 from fieldgate.topology.model import StrictModel
 
 from .adapter import CanAdapter, CanEngine, open_bus
+from .autobaud import AutoBaud
 from .busmetrics import can_bus_samples
+from .interface import InterfaceControl, controls
 
 
 class CanBusConfig(StrictModel):
@@ -57,12 +59,28 @@ class CanBusConfig(StrictModel):
         "can0",
         description="python-can channel (can0, vcan0, PCAN_USBBUS1, a virtual channel name, ...)",
     )
-    bitrate: int | None = Field(
+    bitrate: int | Literal["auto"] | None = Field(
         125_000,
-        description="CAN bit rate in bit/s (passed to can.Bus); null for an interface configured outside fieldgate",
+        description="CAN bit rate in bit/s (SocketCAN: set on the interface; other interfaces: passed to can.Bus); auto: found by listening before the engine boots (SocketCAN); null for an interface configured outside fieldgate",
     )
     bus_options: dict[str, Any] = Field(
         default_factory=dict, description="extra keyword arguments for can.Bus"
+    )
+    sample_point: float | None = Field(
+        None,
+        gt=0.5,
+        lt=1.0,
+        description="SocketCAN: the sample point set with the bit rate (e.g. 0.875); null: the kernel's (CiA's 87.5 % up to 800 kbit/s)",
+    )
+    restart_ms: int = Field(
+        100,
+        ge=0,
+        le=60_000,
+        description="bus-off recovery: the controller restarts this long after bus-off, by the kernel (ip link restart-ms) where fieldgate configures the interface, else by the front",
+    )
+    configure_interface: bool = Field(
+        True,
+        description="SocketCAN: apply bitrate, sample_point and restart_ms to the interface at start and at a protocol's bit-rate switch (needs CAP_NET_ADMIN); false where systemd-networkd or ip link owns it",
     )
 
 
@@ -75,6 +93,19 @@ class CanFront(Front):
         self.adapter: CanAdapter | None = None
         self._health_subscribed = False
         self._wake_scheduled = False
+        cfg = self.config
+        self.interface: InterfaceControl | None = (
+            InterfaceControl(
+                cfg.channel,
+                cfg.sample_point,
+                self.link_restart_ms(),
+                managed=cfg.configure_interface,
+            )
+            if controls(cfg.interface, cfg.channel)
+            else None
+        )
+        self.autobaud: AutoBaud | None = None
+        self._opening: asyncio.Future[None] | None = None  # auto-baud, then the bus opens
 
     # -- what a CAN front says ----------------------------------------------------------------
     def build(self) -> CanEngine:
@@ -83,8 +114,8 @@ class CanFront(Front):
 
     def start_bitrate(self, engine: CanEngine) -> int | None:
         """The bit rate the bus opens at: the configuration's."""
-        bitrate: int | None = self.config.bitrate
-        return bitrate
+        bitrate = self.config.bitrate
+        return bitrate if isinstance(bitrate, int) else None
 
     def adapter_options(self, engine: CanEngine) -> dict[str, Any]:
         """More keyword arguments for :class:`~.adapter.CanAdapter` (``on_controller``,
@@ -111,21 +142,68 @@ class CanFront(Front):
     def before_stop(self) -> None:
         """Before the bus closes: cancel what :meth:`after_start` subscribed."""
 
+    # -- the interface (SocketCAN, docs/can-link.md) --------------------------------------------
+    def link_restart_ms(self) -> int | None:
+        """The restart-ms set on the interface with the bit rate: the configuration's (the kernel
+        restarts the controller after bus-off)."""
+        restart_ms: int = self.config.restart_ms
+        return restart_ms
+
+    def bus_off_restart_s(self) -> float | None:
+        """Where the kernel does not restart a bus-off controller (restart-ms 0): how long the
+        front waits before it restarts it; None: the controller stays bus-off."""
+        return float(self.config.restart_ms) / 1000.0
+
+    def link_problem(self, problem: str | None, now: float) -> None:
+        """The interface could not be set as configured (``problem``: the one line why; the
+        node runs with the interface as it is), or, None, it is as configured now. A front
+        shows it the way its device would (an EMCY, a status bit)."""
+
+    def wants_autobaud(self, engine: CanEngine) -> bool:
+        """Whether the bit rate is found by listening (:mod:`.autobaud`) before the engine boots:
+        ``bitrate: auto``."""
+        return bool(self.config.bitrate == "auto")
+
+    def found_bitrate(self, engine: CanEngine, bitrate: int | None) -> None:
+        """Auto-baud ended: the engine learns the rate found (None: none, the bus opens as it is)."""
+
     # -- life cycle ---------------------------------------------------------------------------
     def open_bus(self, bitrate: int | None) -> can.BusABC:
         cfg = self.config
         return open_bus(cfg.interface, cfg.channel, bitrate, cfg.bus_options)
 
     async def start(self) -> None:
-        loop = asyncio.get_running_loop()
         self.engine = engine = self.build()
-        bitrate = self.start_bitrate(engine)
+        if self.wants_autobaud(engine):
+            # the rate is found by listening first; run() opens the bus and boots the engine
+            self.autobaud = AutoBaud(self.config.channel or "", self.interface)
+            self._opening = asyncio.ensure_future(self._autobaud_then_open(engine))
+            return
+        await self._open(engine, self.start_bitrate(engine))
+
+    async def _autobaud_then_open(self, engine: CanEngine) -> None:
+        assert self.autobaud is not None
+        bitrate = await self.autobaud.run(self.log)
+        self.found_bitrate(engine, bitrate)
+        await self._open(engine, bitrate)
+
+    async def _open(self, engine: CanEngine, bitrate: int | None) -> None:
+        """Set the interface (where fieldgate controls it), open the bus, boot the engine."""
+        loop = asyncio.get_running_loop()
+        problem = None
+        if self.interface is not None and bitrate is not None:
+            problem = await self.interface.apply(bitrate)
+            if problem is not None:
+                self.log.error("%s; the node runs with the interface as it is", problem)
         self.adapter = CanAdapter(
             engine,
             self.open_bus(bitrate),
             loop,
             on_bus_state=self.on_bus_state,
             reopen=self.open_bus,
+            interface=self.interface,
+            bus_off_restart=self.bus_off_restart_s,
+            on_link=self.link_problem,
             **self.adapter_options(engine),
         )
         self.adapter.start()
@@ -136,14 +214,25 @@ class CanFront(Front):
             self._health_subscribed = True
             self.context.health.subscribe(self.module_health)
         self.after_start(engine, bitrate)
+        if self.interface is not None:
+            self.pump(lambda: self.link_problem(problem, loop.time()))
 
     async def run(self) -> None:
         """Everything is callback-driven; raises only when receiving from the bus has died."""
+        if self._opening is not None:
+            opening, self._opening = self._opening, None
+            await opening
         if self.adapter is None:
             raise RuntimeError(f"front {self.name}: run() before start()")
         await self.adapter.failed
 
     async def stop(self) -> None:
+        if self._opening is not None:
+            self._opening.cancel()
+            await asyncio.gather(self._opening, return_exceptions=True)
+            self._opening = None
+        if self.autobaud is not None:
+            self.autobaud.stop()
         self.before_stop()
         if self.adapter is not None:
             self.adapter.close()
@@ -172,11 +261,16 @@ class CanFront(Front):
 
     # -- status -------------------------------------------------------------------------------
     def bus_status(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "bus": self.adapter.status() if self.adapter else None,
             "interface": self.config.interface,
             "channel": self.config.channel,
         }
+        if self.autobaud is not None:
+            out["autobaud"] = self.autobaud.status()
+        if self.adapter is None and self.interface is not None:  # (the adapter's status has it)
+            out["link"] = self.interface.status()
+        return out
 
     def bus_samples(self, ignored: int) -> list[Sample]:
         """The bus's series for /metrics; ``ignored``: frames the engine had no use for."""

@@ -92,8 +92,11 @@ class Topology:
         return "\n".join(lines)
 
     def warnings(self) -> list[str]:
-        """What is valid but will not work as configured (a line booked beyond its poll_ms)."""
+        """What is valid but will not work as configured (a line booked beyond its poll_ms), or
+        would not go back onto the box a front's style replaces (fronts' topology_warnings)."""
         out: list[str] = []
+        for front in self.fronts:
+            out += [f"front {front.name}: {text}" for text in front.topology_warnings(self)]
         for back in self.backs:
             check = getattr(back, "timing_warnings", None)
             if check is not None:

@@ -9,6 +9,7 @@ same common fields.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from fnmatch import fnmatchcase
 from typing import Annotated, Any, Literal, overload
 
 from pydantic import (
@@ -276,6 +277,21 @@ class FrontConfig(ComponentConfig):
         says which here.
         """
         return self.expose
+
+    def served_backs(self, back_names: list[str]) -> list[str]:
+        """Of ``back_names``, the backs whose channels this front serves or would serve: all
+        without an ``expose`` list, else those an ``expose`` pattern's back part matches (a back
+        with no channel yet, e.g. one that found no module, still counts)."""
+        if self.expose is None:
+            return list(back_names)
+        parts = [pattern.split("/", 1)[0] for pattern in self.expose]
+        return [n for n in back_names if any(fnmatchcase(n, part) for part in parts)]
+
+    def topology_warnings(self, topology: Any) -> list[str]:
+        """What ``fieldgate validate`` (and the log at start) should point out about this front
+        in the whole topology although it is valid: a topology the box a style replaces
+        could not hold. Default: nothing."""
+        return []
 
     def check(self, topology: Any) -> list[tuple[tuple[Any, ...], str]]:
         """What this front can only check with the whole topology (its channels known), as

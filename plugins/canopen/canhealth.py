@@ -35,6 +35,10 @@ from .cia301.service import ALL_STATES, NodeHost, Service
 from .profiles import ControllerEmcy
 
 OVERRUN_QUIET_S = 1.0  # an overrun error ends after this long without another overrun
+# the CAN interface could not be set as configured (bit rate at start or at an LSS switch,
+# sample point, restart-ms; docs/can-link.md): ours in both styles, CiA 301's communication
+# code with the next number of the ICP DAS table's manufacturer byte
+LINK_EMCY: ControllerEmcy = (0x8100, 0x11, b"\x0d")
 STATES = ("error-active", "warning", "passive")
 
 
@@ -54,6 +58,7 @@ class CanHealth(Service):
         self.state = "error-active"
         self.overruns: Counter[str] = Counter()
         self._overrun_since: dict[tuple[int, bytes], float] = {}  # active overrun -> last one
+        self.link_problem: str | None = None
 
     def attach(self, node: NodeHost) -> None:
         super().attach(node)
@@ -96,6 +101,20 @@ class CanHealth(Service):
     def _error(self, state: str) -> ControllerEmcy | None:
         return self.emcys.get(state) if state != "error-active" else None
 
+    def link(self, problem: str | None, now: float) -> None:
+        """The CAN interface is not as configured (``problem``: why; EMCY ``00 81 11 0D``), or is
+        now (its error reset)."""
+        emcy = self.node.emcy
+        self.link_problem = problem
+        if emcy is None:
+            return
+        code, register, manufacturer = LINK_EMCY
+        if problem is not None:
+            if emcy.raise_error(code, register, manufacturer, now):
+                self.counters["link_problems"] += 1
+        else:
+            emcy.clear_error(code, manufacturer, now)
+
     # -- timers ---------------------------------------------------------------------------
     def deadline(self) -> float | None:
         if not self._overrun_since:
@@ -115,4 +134,5 @@ class CanHealth(Service):
             "controller": self.state,
             "overruns": dict(self.overruns),
             "overrun_errors": [f"{c:04X}:{m.hex()}" for c, m in self._overrun_since],
+            "link_problem": self.link_problem,
         }

@@ -20,6 +20,7 @@ YAML::
 from __future__ import annotations
 
 import re
+from fnmatch import fnmatchcase
 from typing import Any, Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -27,6 +28,7 @@ from pydantic_core import PydanticCustomError
 
 from fieldgate import __version__
 from fieldgate.can.front import CanBusConfig
+from fieldgate.image import Kind
 from fieldgate.plugin import GatewayContext
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel
@@ -36,6 +38,7 @@ from .cia301.pdo.defaults import PdoSetting
 from .cia305.lss import BIT_TIMING_TABLES
 from .front401 import check_io
 from .profiles import (
+    BOX_LIMITS,
     AnalogEvents,
     MasterLost,
     MasterName,
@@ -154,7 +157,7 @@ class IoFrontOptions(StrictModel):
     )
     tpdo_on_start: Literal["async", "all", "none"] | None = Field(
         None,
-        description="TPDOs sent once on entering Operational; default async (icpdas) / all (na9161)",
+        description="TPDOs sent once on entering Operational; default none (icpdas: TV-07, no frame after Start) / all (na9161); async under master delta-as300 (E2)",
     )
     error_on_stopped: bool | None = Field(
         None,
@@ -168,6 +171,26 @@ class IoFrontOptions(StrictModel):
         default_factory=dict,
         description="RPDO number (1..) -> its communication and mapping defaults, replacing the style's; written into the EDS",
     )
+
+
+def box_limit_notes(back: Any, device: str, most: int, addresses: tuple[int, int]) -> list[str]:
+    """What ``back``'s module list asks beyond ``device``'s limits (count, RS-485 addresses)."""
+    modules = list(back.modules)
+    low, high = addresses
+    outside = [m.address for m in modules if not low <= m.address <= high]
+    notes = []
+    if len(modules) > most:
+        notes.append(
+            f"back {back.name} has {len(modules)} modules; the {device} holds at most {most}: "
+            f"fieldgate serves them, the topology would not go back onto an {device}"
+        )
+    if outside:
+        notes.append(
+            f"back {back.name} has modules at {', '.join(map(str, outside))}; the {device} takes "
+            f"RS-485 addresses {low}..{high} only: fieldgate serves them, the topology would not "
+            f"go back onto an {device}"
+        )
+    return notes
 
 
 def _invalid(message: str, loc: tuple[str, ...]) -> PydanticCustomError:
@@ -207,9 +230,9 @@ CIA_BITRATES = tuple(sorted(set().union(*(table.values() for table in BIT_TIMING
 
 class CanopenFrontConfig(FrontConfig, CanBusConfig, IoFrontOptions):
     type: Literal["canopen"] = "canopen"
-    bitrate: int | None = Field(
+    bitrate: int | Literal["auto"] | None = Field(
         125_000,
-        description="CAN bit rate in bit/s, one of CiA 301's (passed to can.Bus; LSS may change it); null for an interface configured outside fieldgate",
+        description="CAN bit rate in bit/s, one of CiA 301's (LSS may change it); auto: found by listening (listen-only) at each standard rate before boot-up (SocketCAN, the NA-9161's switch code 9); null for an interface configured outside fieldgate",
     )
     node_id: int | None = Field(
         ...,
@@ -316,15 +339,19 @@ class CanopenFrontConfig(FrontConfig, CanBusConfig, IoFrontOptions):
     module_emcy: bool = Field(
         True, description="send EMCY 00 FF 81 0B <address> when a served module goes offline"
     )
+    field_power: str | None = Field(
+        None,
+        description="an input channel wired to the 24 V field supply (e.g. rs485/m1/di7): false, or its module offline, is 'field power missing': 0x4500:1 byte 3 = 0x80 (na9161), EMCY 00 33 05, the status API; none: the supply is not sensed",
+    )
     identity: IdentitySettings = Field(default_factory=IdentitySettings)
 
     @field_validator("bitrate")
     @classmethod
-    def _standard_bitrate(cls, value: int | None) -> int | None:
-        if value is not None and value not in CIA_BITRATES:
+    def _standard_bitrate(cls, value: int | str | None) -> int | str | None:
+        if value is not None and value != "auto" and value not in CIA_BITRATES:
             raise ValueError(
                 f"expected one of the CiA 301 bit rates {', '.join(map(str, CIA_BITRATES))} bit/s, "
-                f"or null when the interface's own configuration sets it"
+                f", auto (found by listening), or null when the interface's own configuration sets it"
             )
         return value
 
@@ -355,10 +382,46 @@ class CanopenFrontConfig(FrontConfig, CanBusConfig, IoFrontOptions):
         """What ``fieldgate validate`` says beside "valid": where the master profile overrode the style."""
         return list(self.profile.notes)
 
+    def topology_warnings(self, topology: Any) -> list[str]:
+        """Where the topology goes beyond the box the style replaces (fieldgate serves it: a
+        superset), so it would not go back onto that box (audit 000 #40, 001 #12)."""
+        notes = []
+        profile = self.profile
+        analog_in = any(
+            spec.kind is Kind.AI
+            for spec in topology.channel_specs
+            if self.expose is None or any(fnmatchcase(spec.id, p) for p in self.expose)
+        )
+        if profile.analog_event_timer_ms and analog_in:
+            notes.append(
+                f"master {profile.master.name} needs analog data to keep flowing (REQ-AS-15) "
+                f"and the {profile.style.name} style sends analog changes as no TPDO event: "
+                f"analog TPDOs get an event timer of {profile.analog_event_timer_ms} ms "
+                "(tpdos: sets another)"
+            )
+        served = self.served_backs([b.name for b in topology.backs])
+        for back in topology.backs:
+            limits = BOX_LIMITS.get((self.style, back.type))
+            if limits is None or back.name not in served:
+                continue
+            notes += box_limit_notes(back, *limits)
+        return notes
+
     def check(self, topology: Any) -> list[tuple[tuple[Any, ...], str]]:
         """The limits ``run`` applies when the front starts, at validation: the style's image
-        (the NA-9161's 32 slots and 64 bytes per direction), the default PDOs, bit objects."""
-        return check_io(self, GatewayContext.build(topology))
+        (the NA-9161's 32 slots and 64 bytes per direction), the default PDOs, bit objects;
+        ``field_power`` names an input."""
+        issues = check_io(self, GatewayContext.build(topology))
+        if self.field_power is not None:
+            spec = next((c for c in topology.channel_specs if c.id == self.field_power), None)
+            if spec is None or spec.kind.is_output:
+                issues.append(
+                    (
+                        ("field_power",),
+                        f"{self.field_power!r} is no input channel of this topology (e.g. rs485/m1/di7)",
+                    )
+                )
+        return issues
 
     @field_validator("sync_cob_id")
     @classmethod

@@ -17,6 +17,7 @@ from typing import Any
 
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import ErrorMode
+from fieldgate.module_info import ModuleInfo
 
 from .cia401.iodevice import IoDevice, IoSettings, build_io, check_pdo_settings
 from .cia401.layouts import LayoutError
@@ -31,7 +32,7 @@ def io_settings(options: Any) -> IoSettings:
         pdo_count=options.pdo_count,
         mapping_closed=options.mapping_closed,
         compressed=options.compressed,
-        start_policy=options.tpdo_on_start,
+        start_policy=getattr(profile, "tpdo_on_start", None) or options.tpdo_on_start,
         error_on_stopped=options.error_on_stopped,
         bit_mapping=options.bit_mapping,
         tpdo_settings={n: p.setting() for n, p in options.tpdos.items()},
@@ -41,6 +42,7 @@ def io_settings(options: Any) -> IoSettings:
         settings.analog_events = profile.analog_events
         settings.short_ao_error_writes = profile.style.short_ao_error_writes
         settings.empty_pdos_invalid = profile.empty_pdos_invalid
+        settings.analog_event_timer_ms = profile.analog_event_timer_ms
     return settings
 
 
@@ -110,4 +112,5 @@ def io_device(front: Any) -> IoDevice:
         models=models,
         master_events=False,
         module_emcy=False,
+        module_info=ModuleInfo.from_context(ctx),
     )

@@ -13,6 +13,7 @@ the EMCY ``00 FF 81 0B <address> 00 00 00``.
 from __future__ import annotations
 
 import hashlib
+import logging
 from collections.abc import Callable, Iterable
 from functools import partial
 from pathlib import Path
@@ -23,7 +24,7 @@ from fieldgate.can.frame import Frame
 from fieldgate.can.front import CanFront
 from fieldgate.events import CAN_OVERRUN, CAN_STATE, EMCY_SENT, NMT_STATE
 from fieldgate.health import HealthEvent, ModuleHealth
-from fieldgate.image import Channel
+from fieldgate.image import Channel, Quality, Subscription
 from fieldgate.metric_samples import Sample, counter, gauge, master_output_writes, state_gauges
 from fieldgate.plugin import GatewayContext, Registry, hookimpl
 
@@ -45,6 +46,12 @@ MODULE_FAILURE_REGISTER = 0x81
 # seed-000 §2.5: "COM port access error" (the I-7232D's RS-485 port); both styles, as the
 # NA-9161's table is missing from its manual
 COM_PORT_ERROR = (0x5000, 0x81, b"\x03")
+# a back behind the front reports an error of its own (a DCON back that found no module: the
+# I-7231D's "DCON modules init error"): ours, the next number of the same 0x5000 family
+BACK_ERROR = (0x5000, 0x81, b"\x04")
+# the 24 V field supply missing (the field_power input): CiA 301's 0x3300 "output voltage",
+# error register bits generic and voltage (the NA-9161's field power LED; its table is missing)
+FIELD_POWER_ERROR = (0x3300, 0x05, b"")
 
 NodeExtension = Callable[["CanopenFront", Node], None]
 _node_extensions: list[NodeExtension] = []
@@ -68,6 +75,8 @@ class CanopenFront(CanFront):
         self.io: IoDevice | None = None
         self._modules: set[tuple[str, int]] = set()
         self._ports_subscribed = False
+        self.field_power: bool | None = None  # None: not sensed (no field_power), or not read yet
+        self._field_power_sub: Subscription | None = None
 
     @property
     def node(self) -> Node | None:
@@ -87,13 +96,14 @@ class CanopenFront(CanFront):
         cfg = self.config
         profile = cfg.profile
         channels = self.context.front_channels(cfg)
+        self.field_power = None  # read again into this node (and its 0x4500)
         self.io = io = io_device(self)
         node = build_node(self._node_settings(channels, io), name=self.name)
         if profile.style.controller_emcy:
             node.add_service(CanHealth(profile.style.controller_emcy))
         node.add_service(
             LssService(
-                bitrate=cfg.bitrate,
+                bitrate=cfg.bitrate if isinstance(cfg.bitrate, int) else None,
                 table=cfg.lss_table,
                 store=LssStore(self._state_path(cfg.lss_store_file, f"{self.name}.lss.json")),
             )
@@ -156,6 +166,8 @@ class CanopenFront(CanFront):
             sync_cob_id=cfg.sync_cob_id,
             store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),
             fingerprint=self.fingerprint(channels),
+            announce_defaults=profile.style.hw_config_emcy_unsaved,
+            keep_node_id_entries=profile.style.stored_cob_ids_kept,
             pdo=io.pdo_config,
         )
 
@@ -176,6 +188,15 @@ class CanopenFront(CanFront):
             register=data[2],
             data=data[3:].hex(),
         )
+
+    def _can_health(self) -> CanHealth | None:
+        """The node's CAN health service (None: no node, or a style without controller EMCYs)."""
+        if self.node is None:
+            return None
+        try:
+            return cast(CanHealth, self.node.service("can_health"))
+        except KeyError:
+            return None
 
     def _controller(self, event: str, now: float) -> None:
         """The adapter saw the CAN controller's error state change, or frames lost."""
@@ -199,11 +220,29 @@ class CanopenFront(CanFront):
         if self.node is not None:
             self.node.service("error_control").bus_state(bus_off, now)
 
+    def link_problem(self, problem: str | None, now: float) -> None:
+        """The interface not set as configured (at start, at an LSS bit-rate switch): EMCY
+        ``00 81 11 0D`` while so (docs/can-link.md)."""
+        health = self._can_health()
+        if health is not None:
+            health.link(problem, now)
+
     # -- life cycle (CanFront) -----------------------------------------------------------------
     def start_bitrate(self, engine: CanEngine) -> int | None:
         """The bit rate LSS stored, else the configuration's."""
         bitrate: int | None = cast(Node, engine).service("lss").bitrate
-        return bitrate or self.config.bitrate
+        configured = self.config.bitrate
+        return bitrate or (configured if isinstance(configured, int) else None)
+
+    def wants_autobaud(self, engine: CanEngine) -> bool:
+        """``bitrate: auto`` and no rate stored by LSS: listen for the bus's rate before boot-up."""
+        return self.config.bitrate == "auto" and not cast(Node, engine).service("lss").bitrate
+
+    def found_bitrate(self, engine: CanEngine, bitrate: int | None) -> None:
+        """The rate auto-baud found is the one LSS reports and stores."""
+        lss = cast(Node, engine).service("lss")
+        if lss.slave is not None:
+            lss.slave.bitrate = bitrate
 
     def adapter_options(self, engine: CanEngine) -> dict[str, Any]:
         lss = cast(Node, engine).service("lss")
@@ -221,7 +260,14 @@ class CanopenFront(CanFront):
         if not self._ports_subscribed:
             self._ports_subscribed = True
             self.context.health.subscribe_ports(lambda *_: self._ports_changed())
+            self.context.health.subscribe_backs(lambda *_: self._backs_changed())
         self._ports_changed()  # a port already missing (the front restarted meanwhile)
+        self._backs_changed()
+        if cfg.field_power is not None and self._field_power_sub is None:
+            self._field_power_sub = self.context.image.subscribe_batch(
+                lambda _: self._field_power_changed(), ids=[cfg.field_power]
+            )
+        self._field_power_changed()
         self.log.info(
             "CANopen node %s on %s/%s at %s bit/s",
             node.node_id if node.configured else "unconfigured",
@@ -256,11 +302,57 @@ class CanopenFront(CanFront):
         this front serves is missing; its error reset when every such port is open again."""
         if self.node is None or self.node.emcy is None:
             return
+        lost = self.context.health.ports_lost
+        self._error_while(COM_PORT_ERROR, any(b in lost for b in self._backs()))
+
+    def _backs_changed(self) -> None:
+        """EMCY ``00 50 81 04`` (with 0x1001) while a back this front serves reports an error of
+        its own (a ``modules: auto`` DCON back that found no module), its reset when none does."""
+        errors = self.context.health.back_errors
+        self._error_while(BACK_ERROR, any(b in errors for b in self._backs()))
+
+    def _field_power_changed(self) -> None:
+        """The ``field_power`` input: false with good quality, or its module offline (the
+        modules usually hang on the same supply), is "field power missing"; not read yet is
+        not known. Missing: 0x4500:1 byte 3 = 0x80 (na9161) and EMCY ``00 33 05``."""
+        cid = self.config.field_power
+        if cid is None or cid not in self.context.image:
+            return
+        channel = self.context.image[cid]
+        if channel.quality is Quality.GOOD:
+            present: bool | None = bool(channel.value)
+        elif channel.quality is Quality.COMM_FAULT:
+            present = False
+        else:
+            present = self.field_power  # not read yet, stale: as known before
+        if present is None or present == self.field_power:
+            return
+        self.field_power = present
+        self.log.log(
+            logging.INFO if present else logging.WARNING,
+            "field power %s (%s)",
+            "present" if present else "missing",
+            cid,
+        )
+        if self.io is not None and self.io.fnbus is not None:
+            self.io.fnbus.field_power_missing = not present
+        self._error_while(FIELD_POWER_ERROR, not present)
+
+    def before_stop(self) -> None:
+        if self._field_power_sub is not None:
+            self._field_power_sub.cancel()
+            self._field_power_sub = None
+
+    def _backs(self) -> list[str]:
+        """The backs this front serves, with or without channels yet."""
+        return self.context.front_backs(self.config)
+
+    def _error_while(self, error: tuple[int, int, bytes], active: bool) -> None:
+        if self.node is None or self.node.emcy is None:
+            return
         emcy = self.node.emcy
-        backs = {back for back, _ in self._modules}
-        missing = sorted(b for b in backs if b in self.context.health.ports_lost)
-        code, register, manufacturer = COM_PORT_ERROR
-        if missing:
+        code, register, manufacturer = error
+        if active:
             self.pump(partial(emcy.raise_error, code, register, manufacturer))
         else:
             self.pump(partial(emcy.clear_error, code, manufacturer))
@@ -306,6 +398,17 @@ class CanopenFront(CanFront):
                 losses,
             ),
             *self.bus_samples(ignored),
+            *(
+                [
+                    gauge(
+                        "canopen_field_power",
+                        "1 while the field supply is present",
+                        self.field_power,
+                    )
+                ]
+                if self.field_power is not None
+                else []
+            ),
         ]
 
     def status(self) -> dict[str, Any]:
@@ -314,6 +417,7 @@ class CanopenFront(CanFront):
         return {
             **self.node.status(),
             "master": self.master.status() if self.master else None,
+            "field_power": self.field_power,
             **self.bus_status(),
         }
 

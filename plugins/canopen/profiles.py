@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 Style = Literal["icpdas", "na9161"]
+StartPolicy = Literal["async", "all", "none"]
 MasterName = Literal["generic", "delta-as300"]
 MasterLost = Literal["pre-operational", "no-change", "stopped"]
 AnalogEvents = Literal["change", "interrupt"]
@@ -57,6 +58,8 @@ AS300_MASTER_HEARTBEAT_MS = 200  # "Master heartbeat time" default (seed-002 §1
 AS300_CONSUMER_MS = 500  # 2.5 x 200 ms: one lost heartbeat tolerated, two in a row detected
 AS300_PRODUCER_MS = 1000  # REQ-AS-06: a non-zero factory default, so the master can supervise us
 AS300_MAX_SLAVE_ID = 64  # the AS300 monitors node-IDs 1..64 (seed-002 §1.1)
+AS300_EVENT_TIMER_MS = 100  # REQ-AS-15: the Delta slave's default event timer
+AS300_BITRATES = (20_000, 50_000, 125_000, 250_000, 500_000, 1_000_000)  # seed-002 §1.2, REQ-AS-02
 
 
 @dataclass(frozen=True)
@@ -76,6 +79,9 @@ class DeviceProfile:
     analog_events: AnalogEvents
     sync_loss: SyncLoss
     short_ao_error_writes: tuple[int, ...]  # objects that take the manuals' 2-byte writes
+    tpdo_on_start: StartPolicy  # TPDOs sent on entering Operational
+    hw_config_emcy_unsaved: bool  # "Changed HW configuration" EMCY at power-on without a save
+    stored_cob_ids_kept: bool  # saved node-ID-dependent COB-IDs keep their values (AMBIG-24)
     controller_emcy: dict[str, ControllerEmcy] = field(default_factory=dict)
 
 
@@ -95,6 +101,9 @@ ICPDAS = DeviceProfile(
     analog_events="interrupt",
     sync_loss="emcy",
     short_ao_error_writes=(0x6443, 0x6444),  # printed UNSIGNED16 in both ICP DAS manuals
+    tpdo_on_start="none",  # TV-07: "No response frame. The node goes to Operational"
+    hw_config_emcy_unsaved=False,
+    stored_cob_ids_kept=False,
     controller_emcy={  # seed-000 §2.5, seed-001 §3.5
         "warning": (0x1000, 0x81, b"\x01"),
         "passive": (0x1000, 0x81, b"\x01"),
@@ -120,6 +129,9 @@ NA9161 = DeviceProfile(
     analog_events="change",
     sync_loss="error-event",
     short_ao_error_writes=(0x6444,),  # printed U16 in the NA-9161's table
+    tpdo_on_start="all",  # §4.2: every TPDO once at Start
+    hw_config_emcy_unsaved=True,  # §4.5, 0x1010: sent at power-on while running on defaults
+    stored_cob_ids_kept=True,  # 0x1010 [AMBIG-24]: stored COB-IDs survive a node-ID change
     # the NA-9161's EMCY table is missing from its manual (AMBIG-1): CiA 301 codes, byte 3 the
     # Beckhoff-style communication bits the extract cites (0x80 warning limit, 0x10/0x20 Rx/Tx
     # overrun), as our SYNC loss 0x8100 02 already does
@@ -134,6 +146,14 @@ NA9161 = DeviceProfile(
 
 STYLES: dict[str, DeviceProfile] = {p.name: p for p in (ICPDAS, NA9161)}
 
+# what the box a style replaces holds, by the type of the back behind it: (device, modules,
+# addresses); fieldgate takes more (a superset), validate says where a topology would not go
+# back onto the real box (audit 000 #40, 001 #12)
+BOX_LIMITS: dict[tuple[str, str], tuple[str, int, tuple[int, int]]] = {
+    ("icpdas", "modbus"): ("I-7232D", 10, (0x01, 0x0F)),  # seed-000 §1.3, §3.7
+    ("icpdas", "dcon"): ("I-7231D", 15, (0x01, 0x0F)),  # seed-001 §2.2 rule 1
+}
+
 
 @dataclass(frozen=True)
 class MasterProfile:
@@ -145,6 +165,9 @@ class MasterProfile:
     master_heartbeat_ms: int | None = None  # the master's heartbeat period
     consumer_time_ms: int | None = None  # 0x1016 entry watching the master
     empty_pdos_invalid: bool = False  # a PDO with nothing mapped starts invalid
+    tpdo_on_start: StartPolicy | None = None  # TPDOs the master needs at Start (E2)
+    analog_event_timer_ms: int = 0  # analog TPDOs' event timer where the style has none
+    bitrates: tuple[int, ...] = ()  # the rates the master offers (empty: any)
 
 
 GENERIC = MasterProfile("generic", "any CiA 301 master")
@@ -157,6 +180,9 @@ DELTA_AS300 = MasterProfile(
     master_heartbeat_ms=AS300_MASTER_HEARTBEAT_MS,
     consumer_time_ms=AS300_CONSUMER_MS,
     empty_pdos_invalid=True,
+    tpdo_on_start="async",  # E2: a TPDO that never comes; REQ-AS-15: each async TPDO at Start
+    analog_event_timer_ms=AS300_EVENT_TIMER_MS,
+    bitrates=AS300_BITRATES,
 )
 MASTERS: dict[str, MasterProfile] = {p.name: p for p in (GENERIC, DELTA_AS300)}
 
@@ -195,6 +221,8 @@ class Resolved:
     analog_events: AnalogEvents
     sync_loss: SyncLoss
     empty_pdos_invalid: bool
+    tpdo_on_start: StartPolicy
+    analog_event_timer_ms: int
     notes: tuple[str, ...] = ()
 
 
@@ -254,6 +282,28 @@ def resolve(cfg: Any) -> Resolved:
         value = getattr(cfg, name)
         return default if value is None else value
 
+    # TPDOs at Start: the style's, what the master needs, then tpdo_on_start
+    start = style.tpdo_on_start
+    if cfg.tpdo_on_start is not None:
+        start = cfg.tpdo_on_start
+    elif master.tpdo_on_start is not None and master.tpdo_on_start != style.tpdo_on_start:
+        if style.tpdo_on_start == "none":
+            start = master.tpdo_on_start
+            notes.append(
+                f"master {master.name} waits for every configured TPDO after Start (E2) and the "
+                f"{style.name} style sends none then: each asynchronous TPDO once at Start "
+                f"(tpdo_on_start: {start})"
+            )
+    # analog TPDOs' event timer: what the master needs where the style leaves it 0
+    analog_timer = 0
+    if master.analog_event_timer_ms and analog_events_of(cfg, style) == "interrupt":
+        analog_timer = master.analog_event_timer_ms  # (validate's note: the config's, with AI)
+    if master.bitrates and isinstance(cfg.bitrate, int) and cfg.bitrate not in master.bitrates:
+        notes.append(
+            f"master {master.name} offers {', '.join(f'{r // 1000}k' for r in master.bitrates)} "
+            f"bit/s only: bitrate {cfg.bitrate} is not one of them"
+        )
+
     return Resolved(
         style=style,
         master=master,
@@ -276,8 +326,15 @@ def resolve(cfg: Any) -> Resolved:
         analog_events=pick("analog_events", style.analog_events),
         sync_loss=pick("sync_loss", style.sync_loss),
         empty_pdos_invalid=master.empty_pdos_invalid,
+        tpdo_on_start=start,
+        analog_event_timer_ms=analog_timer,
         notes=tuple(notes),
     )
+
+
+def analog_events_of(cfg: Any, style: DeviceProfile) -> AnalogEvents:
+    value: AnalogEvents | None = getattr(cfg, "analog_events", None)
+    return value or style.analog_events
 
 
 def node_id_problem(cfg: Any) -> str | None:

@@ -121,6 +121,10 @@ class DconBack(SerialBack):
         expect it starts with no module and scans the line again on a back-off."""
         expected, source = expected_modules(self.config, self.context.state_dir)
         self._take_modules(expected)
+        # the I-7231D/I-7241D's "DCON modules init error" (7-segment 1): the fronts serving this
+        # back show it their way until every expected module has answered (with none expected:
+        # until the gateway restarts with what a re-scan found)
+        self.context.health.back_error(self.name, f"DCON modules init error: {why}")
         self.scan_problem = {
             "error": why,
             "modules_from": source,
@@ -224,6 +228,8 @@ class DconBack(SerialBack):
         jobs.append(LineJob("host-ok", period or 1.0, self._host_ok, self._host_ok_wanted))
         if self._rescan_due is not None:
             jobs.append(LineJob("rescan", 0.5, self._rescan, self._rescan_wanted))
+        if self.scan_problem is not None and self.scan_problem["modules"]:
+            jobs.append(LineJob("init-check", 0.5, self._init_check, self._init_pending))
         cfg = self.config
         if self._survey_left is None:  # once per process, not at each restart of the back
             listed = {m.address for m in cfg.modules}
@@ -240,6 +246,18 @@ class DconBack(SerialBack):
                 LineJob("survey", SURVEY_PERIOD_S, self._survey_one, self._survey_wanted, start)
             )
         return jobs
+
+    def _init_pending(self) -> bool:
+        return self.name in self.context.health.back_errors
+
+    async def _init_check(self) -> None:
+        """The expected modules of a start without a scan: once every one has answered, the
+        init error ends (no line traffic: the health of the modules' polls says it)."""
+        if all(h.last_success is not None and h.online for h in self.health.values()):
+            assert self.scan_problem is not None
+            self.scan_problem["resolved"] = True
+            log.info("%s: every expected module answers: the init error ends", self.name)
+            self.context.health.back_error(self.name, None)
 
     def _rescan_wanted(self) -> bool:
         return self._rescan_due is not None and self.context.clock() >= self._rescan_due

@@ -34,6 +34,11 @@ DCON host watchdog (seed-003 §3.6, §5.3, TV-44..51), only on modules of a DCON
 | 0x0A | USINT | Get | watchdog status: 1 = timed out | Set: 0x0E |
 | 0x0B | NULL | Set | clear the status (``~AA1``); the outputs are written again | Get: 0x2C |
 
+Class attribute 5 (fieldgate's, always served): the operation state, the first digit of the
+I-7241D's 7-segment display as its character (seed-003 §1.4): ``n`` (0x6E) normal, ``1``
+(0x31) DCON modules init error while a back behind the front reports an error of its own
+(``modules: auto`` that found no module; the Identity status shows it too).
+
 Class attributes (served when a DCON module is served): 3 "DCON COM port timeout value"
 (UINT Get/Set, the DCON backs' reply timeout in ms, 1..60000); 4 "Host OK" (BYTE Get/Set,
 0/1): whether the DCON backs may send ``~**``. 1 by default (the back sends it by itself
@@ -64,7 +69,7 @@ LENGTH_ATTR, COUNT_ATTR, DATA_ATTR = 0x0C, 0x10, 0x14
 WATCHDOG_ENABLE, WATCHDOG_TIME, WATCHDOG_STATUS, WATCHDOG_CLEAR = 0x08, 0x09, 0x0A, 0x0B
 MODULE_ID, CHECKSUM, BAUD_RATE, TYPE_CODE, DATA_FORMAT = 0x01, 0x03, 0x04, 0x05, 0x06
 LATCH_SAFE_VALUE = 0x18
-COM_TIMEOUT, HOST_OK = 0x03, 0x04  # class attributes
+COM_TIMEOUT, HOST_OK, OPERATION_STATE = 0x03, 0x04, 0x05  # class attributes
 IDENTITY_FIELDS: dict[int, Callable[[ModuleIdentity], bytes]] = {
     MODULE_ID: lambda i: u32(i.module_id),
     CHECKSUM: lambda i: u8(int(bool(i.checksum))),
@@ -106,6 +111,9 @@ class ApplicationObject(CipObject):
 
     def class_attributes(self) -> dict[int, Attribute]:
         table = super().class_attributes()
+        # fieldgate's: the I-7241D 7-segment's first digit as its character, "n" normal, "1"
+        # DCON modules init error (a back reports an error; seed-003 §1.4)
+        table[OPERATION_STATE] = Attribute(lambda: u8(ord(self.slave.operation_state)))
         watchdogs, info = self.slave.host_watchdogs, self.slave.module_info
         backs = {m.back for m in self.modules if watchdogs.has(m.back, m.address)}
         table[HOST_OK] = Attribute(

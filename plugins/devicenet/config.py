@@ -14,6 +14,8 @@ from fieldgate.topology.model import StrictModel
 
 from .paths import DEFAULT_PATHS, check_selector
 
+I7241D_MAX_MODULES = 15  # seed-003 §1.3
+
 
 class DeviceNetIdentity(StrictModel):
     vendor_id: int = Field(
@@ -150,4 +152,18 @@ class DeviceNetFrontConfig(FrontConfig, CanBusConfig):
         return [
             f"'{old}' is deprecated and goes away in the next release; use 'bitrate'"
             for old in self._old_spellings
+        ]
+
+    def topology_warnings(self, topology: Any) -> list[str]:
+        """Where the topology goes beyond the I-7241D (audit 003 #30): more than 15 DCON modules
+        behind it (seed-003 §1.3). fieldgate serves them (a superset)."""
+        served = self.served_backs([b.name for b in topology.backs])
+        return [
+            f"back {back.name} has {len(back.modules)} DCON modules; the I-7241D holds at most "
+            f"{I7241D_MAX_MODULES}: fieldgate serves them, the topology would not go back onto "
+            "an I-7241D"
+            for back in topology.backs
+            if back.name in served
+            and back.type == "dcon"
+            and len(back.modules) > I7241D_MAX_MODULES
         ]

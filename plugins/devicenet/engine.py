@@ -57,6 +57,8 @@ class DeviceNetSlave(SlaveState):
         self.bus_off_interrupt = 0
         self.bus_off_count = 0
         self.module_fault = False
+        self.link_fault: str | None = None  # the interface not set as configured (the front's)
+        self.back_fault: str | None = None  # a back behind the front reports an error (the front's)
         self.module_errors: Callable[[str, int], int] = lambda back, address: 0  # the front's
         self.host_watchdogs = HostWatchdogs()  # the front gives the gateway's
         self.module_info = ModuleInfo()  # the front gives the gateway's
@@ -101,6 +103,12 @@ class DeviceNetSlave(SlaveState):
 
     def on_bit_timing(self, listener: Callable[[int, float], None]) -> None:
         self.network.on_bit_timing(listener)
+
+    def bit_timing_done(self, ok: bool, now: float) -> None:
+        """The adapter's answer to a bit-rate switch: the duplicate MAC ID check follows."""
+        self.now = now
+        self.network.bit_timing_done(ok, now)
+        self.deadline_after_call = self.next_deadline()
 
     # -- adapter interface ----------------------------------------------------------------
     def boot(self, now: float) -> list[Frame]:
@@ -209,7 +217,21 @@ class DeviceNetSlave(SlaveState):
 
     @property
     def identity_status(self) -> int:
-        return (0x0001 if self.allocation_choice else 0) | (0x0100 if self.module_fault else 0)
+        """Identity attribute 5: bit 0 owned (allocated), bit 8 minor recoverable fault (a module
+        offline, the interface not set as configured), bit 10 major recoverable fault (a back
+        reports an error: no module found, the I-7241D's 7-segment ``1``)."""
+        minor = self.module_fault or self.link_fault is not None
+        return (
+            (0x0001 if self.allocation_choice else 0)
+            | (0x0100 if minor else 0)
+            | (0x0400 if self.back_fault is not None else 0)
+        )
+
+    @property
+    def operation_state(self) -> str:
+        """The I-7241D 7-segment's first digit: ``1`` DCON modules init error (a back behind the
+        front reports an error of its own), else ``n`` normal."""
+        return "1" if self.back_fault is not None else "n"
 
     def set_heartbeat(self, seconds: int) -> None:
         self.network.set_heartbeat(seconds)
@@ -263,6 +285,9 @@ class DeviceNetSlave(SlaveState):
             "mac_id": self.mac_id,
             "bitrate": self.bitrate,
             "fault": self.fault_reason or None,
+            "identity_status": self.identity_status,
+            "link_fault": self.link_fault,
+            "back_fault": self.back_fault,
             "master_mac": None if self.master_mac == UNALLOCATED else self.master_mac,
             "allocation_choice": self.allocation_choice,
             "connections": self.connection_set.status(),

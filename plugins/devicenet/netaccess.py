@@ -18,7 +18,9 @@ from .connection_set import ConnectionSet
 from .objects import u16
 from .slave_state import DeviceState, SlaveState
 
-BIT_RATE_SWITCH_S = 0.01  # after a baud change at Reset: the adapter reopens the bus (at once) before the first duplicate MAC request
+# after a baud change at Reset the duplicate MAC check waits until the adapter has set the
+# interface and reopened the bus (bit_timing_done); at most this long if it never says so
+BIT_RATE_SWITCH_TIMEOUT_S = 5.0
 SHUTDOWN_CODE = 0x0004
 DEVICENET_CLASS = 0x03
 
@@ -38,6 +40,7 @@ class NetworkAccess:
         self._fault_listeners: list[Callable[[str], None]] = []
         self._settings_listeners: list[Callable[[int, int], None]] = []
         self._bit_timing: Callable[[int, float], None] | None = None
+        self.switching_bit_rate = False  # a baud change at Reset: the check waits for the switch
 
     # -- listeners ---------------------------------------------------------------------------
     def on_fault(self, listener: Callable[[str], None]) -> None:
@@ -234,7 +237,19 @@ class NetworkAccess:
         if slave.pending_baud_code is not None and slave.pending_baud_code != slave.baud_code:
             slave.baud_code = slave.pending_baud_code
             if self._bit_timing is not None:
+                # the shutdown answer leaves at the old rate; the check starts at the new one
+                # once the adapter has switched (bit_timing_done), before any other frame
+                self.switching_bit_rate = True
                 self._bit_timing(slave.bitrate, 0.0)
-                delay = BIT_RATE_SWITCH_S  # the shutdown answer leaves at the old rate, the check at the new
+                delay = BIT_RATE_SWITCH_TIMEOUT_S
         slave.pending_baud_code = None
         self.start_check(now, delay)
+
+    def bit_timing_done(self, ok: bool, now: float) -> None:
+        """The adapter switched the bus (``ok``) or could not set the interface (the node runs at
+        the rate the interface has; the front shows it in the Identity status): the duplicate
+        MAC ID check starts now."""
+        if self.switching_bit_rate:
+            self.switching_bit_rate = False
+            if self._dup_step == 0 and self.dup_at is not None:
+                self.start_check(now)

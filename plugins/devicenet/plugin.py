@@ -35,6 +35,7 @@ from .store import NetworkStore
 SERVED_COUNTERS = frozenset(
     {"rx_poll_outputs", "rx_poll_idle", "rx_cos_cyclic_outputs", "rx_cos_cyclic_idle"}
 )
+RS485_BAUDS = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200)  # the display's codes 0-7
 CONNECTION_NAMES = ("explicit", "poll", "bit-strobe", "cos-cyclic", "cos-cyclic-data")
 
 
@@ -45,6 +46,7 @@ class DeviceNetFront(CanFront):
         self._modules: set[tuple[str, int]] = set()
         self._offline: set[tuple[str, int]] = set()
         self._subscription: Subscription | None = None
+        self._backs_subscribed = False
 
     @property
     def slave(self) -> DeviceNetSlave | None:
@@ -106,6 +108,10 @@ class DeviceNetFront(CanFront):
         self._subscription = self.context.image.subscribe_batch(
             self._inputs_changed, ids=slave.assemblies.input_ids()
         )
+        if not self._backs_subscribed:
+            self._backs_subscribed = True
+            self.context.health.subscribe_backs(lambda *_: self._backs_changed())
+        self._backs_changed()
         self.log.info(
             "DeviceNet MAC %d on %s/%s at %d bit/s: %s",
             slave.mac_id,
@@ -137,14 +143,57 @@ class DeviceNetFront(CanFront):
             adapter, slave = self.adapter, self.slave
             adapter.pump(lambda: slave.inputs_changed(adapter.now))
 
+    def _backs_changed(self) -> None:
+        """A back this front serves reports an error of its own (no module found): the Identity
+        status's major recoverable fault, object 0x64's operation state ``1`` (the I-7241D's
+        7-segment), the status API's ``back_fault`` and ``display``."""
+        if self.slave is None:
+            return
+        errors = self.context.health.back_errors
+        served = [b for b in self.context.front_backs(self.config) if b in errors]
+        self.slave.back_fault = "; ".join(f"{b}: {errors[b]}" for b in served) or None
+
+    def display(self) -> str:
+        """The I-7241D's 7-segment display (seed-003 §1.4): operation state (``n`` / ``1``),
+        MAC ID in hex, CAN baud code, the RS-485 baud code of the serial back served (``-``
+        without one)."""
+        assert self.slave is not None
+        rs485 = "-"
+        for back in self.context.topology.backs:
+            baud = getattr(back, "baudrate", None)
+            if back.name in self.context.front_backs(self.config) and baud in RS485_BAUDS:
+                rs485 = str(RS485_BAUDS.index(baud))
+                break
+        slave = self.slave
+        return f"{slave.operation_state}{slave.mac_id:02X}{slave.baud_code}{rs485}"
+
     def _fault(self, reason: str) -> None:
         self.log.error("DeviceNet communication fault: %s", reason)
         self.context.events.publish(FAULT, self.name, f"DeviceNet communication fault: {reason}")
 
     def on_bus_state(self, bus_off: bool, now: float) -> None:
-        if bus_off and self.slave is not None:  # the DeviceNet object's BOI counter
+        if bus_off and self.slave is not None:  # the DeviceNet object's bus-off counter
             self.slave.bus_off_count = min(255, self.slave.bus_off_count + 1)
         super().on_bus_state(bus_off, now)
+
+    # -- the interface (CanFront) ------------------------------------------------------------
+    def link_restart_ms(self) -> int | None:
+        """0: the kernel never restarts the controller by itself; the DeviceNet object's BOI
+        attribute decides (:meth:`bus_off_restart_s`)."""
+        return 0
+
+    def bus_off_restart_s(self) -> float | None:
+        """ODVA's BOI (DeviceNet object attribute 3): 0 (the default) holds the controller in
+        bus-off, 1 restarts it, ``restart_ms`` after bus-off, and communication continues."""
+        if self.slave is None or not self.slave.bus_off_interrupt:
+            return None
+        return float(self.config.restart_ms) / 1000.0
+
+    def link_problem(self, problem: str | None, now: float) -> None:
+        """The interface not set as configured (a baud rate not applied): the Identity status's
+        minor recoverable fault bit, the status API's ``link_fault``."""
+        if self.slave is not None:
+            self.slave.link_fault = problem
 
     def _master_state(self, ok: bool, reason: str) -> None:
         if ok:
@@ -271,7 +320,7 @@ class DeviceNetFront(CanFront):
     def status(self) -> dict[str, Any]:
         if self.slave is None:
             return {}
-        return {**self.slave.status(), **self.bus_status()}
+        return {**self.slave.status(), "display": self.display(), **self.bus_status()}
 
 
 @hookimpl

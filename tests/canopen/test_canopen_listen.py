@@ -156,7 +156,7 @@ async def test_a_pdo_cob_id_rewritten_by_sdo_is_heard_at_once_and_the_old_one_no
     await sdo_write(master, 0x1400, 1, new)
     assert hears(front, new) and deaf_to(front, old)
     send(master, 0x000, bytes([0x01, NODE]))
-    await expect(master, 0x180 + NODE)  # TPDOs on entering Operational
+    assert (await sdo_read(master, 0x1000, 0))[0] == 0x43  # Operational (no TPDO at Start)
     send(master, new, b"\x81")  # the answer to the SDO write is out: the new ID is heard
     await expect(master, 0x180 + NODE)
     assert [gw.read(f"io/m1/do{i}") for i in range(8)] == [True] + [False] * 6 + [True]

@@ -127,7 +127,7 @@ def test_consumer_heartbeats_are_checked():
     assert err.value.issues[0].path == "fronts[0].heartbeat_consumers"
 
 
-def test_validate_prints_one_line_where_the_master_profile_wins(tmp_path):
+def test_validate_prints_a_line_where_the_master_profile_wins(tmp_path):
     path = tmp_path / "t.yaml"
     path.write_text(
         "gateway: {name: t}\n"
@@ -139,8 +139,9 @@ def test_validate_prints_one_line_where_the_master_profile_wins(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     notes = [line for line in done.stdout.splitlines() if "warning:" in line]
-    assert len(notes) == 1
+    assert len(notes) == 2  # heartbeat, and the TPDOs at Start (E2); no analog input here
     assert "delta-as300" in notes[0] and "icpdas" in notes[0] and "0x1016/0x1017" in notes[0]
+    assert "each asynchronous TPDO once at Start" in notes[1]
     path.write_text(path.read_text().replace("master: delta-as300", "style: na9161"))
     done = subprocess.run(
         [sys.executable, "-m", "fieldgate", "validate", str(path)], capture_output=True, text=True
@@ -283,6 +284,7 @@ def test_na9161_emcy_queue_overflow_is_reported_at_once():
     dut = Dut({"node_id": 5, "style": "na9161"})
     dut.start()
     assert dut.sdo("2B 15 10 00 10 27 00 00") == "60 15 10 00 00 00 00 00"  # 1 s inhibit
+    dut.rig.advance(1.0)  # past the inhibit time of the power-on EMCY (a head on its defaults)
     emcy = dut.node.emcy
     sent: list[str] = []
     for n in range(22):  # the 1st goes out, 20 wait for the inhibit time, the 22nd overflows
@@ -366,7 +368,7 @@ def test_na9161_analog_change_sends_tpdo2_within_the_inhibit_time():
 def test_icpdas_analog_change_sends_no_tpdo():
     """seed-000 §2.7, step 4: analog changes are no TPDO events (0x6423 default FALSE)."""
     dut = Dut({"node_id": 2})
-    assert tpdo2(dut, dut.start()) == ["00 00 00 00"]  # async TPDOs once after Start
+    assert tpdo2(dut, dut.start()) == []  # TV-07: no frame after Start
     dut.image.update_input("io/m1/ai0", 0x1234)
     assert tpdo2(dut, show(dut.node.flush()) + dut.rig.advance(2.0)) == []
     assert dut.read(0x6423, 0) == "4F 23 64 00 00 00 00 00"  # served, FALSE

@@ -70,6 +70,8 @@ async def test_a_missing_port_starts_with_the_scan_files_modules_offline_until_i
         ]
         assert gateway.health.ports_lost.keys() == {"rs485"}
         assert {c.quality for c in gateway.image.channels(back="rs485")} == {Quality.COMM_FAULT}
+        # the devices' "DCON modules init error", for the fronts to show, until all answered
+        assert gateway.health.back_errors["rs485"].startswith("DCON modules init error: cannot")
         simulator = dcon_registry.simulators["dcon"](back_cfg, pty.b, False)
         await simulator.start()
         try:
@@ -78,6 +80,8 @@ async def test_a_missing_port_starts_with_the_scan_files_modules_offline_until_i
                 lambda: all(gateway.health.get("rs485", a).online for a in addresses), 5, "online"
             )
             assert not gateway.health.ports_lost
+            await wait_until(lambda: not gateway.health.back_errors, 5, "the init error ends")
+            assert gateway.status()["backs"]["rs485"]["start_scan"]["resolved"] is True
         finally:
             await simulator.stop()
     finally:

@@ -80,8 +80,11 @@ async def test_i7231d_example_on_simulated_dcon_modules(registry, tmp_path):
         sim.wire((3, "ao", 0), (4, "ai", 0))  # I-7021 AO0 -> I-7012 AI0
         sim.set_input("rs485/m4/di0", True)  # I-7012 DI0 OFF
         await asyncio.sleep(0.3)  # first poll cycles
-        # P00: NMT start -> TxPDO1 with the current DI
+        # P00: NMT start: "No reply. The node goes to OPERATIONAL"; the TxPDO1 read by RTR
         master.send(0x000, "01 01 00 00 00 00 00 00")
+        with pytest.raises(AssertionError, match="no matching frame"):
+            await master.until(0x181, timeout=0.3)
+        master.send(0x181, rtr=True)
         assert await master.until(0x181) == bytes.fromhex("FF FF 01")
         # P01: RxPDO1 writes the I-7043 outputs; the wired I-7053 inputs change -> TxPDO1
         master.send(0x201, "34 12 00 00 00 00 00 00")

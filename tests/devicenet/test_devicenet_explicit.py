@@ -1,7 +1,7 @@
 """Explicit messaging: Identity, DeviceNet, Connection and Assembly objects, errors, fragmentation."""
 
 import pytest
-from dnet_rig import Rig
+from dnet_rig import Rig, show
 
 
 @pytest.fixture
@@ -155,8 +155,10 @@ def test_seed_baud_change_waits_for_reset(rig):
         "44B 0A CE 01 00 01 00 04 00",
     ]
     assert switched == [250_000] and rig.slave.bitrate == 250_000
-    # TV-35, the duplicate MAC ID check, once the bus runs at the new rate (the adapter switches at once)
-    assert rig.advance(0.01) == ["44F 00 23 03 01 00 00 00"]
+    # TV-35, the duplicate MAC ID check, once the adapter says the bus runs at the new rate
+    assert rig.advance(0.5) == []
+    rig.slave.bit_timing_done(True, rig.now)
+    assert show(rig.slave.flush()) == ["44F 00 23 03 01 00 00 00"]
     assert rig.slave.allocation_choice == 0 and rig.slave.master_mac == 0xFF
 
 
@@ -238,3 +240,12 @@ def test_a_fragmented_answer_is_not_resent_after_its_connection_is_released():
     ]  # released before the fragment was acknowledged
     assert rig.advance(1.0) == [] and rig.advance(2.0) == []  # nothing on a connection that is gone
     assert rig.slave.counters["tx_fragments_dropped"] == 1
+
+
+def test_a_baud_switch_the_adapter_never_confirms_still_checks_the_mac(rig):
+    """The duplicate MAC ID check waits for the adapter's switch, at most 5 s."""
+    rig.slave.on_bit_timing(lambda rate, delay: None)
+    assert rig.explicit("10 03 01 02 02 00") == "0A 90"
+    rig.send("44C 0A 05 01 01 00")
+    assert rig.advance(4.9) == []
+    assert rig.advance(0.2) == ["44F 00 23 03 01 00 00 00"]

@@ -20,7 +20,7 @@ import threading
 import time
 
 import pytest
-from socketcan_guest import CONTROLLERS, scaled, with_controllers
+from socketcan_guest import scaled, with_controllers
 
 from fieldgate.can import link as canlink
 from fieldgate.can.autobaud import BitrateProbe, probe_bitrate
@@ -54,17 +54,6 @@ def exchange(a: str, b: str, can_id: int) -> bytes:
         word, dlc, data = FRAME.unpack(rx.recv(FRAME.size))
         assert word == can_id
         return data[:dlc]
-
-
-@pytest.fixture
-def pair():
-    a, b = CONTROLLERS[:2]
-    yield a, b
-    for name in (a, b):
-        subprocess.run(["ip", "link", "set", name, "down"], check=False)
-        subprocess.run(
-            ["ip", "link", "set", name, "type", "can", "listen-only", "off"], check=False
-        )
 
 
 def test_the_bit_rate_set_through_netlink_is_what_the_kernel_holds_and_traffic_flows(pair):

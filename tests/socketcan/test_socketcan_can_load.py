@@ -180,8 +180,8 @@ async def test_a_pdo_cob_id_rewritten_by_sdo_is_heard_at_once_and_the_old_one_no
     old, new = 0x200 + NODE, 0x321
     await client.write(0x1400, 1, 0x8000_0000 | old)
     await client.write(0x1400, 1, new)
-    client.send(0x000, bytes([0x01, NODE]))  # Operational
-    assert await client.expect(0x180 + NODE) is not None
+    client.send(0x000, bytes([0x01, NODE]))  # Operational (no TPDO at Start: TV-07)
+    assert (await client.read(0x1000, 0))[0] == 0x43  # (the Start is in)
     client.send(new, b"\x81")  # at once after the write's answer
     assert await client.expect(0x180 + NODE) is not None  # the DO loop back to DI: a TPDO
     assert [gw.read(f"io/m1/do{i}") for i in range(8)] == [True] + [False] * 6 + [True]

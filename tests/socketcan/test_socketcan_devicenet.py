@@ -371,7 +371,11 @@ def test_devicenet_conformance_profile_passes_over_vcan0(gateway, tmp_path):
     cases = {tc.get("name"): tc for tc in suite.iter("testcase")}
     assert list(cases) == [c.id for c in select(protocol="devicenet")]
     assert "devicenet.loopback_poll" in cases and len(cases) >= 15
-    not_passed = {name: [child.tag for child in tc] for name, tc in cases.items() if len(tc)}
+    not_passed = {  # (every case carries its verdict as a property: issue 31)
+        name: tags
+        for name, tc in cases.items()
+        if (tags := [child.tag for child in tc if child.tag != "properties"])
+    }
     assert not_passed == {}, run.stdout[
         -8000:
     ]  # no failure, no skip: the sizes match and the loop is wired

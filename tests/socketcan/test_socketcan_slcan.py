@@ -132,3 +132,55 @@ def test_bus_off_is_read_back_and_recovered_by_an_explicit_restart(adapter):
         lambda: len([c for c in adapter.commands if c == "O"]) == opened + 1, "reopened"
     )
     assert "S5" in adapter.commands  # the rate went to the adapter again (250 kbit/s)
+
+
+async def test_a_gateway_recovers_from_a_real_bus_off_on_slcan(adapter, tmp_path):
+    """The CANopen front on slcan: the configured rate reaches the adapter (slcan has no
+    restart-ms: left out); the adapter reports bus-off, the kernel's error frame reaches the
+    front, which restarts the controller itself (down/up) and the node reports the recovery
+    with EMCY 0x8140 (docs/can-link.md, "In the CAN fronts")."""
+    import asyncio
+
+    from fieldgate import Gateway, load_registry
+
+    name = adapter.name
+    topology = {
+        "gateway": {"name": "slcan", "state_dir": str(tmp_path)},
+        "fronts": [
+            {
+                "name": "can",
+                "type": "canopen",
+                "interface": "socketcan",
+                "channel": name,
+                "node_id": 5,
+                "bitrate": 250000,
+                "restart_ms": 100,
+            }
+        ],
+        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 1, "digital": 8}]}],
+    }
+    gateway = Gateway.load(topology, registry=load_registry())
+    await gateway.start()
+    try:
+        front = gateway.component("can")
+        assert canlink.read_link(name).bitrate == 250000 and "S5" in adapter.commands
+        assert front.interface.restart_ms_unsupported
+        await asyncio.to_thread(
+            adapter.wait_for, lambda: "t705100" in adapter.commands, "the boot-up"
+        )
+        opened = adapter.commands.count("O")
+        adapter.report("sb256256")  # the adapter's controller is bus-off
+        await asyncio.to_thread(
+            adapter.wait_for, lambda: adapter.commands.count("O") > opened, "reopened"
+        )
+        await asyncio.to_thread(
+            adapter.wait_for,
+            lambda: any(c.startswith("t0858408111") for c in adapter.commands),
+            "EMCY 0x8140 (recovered from bus-off)",
+        )
+        bus = front.status()["bus"]
+        assert (bus["bus_off_events"], bus["bus_off_recoveries"]) == (1, 1)
+        assert bus["link"]["restarts_by_fieldgate"] == 1 and bus["link"]["bus_off"] >= 1
+        assert canlink.read_link(name).state == "error-active"
+    finally:
+        await gateway.stop()

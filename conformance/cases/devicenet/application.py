@@ -7,7 +7,7 @@ from ...dnet import (
     CipErrorSeen,
     status_text,
 )
-from ...framework import Context, Fail, Skip, case
+from ...framework import Context, Fail, Info, Skip, case
 from .common import APPLICATION, P, explicit, number
 
 APPLICATION_SIZES = {1: 4, 2: 1, 3: 1, 4: 4, 5: 1, 6: 1, 7: 4, 8: 1, 9: 1, 0x0A: 1}
@@ -69,4 +69,53 @@ def application_object(ctx: Context) -> None:
                 )
         d.expect_error(
             bytes([SET, APPLICATION, instance, 0x16, 0x00]), (0x0E, 0x15), "Set of DI data"
+        )
+
+
+I7241D_MODULES = 15  # seed-003 §1.3
+
+
+@case(
+    P,
+    "application_module_limit",
+    "the modules behind the node fit the I-7241D (at most 15 DCON modules: class 0x64 attribute 2)",
+)
+def application_module_limit(ctx: Context) -> None:
+    d = explicit(ctx)
+    try:
+        count = number(d.get(APPLICATION, 0, 2))
+    except CipErrorSeen as err:
+        raise Skip(
+            f"no class 0x64 ({status_text(err.general)}): not an I-7241D-style device"
+        ) from None
+    if count > I7241D_MODULES:
+        raise Info(
+            f"{count} modules: more than the I-7241D holds ({I7241D_MODULES}); a superset that "
+            "would not go back onto the real box",
+            seen=f"class 0x64 attribute 2 = {count}",
+        )
+
+
+@case(
+    P,
+    "application_operation_state",
+    "fieldgate's class 0x64 attribute 5: the 7-segment's first digit, 'n' normal or '1' DCON "
+    "modules init error, as the Identity status says (bit 10)",
+)
+def application_operation_state(ctx: Context) -> None:
+    d = explicit(ctx)
+    try:
+        state = d.get(APPLICATION, 0, 5)
+    except CipErrorSeen as err:
+        raise Skip(
+            f"class 0x64 attribute 5 ({status_text(err.general)}): the I-7241D shows its state "
+            "on the display only"
+        ) from None
+    status = number(d.get(0x01, 1, 5))
+    expected = b"1" if status & 0x0400 else b"n"
+    if state != expected:
+        raise Fail(
+            "operation state and Identity status disagree",
+            expected=f"{expected!r} (Identity status 0x{status:04X})",
+            seen=repr(state),
         )

@@ -60,6 +60,8 @@ class NodeSettings:
     sync_cob_id: int = 0x80
     store_path: Path | None = None
     fingerprint: str = ""
+    announce_defaults: bool = False  # "Changed HW configuration" EMCY at power-on without a save
+    keep_node_id_entries: bool = False  # saved node-ID-dependent COB-IDs survive a node-ID change
     pdo: PdoConfig | None = None  # the application's PDOs (the CiA 401 device's): none without
 
 
@@ -125,7 +127,14 @@ def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
     node.add_service(
         SdoServer(settings.sdo_timeout_s, settings.sdo_block_size, settings.sdo_zero_extend)
     )
-    node.add_service(StoreService(settings.store_path, settings.fingerprint))
+    node.add_service(
+        StoreService(
+            settings.store_path,
+            settings.fingerprint,
+            announce_defaults=settings.announce_defaults,
+            keep_node_id_entries=settings.keep_node_id_entries,
+        )
+    )
     node.add_service(TimeConsumer())
     for index in channel_indices(settings.sdo_servers):
         node.add_service(

@@ -159,11 +159,18 @@ class EmcyProducer(Service):
         return len(keys)
 
     def signal(
-        self, code: int, register: int, manufacturer: bytes = b"", now: float | None = None
+        self,
+        code: int,
+        register: int,
+        manufacturer: bytes = b"",
+        now: float | None = None,
+        *,
+        record: bool = True,
     ) -> None:
-        """Send (and record) a one-off event EMCY that does not stay active, e.g. the I-7232D's
-        ``00 FF 80 0A`` on an NMT reset request; ``register`` is sent as given."""
-        self._produce(code, bytes(manufacturer[:5]), now, register)
+        """Send a one-off event EMCY that does not stay active, e.g. the I-7232D's ``00 FF 80
+        0A`` on an NMT reset request; ``register`` is sent as given. ``record``: also in 0x1003
+        (False for an announcement that is no error, the NA-9161's power-on on defaults)."""
+        self._produce(code, bytes(manufacturer[:5]), now, register, record=record)
 
     def is_active(self, code: int) -> bool:
         return any(k[0] == code for k in self.active)
@@ -177,9 +184,11 @@ class EmcyProducer(Service):
         register: int | None = None,
         *,
         urgent: bool = False,
+        record: bool = True,
     ) -> None:
         now = self.node.now if now is None else now
-        self.history.appendleft(history_value(code, manufacturer))
+        if record:
+            self.history.appendleft(history_value(code, manufacturer))
         register = self.register if register is None else register & 0xFF
         data = code.to_bytes(2, "little") + bytes([register]) + manufacturer.ljust(5, b"\x00")
         cob = self.node.od.integer(0x1014)

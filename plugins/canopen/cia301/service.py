@@ -117,7 +117,13 @@ class EmcyProducer(Protocol):
     ) -> int: ...
 
     def signal(
-        self, code: int, register: int, manufacturer: bytes = b"", now: float | None = None
+        self,
+        code: int,
+        register: int,
+        manufacturer: bytes = b"",
+        now: float | None = None,
+        *,
+        record: bool = True,
     ) -> None: ...
 
 

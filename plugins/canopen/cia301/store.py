@@ -14,7 +14,17 @@
   ignored as a whole (values and sections: defaults), logged once and reported with an
   EMCY once the node is pre-operational: corrupt store ``00 50 81 02 ..`` (the
   I-7232D's EEPROM error), other module set ``00 63 81 0C ..`` (0x6300 "data set").
-  A successful save clears them.
+  A successful save clears them. A device that announces running on defaults
+  (``announce_defaults``, the NA-9161: "Changed HW configuration" at power-on until a save)
+  sends ``00 63 81 0C`` once at power-on as an event (0x1001 stays 0 and 0x1003 does not
+  keep it: nothing is wrong with a head on its defaults) while nothing was saved, or after a
+  "load".
+* ``keep_node_id_entries`` (the NA-9161, [AMBIG-24]): a "save" stores the node-ID-dependent
+  entries (0x1014, the PDO COB-IDs) whatever their value, so after a node-ID change the
+  stored values stay instead of following the new node-ID.
+* A save that cannot be written (a read-only or full state directory) answers SDO abort
+  0606 0000 and raises EMCY ``00 50 81 02`` (the I-7232D's "EEPROM access error"); a later
+  save that works ends it.
 * Services whose parameters do not live in the dictionary keep them as named sections
   of the same file: :meth:`add_area_hook` lets them update their section
   (:meth:`set_section`) inside each "save" / "load", so one atomic write carries
@@ -82,9 +92,20 @@ class StoreService(Service):
     name = "store"
     active_states = ALL_STATES
 
-    def __init__(self, path: str | Path | None, fingerprint: str = ""):
+    def __init__(
+        self,
+        path: str | Path | None,
+        fingerprint: str = "",
+        *,
+        announce_defaults: bool = False,
+        keep_node_id_entries: bool = False,
+    ):
         super().__init__()
         self.path = Path(path) if path is not None else None
+        self.announce_defaults = announce_defaults
+        self.keep_node_id_entries = keep_node_id_entries
+        self.on_defaults = True  # nothing saved (no file, or "load" since the last save)
+        self.write_failed = False
         self._fingerprint_parts = [fingerprint]
         self._area_hooks: list[AreaHook] = []
         self.values: dict[tuple[int, int], Value] = {}
@@ -148,7 +169,7 @@ class StoreService(Service):
         try:
             doc = read_json(self.path)
             if doc is None:
-                return
+                return  # never saved: on defaults
             if not isinstance(doc, dict) or doc.get("format") != FORMAT:
                 raise CorruptStore(f"{self.path}: not a {FORMAT} file")
             values = {_parse_key(k): _from_json(v) for k, v in doc.get("values", {}).items()}
@@ -167,6 +188,7 @@ class StoreService(Service):
             return
         self.values = values
         self.sections = sections
+        self.on_defaults = not doc.get("saved", True)  # (files of older releases: saved)
         self.node.od.set_stored(values)
 
     def _problem(self, code: int, mfr: bytes, text: str) -> None:
@@ -174,12 +196,13 @@ class StoreService(Service):
         self.problem = (code, mfr)
         self.counters["load_problems"] += 1
 
-    def _write(self) -> None:
+    def _write(self, saved: bool) -> None:
         if self.path is None:
             raise SdoAbort(abort.CANNOT_STORE, "no store file configured")
         doc = {
             "format": FORMAT,
             "fingerprint": self.fingerprint,
+            "saved": saved,
             "values": {_key(*k): _to_json(v) for k, v in sorted(self.values.items())},
             "sections": self.sections,
         }
@@ -187,7 +210,15 @@ class StoreService(Service):
             write_atomic(self.path, json.dumps(doc, indent=1, sort_keys=True).encode())
         except OSError as exc:
             log.error("%s: cannot write %s: %s", self.node.name, self.path, exc)
+            self.counters["write_failures"] += 1
+            self.write_failed = True
+            if self.node.emcy is not None:  # the I-7232D's "EEPROM access error"
+                self.node.emcy.raise_error(CORRUPT_CODE, 0x81, CORRUPT_MFR)
             raise SdoAbort(abort.HARDWARE_ERROR, str(exc)) from exc
+        if self.write_failed:
+            self.write_failed = False
+            if self.node.emcy is not None:
+                self.node.emcy.clear_error(CORRUPT_CODE, CORRUPT_MFR)
 
     # -- 0x1010 / 0x1011 ---------------------------------------------------------------------
     def save(self, sub: int = 1) -> None:
@@ -199,12 +230,14 @@ class StoreService(Service):
         changed = {
             k: v
             for k, v in od.snapshot(communication, application).items()
-            if v != od.default(od.variable(*k))
+            if v != od.default(var := od.variable(*k))
+            or (self.keep_node_id_entries and var.relative)
         }
         self.values = {**keep, **changed}
         self._run_area_hooks(communication, application, True)
-        self._write()
+        self._write(saved=True)
         od.set_stored(self.values)
+        self.on_defaults = False
         self.counters["saves"] += 1
         if self.problem is not None and self.node.emcy is not None:
             self.node.emcy.clear_error(self.problem[0], self.problem[1])
@@ -216,8 +249,9 @@ class StoreService(Service):
             k: v for k, v in self.values.items() if not _in_area(k[0], communication, application)
         }
         self._run_area_hooks(communication, application, False)
-        self._write()
+        self._write(saved=False)
         self.node.od.set_stored(self.values)
+        self.on_defaults = True  # the defaults come back at the next power-on (announced then)
         self.counters["restores"] += 1
 
     def _run_area_hooks(self, communication: bool, application: bool, saving: bool) -> None:
@@ -233,14 +267,16 @@ class StoreService(Service):
 
     # -- reporting ------------------------------------------------------------------------------
     def on_nmt_state(self, old: NmtState, new: NmtState, now: float) -> None:
-        if (
-            new is NmtState.PRE_OPERATIONAL
-            and self.problem is not None
-            and not self._reported
-            and self.node.emcy is not None
-        ):
-            self._reported = True
+        """At power-on (the first Pre-operational of the process): a store problem as an error,
+        running on defaults as an event where the device announces it."""
+        if new is not NmtState.PRE_OPERATIONAL or self._reported or self.node.emcy is None:
+            return
+        self._reported = True
+        if self.problem is not None:
             self.node.emcy.raise_error(self.problem[0], 0x81, self.problem[1], now)
+        elif self.announce_defaults and self.on_defaults:
+            self.counters["defaults_announced"] += 1
+            self.node.emcy.signal(OTHER_SET_CODE, 0x81, OTHER_SET_MFR, now, record=False)
 
     def status(self) -> dict[str, Any]:
         return {
@@ -248,6 +284,8 @@ class StoreService(Service):
             "file": str(self.path) if self.path else None,
             "stored_values": len(self.values),
             "problem": f"{self.problem[0]:04X}" if self.problem else None,
+            "on_defaults": self.on_defaults,
+            "write_failed": self.write_failed,
         }
 
 

@@ -42,6 +42,7 @@ from fieldgate.health import HealthRegistry
 from fieldgate.host_watchdog import HostWatchdogs
 from fieldgate.image import Channel, ProcessImage
 from fieldgate.masters import MasterMonitor
+from fieldgate.module_info import ModuleInfo
 
 from ..cia301.cobid import check_cob_id
 from ..cia301.entries import Abort, Directory, bind_object
@@ -80,6 +81,7 @@ class IoSettings:
     analog_events: Literal["change", "interrupt"] | None = None  # default: the style's
     short_ao_error_writes: tuple[int, ...] | None = None  # 2-byte writes taken (0x6443/0x6444)
     empty_pdos_invalid: bool = False  # default PDOs without data start invalid (master profile)
+    analog_event_timer_ms: int = 0  # analog TPDOs' event timer where the style has none (master)
     tpdo_settings: dict[int, PdoSetting] = field(default_factory=dict)  # the topology's tpdos:
     rpdo_settings: dict[int, PdoSetting] = field(default_factory=dict)  # the topology's rpdos:
 
@@ -104,7 +106,7 @@ class IoSettings:
 
     @property
     def policy(self) -> Literal["async", "all", "none"]:
-        return self.start_policy or ("all" if self.style == "na9161" else "async")
+        return self.start_policy or STYLES[self.style].tpdo_on_start
 
     @property
     def stopped_is_error(self) -> bool:
@@ -132,6 +134,7 @@ class IoDevice(Service):
         models: dict[tuple[str, int], str] | None = None,
         master_events: bool = True,
         module_emcy: bool = True,
+        module_info: ModuleInfo | None = None,
     ):
         super().__init__()
         self.settings = settings
@@ -161,7 +164,7 @@ class IoDevice(Service):
         # the NA-9161's per-slot objects (0x2000/0x2200 memory, 0x4501, 0x4502, 0x4504): every
         # slot keeps its number, deactivated or not, so they are built once
         self.slots = (
-            SlotObjects(image, self.layout.modules, self.channels, origin)
+            SlotObjects(image, self.layout.modules, self.channels, origin, module_info)
             if settings.style == "na9161"
             else None
         )
@@ -340,6 +343,7 @@ def build_io(
         empty_invalid=settings.empty_pdos_invalid,
         tpdo_settings=settings.tpdo_settings,
         rpdo_settings=settings.rpdo_settings,
+        analog_event_timer_ms=settings.analog_event_timer_ms,
     )
     profile = Profile401(
         image,

@@ -112,7 +112,8 @@ class IoStore:
         if communication:
             doc.pop("pdo", None)
             if saving and self.io.engine is not None:
-                doc["pdo"] = self.io.engine.parameters()
+                keep = self.store is not None and self.store.keep_node_id_entries
+                doc["pdo"] = self.io.engine.parameters(keep_node_id=keep)
         if application:
             doc.pop("application", None)
             doc.pop("fnbus", None)

@@ -242,8 +242,11 @@ def default_pdos(
     empty_invalid: bool = False,
     tpdo_settings: dict[int, PdoSetting] | None = None,
     rpdo_settings: dict[int, PdoSetting] | None = None,
+    analog_event_timer_ms: int = 0,
 ) -> PdoDefaults:
-    """``empty_invalid`` (a master that waits for every valid PDO, the Delta AS300): a PDO
+    """``analog_event_timer_ms`` (a master that needs analog data to keep flowing, the Delta
+    AS300's REQ-AS-15): the event timer of every event-driven TPDO that maps analog inputs,
+    where the style gives none. ``empty_invalid`` (a master that waits for every valid PDO, the Delta AS300): a PDO
     with nothing mapped starts invalid whatever the style says. ``tpdo_settings`` /
     ``rpdo_settings`` (PDO number -> :class:`PdoSetting`, the topology's ``tpdos:`` /
     ``rpdos:``) replace the style's values last; a number beyond ``count`` is a
@@ -274,6 +277,14 @@ def default_pdos(
                     inhibit=5000 if direction == "t" else 0,
                     entries=entries,
                 )
+            if (
+                direction == "t"
+                and analog_event_timer_ms
+                and any(kind == "a" for kind, _ in objects)
+                and pdo.trans_type >= 254
+                and not pdo.event_timer
+            ):
+                pdo.event_timer = analog_event_timer_ms
             pdos.append(pdo)
         given = (tpdo_settings if direction == "t" else rpdo_settings) or {}
         for number, setting in sorted(given.items()):

@@ -10,8 +10,9 @@
 Our slots are the front's modules (RS-485 modules, not FnBus slices), numbered from 1 in
 the front's order. The status is built from their health: error code
 :data:`MODULE_OFFLINE` with the number of the first active slot whose module is offline
-(0 / 0 when all answer); field power is always reported supplied (0x00), as the gateway
-cannot sense a field supply.
+(0 / 0 when all answer); byte 3 is 0x80 while the field supply is missing, as the front's
+``field_power`` input reports it (a DI wired to the 24 V field supply; without one the
+supply is reported present: the gateway cannot sense it otherwise).
 
 Sub 2 and sub 3 are *configuration*: a write is accepted at once (and read back), and the
 process image takes the new layout at the next NMT Reset Node ([AMBIG-35]; a master
@@ -54,7 +55,7 @@ from ..cia401.layouts import MAX_SLOTS, LayoutError, ModuleRef
 FNBUS, PRODUCT_CODES = 0x4500, 0x4503
 NO_DATA = 0xC0
 MODULE_OFFLINE = 0x01  # byte 0 of 0x4500:1 (gateway-defined; the seed lists no codes)
-FIELD_POWER_MISSING = 0x80  # byte 3 of 0x4500:1 (never set: the gateway cannot sense it)
+FIELD_POWER_MISSING = 0x80  # byte 3 of 0x4500:1 (from the front's field_power input)
 
 
 class FnBusRegister:
@@ -76,6 +77,7 @@ class FnBusRegister:
         self.next_compressed = compressed  # written; applied at the next reset node
         self.next_inactive_mask = 0
         self.on_change: Callable[[], None] | None = None
+        self.field_power_missing = False  # the front's field_power input says so
 
     # -- configuration ------------------------------------------------------------------
     @property
@@ -140,6 +142,7 @@ class FnBusRegister:
 
     # -- status -------------------------------------------------------------------------
     def status(self) -> int:
+        power = FIELD_POWER_MISSING << 24 if self.field_power_missing else 0
         for n, module in enumerate(self.modules, 1):
             if n in self.inactive:
                 continue
@@ -148,8 +151,8 @@ class FnBusRegister:
             except KeyError:
                 continue
             if not online:
-                return MODULE_OFFLINE | n << 8
-        return 0
+                return MODULE_OFFLINE | n << 8 | power
+        return power
 
     def objects(self) -> list[ObjectDef]:
         return [

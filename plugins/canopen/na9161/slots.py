@@ -4,21 +4,36 @@ One sub-index per slot (sub 0 = number of slots), slots = the front's modules in
 
 | Object | Type | Access | Meaning |
 |---|---|---|---|
-| 0x2000 | DOMAIN | ro | read memory of slot n: its input block |
+| 0x2000 | DOMAIN | ro | read memory of slot n: its module's memory (below) |
 | 0x2200 | DOMAIN | wo | write memory of slot n: its output block |
-| 0x4501 | U32 | ro | range of the read memory of slot n: its input block's length in bytes |
+| 0x4501 | U32 | ro | range of the read memory of slot n: 20 (the module memory's length) |
 | 0x4502 | DOMAIN | rw | configuration of slot n: its outputs' fault action (hold last / fault value) |
 | 0x4504 | U32 | ro | catalog code of slot n |
 
-**Slot memory.** An FnIO slice has memory registers besides its I/O data; an RS-485 module
-behind fieldgate has none that fieldgate could read without waiting for the line (a CAN
-answer never waits for RS-485). The slot's memory is therefore the slot's own data, in
-the slot's own order and without the image's packing: analog words (INTEGER16, low byte
-first), then its digital channels packed 8 per byte (channel 0 in bit 0, the last byte
-padded), then its special bytes. 0x2000:n reads the input block (0x4501:n bytes), 0x2200:n
-writes the output block in one transfer (exactly the output block's length, else 0607
-0012/0013), e.g. every channel of one slot in one SDO. A slot without inputs reads an
-empty block; one without outputs refuses writes (0609 0030).
+**Slot memory (0x2000, read).** An FnIO slice's memory registers hold its parameters and
+firmware data. The RS-485 module behind a slot has the like in its own memory: its address,
+type code, data format, checksum setting, baud rate and the name it reports (DCON ``$AA2``,
+``$AAM``). 0x2000:n returns that, as the back knows it (read from the module once it
+answered, the topology's values before; ``fieldgate.module_info``), in a fixed layout of
+:data:`MODULE_MEMORY_SIZE` bytes (0x4501:n), never waiting for the line:
+
+| Offset | Size | What |
+|---|---|---|
+| 0 | 1 | RS-485 address |
+| 1 | 1 | type code (0 where the back has none: a Modbus module) |
+| 2 | 1 | data format (DCON: 0 engineering, 1 %FSR, 2 hex, 3 ohms) |
+| 3 | 1 | flags: bit 0 checksum on, bit 7 read from the module (not only configured) |
+| 4 | 4 | baud rate, bit/s (U32, low byte first; 0 unknown) |
+| 8 | 4 | module ID: the model number as hex digits ("7017R" -> 0x00007017) |
+| 12 | 8 | the name the module reports, else the model, ASCII, NUL-padded |
+
+**Slot memory (0x2200, write).** Writing an RS-485 module's memory (its configuration)
+needs its line and, for DCON, the module's INIT* pin: not something a CAN write can wait
+for. 0x2200:n therefore keeps writing the slot's output block in one transfer: analog
+words (INTEGER16, low byte first), then its digital outputs packed 8 per byte (channel 0 in
+bit 0, the last byte padded), then its special bytes, exactly the block's length (else 0607
+0012/0013), e.g. every channel of one slot in one SDO. A slot without outputs refuses
+writes (0609 0030).
 
 **Slot configuration (0x4502).** The seed's §A.7 writes ``FF 00`` to an 8-DO slot to hold
 the last state on every channel; its parameter lengths (2 bytes for 2-, 4- and 8-DO
@@ -44,6 +59,7 @@ from collections.abc import Callable, Sequence
 from functools import partial
 
 from fieldgate.image import Channel, ErrorMode, Kind, ProcessImage
+from fieldgate.module_info import ModuleIdentity, ModuleInfo
 
 from ..cia301.abort import LENGTH_TOO_HIGH, LENGTH_TOO_LOW, NO_DATA, VALUE_RANGE
 from ..cia301.entries import DOMAIN, UNSIGNED32, Abort, Entry, ObjectDef, Value, array
@@ -53,6 +69,8 @@ from ..cia401.values import from_int16, to_int16
 READ_MEMORY, WRITE_MEMORY = 0x2000, 0x2200
 READ_RANGE, SLOT_CONFIGURATION, CATALOG_CODES = 0x4501, 0x4502, 0x4504
 MAX_BLOCK = 256  # bytes a slot block may have (a 64-byte image per direction fits)
+MODULE_MEMORY_SIZE = 20  # 0x2000:n, the module memory's fixed layout (module notes)
+READ_FROM_MODULE, CHECKSUM_ON = 0x80, 0x01
 
 
 def _pack_bits(values: Sequence[bool]) -> bytes:
@@ -96,9 +114,11 @@ class SlotObjects:
         modules: Sequence[ModuleRef],
         channels: Sequence[Channel],
         origin: str,
+        module_info: ModuleInfo | None = None,
     ):
         self.image = image
         self.origin = origin
+        self.module_info = module_info or ModuleInfo()
         by_module: dict[tuple[str, int], list[Channel]] = {}
         for ch in channels:
             by_module.setdefault((ch.source.back, ch.source.module), []).append(ch)
@@ -106,12 +126,28 @@ class SlotObjects:
 
     # -- memory ------------------------------------------------------------------------------
     def read_memory(self, slot: Slot) -> bytes:
-        analog = b"".join(
-            to_int16(ch).to_bytes(2, "little", signed=True) for ch in slot.of[Kind.AI]
+        """The slot's module memory (module notes), as the back knows the module now."""
+        module = slot.module
+        identity = self.module_info.identity(module.back, module.address)
+        if identity is None:  # a back without module identities: the topology's model
+            identity = ModuleIdentity(module.model)
+        flags = (CHECKSUM_ON if identity.checksum else 0) | (
+            READ_FROM_MODULE if identity.reported else 0
         )
-        digital = _pack_bits([bool(ch.value) for ch in slot.of[Kind.DI]])
-        special = bytes(int(ch.value) & 0xFF for ch in slot.of[Kind.SI])
-        return analog + digital + special
+        name = (identity.reported or identity.model).encode("ascii", "replace")[:8]
+        return (
+            bytes(
+                [
+                    module.address & 0xFF,
+                    (identity.type_code or 0) & 0xFF,
+                    (identity.data_format or 0) & 0xFF,
+                    flags,
+                ]
+            )
+            + (identity.baudrate or 0).to_bytes(4, "little")
+            + (identity.module_id & 0xFFFFFFFF).to_bytes(4, "little")
+            + name.ljust(8, b"\0")
+        )
 
     def write_memory(self, slot: Slot, data: Value) -> None:
         if not isinstance(data, bytes):
@@ -226,8 +262,8 @@ class SlotObjects:
                 "Range of read memory slot",
                 UNSIGNED32,
                 "ro",
-                lambda s: s.block_size(Kind.AI, Kind.DI, Kind.SI),
-                default=lambda s: s.block_size(Kind.AI, Kind.DI, Kind.SI),
+                lambda s: MODULE_MEMORY_SIZE,
+                default=lambda s: MODULE_MEMORY_SIZE,
             ),
             per_slot(
                 SLOT_CONFIGURATION,

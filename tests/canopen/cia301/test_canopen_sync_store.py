@@ -146,7 +146,8 @@ def test_store_write_failure_keeps_previous_copy(tmp_path, monkeypatch):
 
     monkeypatch.setattr("os.fsync", boom)
     r.sdo("2B 17 10 00 64 00 00 00")
-    assert r.sdo("23 10 10 01 73 61 76 65") == "80 10 10 01 00 00 06 06"
+    out = r.send("601 23 10 10 01 73 61 76 65")
+    assert out == ["081 00 50 81 02 00 00 00 00", "581 80 10 10 01 00 00 06 06"]  # EEPROM error
     assert path.read_bytes() == before
 
 

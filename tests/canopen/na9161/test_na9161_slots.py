@@ -75,20 +75,34 @@ def test_every_slot_has_a_sub_index(dut):
     assert dut.read(0x2030, 0) == "4F 30 20 00 05 00 00 00"  # the error counters moved here
 
 
-def test_read_memory_is_the_slots_input_block(dut):
-    for n in range(8):
-        dut.image.update_input(f"rs485/m3/ai{n}", 0x1234 + n)
-    dut.image.update_input("rs485/m1/di0", True)
-    dut.image.update_input("rs485/m1/di6", True)
-    assert dut.upload(0x2000, 3) == b"".join(struct.pack("<h", 0x1234 + n) for n in range(8))
-    assert dut.upload(0x4501, 3) == struct.pack("<I", 16)
-    assert dut.upload(0x2000, 1) == bytes([0x41])  # 7 DI, bits 0 and 6
-    assert dut.upload(0x4501, 1) == struct.pack("<I", 1)
-    for n in range(6):
-        dut.image.update_input(f"rs485/m5/si{n}", n + 1)
-    assert dut.upload(0x2000, 5) == bytes([1, 2, 3, 4, 5, 6])
-    assert dut.upload(0x4501, 4) == bytes(4)  # an output-only slot reads an empty block
-    assert dut.upload(0x2000, 4) == b""
+def test_read_memory_is_the_slot_modules_memory(dut):
+    """0x2000:n is the RS-485 module's memory as its back knows it (audit 004 #34): a Modbus
+    module has its address, the model as module ID and name, nothing else; 0x4501:n its size."""
+    assert dut.upload(0x2000, 3) == (
+        bytes([3, 0, 0, 0]) + bytes(4) + struct.pack("<I", 0x7017) + b"M-7017R\0"
+    )
+    assert dut.upload(0x4501, 3) == struct.pack("<I", 20)
+    assert [len(dut.upload(0x2000, n)) for n in range(1, 6)] == [20] * 5
+    dut.image.update_input("rs485/m3/ai0", 0x1234)  # the I/O values are not the memory
+    assert dut.upload(0x2000, 3)[:4] == bytes([3, 0, 0, 0])
+
+
+def test_read_memory_of_a_dcon_module_has_its_configuration():
+    backs = [
+        {
+            "name": "rs485",
+            "type": "dcon",
+            "port": "/dev/ttyUSB0",
+            "baudrate": 19200,
+            "checksum": True,
+            "modules": [{"address": 2, "model": "I-7017", "type_code": 0x08, "data_format": "hex"}],
+        }
+    ]
+    dut = Dut({"node_id": 5, "style": "na9161"}, backs=backs)
+    memory = SlotDut.upload(dut, 0x2000, 1)  # type: ignore[arg-type]
+    assert memory[:4] == bytes([2, 0x08, 2, 0x01])  # address, type code, hex format, checksum
+    assert memory[4:8] == struct.pack("<I", 19200)
+    assert memory[8:12] == struct.pack("<I", 0x7017) and memory[12:] == b"I-7017\0\0"
 
 
 def test_write_memory_sets_a_slots_outputs_at_once(dut):

@@ -167,8 +167,10 @@ class PdoCommParameters:
         )
 
     # -- persistence (0x1010 store) ------------------------------------------------------
-    def records(self) -> list[list[Any]]:
-        """The parameters of every PDO that differs from its default, as plain data."""
+    def records(self, keep_node_id: bool = False) -> list[list[Any]]:
+        """The parameters of every PDO that differs from its default, as plain data;
+        ``keep_node_id``: also every PDO whose default COB-ID counts from the node-ID, so the
+        stored COB-ID stays when the node-ID changes (the NA-9161, [AMBIG-24])."""
         records = []
         for pdo in self.pdos:
             record = [
@@ -194,7 +196,8 @@ class PdoCommParameters:
                 len(d.entries),
                 (list(d.entries) + [0] * MAX_ENTRIES)[:MAX_ENTRIES],
             ]
-            if record != default:
+            relative = d.cob_base is not None and not d.absolute
+            if record != default or (keep_node_id and relative):
                 records.append(record)
         return records
 

@@ -251,9 +251,10 @@ class PdoEngine:
     def _remapped(self, pdo: Pdo) -> None:
         self._reindex()
 
-    def parameters(self) -> list[list[Any]]:
-        """The parameters of every PDO that differs from its default, as plain data."""
-        return self.comm.records()
+    def parameters(self, keep_node_id: bool = False) -> list[list[Any]]:
+        """The parameters of every PDO that differs from its default (``keep_node_id``: and of
+        every PDO whose COB-ID counts from the node-ID), as plain data."""
+        return self.comm.records(keep_node_id)
 
     def load_parameters(self, records: list[Any]) -> int:
         """Apply stored records (after a reset); a record that no longer fits is skipped. Returns how many applied."""

@@ -78,8 +78,8 @@ async def test_loopback_di_change_rpdo_and_master_lost(tmp_path):
     try:
         await sdo_write(master, 3, 0x1016, 1, (0x7F << 16) | 150, 4)  # watch the master's heartbeat
         send(master, 0x77F, b"\x05")
-        send(master, 0x000, b"\x01\x03")
-        await wait_for(master, lambda m: m.arbitration_id == 0x183)  # TPDOs on entering Operational
+        send(master, 0x000, b"\x01\x03")  # (no TPDO at Start in the icpdas style: TV-07)
+        await sdo_write(master, 3, 0x1800, 5, 0, 2)  # an SDO round trip: the Start is in
         # RPDO -> DO written -> looped back to DI -> TPDO1 on the bus
         send(master, 0x203, b"\x5a")
         seen = await wait_for(master, lambda m: m.arbitration_id == 0x183 and m.data == b"\x5a")
@@ -202,7 +202,7 @@ async def test_fast_changing_input_is_never_starved(tmp_path):
     master = can.Bus(interface="virtual", channel=ch)
     try:
         send(master, 0x000, b"\x01\x02")
-        await wait_for(master, lambda m: m.arbitration_id == 0x182)
+        await sdo_write(master, 2, 0x1800, 5, 0, 2)  # Operational (no TPDO at Start: TV-07)
         for k in range(50):
             gw.image.update_input("io/m1/di0", not k & 1)
             gw.image.update_input("io/m1/di1", not k & 1)  # two bits in the same turn: one TPDO

@@ -110,7 +110,7 @@ def test_event_timer_restarts_on_every_transmission():
 def test_pdos_only_in_operational():
     b = demo_7232d()
     assert b.rx(0x201, "34") == [] and b.image.value("bus/m3/do2") is False  # pre-operational
-    assert b.start()[0] == "181 [1] 00"
+    assert b.start() == []  # TV-07: no frame after Start in the I-7232D style
     b.nmt(0x02)  # stopped
     assert b.rx(0x201, "34") == [] and b.rx(0x181, rtr=True) == [] and b.sync() == []
     b.image.write_output("bus/m3/do0", True)
@@ -179,6 +179,10 @@ def test_start_policy_na9161_sends_every_mapped_tpdo_once():
     assert b.start() == ["185 [1] 00", "285 [4] 00 00 00 00"]
     b2 = Bench(make_image([(1, 8, 0, 0, 0)]), IoSettings(start_policy="none"))
     assert b2.start() == []
+    b3 = Bench(make_image([(1, 8, 0, 0, 0)]), IoSettings())  # icpdas: none, as TV-07
+    assert b3.start() == []
+    b4 = Bench(make_image([(1, 8, 0, 0, 0)]), IoSettings(start_policy="async"))
+    assert b4.start() == ["181 [1] 00"]
 
 
 def test_store_keeps_pdo_and_401_parameters_across_resets(tmp_path):

@@ -149,8 +149,8 @@ def test_tv22_module_failure_emcy_counter_and_clear():
 
 def test_i7231d_walk_through_steps_0_to_44():
     b = demo_7231d()
-    # P00: NMT start with DLC 8
-    assert b.rx(0x000, "01 01 00 00 00 00 00 00") == ["181 [3] FF FF 01", "281 [2] 00 00"]
+    # P00: NMT start with DLC 8: "No reply. The node goes to OPERATIONAL"
+    assert b.rx(0x000, "01 01 00 00 00 00 00 00") == []
     # P01
     assert b.rx(0x201, "34 12 00 00 00 00 00 00") == ["181 [3] CB ED 01"]
     # P02: AO -> AI, no TxPDO2 by itself; RTR reads it
