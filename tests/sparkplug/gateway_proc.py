@@ -3,8 +3,9 @@
     python tests/sparkplug/gateway_proc.py TOPOLOGY.json START
 
 The driver writes START, START+1, ... to io/m1/ao0 every 100 ms (the loopback back copies
-it to io/m1/ai0) and prints ``wrote N`` once the front has taken the change (journal or
-broker), so the test knows which samples existed before it killed the process.
+it to io/m1/ai0) and prints ``wrote N`` 100 ms after the write (the front, in its child
+process, has taken the change by then: journal or broker), so the test knows which samples
+existed before it killed the process.
 """
 
 from __future__ import annotations
@@ -29,13 +30,14 @@ async def main(path: str, start: int) -> None:
         value = start
         while not stop.is_set():
             gw.write("io/m1/ao0", value)
-            await asyncio.sleep(0)  # the front's flush runs before this resumes
-            print(f"wrote {value}", flush=True)
-            value += 1
             try:
                 await asyncio.wait_for(stop.wait(), 0.1)
             except TimeoutError:
                 pass
+            # the front runs in a child process: a change reaches it (and its journal) within
+            # a few milliseconds, so the value written 100 ms ago is the one it has taken
+            print(f"wrote {value}", flush=True)
+            value += 1
 
 
 if __name__ == "__main__":
