@@ -25,7 +25,7 @@ from .events import MASTER_BACK, MASTER_LOST, MODULE_OFFLINE, MODULE_ONLINE, Eve
 from .health import HealthEvent, HealthRegistry, ModuleHealth
 from .image import ChannelSpec, ProcessImage, Value
 from .masters import MasterMonitor
-from .topology.model import BackConfig, FrontConfig
+from .topology.model import BackConfig, FrontConfig, StrictModel
 
 if TYPE_CHECKING:
     from .topology.loader import Topology
@@ -174,12 +174,16 @@ class GatewayContext:
         return self.topology.state_dir
 
     def front_channels(self, front: FrontConfig) -> list[Any]:
-        """The channels a front serves, in order (its ``expose`` list, or all in the seeds' order)."""
+        """The channels a front serves, in order (its ``expose`` list, or all in the seeds' order),
+        without those of a data type it cannot carry (``FrontConfig.carried_types``)."""
         from .layout import default_order
 
         if front.expose is not None:
-            return self.image.match(front.expose)
-        return default_order(self.image, [b.name for b in self.topology.backs])
+            channels = self.image.match(front.expose)
+        else:
+            channels = default_order(self.image, [b.name for b in self.topology.backs])
+        carried = front.carried_types
+        return channels if carried is None else [c for c in channels if c.dtype in carried]
 
 
 class Component(ABC):
@@ -233,6 +237,10 @@ class Back(Component):
         return [c.id for c in self.context.image.channels(back=self.name)]
 
 
+def _no_factory(config: Any, context: GatewayContext) -> Component:
+    raise TypeError("a device model is no component")
+
+
 FrontFactory = Callable[[FrontConfig, GatewayContext], Front]
 BackFactory = Callable[[BackConfig, GatewayContext], Back]
 # a factory gets the config its model validated: a subclass of FrontConfig / BackConfig
@@ -244,7 +252,7 @@ BackModel = TypeVar("BackModel", bound=BackConfig)
 class ComponentType:
     role: str  # "front" or "back"
     type_name: str
-    model: type[FrontConfig] | type[BackConfig]
+    model: type[FrontConfig] | type[BackConfig] | type[StrictModel]  # a device model's
     factory: Callable[[Any, GatewayContext], Component]
     plugin: str
     description: str = ""
@@ -279,14 +287,15 @@ class Simulator(ABC):
 
     @abstractmethod
     def set_input(self, channel_id: str, value: bool | int | float) -> None:
-        """Drive a simulated module input (it shows up in the gateway after the next poll)."""
+        """Drive a simulated module input (it shows up in the gateway after the next poll); a
+        simulator that serves text channels takes a str there too."""
 
     @abstractmethod
-    def get_output(self, channel_id: str) -> bool | int | float:
+    def get_output(self, channel_id: str) -> bool | int | float | str:
         """What the gateway last wrote to a simulated module output."""
 
     # optional, for ``fieldgate simulate BACK`` (its stdin commands and its banner)
-    def get(self, channel_id: str) -> bool | int | float:
+    def get(self, channel_id: str) -> bool | int | float | str:
         """Any channel's value in the simulated module (``get`` and ``show``); by default
         outputs only (KeyError for an input)."""
         return self.get_output(channel_id)
@@ -463,6 +472,12 @@ class Registry:
     ) -> None:
         self._add("back", type_name, model, factory, description)
 
+    def add_model(self, type_name: str, model: type[StrictModel], description: str = "") -> None:
+        """A device model type: the topology's ``models:`` entries of this ``type`` are validated
+        with ``model`` (before the backs), and a back's config finds them by name in its
+        validation context (``info.context["models"]``)."""
+        self._add("model", type_name, model, _no_factory, description)
+
     def add_command(
         self,
         path: tuple[str, ...],
@@ -536,7 +551,7 @@ class Registry:
         self,
         role: str,
         type_name: str,
-        model: type[FrontConfig] | type[BackConfig],
+        model: type[FrontConfig] | type[BackConfig] | type[StrictModel],
         factory: Callable[..., Any],
         description: str,
         north: bool = False,

@@ -44,6 +44,12 @@ def _set_value(metric: object, dtype: DataType, value: Value) -> None:
         metric.boolean_value = bool(value)  # type: ignore[attr-defined]
     elif dtype is DataType.FLOAT32:
         metric.float_value = float(value)  # type: ignore[attr-defined]
+    elif dtype is DataType.FLOAT64:
+        metric.double_value = float(value)  # type: ignore[attr-defined]
+    elif dtype is DataType.STRING:
+        metric.string_value = str(value)  # type: ignore[attr-defined]
+    elif dtype is DataType.INT64 or dtype is DataType.UINT64:
+        metric.long_value = int(value) & 0xFFFFFFFFFFFFFFFF  # type: ignore[attr-defined]
     else:
         metric.int_value = int(value) & 0xFFFFFFFF  # type: ignore[attr-defined]
 
@@ -77,6 +83,19 @@ def _properties(metric: object, quality: Quality, scaling_def: MetricDef | None)
             value = props.values.add()
             value.type = STRING
             value.string_value = scaling.unit
+    eng = scaling_def.engineering if scaling_def is not None else None
+    if eng is not None:  # the value is in engineering units: its unit and range, no raw range
+        for key, bound in (("engLow", eng.low), ("engHigh", eng.high)):
+            if bound is not None:
+                props.keys.append(key)
+                value = props.values.add()
+                value.type = DOUBLE
+                value.double_value = float(bound)
+        if eng.unit:
+            props.keys.append("engUnit")
+            value = props.values.add()
+            value.type = STRING
+            value.string_value = eng.unit
 
 
 def _add_metric(
@@ -177,15 +196,19 @@ def command_value(cmd: CommandMetric, dtype: DataType) -> Value:
         if f == "boolean_value":
             return bool(raw)
         raise PayloadError(f"expected boolean_value for a Boolean metric, got {f}")
-    if dtype is DataType.FLOAT32:
+    if dtype.is_float:
         if f in ("float_value", "double_value") and isinstance(raw, float) and math.isfinite(raw):
             return float(raw)
         if f in ("int_value", "long_value") and isinstance(raw, int):
             return float(raw)
-        raise PayloadError(f"expected a finite number for a Float metric, got {f}")
+        raise PayloadError(f"expected a finite number for a Float or Double metric, got {f}")
+    if dtype is DataType.STRING:
+        if f == "string_value" and isinstance(raw, str):
+            return raw
+        raise PayloadError(f"expected string_value for a String metric, got {f}")
     if f not in ("int_value", "long_value") or not isinstance(raw, int):
-        raise PayloadError(f"expected int_value for an integer metric, got {f}")
-    if dtype in (DataType.INT16, DataType.INT32):
+        raise PayloadError(f"expected int_value or long_value for an integer metric, got {f}")
+    if dtype in (DataType.INT16, DataType.INT32, DataType.INT64):
         # two's complement in 32 bits (int_value) or 64 bits (long_value)
         return _signed(raw, 32 if f == "int_value" else 64)
     return raw
