@@ -239,23 +239,33 @@ class Engineering:
     unit: str = ""
     low: float | None = None
     high: float | None = None
+    divider: float | None = None  # instead of gain: raw / divider (exact for 10, 100, ...)
 
     @property
     def converts(self) -> bool:
-        """True when the value differs from the raw one (a gain or an offset)."""
-        return self.gain != 1.0 or self.offset != 0.0
+        """True when the value differs from the raw one (a gain, a divider or an offset)."""
+        return self.gain != 1.0 or self.offset != 0.0 or self.divider not in (None, 1.0)
 
     @property
     def eu_range(self) -> tuple[float, float] | None:
         return (self.low, self.high) if self.low is not None and self.high is not None else None
 
     def from_raw(self, raw: float) -> float:
-        value = raw * self.gain + self.offset if self.converts else float(raw)
+        if not self.converts:
+            value = float(raw)
+        elif self.divider is not None:
+            value = raw / self.divider + self.offset
+        else:
+            value = raw * self.gain + self.offset
         return round(value, self.decimals) if self.decimals is not None else value
 
     def to_raw(self, value: float) -> int | float:
         """The device's raw value for ``value``; ValueError when the raw type cannot hold it."""
-        raw: int | float = (value - self.offset) / self.gain if self.converts else value
+        raw: int | float = value
+        if self.divider is not None:
+            raw = (value - self.offset) * self.divider
+        elif self.converts:
+            raw = (value - self.offset) / self.gain
         if self.raw_type.is_integer:
             raw = round(raw)
         return self.raw_type.check(raw)  # type: ignore[return-value]  # (a number type)
@@ -277,7 +287,9 @@ class Engineering:
 
     def describe(self) -> str:
         parts = []
-        if self.converts:
+        if self.divider is not None:
+            parts.append(f"raw {self.raw_type.value} / {self.divider:g} + {self.offset:g}")
+        elif self.converts:
             parts.append(f"raw {self.raw_type.value} x {self.gain:g} + {self.offset:g}")
         if self.decimals is not None:
             parts.append(f"{self.decimals} decimals")

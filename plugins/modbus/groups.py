@@ -166,7 +166,7 @@ class ChannelGroup(StrictModel):
                 )
             if self.write_fc == 6 and self.words > 1:
                 raise _invalid(
-                    f"a {self.dtype.value} takes {self.words} registers: it needs write_fc 16 "
+                    f"{_a(self.dtype)} takes {self.words} registers: it needs write_fc 16 "
                     "(its registers written at once)"
                 )
         if self.last_address > 0xFFFF:
@@ -191,12 +191,12 @@ class ChannelGroup(StrictModel):
             )
         if self.order is not None and self.words == 1 and self.type != "string":
             raise _invalid(
-                f"order applies to values of two registers or more; a {self.dtype.value} is one "
+                f"order applies to values of two registers or more; {_a(self.dtype)} is one "
                 "register, big-endian (the Modbus rule)"
             )
         if self.order is not None and len(self.order) == 8 and self.words != 4:
             raise _invalid(
-                f"order {self.order} names the 8 bytes of a 64-bit value; a {self.dtype.value} "
+                f"order {self.order} names the 8 bytes of a 64-bit value; {_a(self.dtype)} "
                 f"has {2 * self.words}: use {regvalues.order_name(self.order)}"
             )
 
@@ -237,7 +237,7 @@ class ChannelGroup(StrictModel):
             raise _invalid("registers applies to values that take whole registers")
         if self.registers != self.words:
             raise _invalid(
-                f"a {self.dtype.value} takes {self.words} register{'s' if self.words > 1 else ''}, "
+                f"{_a(self.dtype)} takes {self.words} register{'s' if self.words > 1 else ''}, "
                 f"the map gives {self.registers}: give the type that fits {self.registers} "
                 f"register{'s' if self.registers > 1 else ''}"
                 + (" (int32, uint32, float32)" if self.registers == 2 else "")
@@ -294,16 +294,16 @@ class ChannelGroup(StrictModel):
         """The conversion to engineering units, None when the group asks for none."""
         if all(getattr(self, f) is None for f in _SCALING_FIELDS):
             return None
-        gain = 1 / self.divider if self.divider is not None else self.gain
         low, high = self.range if self.range is not None else (None, None)
         return Engineering(
             self.dtype,
-            gain if gain is not None else 1.0,
+            self.gain if self.gain is not None else 1.0,
             self.offset or 0.0,
             self.decimals,
             self.unit or "",
             low,
             high,
+            self.divider,
         )
 
     @property
@@ -317,3 +317,8 @@ class ChannelGroup(StrictModel):
         if self.bits is not None:
             return self.address + (self.first_bit + self.count * self.bits - 1) // 16
         return self.address + self.count * self.words - 1
+
+
+def _a(dtype: DataType) -> str:
+    """``an int16``, ``a float32``."""
+    return f"{'an' if dtype.value[0] in 'aeiou' else 'a'} {dtype.value}"

@@ -123,7 +123,7 @@ class ModbusTcpClientBack(Back):
             module_points(self.name, device),
             retry_period=self.config.offline_probe_ms / 1000,
             clock=self.context.clock,
-            unit=device.unit_id,
+            unit=self.config.unit_of(device),
         )
         self.modules[device.address] = module
         return module

@@ -90,15 +90,11 @@ class ModbusTcpDeviceConfig(ModbusModuleConfig):
         ge=0,
         le=255,
         description="Modbus unit id (a device behind a TCP/RTU gateway: its RTU address; a "
-        "native TCP device often 1 or 255); default: the address (1..247)",
+        "native TCP device often 1 or 255); default: the back's unit, else the address (1..247)",
     )
 
     @model_validator(mode="after")
-    def _unit_known(self) -> ModbusTcpDeviceConfig:
-        if self.unit is None and self.address > 247:
-            raise _invalid(
-                f"address {self.address} is no unit id (1..247): give the device's unit", ("unit",)
-            )
+    def _host_valid(self) -> ModbusTcpDeviceConfig:
         if self.host is not None:
             try:
                 parse_host(self.host)
@@ -106,15 +102,18 @@ class ModbusTcpDeviceConfig(ModbusModuleConfig):
                 raise _invalid(str(exc), ("host",)) from None
         return self
 
-    @property
-    def unit_id(self) -> int:
-        return self.unit if self.unit is not None else self.address
-
 
 class ModbusTcpClientBackConfig(PolledBackConfig):
     type: Literal["modbus-tcp-client"] = "modbus-tcp-client"
     host: str | None = Field(
         None, description="HOST or HOST:PORT of devices that give none (port 502)"
+    )
+    unit: int | None = Field(
+        None,
+        ge=0,
+        le=255,
+        description="unit id of devices that give none (meters with an address of their own: "
+        "often 1); default: each device's address",
     )
     modules: list[ModbusTcpDeviceConfig] = Field(min_length=1)
     poll_ms: int = Field(
@@ -169,10 +168,16 @@ class ModbusTcpClientBackConfig(PolledBackConfig):
                 raise _invalid(
                     "no host: give the device's host, or the back's host", ("modules", i, "host")
                 )
-            key = (*self.endpoint(device), device.unit_id)
+            if device.unit is None and self.unit is None and device.address > 247:
+                raise _invalid(
+                    f"address {device.address} is no unit id (1..247): give the device's unit "
+                    "(or the back's unit)",
+                    ("modules", i, "unit"),
+                )
+            key = (*self.endpoint(device), self.unit_of(device))
             if key in seen:
                 raise _invalid(
-                    f"unit {device.unit_id} on {host_key(*key[:2])} is already modules[{seen[key]}]",
+                    f"unit {key[2]} on {host_key(*key[:2])} is already modules[{seen[key]}]",
                     ("modules", i, "unit"),
                 )
             seen[key] = i
@@ -188,6 +193,12 @@ class ModbusTcpClientBackConfig(PolledBackConfig):
                     ("hosts", name),
                 )
         return self
+
+    def unit_of(self, device: ModbusTcpDeviceConfig) -> int:
+        """The unit id a device is asked with: its own, the back's, or its address."""
+        if device.unit is not None:
+            return device.unit
+        return self.unit if self.unit is not None else device.address
 
     def endpoint(self, device: ModbusTcpDeviceConfig) -> tuple[str, int]:
         host = device.host if device.host is not None else self.host
@@ -256,4 +267,4 @@ class ModbusTcpClientBackConfig(PolledBackConfig):
 
     def describe_module(self, module: ModuleConfig) -> str:
         assert isinstance(module, ModbusTcpDeviceConfig)
-        return f"unit {module.unit_id} on {host_key(*self.endpoint(module))}"
+        return f"unit {self.unit_of(module)} on {host_key(*self.endpoint(module))}"

@@ -67,7 +67,8 @@ class ModbusTcpLink(Transactions):
         self._pending: dict[int, tuple[int, asyncio.Future[bytes]]] = {}  # tid -> (unit, answer)
         self._next_tid = 0
         self.lost_reason = "not connected yet"
-        self.connects = 0
+        self.attempts = 0  # connects tried
+        self.connects = 0  # connects made
         self.losses = 0
         self.late = 0  # answers that came after their request timed out
         self.in_flight_max = 0
@@ -86,6 +87,7 @@ class ModbusTcpLink(Transactions):
     async def connect(self) -> None:
         """Open the connection; OSError (refused, unreachable) or TimeoutError on failure."""
         self.close()
+        self.attempts += 1
         async with asyncio.timeout(self.connect_timeout):
             reader, writer = await asyncio.open_connection(self.host, self.port)
         sock = writer.get_extra_info("socket")
@@ -188,6 +190,7 @@ class ModbusTcpLink(Transactions):
     def status(self) -> dict[str, Any]:
         return {
             "connected": self.connected,
+            "attempts": self.attempts,
             "connects": self.connects,
             "losses": self.losses,
             "last_loss": None if self.connected else self.lost_reason,

@@ -90,8 +90,9 @@ class ModbusTcpSimulator(Simulator):
             self.hosts[key] = sim
             for device in devices:
                 points = module_points(config.name, device)
-                module = SimModule(device.unit_id, points)
-                sim.units[device.unit_id] = module
+                unit = config.unit_of(device)
+                module = SimModule(unit, points)
+                sim.units[unit] = module
                 self.devices[device.address] = (sim, module)
                 for p in points:
                     self.channels[p.channel] = (module, p)

@@ -352,7 +352,10 @@ def _to_raw(eng: Engineering, value: int | float) -> int | float:
     try:
         return eng.to_raw(value)
     except ValueError:  # beyond the raw type: clamped
-        return _clamped(eng.raw_type, (value - eng.offset) / eng.gain, None)  # type: ignore[return-value]  # (a number)
+        wide = Engineering(DataType.FLOAT64, eng.gain, eng.offset, divider=eng.divider)
+        clamped = _clamped(eng.raw_type, wide.to_raw(value), None)
+        assert not isinstance(clamped, str)  # (a number type)
+        return clamped
 
 
 def _clamped(dtype: DataType, value: Value, length: int | None) -> Value:

@@ -449,6 +449,9 @@ def mean(values: list[float]) -> float:
 
 # == the client process ========================================================================
 def clients(ports: dict[str, int], out: Path) -> None:
+    import logging
+
+    logging.basicConfig(level=logging.CRITICAL)  # the clients' own libraries: counted, not logged
     counts = {
         k: 0
         for k in (
@@ -518,6 +521,10 @@ async def opcua_client(port: int, counts: dict[str, int], n: int) -> None:
                 await client.disconnect()
             else:  # gone without a goodbye: the session and its subscription expire
                 client.uaclient.protocol.transport.abort()  # type: ignore[union-attr]
+                try:  # (this client's own tasks: its CloseSession cannot reach the server)
+                    await asyncio.wait_for(client.disconnect(), 2)
+                except Exception:
+                    pass
         except Exception:
             counts["ua_errors"] += 1
             try:
