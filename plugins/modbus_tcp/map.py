@@ -249,7 +249,7 @@ class ModbusMap:
             cid = p.channel_id
             if cid is None:
                 out.append(self._module_word(p, image, health))
-            elif p.width == 1:  # int16, uint16, a byte: the value's low 16 bits
+            elif p.width == 1 and p.raw is None:  # int16, uint16, a byte: its low 16 bits
                 out.append(int(image[cid].value) & 0xFFFF)
             else:  # a wide value's words, one after the other (a read may start at any)
                 if i == 0 or not words:
