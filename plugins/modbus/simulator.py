@@ -296,7 +296,40 @@ def _distort(fault: Fault, frame: bytes) -> Reply | None:
     return Reply(frame)
 
 
-class ModbusSimulator(Simulator):
+class ChannelSimulator(Simulator):
+    """Channels of simulated modules by id, as the process image shows them (the RTU and TCP
+    simulators both): ``channels`` maps an id to its module and point."""
+
+    channels: dict[str, tuple[SimModule, Point]]
+
+    def _lookup(self, channel_id: str) -> tuple[SimModule, Point]:
+        try:
+            return self.channels[channel_id]
+        except KeyError:
+            raise KeyError(
+                f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})"
+            ) from None
+
+    def set_input(self, channel_id: str, value: Value) -> None:
+        """An input as the process image shows it (engineering units where the channel scales):
+        the module holds its raw value."""
+        module, point = self._lookup(channel_id)
+        if point.kind.is_output:
+            raise ValueError(f"{channel_id} is an output; the gateway writes it")
+        module.set_point(point, _raw(point, value))
+
+    def get_output(self, channel_id: str) -> Value:
+        """An output as the process image shows it (what the gateway wrote, converted back)."""
+        module, point = self._lookup(channel_id)
+        return _image_value(point, module.get_point(point))
+
+    def get(self, channel_id: str) -> Value:
+        """Any channel's current value in the simulated module (inputs too), as the image shows it."""
+        module, point = self._lookup(channel_id)
+        return _image_value(point, module.get_point(point))
+
+
+class ModbusSimulator(ChannelSimulator):
     """The modules of one ``modbus`` back, served on ``port``."""
 
     def __init__(
@@ -363,33 +396,7 @@ class ModbusSimulator(Simulator):
             else:
                 self.server.send(reply.frame)
 
-    # -- the Simulator API ------------------------------------------------------------
-    def _lookup(self, channel_id: str) -> tuple[SimModule, Point]:
-        try:
-            return self.channels[channel_id]
-        except KeyError:
-            raise KeyError(
-                f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})"
-            ) from None
-
-    def set_input(self, channel_id: str, value: Value) -> None:
-        """An input as the process image shows it (engineering units where the channel scales):
-        the module holds its raw value."""
-        module, point = self._lookup(channel_id)
-        if point.kind.is_output:
-            raise ValueError(f"{channel_id} is an output; the gateway writes it")
-        module.set_point(point, _raw(point, value))
-
-    def get_output(self, channel_id: str) -> Value:
-        """An output as the process image shows it (what the gateway wrote, converted back)."""
-        module, point = self._lookup(channel_id)
-        return _image_value(point, module.get_point(point))
-
-    def get(self, channel_id: str) -> Value:
-        """Any channel's current value in the simulated module (inputs too), as the image shows it."""
-        module, point = self._lookup(channel_id)
-        return _image_value(point, module.get_point(point))
-
+    # -- the Simulator API: set_input, get_output, get (ChannelSimulator) ---------------
     def registers(self, address: int, table: Table, start: int, count: int) -> list[int | bool]:
         """The raw cells of a module (what a Modbus client reads there)."""
         cells = self.modules[address].tables[table]

@@ -25,13 +25,12 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
-from fieldgate.image import Value
-from fieldgate.plugin import PluginStartError, Simulator
+from fieldgate.plugin import PluginStartError
 
 from .codec import ExceptionCode, frame, parse_request
 from .config import module_points
 from .points import Point
-from .simulator import FAULT_KINDS, Fault, SimModule, _image_value, _raw
+from .simulator import FAULT_KINDS, ChannelSimulator, Fault, SimModule
 from .tcp_config import ModbusTcpClientBackConfig, host_key, parse_host
 
 log = logging.getLogger("fieldgate.modbus.simulator")
@@ -76,7 +75,7 @@ class HostSim:
         return host_key(*self.bind)
 
 
-class ModbusTcpSimulator(Simulator):
+class ModbusTcpSimulator(ChannelSimulator):
     def __init__(self, config: ModbusTcpClientBackConfig, animate: bool = False):
         self.config = config
         self.animate = animate
@@ -248,29 +247,7 @@ class ModbusTcpSimulator(Simulator):
             return Answer((unit % 247) + 1, answer)
         return Answer(unit, answer)
 
-    # -- the Simulator API -------------------------------------------------------------------------
-    def _lookup(self, channel_id: str) -> tuple[SimModule, Point]:
-        try:
-            return self.channels[channel_id]
-        except KeyError:
-            raise KeyError(
-                f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})"
-            ) from None
-
-    def set_input(self, channel_id: str, value: Value) -> None:
-        module, point = self._lookup(channel_id)
-        if point.kind.is_output:
-            raise ValueError(f"{channel_id} is an output; the gateway writes it")
-        module.set_point(point, _raw(point, value))
-
-    def get_output(self, channel_id: str) -> Value:
-        module, point = self._lookup(channel_id)
-        return _image_value(point, module.get_point(point))
-
-    def get(self, channel_id: str) -> Value:
-        module, point = self._lookup(channel_id)
-        return _image_value(point, module.get_point(point))
-
+    # -- the Simulator API: set_input, get_output, get (ChannelSimulator) -------------------------
     def inject(self, address: int, fault: Fault) -> None:
         """A fault of device ``address`` (the back's device number)."""
         if address not in self.devices:

@@ -54,18 +54,23 @@ def _set_value(metric: object, dtype: DataType, value: Value) -> None:
         metric.int_value = int(value) & 0xFFFFFFFF  # type: ignore[attr-defined]
 
 
+def _property(props: object, key: str, kind: int, value: object) -> None:
+    props.keys.append(key)  # type: ignore[attr-defined]
+    entry = props.values.add()  # type: ignore[attr-defined]
+    entry.type = kind
+    if kind == DOUBLE:
+        entry.double_value = float(value)  # type: ignore[arg-type]
+    elif kind == STRING:
+        entry.string_value = str(value)
+    else:
+        entry.int_value = int(value)  # type: ignore[call-overload]
+
+
 def _properties(metric: object, quality: Quality, scaling_def: MetricDef | None) -> None:
     props = metric.properties  # type: ignore[attr-defined]
-    code = QUALITY_CODE[quality]
-    props.keys.append("Quality")
-    value = props.values.add()
-    value.type = INT32_PROPERTY
-    value.int_value = code
+    _property(props, "Quality", INT32_PROPERTY, QUALITY_CODE[quality])
     if quality is not Quality.GOOD:
-        props.keys.append("qualityCause")
-        value = props.values.add()
-        value.type = STRING
-        value.string_value = quality.value
+        _property(props, "qualityCause", STRING, quality.value)
     scaling = scaling_def.scaling if scaling_def is not None else None
     if scaling is not None:
         for key, number in (
@@ -74,28 +79,16 @@ def _properties(metric: object, quality: Quality, scaling_def: MetricDef | None)
             ("engLow", scaling.eng_min),
             ("engHigh", scaling.eng_max),
         ):
-            props.keys.append(key)
-            value = props.values.add()
-            value.type = DOUBLE
-            value.double_value = float(number)
+            _property(props, key, DOUBLE, number)
         if scaling.unit:
-            props.keys.append("engUnit")
-            value = props.values.add()
-            value.type = STRING
-            value.string_value = scaling.unit
+            _property(props, "engUnit", STRING, scaling.unit)
     eng = scaling_def.engineering if scaling_def is not None else None
     if eng is not None:  # the value is in engineering units: its unit and range, no raw range
         for key, bound in (("engLow", eng.low), ("engHigh", eng.high)):
             if bound is not None:
-                props.keys.append(key)
-                value = props.values.add()
-                value.type = DOUBLE
-                value.double_value = float(bound)
+                _property(props, key, DOUBLE, bound)
         if eng.unit:
-            props.keys.append("engUnit")
-            value = props.values.add()
-            value.type = STRING
-            value.string_value = eng.unit
+            _property(props, "engUnit", STRING, eng.unit)
 
 
 def _add_metric(
