@@ -93,14 +93,21 @@ def _swap(data: bytes, order: str) -> bytes:
     return b"".join(words)
 
 
-def decode(dtype: DataType, words: Sequence[int], order: str = "ABCD") -> int | float | str:
-    """Registers (in address order) to a value; ValueError for a float that is not finite."""
+def decode(
+    dtype: DataType, words: Sequence[int], order: str = "ABCD", length: int | None = None
+) -> int | float | str:
+    """Registers (in address order) to a value; ValueError for a float that is not finite.
+    ``length``: a STRING's bytes (an odd length leaves the last register's other byte out; text
+    is cut to fit them, never a character split)."""
     order = order_name(order) if WORDS.get(dtype) != 1 else "ABCD"
     raw = b"".join((w & 0xFFFF).to_bytes(2, "big") for w in words)
     data = _swap(raw, order)
     if dtype is DataType.STRING:
-        text = data.split(b"\0", 1)[0].decode("utf-8", errors="replace")
-        return text.rstrip(" ")
+        raw_text = data[:length] if length is not None else data
+        text = raw_text.split(b"\0", 1)[0].decode("utf-8", errors="replace").rstrip(" ")
+        while length is not None and len(text.encode()) > length:  # a replacement char is 3
+            text = text[:-1]
+        return text
     value: int | float = struct.unpack(_FORMAT[dtype], data[: 2 * WORDS[dtype]])[0]
     if dtype.is_float and not math.isfinite(value):
         raise ValueError(f"registers {list(words)} are not a finite {dtype.value}")

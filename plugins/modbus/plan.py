@@ -82,7 +82,7 @@ def decode_block(block: ReadBlock, data: Sequence[int]) -> dict[str, object]:
             readings[p.channel] = p.value_of(regvalues.get_field(data[offset], p.bit, p.bits))
         else:
             try:
-                raw = regvalues.decode(p.dtype, data[offset : offset + p.width], p.order)
+                raw = regvalues.decode(p.dtype, data[offset : offset + p.width], p.order, p.length)
             except ValueError:
                 readings[p.channel] = (0.0, Quality.OVER_RANGE)
             else:

@@ -135,7 +135,7 @@ class SimModule:
         if p.bit is not None:
             return regvalues.get_field(int(cells[p.address]), p.bit, p.bits)
         return regvalues.decode(
-            p.dtype, [int(cells[p.address + i]) for i in range(p.width)], p.order
+            p.dtype, [int(cells[p.address + i]) for i in range(p.width)], p.order, p.length
         )
 
     # -- requests -------------------------------------------------------------------

@@ -201,7 +201,7 @@ class ModbusMap:
             word = words[0]
             value = word - 0x10000 if dtype is DataType.INT16 and word & 0x8000 else word
         else:
-            value = registers.decode(dtype, words, self.order)
+            value = registers.decode(dtype, words, self.order, point.length)
         if point.raw is not None and not isinstance(value, str):
             return point.raw.from_raw(value)
         return value

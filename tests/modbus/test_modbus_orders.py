@@ -91,6 +91,9 @@ def test_text_in_register_order_padded_and_cut_at_nul() -> None:
     assert registers.decode(DataType.STRING, [0x4142, 0x2020, 0x0000], "ABCD") == "AB"
     assert registers.decode(DataType.STRING, [0x4100, 0x4242], "ABCD") == "A"  # ends at NUL
     assert registers.encode(DataType.STRING, "Ü", "ABCD", 2) == [0xC39C]  # UTF-8
+    # an odd length: the last register's low byte is not the text's; a cut never splits a char
+    assert registers.decode(DataType.STRING, [0x4142, 0x4344, 0x4546], "ABCD", 5) == "ABCDE"
+    assert registers.decode(DataType.STRING, [0x41C3, 0x9C00], "ABCD", 2) == "A"
     with pytest.raises(ValueError, match="longer than the 4 bytes"):
         registers.encode(DataType.STRING, "ABCDE", "ABCD", 4)
 
