@@ -276,6 +276,16 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     )
     p.set_defaults(handler=cmd_run)
 
+    from . import doctorcmd as doctor
+
+    p = sub.add_parser(
+        "doctor",
+        help="check what a topology needs of this host before run (CAN interfaces, serial "
+        "ports, listeners, the systemd unit); one line per finding with its fix",
+    )
+    doctor.configure(p)
+    p.set_defaults(handler=lambda a, r: doctor.run(a, r))
+
     from .statuscmd import configure_status, run_status
 
     p = sub.add_parser(

@@ -180,12 +180,16 @@ class GatewayContext:
         return front.served_backs([b.name for b in self.topology.backs])
 
     def front_channels(self, front: FrontConfig) -> list[Any]:
-        """The channels a front serves, in order (its ``expose`` list, or all in the seeds' order)."""
+        """The channels a front serves, in order (its ``expose`` list, or all in the seeds' order),
+        without those of a data type it cannot carry (``FrontConfig.carried_types``)."""
         from .layout import default_order
 
         if front.expose is not None:
-            return self.image.match(front.expose)
-        return default_order(self.image, [b.name for b in self.topology.backs])
+            channels = self.image.match(front.expose)
+        else:
+            channels = default_order(self.image, [b.name for b in self.topology.backs])
+        carried = front.carried_types
+        return channels if carried is None else [c for c in channels if c.dtype in carried]
 
 
 class Component(ABC):
@@ -263,14 +267,15 @@ class Simulator(ABC):
 
     @abstractmethod
     def set_input(self, channel_id: str, value: bool | int | float) -> None:
-        """Drive a simulated module input (it shows up in the gateway after the next poll)."""
+        """Drive a simulated module input (it shows up in the gateway after the next poll); a
+        simulator that serves text channels takes a str there too."""
 
     @abstractmethod
-    def get_output(self, channel_id: str) -> bool | int | float:
+    def get_output(self, channel_id: str) -> bool | int | float | str:
         """What the gateway last wrote to a simulated module output."""
 
     # optional, for ``fieldgate simulate BACK`` (its stdin commands and its banner)
-    def get(self, channel_id: str) -> bool | int | float:
+    def get(self, channel_id: str) -> bool | int | float | str:
         """Any channel's value in the simulated module (``get`` and ``show``); by default
         outputs only (KeyError for an input)."""
         return self.get_output(channel_id)

@@ -29,6 +29,24 @@ Direction of data
 * Outputs (DO, AO, SO) are written by fronts (``write_outputs``) and read by backs.
 * SI/SO channels are the bytes (UINT8) of a module's raw byte block, e.g. a high-speed
   counter's 6 input and 2 output bytes; fronts that know no such area leave them out.
+* Analog channels hold integers of 16, 32 or 64 bits, floats of 32 or 64 bits, or text
+  (STRING, at most ``ChannelSpec.length`` bytes in UTF-8). A front that cannot carry 64-bit
+  values or strings leaves them out (``FrontConfig.carried_types``, :data:`NARROW_TYPES`).
+
+Engineering units
+-----------------
+Two ways, one per channel:
+
+* :class:`Engineering` (``ChannelSpec.engineering``): the back has converted the value
+  already (``raw * gain + offset``, rounded to ``decimals``), once, where it was read; the
+  image holds the engineering value and every front serves that. Its ``unit`` and range
+  go with it (OPC UA EngineeringUnits and EURange, Sparkplug properties); an input outside
+  the range has quality over-/under-range, an output write outside it is refused. A write
+  goes back to the device through :meth:`Engineering.to_raw`. The Modbus backs do this.
+* :class:`Scaling` (``ChannelSpec.scaling``), display only: the image holds the device's
+  raw counts (a DCON module's hex scale, which a CANopen PLC expects) and fronts that show
+  engineering values compute them beside the raw one (an OPC UA ``_eng`` twin, the live
+  page, Sparkplug's rawLow/engLow properties).
 Both sides subscribe to changes, so event-driven PDOs, DeviceNet change-of-state and
 write-on-change polling need no busy loops.
 """
@@ -76,8 +94,8 @@ class Quality(StrEnum):
     NOT_READ = "not-read"  # never read since start
     STALE = "stale"  # last read failed; the value is the last good one
     COMM_FAULT = "comm-fault"  # module offline, or its back end is not running
-    OVER_RANGE = "over-range"  # module-reported
-    UNDER_RANGE = "under-range"  # module-reported
+    OVER_RANGE = "over-range"  # module-reported, or above the channel's engineering range
+    UNDER_RANGE = "under-range"  # module-reported, or below the channel's engineering range
     WATCHDOG = "watchdog"  # module sits in its host-watchdog safe state
     CONFIG_ERROR = "config-error"  # the module does not match its declaration
 
@@ -90,17 +108,33 @@ class DataType(StrEnum):
     INT32 = "int32"
     UINT32 = "uint32"
     FLOAT32 = "float32"
+    INT64 = "int64"
+    UINT64 = "uint64"
+    FLOAT64 = "float64"
+    STRING = "string"  # text, at most ChannelSpec.length bytes in UTF-8
 
-    def check(self, value: object) -> bool | int | float:
+    @property
+    def is_float(self) -> bool:
+        return self is DataType.FLOAT32 or self is DataType.FLOAT64
+
+    @property
+    def is_integer(self) -> bool:
+        return self in _INT_RANGES
+
+    def check(self, value: object) -> Value:
         """Return ``value`` converted to this type, or raise ValueError naming the range."""
         if self is DataType.BOOL:
             if isinstance(value, bool) or value in (0, 1):
                 return bool(value)
             raise ValueError(f"expected a bool (0 or 1), got {value!r}")
-        if self is DataType.FLOAT32:
+        if self is DataType.FLOAT32 or self is DataType.FLOAT64:
             if isinstance(value, (int, float)) and not isinstance(value, bool):
                 return float(value)
             raise ValueError(f"expected a number, got {value!r}")
+        if self is DataType.STRING:
+            if isinstance(value, str):
+                return value
+            raise ValueError(f"expected text, got {value!r}")
         if not isinstance(value, int) or isinstance(value, bool):
             raise ValueError(f"expected an integer for {self.value}, got {value!r}")
         low, high = _INT_RANGES[self]
@@ -120,7 +154,24 @@ _INT_RANGES = {
     DataType.UINT16: (0, 0xFFFF),
     DataType.INT32: (-0x8000_0000, 0x7FFF_FFFF),
     DataType.UINT32: (0, 0xFFFF_FFFF),
+    DataType.INT64: (-0x8000_0000_0000_0000, 0x7FFF_FFFF_FFFF_FFFF),
+    DataType.UINT64: (0, 0xFFFF_FFFF_FFFF_FFFF),
 }
+
+NARROW_TYPES = frozenset(
+    {
+        DataType.BOOL,
+        DataType.UINT8,
+        DataType.INT16,
+        DataType.UINT16,
+        DataType.INT32,
+        DataType.UINT32,
+        DataType.FLOAT32,
+    }
+)
+"""The types of at most 32 bits: what a front carries unless it says it carries more (the CAN
+fronts' 16-bit analog words: ``FrontConfig.carried_types``). 64-bit values and strings are
+left out of such a front's default order, and naming one in its ``expose`` is an error."""
 
 
 @dataclass(frozen=True)
@@ -171,6 +222,85 @@ class Scaling:
 
 
 @dataclass(frozen=True)
+class Engineering:
+    """A value the back converted to engineering units where it read it: ``raw * gain +
+    offset``, rounded to ``decimals`` (None: not rounded). ``raw_type`` is what the device
+    holds; ``low``/``high`` the range (None: open on that side), ``unit`` its unit.
+
+    Inputs outside the range keep their value with quality over-/under-range
+    (:meth:`range_quality`); outputs outside it are refused (:meth:`check_output`), and an
+    output goes back to the device as :meth:`to_raw` of its value.
+    """
+
+    raw_type: DataType
+    gain: float = 1.0
+    offset: float = 0.0
+    decimals: int | None = None
+    unit: str = ""
+    low: float | None = None
+    high: float | None = None
+    divider: float | None = None  # instead of gain: raw / divider (exact for 10, 100, ...)
+
+    @property
+    def converts(self) -> bool:
+        """True when the value differs from the raw one (a gain, a divider or an offset)."""
+        return self.gain != 1.0 or self.offset != 0.0 or self.divider not in (None, 1.0)
+
+    @property
+    def eu_range(self) -> tuple[float, float] | None:
+        return (self.low, self.high) if self.low is not None and self.high is not None else None
+
+    def from_raw(self, raw: float) -> float:
+        if not self.converts:
+            value = float(raw)
+        elif self.divider is not None:
+            value = raw / self.divider + self.offset
+        else:
+            value = raw * self.gain + self.offset
+        return round(value, self.decimals) if self.decimals is not None else value
+
+    def to_raw(self, value: float) -> int | float:
+        """The device's raw value for ``value``; ValueError when the raw type cannot hold it."""
+        raw: int | float = value
+        if self.divider is not None:
+            raw = (value - self.offset) * self.divider
+        elif self.converts:
+            raw = (value - self.offset) / self.gain
+        if self.raw_type.is_integer:
+            raw = round(raw)
+        return self.raw_type.check(raw)  # type: ignore[return-value]  # (a number type)
+
+    def range_quality(self, value: float) -> Quality | None:
+        if self.high is not None and value > self.high:
+            return Quality.OVER_RANGE
+        if self.low is not None and value < self.low:
+            return Quality.UNDER_RANGE
+        return None
+
+    def check_output(self, value: Value) -> None:
+        """ValueError when an output value is outside the range or beyond the raw type."""
+        if isinstance(value, str | bool):
+            return
+        if self.range_quality(value) is not None:
+            raise ValueError(f"{value} is outside the range {self.low}..{self.high}")
+        self.to_raw(value)
+
+    def describe(self) -> str:
+        parts = []
+        if self.divider is not None:
+            parts.append(f"raw {self.raw_type.value} / {self.divider:g} + {self.offset:g}")
+        elif self.converts:
+            parts.append(f"raw {self.raw_type.value} x {self.gain:g} + {self.offset:g}")
+        if self.decimals is not None:
+            parts.append(f"{self.decimals} decimals")
+        if self.eu_range is not None or self.low is not None or self.high is not None:
+            parts.append(f"range {self.low}..{self.high}")
+        if self.unit:
+            parts.append(self.unit)
+        return ", ".join(parts)
+
+
+@dataclass(frozen=True)
 class ChannelSpec:
     """Declaration of one channel, produced by a back end from its configuration."""
 
@@ -180,8 +310,11 @@ class ChannelSpec:
     dtype: DataType | None = None  # default: bool for digital, int16 for analog
     error_mode: ErrorMode = ErrorMode()
     shutdown_mode: ErrorMode | None = None  # None: outputs are left as they are on shutdown
-    scaling: Scaling | None = None
-    initial: bool | int | float | None = None  # outputs only: value before any front writes
+    scaling: Scaling | None = None  # display only: the image holds raw counts
+    initial: bool | int | float | str | None = None  # outputs only: value before any front writes
+    engineering: Engineering | None = None  # the back converted the value to these units
+    length: int | None = None  # STRING: at most this many bytes (UTF-8)
+    label: str = ""  # what the device's manual calls it ("Voltage L1"), for descriptions
 
     @property
     def data_type(self) -> DataType:
@@ -197,7 +330,7 @@ def channel_id(back: str, address: int, kind: Kind, index: int) -> str:
     return f"{back}/m{address}/{kind.value}{index}"
 
 
-Value = bool | int | float
+Value = bool | int | float | str
 MirroredState = tuple[str, Value, str, float | None, str]
 """One channel as another image holds it: (id, value, quality name, timestamp, written_by)."""
 Reading = Value | tuple[Value, Quality]
@@ -217,10 +350,30 @@ class Channel:
     # from the spec, once: the write path reads them for every value
     dtype: DataType = field(init=False, repr=False, compare=False)
     is_output: bool = field(init=False, repr=False, compare=False)
+    limited: bool = field(init=False, repr=False, compare=False)  # more to check than the type
 
     def __post_init__(self) -> None:
         self.dtype = self.spec.data_type
         self.is_output = self.spec.kind.is_output
+        self.limited = self.spec.length is not None or (
+            self.is_output and self.spec.engineering is not None
+        )
+
+    def check(self, value: object) -> Value:
+        """``value`` as this channel holds it, or ValueError: its data type, a string's length,
+        an output's engineering range (:meth:`Engineering.check_output`)."""
+        checked = self.dtype.check(value)
+        if self.limited:
+            spec = self.spec
+            if spec.length is not None and isinstance(checked, str):
+                size = len(checked.encode())
+                if size > spec.length:
+                    raise ValueError(
+                        f"text of {size} bytes is longer than the {spec.length} bytes it has"
+                    )
+            if self.is_output and spec.engineering is not None:
+                spec.engineering.check_output(checked)
+        return checked
 
     @property
     def id(self) -> str:
@@ -362,10 +515,11 @@ class ProcessImage:
         if spec.id in self._channels:
             raise ValueError(f"duplicate channel id {spec.id!r}")
         dtype = spec.data_type
+        value: Value
         if spec.kind.is_output and spec.initial is not None:
             value = dtype.check(spec.initial)
         else:
-            value = False if dtype is DataType.BOOL else 0
+            value = zero_of(dtype)
         quality = Quality.GOOD if spec.kind.is_output else Quality.NOT_READ
         channel = Channel(spec, value, quality, error_mode=spec.error_mode)
         self._channels[spec.id] = channel
@@ -705,7 +859,10 @@ class ProcessImage:
         channel = self[channel_id]
         if not channel.kind.is_output:
             raise ValueError(f"{channel_id} is an input; error modes apply to outputs")
-        channel.error_mode = ErrorMode(mode.use_value, channel.spec.data_type.check(mode.value))
+        value = channel.check(mode.value)
+        if isinstance(value, str):
+            raise ValueError(f"{channel_id} is text; its error mode can only hold it")
+        channel.error_mode = ErrorMode(mode.use_value, value)
 
     def apply_error_modes(
         self, channel_ids: Iterable[str] | None = None, origin: str = "error-mode"
@@ -749,12 +906,21 @@ class ProcessImage:
 _BOOL = DataType.BOOL
 
 
+def zero_of(dtype: DataType) -> Value:
+    """What a channel of ``dtype`` holds before its first value."""
+    if dtype is DataType.BOOL:
+        return False
+    if dtype is DataType.STRING:
+        return ""
+    return 0
+
+
 def _checked(channel: Channel, value: Value) -> Value:
     """``value`` in the channel's data type (a bool for a digital channel needs no work)."""
     if value.__class__ is bool and channel.dtype is _BOOL:
         return value
     try:
-        return channel.dtype.check(value)
+        return channel.check(value) if channel.limited else channel.dtype.check(value)
     except ValueError as exc:
         raise ValueError(f"{channel.spec.id}: {exc}") from None
 

@@ -35,7 +35,7 @@ from .contract import (
     hookspec,
     one_line,
 )
-from .topology.model import BackConfig, FrontConfig
+from .topology.model import BackConfig, FrontConfig, StrictModel
 
 if TYPE_CHECKING:
     from .topology.loader import Topology
@@ -63,11 +63,15 @@ class EdsWriter:
     encoding: str = "utf-8"  # of the file -o writes (a DeviceNet EDS is Latin-1)
 
 
+def _no_factory(config: Any, context: GatewayContext) -> Component:
+    raise TypeError("a device model is no component")
+
+
 @dataclass(frozen=True)
 class ComponentType:
     role: str  # "front" or "back"
     type_name: str
-    model: type[FrontConfig] | type[BackConfig]
+    model: type[FrontConfig] | type[BackConfig] | type[StrictModel]  # a device model's
     factory: Callable[[Any, GatewayContext], Component]
     plugin: str
     description: str = ""
@@ -144,6 +148,12 @@ class Registry:
     ) -> None:
         self._add("back", type_name, model, factory, description)
 
+    def add_model(self, type_name: str, model: type[StrictModel], description: str = "") -> None:
+        """A device model type: the topology's ``models:`` entries of this ``type`` are validated
+        with ``model`` (before the backs), and a back's config finds them by name in its
+        validation context (``info.context["models"]``)."""
+        self._add("model", type_name, model, _no_factory, description)
+
     def add_command(
         self,
         path: tuple[str, ...],
@@ -217,7 +227,7 @@ class Registry:
         self,
         role: str,
         type_name: str,
-        model: type[FrontConfig] | type[BackConfig],
+        model: type[FrontConfig] | type[BackConfig] | type[StrictModel],
         factory: Callable[..., Any],
         description: str,
         north: bool = False,

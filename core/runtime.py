@@ -381,10 +381,10 @@ class Gateway:
         await self.stop()
 
     # -- embedding API --------------------------------------------------------
-    def read(self, channel_id: str) -> bool | int | float:
+    def read(self, channel_id: str) -> bool | int | float | str:
         return self.image.value(channel_id)
 
-    def write(self, channel_id: str, value: bool | int | float) -> None:
+    def write(self, channel_id: str, value: bool | int | float | str) -> None:
         self.image.write_output(channel_id, value, origin="api")
 
     def restarts(self, name: str) -> int:

@@ -191,7 +191,7 @@ def run(args: argparse.Namespace, registry: Registry, back_type: str) -> int:
         return ExitCode.OK
 
 
-def _input(item: str) -> tuple[str, bool | int | float]:
+def _input(item: str) -> tuple[str, bool | int | float | str]:
     channel, sep, value = item.partition("=")
     if not sep or not channel:
         raise UsageError(f"--input expects CHANNEL=VALUE, got {item!r}")
@@ -202,7 +202,7 @@ async def _serve(
     args: argparse.Namespace,
     registry: Registry,
     config: BackConfig,
-    inputs: list[tuple[str, bool | int | float]],
+    inputs: list[tuple[str, bool | int | float | str]],
 ) -> int:
     with stopped_by_signals() as stop:  # before the banner: a SIGTERM right after it stops cleanly
         return await _serve_until(stop, args, registry, config, inputs)
@@ -213,7 +213,7 @@ async def _serve_until(
     args: argparse.Namespace,
     registry: Registry,
     config: BackConfig,
-    inputs: list[tuple[str, bool | int | float]],
+    inputs: list[tuple[str, bool | int | float | str]],
 ) -> int:
     command = f"fieldgate simulate {config.type}"
     pair: PtyPair | None = None
@@ -229,7 +229,7 @@ async def _serve_until(
     try:
         sim = registry.simulators[config.type](config, port, args.animate)
         for channel, value in inputs:
-            sim.set_input(channel, value)
+            _set_input(sim, channel, value)
         await sim.start()
     except (PluginStartError, ValueError, KeyError) as exc:
         print(f"{command}: {exc.args[0] if exc.args else exc}", file=sys.stderr)
@@ -344,7 +344,7 @@ def execute(sim: Simulator, channels: list[str], line: str) -> str:
         if cmd in ("quit", "exit"):
             return "quit"
         if cmd == "set" and len(rest) == 2:
-            sim.set_input(rest[0], number(rest[1]))
+            _set_input(sim, rest[0], number(rest[1]))
             return f"{rest[0]} = {sim.get(rest[0])}"
         if cmd == "get" and len(rest) == 1:
             return f"{rest[0]} = {sim.get(rest[0])}"
@@ -363,8 +363,17 @@ def execute(sim: Simulator, channels: list[str], line: str) -> str:
     )
 
 
-def number(text: str) -> bool | int | float:
-    """A value typed on the command line: on/off/true/false, an integer (0x.. too), a float."""
+def _set_input(sim: Simulator, channel: str, value: Any) -> None:
+    """A typed value to the simulator: text goes to simulators that serve string channels (the
+    others refuse it as they refuse any value their channel cannot hold)."""
+    sim.set_input(channel, value)
+
+
+def number(text: str) -> bool | int | float | str:
+    """A value typed on the command line: on/off/true/false, an integer (0x.. too), a float, or
+    text for a string channel (in quotes when it would read as one of the others: "12")."""
+    if len(text) >= 2 and text[0] == text[-1] and text[0] in "\"'":
+        return text[1:-1]
     low = text.lower()
     if low in ("true", "on"):
         return True
@@ -376,4 +385,4 @@ def number(text: str) -> bool | int | float:
         try:
             return float(text)
         except ValueError:
-            raise ValueError(f"not a value: {text!r} (a number, on/off or true/false)") from None
+            return text  # a string channel's text; any other channel refuses it with its type

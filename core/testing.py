@@ -44,7 +44,7 @@ from .runtime import Gateway
 from .serial_link import PtyPair
 
 T = TypeVar("T")
-Value = bool | int | float
+Value = bool | int | float | str
 Topology = str | Path | dict[str, Any]
 
 

@@ -176,11 +176,20 @@ def point(
         "source": source,
         "served_by": served,
     }
-    if spec.scaling is not None and not isinstance(channel.value, bool):
+    if spec.scaling is not None and not isinstance(channel.value, bool | str):
         body["engineering"] = {
             "value": round(spec.scaling.to_engineering(channel.value), 6),
             "unit": spec.scaling.unit,
         }
+    elif spec.engineering is not None:  # the value is in engineering units already
+        eng = spec.engineering
+        body["engineering"] = {
+            "value": channel.value,
+            "unit": eng.unit,
+            "range": [eng.low, eng.high],
+        }
+    if spec.label:
+        body["label"] = spec.label
     if channel.kind.is_output:
         body["written_by"] = channel.written_by
         body["error_mode"] = channel.error_mode.describe()
@@ -195,6 +204,6 @@ def compact(channel: Channel, now: float) -> dict[str, Any]:
         "quality": channel.quality.value,
     }
     scaling = channel.spec.scaling
-    if scaling is not None and not isinstance(channel.value, bool):
+    if scaling is not None and not isinstance(channel.value, bool | str):
         body["eng"] = round(scaling.to_engineering(channel.value), 6)
     return json_safe(body)  # type: ignore[no-any-return]

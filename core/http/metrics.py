@@ -260,7 +260,8 @@ class GatewayCollector:
             "fieldgate_point_good", "1 while a point's quality is good (opt-in)", labels=["point"]
         )
         for ch in gw.image:
-            value.add_metric([ch.id, ch.kind.value], float(ch.value))
+            if not isinstance(ch.value, str):  # text has no number to export
+                value.add_metric([ch.id, ch.kind.value], float(ch.value))
             good.add_metric([ch.id], float(ch.quality is Quality.GOOD))
         yield from (value, good)
 

@@ -13,7 +13,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from ..image import Kind, ProcessImage, Quality
+from ..image import DataType, Kind, ProcessImage, Quality
 
 PERIOD_S = 1.0
 WINDOW = 300  # samples: 5 minutes at 1 s
@@ -31,7 +31,7 @@ class TrendRecorder:
         self.period = period
         self.window = window
         self.wall = wall
-        self.channels = image.channels(kind=Kind.AI)
+        self.channels = [c for c in image.channels(kind=Kind.AI) if c.dtype is not DataType.STRING]
         self.series: dict[str, deque[tuple[float, float | None]]] = {
             c.id: deque(maxlen=window) for c in self.channels
         }

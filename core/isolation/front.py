@@ -101,7 +101,7 @@ class IsolatedFront(Front):
             )
         return self._writable
 
-    def _write(self, values: dict[str, bool | int | float]) -> str | None:
+    def _write(self, values: dict[str, bool | int | float | str]) -> str | None:
         allowed = self.writable()
         for cid in values:
             if cid not in allowed:

@@ -61,7 +61,7 @@ class MirrorContext(GatewayContext):
             channel = self.image[cid]
             if not channel.kind.is_output:
                 raise ValueError(f"{cid} is an input; only outputs can be written")
-            channel.dtype.check(value)
+            channel.check(value)
         request = next(self._ids)
         done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._waiting[request] = done

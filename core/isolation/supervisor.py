@@ -44,7 +44,7 @@ MAX_STATUS_BYTES = 512 * 1024  # a status frame larger than this is dropped unre
 WRITE_CHUNK = 256 * 1024  # bytes handed to the socket per wake-up
 STOP_GRACE_S = 3.0
 
-WriteHandler = Callable[[dict[str, bool | int | float]], str | None]
+WriteHandler = Callable[[dict[str, bool | int | float | str]], str | None]
 
 
 class ChildProcess:
@@ -85,7 +85,7 @@ class ChildProcess:
         self._ended: asyncio.Future[str] | None = None
         self._reason = ""
         self._last_pong = 0.0
-        self._writes: deque[tuple[int, dict[str, bool | int | float]]] = deque()
+        self._writes: deque[tuple[int, dict[str, bool | int | float | str]]] = deque()
         self._write_wake = asyncio.Event()
         self.fieldbus_lag = 0.0
 
@@ -330,12 +330,13 @@ class ChildProcess:
         request, values = message.get("id"), message.get("values")
         if not isinstance(request, int) or not isinstance(values, dict):
             raise wire.WireError("a write needs an integer id and a values object")
-        checked: dict[str, bool | int | float] = {}
+        checked: dict[str, bool | int | float | str] = {}
         for cid, value in values.items():
-            if not isinstance(value, (bool, int, float)) or (
+            # a number (JSON keeps 64-bit integers exact) or text; the image checks the rest
+            if not isinstance(value, (bool, int, float, str)) or (
                 isinstance(value, float) and not math.isfinite(value)
             ):
-                self._ack(request, f"{cid}: {value!r} is not a number")
+                self._ack(request, f"{cid}: {value!r} is neither a number nor text")
                 return
             checked[cid] = value
         if len(self._writes) >= MAX_WRITES_WAITING:

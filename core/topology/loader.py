@@ -42,6 +42,11 @@ from .model import BackConfig, FrontConfig, GatewaySection, StrictModel
 
 class _Root(StrictModel):
     gateway: GatewaySection
+    models: dict[str, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="device models by name, each with the type of back that reads it (modbus): "
+        "defined once, named by modules' model",
+    )
     fronts: list[dict[str, Any]] = Field(min_length=1)
     backs: list[dict[str, Any]] = Field(min_length=1)
 
@@ -54,6 +59,7 @@ class Topology:
     source: str = "<dict>"
     base_dir: Path = field(default_factory=Path.cwd)
     channel_specs: list[ChannelSpec] = field(default_factory=list)
+    models: dict[str, Any] = field(default_factory=dict)  # name -> its plugin's validated model
 
     @property
     def state_dir(self) -> Path:
@@ -88,12 +94,15 @@ class Topology:
             note = b.modules_note()
             count = f"{len(b.modules)} module(s)" if not note else f"modules {note}"
             lines.append(f"  back  {b.name} ({b.type}): {count}, {n} channel(s)")
+            notes = getattr(b, "load_notes", None)
+            lines += [f"    polls: {text}" for text in (notes() if notes is not None else [])]
         lines += [f"warning: {text}" for text in self.warnings()]
         return "\n".join(lines)
 
     def warnings(self) -> list[str]:
-        """What is valid but will not work as configured (a line booked beyond its poll_ms), or
-        would not go back onto the box a front's style replaces (fronts' topology_warnings)."""
+        """What is valid but will not work as configured (a line booked beyond its poll_ms), would
+        not go back onto the box a front's style replaces (fronts' topology_warnings), and
+        channels a front leaves out because it cannot carry their type."""
         out: list[str] = []
         for front in self.fronts:
             out += [f"front {front.name}: {text}" for text in front.topology_warnings(self)]
@@ -101,12 +110,35 @@ class Topology:
             check = getattr(back, "timing_warnings", None)
             if check is not None:
                 out += check()
+        for front in self.fronts:
+            left = left_out(front, self.channel_specs)
+            if left:
+                types = ", ".join(sorted({s.data_type.value for s in left}))
+                more = f" and {len(left) - 3} more" if len(left) > 3 else ""
+                out.append(
+                    f"fronts.{front.name}: {len(left)} channel(s) of a type a {front.type} front "
+                    f"cannot carry ({types}) are left out of it: "
+                    f"{', '.join(s.id for s in left[:3])}{more}"
+                )
         return out
+
+
+def left_out(front: FrontConfig, specs: list[ChannelSpec]) -> list[ChannelSpec]:
+    """The channels ``front`` would serve by its ``expose`` (or all) whose type it cannot carry."""
+    carried = front.carried_types
+    if carried is None:
+        return []
+    return [
+        s
+        for s in specs
+        if s.data_type not in carried
+        and (front.expose is None or any(fnmatch.fnmatchcase(s.id, p) for p in front.expose))
+    ]
 
 
 class _ComponentType(Protocol):
     @property
-    def model(self) -> type[FrontConfig] | type[BackConfig]: ...
+    def model(self) -> type[FrontConfig] | type[BackConfig] | type[StrictModel]: ...
 
 
 class ComponentTypes(Protocol):
@@ -321,16 +353,33 @@ def validate(
 
     fronts: list[FrontConfig] = []
     backs: list[BackConfig] = []
+    models: dict[str, Any] = {}
     checked_backs: dict[
         int, BackConfig | None
     ] = {}  # None: its own fields are wrong, not the back as a whole
-    sections: tuple[tuple[str, list[Any]], ...] = (("front", fronts), ("back", backs))
+    # base_dir: plugin configs resolve their own relative paths (a DCON scan file, a CSV map);
+    # models: what a module's model names (validated first, by the plugin that registered its type)
+    raw_models = data.get("models")
+    context = {
+        "base_dir": base_dir or Path.cwd(),
+        "models": models,
+        "model_names": {str(k) for k in raw_models} if isinstance(raw_models, dict) else set(),
+    }
+    sections: tuple[tuple[str, list[Any]], ...] = (
+        ("model", []),
+        ("front", fronts),
+        ("back", backs),
+    )
     for role, out in sections:
         section = f"{role}s"
         entries = data.get(section)
-        if not isinstance(entries, list):
-            continue  # reported above
-        for i, entry in enumerate(entries):
+        if role == "model" and isinstance(entries, dict):
+            items: list[tuple[Any, Any]] = list(entries.items())
+        elif role != "model" and isinstance(entries, list):
+            items = list(enumerate(entries))
+        else:
+            continue  # reported above (or no models)
+        for i, entry in items:
             if not isinstance(entry, dict):
                 continue  # reported above
             base = (section, i)
@@ -364,16 +413,16 @@ def validate(
                 )
                 continue
             try:
-                # base_dir: plugin configs resolve their own relative paths (a DCON scan file)
-                config = ctype.model.model_validate(
-                    dict(entry), context={"base_dir": base_dir or Path.cwd()}
-                )
+                config = ctype.model.model_validate(dict(entry), context=context)
             except ValidationError as exc:
                 found = _issues_from(exc, ctype.model, data, base, file)
                 issues.extend(found)
                 if role == "back" and all(issue.path != dotted(base) for issue in found):
                     checked_backs[i] = None
             else:
+                if role == "model":
+                    models[str(i)] = config
+                    continue
                 out.append(config)
                 if role == "back" and isinstance(config, BackConfig):
                     checked_backs[i] = config
@@ -381,7 +430,7 @@ def validate(
     if issues or root is None:
         raise TopologyError(_dedupe(issues))
 
-    topology = Topology(root.gateway, fronts, backs, file, base_dir or Path.cwd())
+    topology = Topology(root.gateway, fronts, backs, file, base_dir or Path.cwd(), models=models)
     issues.extend(_cross_checks(topology, data, file))
     if issues:
         raise TopologyError(_dedupe(issues))
@@ -519,12 +568,32 @@ def _cross_checks(topology: Topology, data: Any, file: str) -> list[ConfigIssue]
                     f"'{pattern}' matches no channel{close or ''} (channel ids look like <back>/m<address>/<kind><index>, e.g. {next(iter(sorted(ids)), 'rs485/m1/di0')})",
                 )
     _one_writer_checks(topology, issue)
+    _carried_checks(topology, issue)
     if issues:
         return issues
     for f_index, front in enumerate(topology.fronts):
         for loc, message in front.check(topology):
             issue(("fronts", f_index, *loc), message)
     return issues
+
+
+def _carried_checks(topology: Topology, issue: Callable[[tuple[Any, ...], str], None]) -> None:
+    """A channel named by its id (not a glob) in the ``expose`` of a front that cannot carry its
+    type is an error; a glob leaves such channels out (``Topology.warnings`` says which)."""
+    types = {s.id: s.data_type for s in topology.channel_specs}
+    for f_index, front in enumerate(topology.fronts):
+        carried = front.carried_types
+        if carried is None or front.expose is None:
+            continue
+        for e_index, entry in enumerate(front.expose):
+            dtype = types.get(entry)
+            if dtype is not None and dtype not in carried:
+                issue(
+                    ("fronts", f_index, "expose", e_index),
+                    f"{entry} is {dtype.value}: a {front.type} front carries only "
+                    f"{', '.join(sorted(t.value for t in carried))}; serve it from an opcua, "
+                    "modbus-tcp or sparkplug front",
+                )
 
 
 def _one_writer_checks(topology: Topology, issue: Callable[[tuple[Any, ...], str], None]) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from fnmatch import fnmatchcase
-from typing import Annotated, Any, Literal, overload
+from typing import Annotated, Any, ClassVar, Literal, overload
 
 from pydantic import (
     BaseModel,
@@ -24,7 +24,7 @@ from pydantic import (
     model_validator,
 )
 
-from ..image import ChannelSpec, ErrorMode, Kind
+from ..image import NARROW_TYPES, ChannelSpec, DataType, ErrorMode, Kind
 from ..serial_timing import LineTiming, bits_per_char
 
 Identifier = Annotated[str, StringConstraints(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$")]
@@ -269,6 +269,13 @@ class FrontConfig(ComponentConfig):
         description="channel ids or glob patterns this front serves, in order; default: every channel in the seeds' order",
     )
 
+    carried_types: ClassVar[frozenset[DataType] | None] = NARROW_TYPES
+    """The channel data types this front can serve (None: every type). By default those of at
+    most 32 bits (:data:`~fieldgate.image.NARROW_TYPES`: a front written before 64-bit values
+    and strings existed, a CAN front's 16-bit words): channels of other types are left out of
+    what it serves (``GatewayContext.front_channels``) and ``validate`` says so; naming one by
+    its id in ``expose`` is an error. A front that serves every type sets None."""
+
     def written_outputs(self) -> list[str] | None:
         """Output channels (globs) this front writes; None: every output it serves.
 
@@ -350,7 +357,53 @@ class BackConfig(ComponentConfig):
         return ""
 
 
-class SerialBackConfig(BackConfig):
+class PolledBackConfig(BackConfig):
+    """Settings every back that polls modules with core's line scheduler shares (an RS-485
+    line, a Modbus TCP host): retries, poll periods, offline and re-probe, rewrites."""
+
+    retries: int = Field(
+        0,
+        ge=0,
+        le=10,
+        description="immediate retries of a failed transaction; each failed attempt counts toward fail_threshold and the error counter",
+    )
+    poll_ms: int = Field(
+        100,
+        ge=0,
+        le=3_600_000,
+        description="default poll period of each module; 0 = as fast as the line allows",
+    )
+    fail_threshold: int = Field(
+        3, ge=0, le=100, description="a module is offline when its consecutive failures exceed this"
+    )
+    offline_probe_ms: int = Field(
+        5000, ge=10, le=3_600_000, description="re-probe period of an offline module"
+    )
+    write_period_ms: int | None = Field(
+        None,
+        ge=10,
+        description="also rewrite outputs cyclically at this period; default: on change only",
+    )
+
+    def poll_load(self) -> list[tuple[str, float, float]]:
+        """What ``validate`` counts against the poll budget: per line (or host) its name, the
+        share of it the polls book at their periods (1.0 = all of it: worst case, every read
+        due at once) and the requests per second. Empty when the back cannot say."""
+        return []
+
+    def timing_warnings(self) -> list[str]:
+        """What ``validate`` warns about: lines or hosts booked beyond their time."""
+        return []
+
+    def load_notes(self) -> list[str]:
+        """One line per line (or host) for ``validate``'s summary."""
+        return [
+            f"{name}: {rate:.1f} requests/s, {share * 100:.0f} % booked"
+            for name, share, rate in self.poll_load()
+        ]
+
+
+class SerialBackConfig(PolledBackConfig):
     """Settings every RS-485 poller shares; the line scheduler in core reads them."""
 
     port: str = Field(
@@ -380,29 +433,6 @@ class SerialBackConfig(BackConfig):
         "(detected at the first exchange that tells); an echo is compared and dropped, never "
         "taken for the reply",
     )
-    retries: int = Field(
-        0,
-        ge=0,
-        le=10,
-        description="immediate retries of a failed transaction; each failed attempt counts toward fail_threshold and the error counter",
-    )
-    poll_ms: int = Field(
-        100,
-        ge=0,
-        le=3_600_000,
-        description="default poll period of each module; 0 = as fast as the line allows",
-    )
-    fail_threshold: int = Field(
-        3, ge=0, le=100, description="a module is offline when its consecutive failures exceed this"
-    )
-    offline_probe_ms: int = Field(
-        5000, ge=10, le=3_600_000, description="re-probe period of an offline module"
-    )
-    write_period_ms: int | None = Field(
-        None,
-        ge=10,
-        description="also rewrite outputs cyclically at this period; default: on change only",
-    )
 
     def timing(self) -> LineTiming:
         """Response timeout, inter-byte timeout and line silence of this line
@@ -419,10 +449,13 @@ class SerialBackConfig(BackConfig):
         replies, inter-frame silences); None when the plugin cannot say. Plugins implement it."""
         return None
 
-    def timing_warnings(self) -> list[str]:
-        """What ``validate`` warns about: modules that cannot be polled within their poll_ms at
-        this baud rate (the sum of their worst-case wire times, each per its own period)."""
-        load, total, periods = 0.0, 0.0, []
+    def poll_requests(self, module: ModuleConfig) -> int | None:
+        """Requests one poll of ``module`` makes (every read due); None when the plugin cannot say."""
+        return None
+
+    def _line_load(self) -> tuple[float, float, float, list[int]]:
+        """(share booked, worst-case time of every module's poll, requests/s, the periods)."""
+        load, total, rate, periods = 0.0, 0.0, 0.0, []
         for module in self.modules:
             wire = self.poll_wire_time(module)
             period_ms = module.poll_ms if module.poll_ms is not None else self.poll_ms
@@ -430,7 +463,18 @@ class SerialBackConfig(BackConfig):
                 continue
             load += wire / (period_ms / 1000)
             total += wire
+            rate += (self.poll_requests(module) or 0) / (period_ms / 1000)
             periods.append(period_ms)
+        return load, total, rate, periods
+
+    def poll_load(self) -> list[tuple[str, float, float]]:
+        load, _total, rate, periods = self._line_load()
+        return [(f"line {self.port} at {self.baudrate} baud", load, rate)] if periods else []
+
+    def timing_warnings(self) -> list[str]:
+        """What ``validate`` warns about: modules that cannot be polled within their poll_ms at
+        this baud rate (the sum of their worst-case wire times, each per its own period)."""
+        load, total, _rate, periods = self._line_load()
         if load <= 1.0:
             return []
         shortest = min(periods)

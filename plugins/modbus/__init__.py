@@ -1,21 +1,35 @@
-"""The ``modbus`` back: a Modbus RTU master of RS-485 I/O modules, their simulator and scan.
+"""The modbus backs: Modbus RTU on RS-485 lines and Modbus TCP to devices on Ethernet.
+
+Each with its simulator and scan:
 
 * back type ``modbus`` (:class:`~.back.ModbusBack`, config :class:`~.config.ModbusBackConfig`)
-* simulator for ``fieldgate run --simulate``, ``fieldgate simulate modbus`` and tests
-  (:class:`~.simulator.ModbusSimulator`)
-* ``fieldgate scan modbus``: unit ids that answer, at one baud rate or several (:mod:`.scan`)
+* back type ``modbus-tcp-client`` (:class:`~.tcp_back.ModbusTcpClientBack`, config
+  :class:`~.tcp_config.ModbusTcpClientBackConfig`): devices by host and unit id
+* simulators for ``fieldgate run --simulate``, ``fieldgate simulate`` and tests
+  (:class:`~.simulator.ModbusSimulator`, :class:`~.tcp_simulator.ModbusTcpSimulator`)
+* ``fieldgate scan modbus`` / ``scan modbus-tcp-client``: unit ids that answer (:mod:`.scan`,
+  :mod:`.tcp_scan`)
+* device models (the topology's ``models:``, a CSV register map): :mod:`.models`
 
-See docs/modbus.md.
+See docs/modbus.md and docs/modbus-tcp-client.md.
 """
 
 from __future__ import annotations
 
-from fieldgate.plugin import Registry, hookimpl
+from typing import Any
+
+from fieldgate.plugin import Registry, SimulateCli, hookimpl
 
 from .back import ModbusBack
-from .config import ChannelGroup, ModbusBackConfig, ModbusModuleConfig
+from .config import ModbusBackConfig, ModbusModuleConfig
+from .groups import ChannelGroup
+from .models import ModbusDeviceModel
 from .scan import ModbusScanner
 from .simulator import Fault, ModbusSimulator
+from .tcp_back import ModbusTcpClientBack
+from .tcp_config import ModbusTcpClientBackConfig, ModbusTcpDeviceConfig
+from .tcp_scan import ModbusTcpScanner
+from .tcp_simulator import ModbusTcpSimulator
 
 __all__ = [
     "ChannelGroup",
@@ -24,11 +38,31 @@ __all__ = [
     "ModbusBackConfig",
     "ModbusModuleConfig",
     "ModbusSimulator",
+    "ModbusTcpClientBack",
+    "ModbusTcpClientBackConfig",
+    "ModbusTcpDeviceConfig",
+    "ModbusTcpSimulator",
 ]
 
 
 def _simulator(config: ModbusBackConfig, port: str, animate: bool = False) -> ModbusSimulator:
     return ModbusSimulator(config, port, animate)
+
+
+def _tcp_simulator(
+    config: ModbusTcpClientBackConfig, port: None = None, animate: bool = False
+) -> ModbusTcpSimulator:
+    return ModbusTcpSimulator(config, animate)
+
+
+def _tcp_simulate_options(group: Any) -> None:
+    group.add_argument(
+        "--listen",
+        default="127.0.0.1:5020",
+        metavar="HOST:PORT",
+        help="where the simulated devices of --module answer (a loopback address; default "
+        "127.0.0.1:5020)",
+    )
 
 
 @hookimpl
@@ -41,3 +75,22 @@ def fieldgate_register(registry: Registry) -> None:
     )
     registry.add_simulator("modbus", _simulator)
     registry.add_scanner("modbus", ModbusScanner())
+    registry.add_back(
+        "modbus-tcp-client",
+        ModbusTcpClientBackConfig,
+        ModbusTcpClientBack,
+        "Modbus TCP client (meters, drives, PLCs, TCP/RTU gateways on Ethernet)",
+    )
+    registry.add_simulator(
+        "modbus-tcp-client",
+        _tcp_simulator,
+        SimulateCli(
+            module_example="1:M-7017R",
+            configure=_tcp_simulate_options,
+            fields=lambda args: {"host": args.listen},
+        ),
+    )
+    registry.add_scanner("modbus-tcp-client", ModbusTcpScanner())
+    registry.add_model(
+        "modbus", ModbusDeviceModel, "a Modbus device's channel groups, or its CSV register map"
+    )

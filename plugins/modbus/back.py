@@ -12,13 +12,13 @@ from collections.abc import Callable
 from itertools import groupby
 from typing import Any
 
-from fieldgate.image import ChannelSpec, Quality
+from fieldgate.image import ChannelSpec, Quality, Value
 from fieldgate.plugin import GatewayContext
 from fieldgate.polling import NOTHING_DUE, PolledModule, SerialBack
 from fieldgate.topology import ModuleConfig
 
 from . import values as regvalues
-from .client import ModbusExceptionError, ModbusLink
+from .client import ModbusExceptionError, ModbusLink, Transactions
 from .codec import ExceptionCode, Function
 from .config import ModbusBackConfig, ModbusModuleConfig, module_points
 from .plan import ReadBlock, decode_block, plan_reads, plan_writes
@@ -41,15 +41,16 @@ class ModbusModule(PolledModule):
         self,
         config: ModbusModuleConfig,
         specs: list[ChannelSpec],
-        link: ModbusLink,
+        link: Transactions,
         points: list[Point],
         *,
         retry_period: float = 5.0,
         clock: Callable[[], float],
+        unit: int | None = None,
     ):
         super().__init__(config, specs)
         self.link = link
-        self.unit = config.address
+        self.unit = config.address if unit is None else unit  # TCP: the device's own unit id
         self.clock = clock
         self.retry_period = retry_period
         self.reads = 0  # read transactions made, so a poll with nothing due can say so
@@ -184,7 +185,7 @@ class ModbusModule(PolledModule):
 
     # -- writes -----------------------------------------------------------------------
     async def send_outputs(self, values: dict[str, Any]) -> None:
-        changes: list[tuple[Point, bool | int | float]] = [
+        changes: list[tuple[Point, Value]] = [
             (self.outputs_by_id[cid], v) for cid, v in values.items() if cid in self.outputs_by_id
         ]
         for op in plan_writes(
@@ -237,16 +238,14 @@ class ModbusModule(PolledModule):
                 ", ".join(p.channel for p in points),
             )
 
-    async def _write_bits_of_register(
-        self, address: int, items: list[tuple[Point, bool | int | float]]
-    ) -> None:
+    async def _write_bits_of_register(self, address: int, items: list[tuple[Point, Value]]) -> None:
         """Digital outputs or special bytes inside a holding register: read, change them, write back."""
         (current,) = await self.link.read_registers(
             self.unit, Function.READ_HOLDING_REGISTERS, address, 1
         )
         for p, value in items:
             assert p.bit is not None  # (only such points come here)
-            current = regvalues.set_field(current, p.bit, p.dtype, value)
+            current = regvalues.set_field(current, p.bit, p.bits, p.raw_of(value))
         forced = (
             Function.WRITE_MULTIPLE_REGISTERS
             if any(p.write_fc == 16 for p, _ in items)
@@ -264,6 +263,21 @@ class ModbusModule(PolledModule):
 
 def _zero(p: Point) -> bool | int:
     return False if p.kind.is_digital else 0
+
+
+def describe_point(p: Point) -> str:
+    """Where a point lives and how it is read: ``holding registers 10-13 (float64, CDAB) (FC3)``."""
+    where = f"{TABLE_NAMES[p.table]} {p.address}"
+    if p.width > 1:
+        where = f"{TABLE_NAMES[p.table]}s {p.address}-{p.end - 1} ({p.dtype.value}, {p.order})"
+    if p.bit is not None:
+        where += f" bit {p.bit}" if p.bits == 1 else f" bits {p.bit}-{p.bit + p.bits - 1}"
+    if p.engineering is not None:
+        where += f" [{p.engineering.describe()}]"
+    codes = f"FC{p.table.read_function}"
+    if p.write_fc is not None:
+        codes += f", written with FC{p.write_fc}"
+    return f"{where} ({codes})"
 
 
 class ModbusBack(SerialBack):
@@ -286,19 +300,11 @@ class ModbusBack(SerialBack):
     def point_locations(self) -> dict[str, list[str]]:
         """The Modbus table and address of each point (status API); addresses as on the
         wire (0-based), the function codes that read and write it."""
-        out: dict[str, list[str]] = {}
-        for module in self.config.modules:
-            for p in module_points(self.name, module):
-                where = f"{TABLE_NAMES[p.table]} {p.address}"
-                if p.width > 1:
-                    where = f"{TABLE_NAMES[p.table]}s {p.address}-{p.end - 1} ({p.dtype.value}, {p.word_order} word first)"
-                if p.bit is not None:
-                    where += f" bit {p.bit}"
-                codes = f"FC{p.table.read_function}"
-                if p.write_fc is not None:
-                    codes += f", written with FC{p.write_fc}"
-                out[p.channel] = [f"{where} ({codes})"]
-        return out
+        return {
+            p.channel: [describe_point(p)]
+            for module in self.config.modules
+            for p in module_points(self.name, module)
+        }
 
     async def reopen_link(self) -> None:
         await self.link.open()  # the same ModbusLink (the modules hold it), a new pymodbus client

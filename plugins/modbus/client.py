@@ -74,7 +74,64 @@ class ModbusStats:
         }
 
 
-class ModbusLink:
+class Transactions:
+    """What a module asks of its link (reads, writes) on top of one ``_transact``, and the
+    reply checks every link shares: pymodbus decodes the PDU, exception responses become
+    :class:`ModbusExceptionError`, a reply that does not answer the request is garbage."""
+
+    def __init__(self) -> None:
+        self.stats = ModbusStats()
+        self._decoder = DecodePDU(False)
+
+    async def _transact(self, request: Request) -> Any:
+        raise NotImplementedError
+
+    async def read_bits(self, unit: int, function: int, address: int, count: int) -> list[bool]:
+        reply = await self._transact(Request(unit, function, address, count))
+        bits = list(getattr(reply, "bits", []))
+        if len(bits) < count:
+            raise self._bad(function, f"reply carries {len(bits)} bits, {count} asked")
+        return bits[:count]
+
+    async def read_registers(self, unit: int, function: int, address: int, count: int) -> list[int]:
+        reply = await self._transact(Request(unit, function, address, count))
+        registers = list(getattr(reply, "registers", []))
+        if len(registers) != count:
+            raise self._bad(function, f"reply carries {len(registers)} registers, {count} asked")
+        return registers
+
+    async def write(self, unit: int, function: int, address: int, values: list[Any]) -> None:
+        if function in (Function.WRITE_SINGLE_COIL, Function.WRITE_MULTIPLE_COILS):
+            values = [bool(v) for v in values]
+        count = len(values) if function in (15, 16) else 1
+        reply = await self._transact(Request(unit, function, address, count, tuple(values)))
+        if getattr(reply, "address", address) != address:
+            raise self._bad(function, f"write echo names address {reply.address}, not {address}")
+
+    def _decoded(self, function: int, pdu: bytes, frame: bytes) -> Any:
+        """The reply PDU decoded and checked (garbage, an exception, another function);
+        ``frame``: what arrived, for the message."""
+        reply = self._decoder.decode(pdu)
+        if reply is None:
+            raise self._fail(ErrorKind.GARBAGE, _describe(ErrorKind.GARBAGE, frame))
+        if reply.isError():
+            code = getattr(reply, "exception_code", 0)
+            self.stats.errors[ErrorKind.EXCEPTION] += 1
+            self.stats.exception_codes[code] += 1
+            raise ModbusExceptionError(function, code)
+        if reply.function_code != function:
+            raise self._bad(function, f"reply has function {reply.function_code}")
+        return reply
+
+    def _fail(self, kind: ErrorKind, text: str) -> CommError:
+        self.stats.errors[kind] += 1
+        return CommError(kind, text)
+
+    def _bad(self, function: int, text: str) -> CommError:
+        return self._fail(ErrorKind.GARBAGE, f"FC{function}: {text}")
+
+
+class ModbusLink(Transactions):
     """One RS-485 line of Modbus RTU modules. One transaction at a time (the scheduler's rule)."""
 
     def __init__(
@@ -98,7 +155,7 @@ class ModbusLink:
             baudrate, timeout * 1000, None if byte_timeout is None else byte_timeout * 1000, bits
         )
         self.echo = EchoState(echo)
-        self.stats = ModbusStats()
+        super().__init__()
         self._settings: dict[str, Any] = {
             "baudrate": baudrate,
             "bytesize": bytesize,
@@ -108,7 +165,6 @@ class ModbusLink:
         self.serial: AsyncSerial | None = None
         self._quiet_since = 0.0
         self._after_failure = False
-        self._decoder = DecodePDU(False)
 
     @classmethod
     def from_config(cls, config: Any) -> ModbusLink:
@@ -138,28 +194,6 @@ class ModbusLink:
             self.serial = None
 
     # -- transactions -----------------------------------------------------------
-    async def read_bits(self, unit: int, function: int, address: int, count: int) -> list[bool]:
-        reply = await self._transact(Request(unit, function, address, count))
-        bits = list(getattr(reply, "bits", []))
-        if len(bits) < count:
-            raise self._bad(function, f"reply carries {len(bits)} bits, {count} asked")
-        return bits[:count]
-
-    async def read_registers(self, unit: int, function: int, address: int, count: int) -> list[int]:
-        reply = await self._transact(Request(unit, function, address, count))
-        registers = list(getattr(reply, "registers", []))
-        if len(registers) != count:
-            raise self._bad(function, f"reply carries {len(registers)} registers, {count} asked")
-        return registers
-
-    async def write(self, unit: int, function: int, address: int, values: list[Any]) -> None:
-        if function in (Function.WRITE_SINGLE_COIL, Function.WRITE_MULTIPLE_COILS):
-            values = [bool(v) for v in values]
-        count = len(values) if function in (15, 16) else 1
-        reply = await self._transact(Request(unit, function, address, count, tuple(values)))
-        if getattr(reply, "address", address) != address:
-            raise self._bad(function, f"write echo names address {reply.address}, not {address}")
-
     async def _transact(self, request: Request) -> Any:
         """One request and its reply, timed as fieldgate.serial_timing says; failures classified."""
         serial = self.serial
@@ -196,18 +230,12 @@ class ModbusLink:
             self._after_failure = True
             kind = diagnose(unit, function, frame)
             raise self._fail(kind, _describe(kind, frame))
-        reply = self._decoder.decode(frame[1:-2])
-        if reply is None:
-            self._after_failure = True
-            raise self._fail(ErrorKind.GARBAGE, _describe(ErrorKind.GARBAGE, frame))
-        if reply.isError():
-            code = getattr(reply, "exception_code", 0)
-            self.stats.errors[ErrorKind.EXCEPTION] += 1
-            self.stats.exception_codes[code] += 1
-            raise ModbusExceptionError(function, code)
-        if reply.function_code != function:
-            raise self._bad(function, f"reply has function {reply.function_code}")
-        return reply
+        try:
+            return self._decoded(function, frame[1:-2], frame)
+        except CommError as exc:
+            if exc.kind is ErrorKind.GARBAGE and not isinstance(exc, ModbusExceptionError):
+                self._after_failure = True
+            raise
 
     async def _quiet_line(self, serial: AsyncSerial) -> None:
         """Before a request: after a failure, line silence; always the t3.5 inter-frame gap."""
@@ -225,13 +253,6 @@ class ModbusLink:
             kind = diagnose(unit, function, outcome.frame)
             return self._fail(kind, _describe(kind, outcome.frame))
         return self._fail(ErrorKind.GARBAGE, outcome.describe())
-
-    def _fail(self, kind: ErrorKind, text: str) -> CommError:
-        self.stats.errors[kind] += 1
-        return CommError(kind, text)
-
-    def _bad(self, function: int, text: str) -> CommError:
-        return self._fail(ErrorKind.GARBAGE, f"FC{function}: {text}")
 
 
 def _frame_end(function: int, data: bytes) -> int | None:

@@ -1,144 +1,36 @@
 """Topology models of the ``modbus`` back and their expansion into points.
 
 A module declares channel groups by Modbus table (coils, discrete inputs, holding
-registers, input registers), or names a ``model`` preset, or both (preset channels
-first). :func:`module_points` turns a module into :class:`Point` objects: one per
-channel, saying where it lives on the wire and how to convert it.
+registers, input registers; :mod:`.groups`), or names a ``model`` (one of the topology's
+``models:``, :mod:`.models`, or a preset), or both (the model's channels first).
+:func:`module_points` turns a module into :class:`Point` objects: one per channel, saying
+where it lives on the wire and how to convert it.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from collections.abc import Sequence
+from typing import Any, Literal
 
-from pydantic import Field, field_validator, model_validator
-from pydantic_core import PydanticCustomError
+from pydantic import Field, PrivateAttr, ValidationInfo, model_validator
 
-from fieldgate.image import ChannelSpec, DataType, ErrorMode, Kind, Source, channel_id
-from fieldgate.topology import ModuleConfig, SerialBackConfig, StrictModel
+from fieldgate.image import ChannelSpec, ErrorMode, Kind, Source, channel_id
+from fieldgate.topology import ModuleConfig, SerialBackConfig
 
 from . import presets
 from .codec import MAX_READ_BITS, MAX_READ_REGISTERS, inter_frame_gap
-from .plan import plan_reads
+from .groups import ChannelGroup, _invalid
+from .models import ModbusDeviceModel
+from .plan import ReadBlock, plan_reads
 from .points import Point, Table
-from .values import WORDS
-
-
-def _invalid(message: str, loc: tuple[str | int, ...] = ()) -> PydanticCustomError:
-    """A validation error whose message is ours alone (no "Value error," prefix); ``loc``
-    names the field below the validated object it is about (core reports it there)."""
-    return PydanticCustomError(
-        "modbus_config",
-        message.replace("{", "{{").replace("}", "}}"),
-        {"loc": loc} if loc else None,
-    )
-
-
-# Which tables each channel kind may live in.
-_ALLOWED = {
-    Kind.DI: {Table.DISCRETE_INPUTS, Table.COILS, Table.INPUT_REGISTERS, Table.HOLDING_REGISTERS},
-    Kind.DO: {Table.COILS, Table.HOLDING_REGISTERS},
-    Kind.AI: {Table.INPUT_REGISTERS, Table.HOLDING_REGISTERS},
-    Kind.AO: {Table.HOLDING_REGISTERS},
-    Kind.SI: {Table.INPUT_REGISTERS, Table.HOLDING_REGISTERS},
-    Kind.SO: {Table.HOLDING_REGISTERS},
-}
-
-RegisterType = Literal["int16", "uint16", "int32", "uint32", "float32"]
-
-
-class ChannelGroup(StrictModel):
-    """``count`` consecutive channels of one kind, starting at ``address`` in ``table``.
-
-    ``si`` / ``so`` declare a raw byte block (special input / output, e.g. a counter's data):
-    ``count`` bytes, two per register, ``byte_order`` big = byte 0 is the high byte of the
-    first register (the bytes as they travel on the wire), little = its low byte.
-    """
-
-    kind: Literal["di", "do", "ai", "ao", "si", "so"]
-    table: Table
-    address: int = Field(ge=0, le=0xFFFF, description="first PDU address (0-based, as on the wire)")
-    count: int = Field(1, ge=1, le=2000, description="number of channels")
-    type: RegisterType | None = Field(
-        None, description="analog channels: register data type (default int16)"
-    )
-    word_order: Literal["big", "little"] = Field(
-        "big", description="32-bit types: big = high word first, little = low word first"
-    )
-    byte_order: Literal["big", "little"] | None = Field(
-        None,
-        description="si/so byte blocks: big (default) = byte 0 is the first register's high byte, little = its low byte",
-    )
-    first_bit: int = Field(
-        0,
-        ge=0,
-        le=15,
-        description="digital channels in registers: bit of the first channel; the next ones follow, LSB first, across registers",
-    )
-    write_fc: Literal[5, 6, 15, 16] | None = Field(
-        None,
-        description="outputs: force a write function (default: single writes for one point, multiple for runs)",
-    )
-    poll_ms: int | None = Field(
-        None,
-        ge=1,
-        le=3_600_000,
-        description="read this group at most this often (default: every module poll)",
-    )
-
-    @model_validator(mode="after")
-    def _consistent(self) -> ChannelGroup:
-        kind = Kind(self.kind)
-        if self.table not in _ALLOWED[kind]:
-            allowed = ", ".join(sorted(t.value for t in _ALLOWED[kind]))
-            raise _invalid(
-                f"{self.kind} channels cannot live in {self.table.value}; use one of: {allowed}"
-            )
-        if self.type is not None and (kind.is_digital or kind.is_special or self.table.is_bits):
-            raise _invalid(
-                f"type applies to analog channels in registers, not to {self.kind} channels"
-            )
-        if self.byte_order is not None and not kind.is_special:
-            raise _invalid(f"byte_order applies to si/so byte blocks, not to {self.kind} channels")
-        if kind.is_special and self.first_bit:
-            raise _invalid(
-                "first_bit applies to digital channels; si/so blocks start at a register"
-            )
-        if self.write_fc is not None:
-            if not kind.is_output:
-                raise _invalid("write_fc applies to outputs (do, ao) only")
-            expected = (5, 15) if self.table is Table.COILS else (6, 16)
-            if self.write_fc not in expected:
-                raise _invalid(
-                    f"write_fc {self.write_fc} does not write {self.table.value}; use {expected[0]} or {expected[1]}"
-                )
-            if self.write_fc == 6 and WORDS[self.dtype] == 2:
-                raise _invalid("32-bit values need write_fc 16 (two registers written at once)")
-        if self.last_address > 0xFFFF:
-            raise _invalid(f"the group runs past address 65535 (ends at {self.last_address})")
-        return self
-
-    @property
-    def dtype(self) -> DataType:
-        if Kind(self.kind).is_digital:
-            return DataType.BOOL
-        if Kind(self.kind).is_special:
-            return DataType.UINT8
-        return DataType(self.type or "int16")
-
-    @property
-    def last_address(self) -> int:
-        if self.table.is_bits:
-            return self.address + self.count - 1
-        if Kind(self.kind).is_special:
-            return self.address + (self.count - 1) // 2
-        if Kind(self.kind).is_digital:
-            return self.address + (self.first_bit + self.count - 1) // 16
-        return self.address + self.count * WORDS[self.dtype] - 1
 
 
 class ModbusModuleConfig(ModuleConfig):
     address: int = Field(ge=1, le=247, description="Modbus unit id (slave address)")
-    model: str | None = Field(None, description=f"preset: {', '.join(presets.names())}")
+    model: str | None = Field(
+        None,
+        description=f"a model of the topology's models, or a preset: {', '.join(presets.names())}",
+    )
     channels: list[ChannelGroup] = Field(
         default_factory=list, description="channel groups (after the preset's, if any)"
     )
@@ -162,50 +54,87 @@ class ModbusModuleConfig(ModuleConfig):
         description="also read across holes of up to this many unused registers/bits",
     )
 
-    @field_validator("model")
-    @classmethod
-    def _known_model(cls, model: str | None) -> str | None:
-        if model is not None and presets.find(model) is None:
-            raise _invalid(
-                f"unknown model '{model}'; presets: {', '.join(presets.names())}; or leave model out and declare channels"
-            )
-        return model
+    _model: ModbusDeviceModel | None = PrivateAttr(None)  # the topology's model it names
 
     @model_validator(mode="after")
-    def _complete(self) -> ModbusModuleConfig:
+    def _complete(self, info: ValidationInfo) -> ModbusModuleConfig:
+        self._resolve_model(info.context or {})
         if self.model is None and not self.channels:
-            raise _invalid("a module needs a model preset or a channels list")
+            raise _invalid("a module needs a model (yours or a preset) or a channels list")
         self._check_counts()
-        _check_output_overlap(self.groups())
+        groups = self.groups()
+        _check_output_overlap(groups)
+        widest = max((g.words for g in groups if not g.table.is_bits), default=1)
+        if widest > self.max_read_registers:
+            raise _invalid(
+                f"a channel takes {widest} registers, more than max_read_registers "
+                f"{self.max_read_registers}: it could never be read whole",
+                ("max_read_registers",),
+            )
         return self
 
-    def _check_counts(self) -> None:
-        """``counts`` keeps the first N channels of a kind of the preset: 0 up to what it has."""
+    def _resolve_model(self, context: dict[str, Any]) -> None:
+        """``model`` names a model of the topology (``models:``) or a preset; the topology's
+        model gives its read limits where the module gives none."""
+        if self.model is None:
+            self._model = None
+            return
+        found = context.get("models", {}).get(self.model)
+        if found is None and self._model is not None:
+            return  # validated before (an assignment re-validates without the topology)
+        if found is not None:
+            self._model = found
+            for name in ("max_read_registers", "max_read_bits", "coalesce_gap"):
+                limit = getattr(found, name)
+                if limit is not None and name not in self.model_fields_set:
+                    self.__dict__[name] = limit  # (no re-validation: the model checked it)
+            return
+        if presets.find(self.model) is not None:
+            return
+        if self.model in context.get("model_names", ()):
+            raise _invalid(
+                f"model '{self.model}' has errors of its own (models.{self.model})", ("model",)
+            )
+        mine = sorted(context.get("models", {}))
+        raise _invalid(
+            f"unknown model '{self.model}'; "
+            + (f"the topology's models: {', '.join(mine)}; " if mine else "")
+            + f"presets: {', '.join(presets.names())}; or leave model out and declare channels",
+            ("model",),
+        )
+
+    def _model_groups(self) -> list[ChannelGroup]:
+        """The groups the model gives: the topology's model's, or the preset's."""
+        if self._model is not None:
+            return list(self._model.channels)
         preset = presets.find(self.model) if self.model else None
+        return [ChannelGroup(**raw) for raw in preset.groups] if preset else []
+
+    def _check_counts(self) -> None:
+        """``counts`` keeps the first N channels of a kind of the model: 0 up to what it has."""
         for kind, n in self.counts.items():
             if n < 0:
                 raise _invalid(f"must be 0 or more (got {n})", ("counts", kind))
-            if preset is None:
+            if self.model is None:
                 raise _invalid(
-                    "counts applies to a model preset's channels; this module has no model",
+                    "counts applies to a model's channels; this module has no model",
                     ("counts", kind),
                 )
-            have = sum(g["count"] for g in preset.groups if g["kind"] == kind)
+            base = self._model_groups()
+            have = sum(g.count for g in base if g.kind == kind)
             if n > have:
-                has = (
-                    f"{have} {kind.upper()}"
-                    if have
-                    else f"no {kind.upper()}, only {preset.description}"
+                kinds = ", ".join(
+                    f"{sum(g.count for g in base if g.kind == k)} {k.upper()}"
+                    for k in dict.fromkeys(g.kind for g in base)
                 )
-                raise _invalid(f"{preset.model} has {has} (got {n})", ("counts", kind))
+                has = f"{have} {kind.upper()}" if have else f"no {kind.upper()}, only {kinds}"
+                raise _invalid(f"{self.model} has {has} (got {n})", ("counts", kind))
 
     def groups(self) -> list[ChannelGroup]:
-        """Preset groups (cut to ``counts``) followed by the declared ones."""
+        """The model's groups (cut to ``counts``) followed by the declared ones."""
         out: list[ChannelGroup] = []
-        preset = presets.find(self.model) if self.model else None
         left = dict(self.counts)
-        for raw in preset.groups if preset else ():
-            group = ChannelGroup(**raw)
+        for group in self._model_groups():
             if group.kind in left:
                 take = min(group.count, left[group.kind])
                 left[group.kind] -= take
@@ -241,6 +170,16 @@ def _cells(g: ChannelGroup) -> list[tuple[Table, int] | tuple[Table, int, int]]:
             for i in range(g.count)
             for b in range(8)
         ]
+    if g.bits is not None:  # a field covers its bit cells
+        return [
+            (
+                g.table,
+                g.address + (g.first_bit + i * g.bits + b) // 16,
+                (g.first_bit + i * g.bits + b) % 16,
+            )
+            for i in range(g.count)
+            for b in range(g.bits)
+        ]
     return [(g.table, a) for a in range(g.address, g.last_address + 1)]
 
 
@@ -259,7 +198,22 @@ def _place(g: ChannelGroup, i: int) -> tuple[int, int | None]:
     if Kind(g.kind).is_digital:
         bit = g.first_bit + i
         return g.address + bit // 16, bit % 16
-    return g.address + i * WORDS[g.dtype], None
+    if g.bits is not None:
+        bit = g.first_bit + i * g.bits
+        return g.address + bit // 16, bit % 16
+    return g.address + i * g.words, None
+
+
+def _field_bits(g: ChannelGroup) -> int:
+    if Kind(g.kind).is_special:
+        return 8
+    return g.bits if g.bits is not None else 1
+
+
+def _label(g: ChannelGroup, i: int) -> str:
+    if not g.label:
+        return ""
+    return g.label if g.count == 1 else f"{g.label} [{i}]"
 
 
 def module_points(back: str, module: ModbusModuleConfig) -> list[Point]:
@@ -268,6 +222,7 @@ def module_points(back: str, module: ModbusModuleConfig) -> list[Point]:
     for g in module.groups():
         kind = Kind(g.kind)
         period = g.poll_ms / 1000 if g.poll_ms else None
+        engineering = g.engineering()
         for i in range(g.count):
             index = next_index[kind]
             next_index[kind] += 1
@@ -280,13 +235,52 @@ def module_points(back: str, module: ModbusModuleConfig) -> list[Point]:
                     g.table,
                     address,
                     g.dtype,
-                    word_order=g.word_order,
+                    order=g.byte_order_name,
                     bit=bit,
+                    bits=_field_bits(g),
                     write_fc=g.write_fc,
                     period=period,
+                    length=g.text_length,
+                    engineering=engineering,
+                    label=_label(g, i),
                 )
             )
     return points
+
+
+def device_specs(back: str, modules: Sequence[ModbusModuleConfig]) -> list[ChannelSpec]:
+    """The channels of a Modbus back's modules (RTU and TCP alike)."""
+    specs = []
+    for m in modules:
+        for p in module_points(back, m):
+            error_mode, shutdown_mode = (
+                m.output_modes(p.kind, p.index) if p.kind.is_output else (ErrorMode(), None)
+            )
+            specs.append(
+                ChannelSpec(
+                    p.channel,
+                    p.kind,
+                    Source(back, m.address, p.index),
+                    dtype=p.image_type,
+                    error_mode=error_mode,
+                    shutdown_mode=shutdown_mode,
+                    engineering=p.engineering,
+                    length=p.length,
+                    label=p.label,
+                )
+            )
+    return specs
+
+
+def poll_blocks(back: str, module: ModbusModuleConfig) -> list[ReadBlock]:
+    """The reads of one poll of ``module`` with every group due (an output-only module is
+    read back): what validate's poll budget counts."""
+    points = [p for p in module_points(back, module) if not p.kind.is_output]
+    if not points:
+        points = module_points(back, module)
+    return plan_reads(
+        points, module.max_read_registers, module.max_read_bits, gap=module.coalesce_gap
+    )
 
 
 class ModbusBackConfig(SerialBackConfig):
@@ -300,34 +294,19 @@ class ModbusBackConfig(SerialBackConfig):
     )
 
     def channel_specs(self) -> list[ChannelSpec]:
-        specs = []
-        for m in self.modules:
-            for p in module_points(self.name, m):
-                error_mode, shutdown_mode = (
-                    m.output_modes(p.kind, p.index) if p.kind.is_output else (ErrorMode(), None)
-                )
-                specs.append(
-                    ChannelSpec(
-                        p.channel,
-                        p.kind,
-                        Source(self.name, m.address, p.index),
-                        dtype=p.dtype,
-                        error_mode=error_mode,
-                        shutdown_mode=shutdown_mode,
-                    )
-                )
-        return specs
+        return device_specs(self.name, self.modules)
 
     def points(self) -> dict[int, list[Point]]:
         return {m.address: module_points(self.name, m) for m in self.modules}
+
+    def poll_requests(self, module: ModuleConfig) -> int | None:
+        assert isinstance(module, ModbusModuleConfig)
+        return len(poll_blocks(self.name, module))
 
     def poll_wire_time(self, module: ModuleConfig) -> float | None:
         """Worst case on the wire of one poll (``validate``'s poll budget): every read block
         due at once, each an 8-byte request, its reply, and the t3.5 silence before each."""
         assert isinstance(module, ModbusModuleConfig)
-        points = [p for p in module_points(self.name, module) if not p.kind.is_output]
-        if not points:  # an output-only module is read back
-            points = module_points(self.name, module)
         timing = self.timing()
         gap = (
             inter_frame_gap(self.baudrate)
@@ -335,9 +314,7 @@ class ModbusBackConfig(SerialBackConfig):
             else self.inter_frame_ms / 1000
         )
         total = 0.0
-        for block in plan_reads(
-            points, module.max_read_registers, module.max_read_bits, gap=module.coalesce_gap
-        ):
+        for block in poll_blocks(self.name, module):
             data = (block.count + 7) // 8 if block.table.is_bits else 2 * block.count
             total += timing.wire_time(8 + 5 + data) + 2 * gap
         return total

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from fieldgate.image import Quality
+from fieldgate.image import Quality, Value
 
 from . import values as regvalues
 from .codec import MAX_WRITE_BITS, MAX_WRITE_REGISTERS, Function
@@ -68,7 +68,9 @@ def plan_reads(
 def decode_block(block: ReadBlock, data: Sequence[int]) -> dict[str, object]:
     """Readings of every point of a block from the bits or registers read.
 
-    A register pair that is not a finite float32 gives the point over-range quality.
+    Values are converted to engineering units here (``Point.value_of``: over-/under-range
+    quality outside the range). Registers that are not a finite float give the point
+    over-range quality.
     """
     readings: dict[str, object] = {}
     bits, start = block.table.is_bits, block.address
@@ -77,14 +79,14 @@ def decode_block(block: ReadBlock, data: Sequence[int]) -> dict[str, object]:
         if bits:
             readings[p.channel] = bool(data[offset])
         elif p.bit is not None:
-            readings[p.channel] = regvalues.get_field(data[offset], p.bit, p.dtype)
+            readings[p.channel] = p.value_of(regvalues.get_field(data[offset], p.bit, p.bits))
         else:
             try:
-                readings[p.channel] = regvalues.decode(
-                    p.dtype, data[offset : offset + p.width], p.word_order
-                )
+                raw = regvalues.decode(p.dtype, data[offset : offset + p.width], p.order, p.length)
             except ValueError:
                 readings[p.channel] = (0.0, Quality.OVER_RANGE)
+            else:
+                readings[p.channel] = p.value_of(raw)
     return readings
 
 
@@ -99,9 +101,7 @@ class WriteOp:
         return f"FC{self.function} at {self.address} x{len(self.values)}"
 
 
-def plan_writes(
-    changes: list[tuple[Point, bool | int | float]], allow_multiple: bool = True
-) -> list[WriteOp]:
+def plan_writes(changes: list[tuple[Point, Value]], allow_multiple: bool = True) -> list[WriteOp]:
     """Write requests for changed coil and register outputs (not bits inside registers)."""
     ops: list[WriteOp] = []
     coils = sorted(
@@ -124,7 +124,9 @@ def plan_writes(
             )
         )
     for run in _runs(registers):
-        words = [w for p, v in run for w in regvalues.encode(p.dtype, v, p.word_order)]
+        words = [
+            w for p, v in run for w in regvalues.encode(p.dtype, p.raw_of(v), p.order, p.length)
+        ]
         ops.extend(
             _ops(
                 run,
@@ -139,10 +141,10 @@ def plan_writes(
 
 
 def _runs(
-    items: list[tuple[Point, bool | int | float]],
-) -> list[list[tuple[Point, bool | int | float]]]:
+    items: list[tuple[Point, Value]],
+) -> list[list[tuple[Point, Value]]]:
     """Split sorted (point, value) pairs into runs of adjacent addresses with the same forced function."""
-    runs: list[list[tuple[Point, bool | int | float]]] = []
+    runs: list[list[tuple[Point, Value]]] = []
     for p, v in items:
         last = runs[-1][-1][0] if runs else None
         if (
@@ -158,7 +160,7 @@ def _runs(
 
 
 def _ops(
-    run: list[tuple[Point, bool | int | float]],
+    run: list[tuple[Point, Value]],
     words: list[bool] | list[int],
     single: int,
     multiple: int,
@@ -170,10 +172,17 @@ def _ops(
     use_single = forced == single or (forced is None and len(words) == 1) or not allow_multiple
     if use_single:
         return [WriteOp(single, points[0].address + i, [w], points) for i, w in enumerate(words)]
-    if any(p.width == 2 for p in points):
-        limit -= limit % 2  # never split a 32-bit value across two requests
-    start = points[0].address
-    return [
-        WriteOp(multiple, start + i, words[i : i + limit], points)
-        for i in range(0, len(words), limit)
-    ]
+    ops: list[WriteOp] = []
+    address, offset = points[0].address, 0
+    chunk: list[bool] | list[int] = []
+    chunk_points: list[Point] = []
+    for p in points:  # split at the limit, never inside a value
+        mine = words[offset : offset + p.width]
+        offset += p.width
+        if chunk and len(chunk) + len(mine) > limit:
+            ops.append(WriteOp(multiple, address, chunk, chunk_points))
+            address, chunk, chunk_points = address + len(chunk), [], []
+        chunk = chunk + mine
+        chunk_points.append(p)
+    ops.append(WriteOp(multiple, address, chunk, chunk_points))
+    return ops

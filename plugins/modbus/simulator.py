@@ -25,7 +25,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from fieldgate.image import DataType, Kind, integer_range
+from fieldgate.image import DataType, Kind, Value, integer_range
 from fieldgate.plugin import Simulator
 from fieldgate.serial_link import PortServer, cancel_task, char_time
 
@@ -116,24 +116,26 @@ class SimModule:
                 self.tables[p.table][a] = False if p.table.is_bits else 0
 
     # -- values by point ------------------------------------------------------------
-    def set_point(self, p: Point, value: bool | int | float) -> None:
+    def set_point(self, p: Point, value: Value) -> None:
+        """Set a point to a raw value (as the device holds it: before any scaling)."""
         cells = self.tables[p.table]
         if p.table.is_bits:
             cells[p.address] = bool(value)
         elif p.bit is not None:
-            cells[p.address] = regvalues.set_field(cells[p.address], p.bit, p.dtype, value)
+            cells[p.address] = regvalues.set_field(int(cells[p.address]), p.bit, p.bits, value)
         else:
-            for i, word in enumerate(regvalues.encode(p.dtype, value, p.word_order)):
+            for i, word in enumerate(regvalues.encode(p.dtype, value, p.order, p.length)):
                 cells[p.address + i] = word
 
-    def get_point(self, p: Point) -> bool | int | float:
+    def get_point(self, p: Point) -> Value:
+        """A point's raw value (before any scaling)."""
         cells = self.tables[p.table]
         if p.table.is_bits:
             return cells[p.address]
         if p.bit is not None:
-            return regvalues.get_field(cells[p.address], p.bit, p.dtype)
+            return regvalues.get_field(int(cells[p.address]), p.bit, p.bits)
         return regvalues.decode(
-            p.dtype, [cells[p.address + i] for i in range(p.width)], p.word_order
+            p.dtype, [int(cells[p.address + i]) for i in range(p.width)], p.order, p.length
         )
 
     # -- requests -------------------------------------------------------------------
@@ -294,7 +296,40 @@ def _distort(fault: Fault, frame: bytes) -> Reply | None:
     return Reply(frame)
 
 
-class ModbusSimulator(Simulator):
+class ChannelSimulator(Simulator):
+    """Channels of simulated modules by id, as the process image shows them (the RTU and TCP
+    simulators both): ``channels`` maps an id to its module and point."""
+
+    channels: dict[str, tuple[SimModule, Point]]
+
+    def _lookup(self, channel_id: str) -> tuple[SimModule, Point]:
+        try:
+            return self.channels[channel_id]
+        except KeyError:
+            raise KeyError(
+                f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})"
+            ) from None
+
+    def set_input(self, channel_id: str, value: Value) -> None:
+        """An input as the process image shows it (engineering units where the channel scales):
+        the module holds its raw value."""
+        module, point = self._lookup(channel_id)
+        if point.kind.is_output:
+            raise ValueError(f"{channel_id} is an output; the gateway writes it")
+        module.set_point(point, _raw(point, value))
+
+    def get_output(self, channel_id: str) -> Value:
+        """An output as the process image shows it (what the gateway wrote, converted back)."""
+        module, point = self._lookup(channel_id)
+        return _image_value(point, module.get_point(point))
+
+    def get(self, channel_id: str) -> Value:
+        """Any channel's current value in the simulated module (inputs too), as the image shows it."""
+        module, point = self._lookup(channel_id)
+        return _image_value(point, module.get_point(point))
+
+
+class ModbusSimulator(ChannelSimulator):
     """The modules of one ``modbus`` back, served on ``port``."""
 
     def __init__(
@@ -337,7 +372,9 @@ class ModbusSimulator(Simulator):
         self._task: asyncio.Task[None] | None = None
         self.output_listeners: list[Callable[[str, object], None]] = []
         self._outputs_seen = {
-            cid: m.get_point(p) for cid, (m, p) in self.channels.items() if p.kind.is_output
+            cid: _image_value(p, m.get_point(p))
+            for cid, (m, p) in self.channels.items()
+            if p.kind.is_output
         }
 
     # -- life cycle -----------------------------------------------------------------
@@ -359,31 +396,11 @@ class ModbusSimulator(Simulator):
             else:
                 self.server.send(reply.frame)
 
-    # -- the Simulator API ------------------------------------------------------------
-    def _lookup(self, channel_id: str) -> tuple[SimModule, Point]:
-        try:
-            return self.channels[channel_id]
-        except KeyError:
-            raise KeyError(
-                f"no simulated channel {channel_id!r} (have e.g. {next(iter(self.channels), '-')})"
-            ) from None
-
-    def set_input(self, channel_id: str, value: bool | int | float) -> None:
-        module, point = self._lookup(channel_id)
-        if point.kind.is_output:
-            raise ValueError(f"{channel_id} is an output; the gateway writes it")
-        module.set_point(
-            point, point.dtype.check(value) if point.dtype is not DataType.FLOAT32 else float(value)
-        )
-
-    def get_output(self, channel_id: str) -> bool | int | float:
-        module, point = self._lookup(channel_id)
-        return module.get_point(point)
-
-    def get(self, channel_id: str) -> bool | int | float:
-        """Any channel's current value in the simulated module (inputs too)."""
-        module, point = self._lookup(channel_id)
-        return module.get_point(point)
+    # -- the Simulator API: set_input, get_output, get (ChannelSimulator) ---------------
+    def registers(self, address: int, table: Table, start: int, count: int) -> list[int | bool]:
+        """The raw cells of a module (what a Modbus client reads there)."""
+        cells = self.modules[address].tables[table]
+        return [cells[a] for a in range(start, start + count)]
 
     def inject(self, address: int, fault: Fault) -> None:
         if address not in self.modules:
@@ -440,15 +457,22 @@ class ModbusSimulator(Simulator):
         for src, dst in self.wiring:
             if not self._is_driven(src):
                 continue  # until the gateway writes the outputs, their inputs animate
-            value = self.get(src)
-            _, dst_point = self._lookup(dst)
-            if dst_point.dtype is not DataType.BOOL and dst_point.dtype is not DataType.FLOAT32:
+            src_module, src_point = self._lookup(src)
+            dst_module, dst_point = self._lookup(dst)
+            value = src_module.get_point(src_point)  # raw to raw, as wires carry them
+            if isinstance(value, str) or dst_point.dtype is DataType.STRING:
+                continue
+            if dst_point.dtype.is_integer:
                 low, high = integer_range(dst_point.dtype)
+                if dst_point.bit is not None:
+                    low, high = 0, (1 << dst_point.bits) - 1
                 value = max(low, min(high, int(value)))
-            self.set_input(dst, value)
+            elif dst_point.dtype.is_float:
+                value = float(value)
+            dst_module.set_point(dst_point, value)
         for cid, (module, p) in self.channels.items():
             if p.kind.is_output:
-                value = module.get_point(p)
+                value = _image_value(p, module.get_point(p))
                 if self._outputs_seen.get(cid) != value:
                     self._outputs_seen[cid] = value
                     for listener in self.output_listeners:
@@ -466,18 +490,38 @@ class ModbusSimulator(Simulator):
                 module.set_point(p, _animated_value(p, tick))
 
 
-def _animated_value(p: Point, tick: int) -> bool | int | float:
+def _raw(p: Point, value: Value) -> Value:
+    """The raw value a module holds for an image value (ValueError when it does not fit)."""
+    if p.dtype is DataType.STRING:
+        return DataType.STRING.check(value)
+    raw = p.raw_of(p.image_type.check(value))
+    if p.dtype.is_float:
+        return float(raw)  # type: ignore[arg-type]  # (a number: raw_of of a number)
+    return p.dtype.check(raw)
+
+
+def _image_value(p: Point, raw: Value) -> Value:
+    value = p.value_of(raw)
+    return value[0] if isinstance(value, tuple) else value  # type: ignore[return-value]  # (a Value)
+
+
+def _animated_value(p: Point, tick: int) -> Value:
+    """A raw value that moves (text does not)."""
     if p.kind is Kind.SI:  # a counter block: the tick count, little-endian, every 4 bytes
         return tick >> 8 * (p.index % 4) & 0xFF
     if p.kind is Kind.DI:
         return bool(
             (tick // 4) >> p.index & 1
         )  # a binary count, one step a second at the default period
+    if p.dtype is DataType.STRING:
+        return f"SIM {p.index}"[: p.length or 0]
     phase = (tick + 8 * p.index) % 80 / 80
     wave = 1 - abs(2 * phase - 1)  # triangle 0..1..0 over 20 s
-    if p.dtype is DataType.FLOAT32:
+    if p.dtype.is_float:
         return round(10 * wave, 3)
-    high = 0xFFFF if p.dtype is DataType.UINT16 else 0x7FFF
+    if p.bit is not None:
+        return int(wave * ((1 << p.bits) - 1))
+    high = 0xFFFF if p.dtype in (DataType.UINT16, DataType.UINT32, DataType.UINT64) else 0x7FFF
     return int(wave * high)
 
 

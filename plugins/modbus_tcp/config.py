@@ -8,10 +8,11 @@ certificates: ``tls`` with ``client_ca_file``) or an explicit ``allowed_peers`` 
 from __future__ import annotations
 
 import ipaddress
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from fieldgate.image import DataType
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel, is_loopback, split_listen
 
@@ -38,7 +39,19 @@ class ModbusTcpFrontConfig(FrontConfig):
         description="output channels (globs) clients may write; each output has one writing front",
     )
     word_order: Literal["big", "little"] = Field(
-        "big", description="32-bit values: big = high word at the lower address"
+        "big",
+        description="values of two registers or more: big = high word at the lower address "
+        "(ABCD), little = low word first (CDAB); order says more",
+    )
+    order: Literal["ABCD", "CDAB", "BADC", "DCBA"] | None = Field(
+        None,
+        description="values of two registers or more (32/64-bit, text): ABCD (big-endian), CDAB "
+        "(word swap), BADC (byte swap), DCBA (little-endian); default: word_order's",
+    )
+    scaled_values: Literal["float32", "float64", "raw"] = Field(
+        "float32",
+        description="channels a back scaled to engineering units: float32 (two registers), "
+        "float64 (four), or raw (the device's own register value; writes converted back)",
     )
     comm_fault: Literal["value", "exception"] = Field(
         "value",
@@ -115,9 +128,30 @@ class ModbusTcpFrontConfig(FrontConfig):
             )
         return self
 
+    carried_types: ClassVar[frozenset[DataType] | None] = None  # every type (docs/modbus-tcp.md)
+
     @property
     def host_port(self) -> tuple[str, int]:
         return split_listen(self.listen)
+
+    @property
+    def byte_order(self) -> str:
+        """The order of values wider than a register (ABCD, CDAB, BADC, DCBA)."""
+        if self.order is not None:
+            return self.order
+        return "ABCD" if self.word_order == "big" else "CDAB"
+
+    @model_validator(mode="after")
+    def _orders_agree(self) -> ModbusTcpFrontConfig:
+        if (
+            self.order is not None
+            and "word_order" in self.model_fields_set
+            and self.order != ("ABCD" if self.word_order == "big" else "CDAB")
+        ):
+            raise ValueError(
+                f"order {self.order} and word_order {self.word_order} disagree; give order alone"
+            )
+        return self
 
     def written_outputs(self) -> list[str]:
         return self.writable

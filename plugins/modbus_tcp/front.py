@@ -65,8 +65,9 @@ class ModbusTcpFront(Front):
         self.map = ModbusMap.from_channels(
             self.context.front_channels(cfg),
             cfg.writable,
-            cfg.word_order,
+            cfg.byte_order,
             cfg.comm_fault == "exception",
+            cfg.scaled_values,
         )
         host, port = cfg.host_port
         limits = ServerLimits(

@@ -10,10 +10,14 @@ default order), each table from address 0 without gaps:
   error counter (failed transactions, wrapping at 65535);
 * holding registers (FC3 read, FC6/FC16 write): AO channels, then SO bytes.
 
-A 16-bit channel takes one register (int16 as two's complement); int32, uint32 and float32
-(IEEE 754) take two, high word first unless ``word_order: little``. The same YAML gives the
-same map; a module appended at the end of ``expose`` leaves every earlier address where it was.
-``fieldgate map TOPOLOGY --front NAME`` prints it.
+A 16-bit channel takes one register (int16 as two's complement); 32-bit values (int32,
+uint32, float32) take two, 64-bit values (int64, uint64, float64) four, text its bytes (two a
+register), in the front's ``order`` (ABCD, CDAB, BADC, DCBA: ``fieldgate.registers``, the
+same code the Modbus back reads devices with). A channel the back scaled (float64 in
+engineering units) is served as ``scaled_values`` says: float32 (default), float64, or raw
+(the device's own register value and type; a write is converted back). The same YAML gives
+the same map; a module appended at the end of ``expose`` leaves every earlier address where
+it was. ``fieldgate map TOPOLOGY --front NAME`` prints it.
 
 Exceptions (answered by :class:`ModbusMap`'s ``read``/``write``):
 
@@ -21,19 +25,29 @@ Exceptions (answered by :class:`ModbusMap`'s ``read``/``write``):
 |---|---|
 | 01 illegal function | a write to a point that is mapped but not writable (an input, an output not in ``writable``, a status register) |
 | 02 illegal data address | any address of the request outside the table |
-| 03 illegal data value | half of a 32-bit value written, a byte (SI/SO) above 255 |
+| 03 illegal data value | part of a value of several registers written, a byte (SI/SO) above 255, a float that is not finite, text that is not UTF-8 |
 | 0B gateway target failed to respond | with ``comm_fault: exception``: a read that includes a point whose module is offline |
 """
 
 from __future__ import annotations
 
 import fnmatch
-import struct
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from fieldgate import registers
 from fieldgate.health import HealthRegistry
-from fieldgate.image import Channel, DataType, Kind, ProcessImage, Quality, Value
+from fieldgate.image import (
+    Channel,
+    DataType,
+    Engineering,
+    Kind,
+    ProcessImage,
+    Quality,
+    Value,
+    integer_range,
+)
 
 from .pdu import GATEWAY_NO_RESPONSE, ILLEGAL_ADDRESS, ILLEGAL_FUNCTION, ILLEGAL_VALUE
 
@@ -55,7 +69,7 @@ TABLE_OF_FC = {
     23: HOLDING_REGISTERS,
 }
 TABLES = (COILS, DISCRETE_INPUTS, INPUT_REGISTERS, HOLDING_REGISTERS)
-WIDE = {DataType.INT32, DataType.UINT32, DataType.FLOAT32}
+SCALED_VIEWS = {"float32": DataType.FLOAT32, "float64": DataType.FLOAT64}
 _DTYPES = {d.value: d for d in DataType}  # a point's type by name, without Enum's lookup
 
 
@@ -63,12 +77,15 @@ _DTYPES = {d.value: d for d in DataType}  # a point's type by name, without Enum
 class Point:
     table: str
     address: int
-    width: int  # registers (1 or 2); bits: 1
+    width: int  # registers; bits: 1
     what: str  # channel id, or "rs485/m3 status" / "rs485/m3 error counter"
-    dtype: str
+    dtype: str  # as served
     writable: bool = False
     channel_id: str | None = None
     module: tuple[str, int] | None = None  # status registers: the module
+    length: int | None = None  # text: its bytes
+    raw: Engineering | None = None  # served raw: the channel's conversion, undone on reads
+    note: str = ""  # for the printed map: the unit and range, "raw of ..."
 
 
 class ModbusMap:
@@ -76,7 +93,7 @@ class ModbusMap:
         self, points: Iterable[Point], word_order: str = "big", comm_fault_exception: bool = False
     ):
         self.points = list(points)
-        self.word_order = word_order
+        self.order = registers.order_name(word_order)
         self.comm_fault_exception = comm_fault_exception
         # table -> address -> (point, word index inside the point)
         self.slots: dict[str, list[tuple[Point, int]]] = {t: [] for t in TABLES}
@@ -92,24 +109,18 @@ class ModbusMap:
         writable: Iterable[str] = (),
         word_order: str = "big",
         comm_fault_exception: bool = False,
+        scaled_values: str = "float32",
     ) -> ModbusMap:
+        """``word_order``: the order of values wider than a register (ABCD, CDAB, BADC, DCBA;
+        big = ABCD, little = CDAB); ``scaled_values``: how a channel the back scaled is served
+        (float32, float64, raw)."""
         patterns = list(writable)
         channels = list(channels)
         points: list[Point] = []
         next_address = dict.fromkeys(TABLES, 0)
 
-        def add(
-            table: str,
-            width: int,
-            what: str,
-            dtype: str,
-            writable: bool = False,
-            cid: str | None = None,
-            module: tuple[str, int] | None = None,
-        ) -> None:
-            points.append(
-                Point(table, next_address[table], width, what, dtype, writable, cid, module)
-            )
+        def add(table: str, width: int, what: str, dtype: str, **more: object) -> None:
+            points.append(Point(table, next_address[table], width, what, dtype, **more))  # type: ignore[arg-type]  # (Point's own fields)
             next_address[table] += width
 
         for kinds, table in (
@@ -122,12 +133,26 @@ class ModbusMap:
                 for ch in channels:
                     if ch.kind is not kind:
                         continue
-                    dtype = ch.spec.data_type
-                    width = 2 if dtype in WIDE else 1
                     is_writable = kind.is_output and any(
                         fnmatch.fnmatchcase(ch.id, p) for p in patterns
                     )
-                    add(table, width, ch.id, dtype.value, is_writable, ch.id)
+                    dtype, raw, note = _served(ch, scaled_values)
+                    width = (
+                        1
+                        if dtype in (DataType.BOOL, DataType.UINT8)
+                        else registers.width(dtype, ch.spec.length)
+                    )
+                    add(
+                        table,
+                        width,
+                        ch.id,
+                        dtype.value,
+                        writable=is_writable,
+                        channel_id=ch.id,
+                        length=ch.spec.length,
+                        raw=raw,
+                        note=note,
+                    )
         modules: list[tuple[str, int]] = []
         for ch in channels:
             key = (ch.source.back, ch.source.module)
@@ -154,31 +179,32 @@ class ModbusMap:
         return len(self.slots[table])
 
     # -- values ------------------------------------------------------------------------------
-    def _words(self, point: Point, value: bool | int | float) -> list[int]:
+    def _words(self, point: Point, value: Value) -> list[int]:
+        """A value's registers as served (a value the served type cannot hold is clamped)."""
         dtype = _DTYPES[point.dtype]
-        if dtype is DataType.FLOAT32:
-            raw = struct.unpack(">I", struct.pack(">f", float(value)))[0]
-        else:
-            raw = int(value) & (0xFFFF_FFFF if point.width == 2 else 0xFFFF)
-        if point.width == 1:
-            return [raw]
-        words = [raw >> 16, raw & 0xFFFF]
-        return words if self.word_order == "big" else words[::-1]
+        if point.raw is not None and not isinstance(value, str | bool):
+            value = _to_raw(point.raw, value)
+        if point.width == 1 and dtype is not DataType.STRING:
+            return [int(value) & 0xFFFF]  # (fast path: int16, uint16, a byte or a field)
+        try:
+            return registers.encode(dtype, value, self.order, point.length)
+        except (ValueError, OverflowError):
+            return registers.encode(
+                dtype, _clamped(dtype, value, point.length), self.order, point.length
+            )
 
-    def _value(self, point: Point, words: list[int]) -> int | float:
+    def _value(self, point: Point, words: list[int]) -> Value:
+        """What a client wrote, as the channel's value; ValueError when it cannot be one."""
         dtype = _DTYPES[point.dtype]
-        if point.width == 1:
+        value: Value
+        if point.width == 1 and dtype is not DataType.STRING:
             word = words[0]
-            if dtype is DataType.INT16:
-                return word - 0x10000 if word & 0x8000 else word
-            return word
-        high, low = words if self.word_order == "big" else words[::-1]
-        raw = (high << 16) | low
-        if dtype is DataType.FLOAT32:
-            return float(struct.unpack(">f", struct.pack(">I", raw))[0])
-        if dtype is DataType.INT32:
-            return raw - 0x1_0000_0000 if raw & 0x8000_0000 else raw
-        return raw
+            value = word - 0x10000 if dtype is DataType.INT16 and word & 0x8000 else word
+        else:
+            value = registers.decode(dtype, words, self.order, point.length)
+        if point.raw is not None and not isinstance(value, str):
+            return point.raw.from_raw(value)
+        return value
 
     def _module_word(self, point: Point, image: ProcessImage, health: HealthRegistry) -> int:
         assert point.module is not None
@@ -223,13 +249,13 @@ class ModbusMap:
             cid = p.channel_id
             if cid is None:
                 out.append(self._module_word(p, image, health))
-            elif p.width == 1:  # int16, uint16, a byte: the value's low 16 bits
+            elif p.width == 1 and p.raw is None:  # int16, uint16, a byte: its low 16 bits
                 out.append(int(image[cid].value) & 0xFFFF)
-            else:  # a 32-bit value's two words, one after the other (a read may start at either)
+            else:  # a wide value's words, one after the other (a read may start at any)
                 if i == 0 or not words:
                     words = self._words(p, image[cid].value)
                 out.append(words[i])
-                if i:
+                if i == p.width - 1:
                     words = []
         return out
 
@@ -257,8 +283,11 @@ class ModbusMap:
         while k < count:
             p, i = part[k]
             if i != 0 or k + p.width > count:
-                return ILLEGAL_VALUE  # a 32-bit value is written whole
-            value = self._value(p, [int(v) for v in values[k : k + p.width]])
+                return ILLEGAL_VALUE  # a value of several registers is written whole
+            try:
+                value = self._value(p, [int(v) for v in values[k : k + p.width]])
+            except ValueError:  # a float that is not finite
+                return ILLEGAL_VALUE
             if _DTYPES[p.dtype] is DataType.UINT8 and not 0 <= int(value) <= 0xFF:
                 return ILLEGAL_VALUE
             assert p.channel_id is not None
@@ -280,7 +309,9 @@ class ModbusMap:
             for p in (q for q in self.points if q.table == table):
                 span = f"{p.address}" if p.width == 1 else f"{p.address}-{p.address + p.width - 1}"
                 access = "read/write" if p.writable else "read"
-                out.append((f"{table} ({fc_of[table]})", span, p.what, p.dtype, access))
+                dtype = p.dtype + (f" ({p.length} bytes)" if p.length else "")
+                dtype += f" ({p.note})" if p.note else ""
+                out.append((f"{table} ({fc_of[table]})", span, p.what, dtype, access))
         return out
 
     def text(self) -> str:
@@ -296,5 +327,49 @@ class ModbusMap:
         )
         return (
             "\n".join(lines)
-            + f"\n{totals}; addresses are 0-based (PDU addresses); 32-bit values: {self.word_order} word order\n"
+            + f"\n{totals}; addresses are 0-based (PDU addresses); values wider than a register: "
+            f"{self.order} order\n"
         )
+
+
+def _served(channel: Channel, scaled_values: str) -> tuple[DataType, Engineering | None, str]:
+    """(type served, the conversion to undo for a raw view, a note) of a channel."""
+    spec = channel.spec
+    eng = spec.engineering
+    if eng is None:
+        return spec.data_type, None, ""
+    unit = f", {eng.unit}" if eng.unit else ""
+    if eng.eu_range is not None:
+        unit += f", {eng.low:g}..{eng.high:g}"
+    if not eng.converts:
+        return spec.data_type, None, unit.removeprefix(", ")
+    if scaled_values == "raw":
+        return eng.raw_type, eng, f"raw of {eng.describe()}"
+    return SCALED_VIEWS[scaled_values], None, f"scaled{unit}"
+
+
+def _to_raw(eng: Engineering, value: int | float) -> int | float:
+    try:
+        return eng.to_raw(value)
+    except ValueError:  # beyond the raw type: clamped
+        wide = Engineering(DataType.FLOAT64, eng.gain, eng.offset, divider=eng.divider)
+        clamped = _clamped(eng.raw_type, wide.to_raw(value), None)
+        assert not isinstance(clamped, str)  # (a number type)
+        return clamped
+
+
+def _clamped(dtype: DataType, value: Value, length: int | None) -> Value:
+    """The nearest value the served type can hold (text cut to its bytes)."""
+    if dtype is DataType.STRING:
+        data = str(value).encode()[: length or 0]
+        return data.decode("utf-8", errors="ignore")
+    if dtype.is_float:
+        number = float(value)
+        if math.isnan(number):
+            return number
+        return math.copysign(math.inf, number) if abs(number) > 3.4e38 else number
+    low, high = integer_range(dtype)
+    try:
+        return max(low, min(high, round(float(value))))
+    except (ValueError, OverflowError):  # text in a number's place, nan
+        return 0

@@ -45,7 +45,10 @@ def front_map(
     front = fronts[0]
     ctx = GatewayContext.build(topology)
     return front.name, ModbusMap.from_channels(
-        ctx.front_channels(front), front.writable, front.word_order
+        ctx.front_channels(front),
+        front.writable,
+        front.byte_order,
+        scaled_values=front.scaled_values,
     )
 
 

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from fieldgate.image import DataType
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel, is_loopback, split_listen
 
@@ -53,6 +54,7 @@ class OpcUaUser(StrictModel):
 
 class OpcUaFrontConfig(FrontConfig):
     type: Literal["opcua"] = "opcua"
+    carried_types: ClassVar[frozenset[DataType] | None] = None  # Int64, UInt64, Double, String too
     listen: str = Field(
         "127.0.0.1:4840",
         description="HOST:PORT of the endpoint; a non-loopback address needs Sign/SignAndEncrypt and users",

@@ -64,6 +64,8 @@ VARIANT = {
         "UInt16",
         "Int32",
         "UInt32",
+        "Int64",
+        "UInt64",
         "Float",
         "Double",
         "String",
@@ -88,6 +90,18 @@ UNECE = {
     "m/s": "MTS",
     "rpm": "RPM",
     "K": "KEL",
+    "W": "WTT",
+    "kW": "KWT",
+    "kWh": "KWH",
+    "Wh": "WHR",
+    "kvar": "KVR",
+    "VA": "D46",
+    "kVA": "KVA",
+    "m3/h": "MQH",
+    "l/min": "L2",
+    "s": "SEC",
+    "min": "MIN",
+    "h": "HUR",
 }
 
 
@@ -402,7 +416,9 @@ class OpcUaFront(Front):
                 await server.write_attribute_value(nid, initial)
                 self._vars.setdefault(var.channel_id, []).append((nid, var))
                 if var.writable:
-                    targets[nid] = WriteTarget(var.channel_id, vtype, channel.spec.data_type)
+                    targets[nid] = WriteTarget(
+                        var.channel_id, vtype, channel.spec.data_type, channel.check
+                    )
             else:
                 self._other[var.node_id] = nid
         deadband.set_ranges(server.iserver.aspace, ranges)

@@ -7,8 +7,10 @@ of the YAML, and another front being added. Layout under ``Objects``::
     <gateway>                         folder   s=<gateway>
       <back>                          folder   s=<back>
         m<address>                    folder   s=<back>/m<address>   (description: model, line)
-          di0, do0, ai0 ...           variable s=<channel id>        (DataType from the channel)
-          ai0_eng                     variable s=<channel id>/eng    (Double, scaled channels only)
+          di0, do0, ai0 ...           variable s=<channel id>        (DataType from the channel;
+                                                                      EngineeringUnits, EURange
+                                                                      where the back scaled it)
+          ai0_eng                     variable s=<channel id>/eng    (Double, display-scaled only)
           Health                      folder   s=<back>/m<address>/health
             Online, ErrorCounter, ConsecutiveFailures, LastError
       Fronts                          folder   s=fronts
@@ -33,6 +35,10 @@ UA_TYPE: dict[DataType, str] = {
     DataType.INT32: "Int32",
     DataType.UINT32: "UInt32",
     DataType.FLOAT32: "Float",
+    DataType.INT64: "Int64",
+    DataType.UINT64: "UInt64",
+    DataType.FLOAT64: "Double",
+    DataType.STRING: "String",
 }
 
 KIND_TEXT = {
@@ -176,7 +182,26 @@ def build(
             fnmatch.fnmatchcase(channel.id, p) for p in patterns
         )
         scaling: Scaling | None = channel.spec.scaling
+        eng = channel.spec.engineering
         dtype = UA_TYPE[channel.spec.data_type]
+        if channel.spec.label:
+            text = f"{channel.spec.label}: {text}"
+        if eng is not None:  # the value is in engineering units already: it carries them itself
+            text += f"; {eng.describe()}" if eng.describe() else ""
+            space.variables.append(
+                Variable(
+                    channel.id,
+                    local,
+                    folder,
+                    dtype,
+                    text,
+                    channel.id,
+                    is_writable,
+                    eu_range=eng.eu_range,
+                    unit=eng.unit or None,
+                )
+            )
+            continue
         raw_range = (scaling.raw_min, scaling.raw_max) if scaling is not None else None
         space.variables.append(
             Variable(

@@ -12,7 +12,7 @@ each value's own status:
 |---|---|
 | applied | Good (the node shows it at once) |
 | another Variant type than the variable's, an array, a null | Bad_TypeMismatch |
-| outside the channel's data type | Bad_OutOfRange |
+| outside the channel's data type, its engineering range, text longer than it holds | Bad_OutOfRange |
 | an IndexRange on these scalars | Bad_IndexRangeInvalid |
 | written with a StatusCode other than Good | Bad_WriteNotSupported |
 | refused by the fieldbus side (ValueError) | Bad_NotWritable |
@@ -47,6 +47,8 @@ class WriteTarget:
     channel_id: str
     variant: ua.VariantType  # the variable's type: a write must carry exactly this
     data_type: DataType  # the channel's, for the range
+    check: Callable[[object], Value] | None = None  # the channel's whole check (text length,
+    # an engineering range): Bad_OutOfRange before anything goes to the fieldbus side
 
 
 def _status(code: int) -> ua.StatusCode:
@@ -167,7 +169,7 @@ def _checked(wv: ua.WriteValue, target: WriteTarget) -> tuple[int | None, Value]
     if isinstance(value, bool) != (target.data_type is DataType.BOOL):
         return ua.StatusCodes.BadTypeMismatch, False
     try:
-        return None, target.data_type.check(value)
+        return None, (target.check or target.data_type.check)(value)
     except ValueError:
         return ua.StatusCodes.BadOutOfRange, False
 

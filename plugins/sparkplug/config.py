@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from fieldgate.image import DataType
 from fieldgate.topology import FrontConfig
 from fieldgate.topology.model import StrictModel, is_loopback
 
@@ -84,6 +85,7 @@ class BrokerSettings(StrictModel):
 
 class SparkplugFrontConfig(FrontConfig):
     type: Literal["sparkplug"] = "sparkplug"
+    carried_types: ClassVar[frozenset[DataType] | None] = None  # Int64, UInt64, Double, String too
     brokers: list[BrokerSettings] = Field(
         min_length=1,
         description="MQTT servers in order; the session moves to the next on failure, NCMD Next Server or an offline primary host",

@@ -13,10 +13,10 @@ import fnmatch
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
-from fieldgate.image import Channel, DataType, Quality, Scaling
+from fieldgate.image import Channel, DataType, Engineering, Quality, Scaling
 
 # Sparkplug B data type numbers (sparkplug_b.proto's table)
-INT16, INT32, INT64, UINT8, UINT16, UINT32 = 2, 3, 4, 5, 6, 7
+INT16, INT32, INT64, UINT8, UINT16, UINT32, UINT64 = 2, 3, 4, 5, 6, 7, 8
 FLOAT, DOUBLE, BOOLEAN, STRING = 9, 10, 11, 12
 
 SPARKPLUG_TYPE: dict[DataType, int] = {
@@ -27,6 +27,10 @@ SPARKPLUG_TYPE: dict[DataType, int] = {
     DataType.INT32: INT32,
     DataType.UINT32: UINT32,
     DataType.FLOAT32: FLOAT,
+    DataType.INT64: INT64,
+    DataType.UINT64: UINT64,
+    DataType.FLOAT64: DOUBLE,
+    DataType.STRING: STRING,
 }
 
 # Sparkplug quality codes (ch. 6 "Quality Codes"): 0 BAD, 192 GOOD, 500 STALE.
@@ -46,7 +50,7 @@ REBIRTH = "Node Control/Rebirth"
 NEXT_SERVER = "Node Control/Next Server"
 BDSEQ = "bdSeq"
 
-Value = bool | int | float
+Value = bool | int | float | str
 
 
 @dataclass(frozen=True)
@@ -58,7 +62,9 @@ class MetricDef:
     dtype: DataType
     writable: bool = False
     deadband: float = 0.0
-    scaling: Scaling | None = None
+    scaling: Scaling | None = None  # display only: the host scales (rawLow.. properties)
+    engineering: Engineering | None = None  # the value is in these units (engUnit, engLow..)
+    label: str = ""
 
     @property
     def datatype(self) -> int:
@@ -142,6 +148,8 @@ class NodeModel:
                     and any(fnmatch.fnmatchcase(channel.id, p) for p in writable),
                     deadband=band,
                     scaling=channel.spec.scaling,
+                    engineering=channel.spec.engineering,
+                    label=channel.spec.label,
                 )
             )
         return cls(group_id, edge_node_id, devices.values())

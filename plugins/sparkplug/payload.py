@@ -44,22 +44,33 @@ def _set_value(metric: object, dtype: DataType, value: Value) -> None:
         metric.boolean_value = bool(value)  # type: ignore[attr-defined]
     elif dtype is DataType.FLOAT32:
         metric.float_value = float(value)  # type: ignore[attr-defined]
+    elif dtype is DataType.FLOAT64:
+        metric.double_value = float(value)  # type: ignore[attr-defined]
+    elif dtype is DataType.STRING:
+        metric.string_value = str(value)  # type: ignore[attr-defined]
+    elif dtype is DataType.INT64 or dtype is DataType.UINT64:
+        metric.long_value = int(value) & 0xFFFFFFFFFFFFFFFF  # type: ignore[attr-defined]
     else:
         metric.int_value = int(value) & 0xFFFFFFFF  # type: ignore[attr-defined]
 
 
+def _property(props: object, key: str, kind: int, value: object) -> None:
+    props.keys.append(key)  # type: ignore[attr-defined]
+    entry = props.values.add()  # type: ignore[attr-defined]
+    entry.type = kind
+    if kind == DOUBLE:
+        entry.double_value = float(value)  # type: ignore[arg-type]
+    elif kind == STRING:
+        entry.string_value = str(value)
+    else:
+        entry.int_value = int(value)  # type: ignore[call-overload]
+
+
 def _properties(metric: object, quality: Quality, scaling_def: MetricDef | None) -> None:
     props = metric.properties  # type: ignore[attr-defined]
-    code = QUALITY_CODE[quality]
-    props.keys.append("Quality")
-    value = props.values.add()
-    value.type = INT32_PROPERTY
-    value.int_value = code
+    _property(props, "Quality", INT32_PROPERTY, QUALITY_CODE[quality])
     if quality is not Quality.GOOD:
-        props.keys.append("qualityCause")
-        value = props.values.add()
-        value.type = STRING
-        value.string_value = quality.value
+        _property(props, "qualityCause", STRING, quality.value)
     scaling = scaling_def.scaling if scaling_def is not None else None
     if scaling is not None:
         for key, number in (
@@ -68,15 +79,16 @@ def _properties(metric: object, quality: Quality, scaling_def: MetricDef | None)
             ("engLow", scaling.eng_min),
             ("engHigh", scaling.eng_max),
         ):
-            props.keys.append(key)
-            value = props.values.add()
-            value.type = DOUBLE
-            value.double_value = float(number)
+            _property(props, key, DOUBLE, number)
         if scaling.unit:
-            props.keys.append("engUnit")
-            value = props.values.add()
-            value.type = STRING
-            value.string_value = scaling.unit
+            _property(props, "engUnit", STRING, scaling.unit)
+    eng = scaling_def.engineering if scaling_def is not None else None
+    if eng is not None:  # the value is in engineering units: its unit and range, no raw range
+        for key, bound in (("engLow", eng.low), ("engHigh", eng.high)):
+            if bound is not None:
+                _property(props, key, DOUBLE, bound)
+        if eng.unit:
+            _property(props, "engUnit", STRING, eng.unit)
 
 
 def _add_metric(
@@ -177,15 +189,19 @@ def command_value(cmd: CommandMetric, dtype: DataType) -> Value:
         if f == "boolean_value":
             return bool(raw)
         raise PayloadError(f"expected boolean_value for a Boolean metric, got {f}")
-    if dtype is DataType.FLOAT32:
+    if dtype.is_float:
         if f in ("float_value", "double_value") and isinstance(raw, float) and math.isfinite(raw):
             return float(raw)
         if f in ("int_value", "long_value") and isinstance(raw, int):
             return float(raw)
-        raise PayloadError(f"expected a finite number for a Float metric, got {f}")
+        raise PayloadError(f"expected a finite number for a Float or Double metric, got {f}")
+    if dtype is DataType.STRING:
+        if f == "string_value" and isinstance(raw, str):
+            return raw
+        raise PayloadError(f"expected string_value for a String metric, got {f}")
     if f not in ("int_value", "long_value") or not isinstance(raw, int):
-        raise PayloadError(f"expected int_value for an integer metric, got {f}")
-    if dtype in (DataType.INT16, DataType.INT32):
+        raise PayloadError(f"expected int_value or long_value for an integer metric, got {f}")
+    if dtype in (DataType.INT16, DataType.INT32, DataType.INT64):
         # two's complement in 32 bits (int_value) or 64 bits (long_value)
         return _signed(raw, 32 if f == "int_value" else 64)
     return raw

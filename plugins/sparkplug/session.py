@@ -486,7 +486,8 @@ class Session:
             if (
                 last is not None
                 and last.quality is sample.quality
-                and not isinstance(sample.value, bool)
+                and not isinstance(sample.value, bool | str)
+                and not isinstance(last.value, str)
                 and abs(float(sample.value) - float(last.value)) < m.deadband
             ):
                 return
@@ -737,6 +738,8 @@ class Session:
             try:
                 value = codec.command_value(cmd, m.dtype)
                 m.dtype.check(value)
+                if m.engineering is not None:  # a setpoint outside its range is refused here
+                    m.engineering.check_output(value)
             except ValueError:
                 self.ignored["bad_value"] += 1
                 continue

@@ -90,7 +90,7 @@ def test_counts_cut_a_preset_like_the_i7232d_demo(registry):
                 "channels": [{"kind": "ao", "table": "holding_registers", "address": 0}],
                 "counts": {"ao": 1},
             },
-            "backs[0].modules[0].counts.ao: counts applies to a model preset's channels; this module has no model",
+            "backs[0].modules[0].counts.ao: counts applies to a model's channels; this module has no model",
         ),
     ],
 )
@@ -202,7 +202,11 @@ def test_output_error_modes_come_from_the_module(registry):
             "backs[0].modules[0].model",
             "unknown model 'M-7999'; presets: M-7002",
         ),
-        ({"address": 1}, "backs[0].modules[0]", "needs a model preset or a channels list"),
+        (
+            {"address": 1},
+            "backs[0].modules[0]",
+            "needs a model (yours or a preset) or a channels list",
+        ),
         (
             {"address": 1, "channels": [{"kind": "ao", "table": "input_registers", "address": 0}]},
             "backs[0].modules[0].channels[0]",
@@ -243,7 +247,7 @@ def test_output_error_modes_come_from_the_module(registry):
                 ],
             },
             "backs[0].modules[0].channels[0]",
-            "32-bit values need write_fc 16",
+            "takes 2 registers: it needs write_fc 16",
         ),
         (
             {

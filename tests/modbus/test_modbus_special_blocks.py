@@ -80,13 +80,14 @@ def test_overlapping_output_bytes_are_refused():
 
 
 def test_register_fields():
-    assert regvalues.get_field(0x1234, 8, DataType.UINT8) == 0x12
-    assert regvalues.get_field(0x1234, 0, DataType.UINT8) == 0x34
-    assert regvalues.set_field(0x1234, 8, DataType.UINT8, 0xAB) == 0xAB34
-    assert regvalues.set_field(0x1234, 0, DataType.UINT8, 0xAB) == 0x12AB
-    assert regvalues.set_field(0x0000, 15, DataType.BOOL, True) == 0x8000
+    assert regvalues.get_field(0x1234, 8, 8) == 0x12
+    assert regvalues.get_field(0x1234, 0, 8) == 0x34
+    assert regvalues.set_field(0x1234, 8, 8, 0xAB) == 0xAB34
+    assert regvalues.set_field(0x1234, 0, 8, 0xAB) == 0x12AB
+    assert regvalues.set_field(0x0000, 15, 1, True) == 0x8000
+    assert regvalues.get_field(0xABCD, 4, 4) == 0xC
     with pytest.raises(ValueError):
-        regvalues.set_field(0, 0, DataType.UINT8, 256)
+        regvalues.set_field(0, 0, 8, 256)
 
 
 async def test_a_counter_block_is_read_and_written_through_the_simulated_line(make_line):

@@ -109,4 +109,4 @@ def test_the_printed_map_lists_every_point():
     text = make(image()).text()
     assert "holding register (FC3 / FC6, FC16)  0-1      b/m2/ao0" in text
     assert "b/m1/do1" in text and "read/write" in text
-    assert text.rstrip().endswith("32-bit values: big word order")
+    assert text.rstrip().endswith("values wider than a register: ABCD order")

@@ -12,13 +12,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 # Sparkplug data types used in the tests
-INT16, INT32, INT64, UINT8, UINT16, UINT32, FLOAT, DOUBLE, BOOLEAN, STRING = (
+INT16, INT32, INT64, UINT8, UINT16, UINT32, UINT64, FLOAT, DOUBLE, BOOLEAN, STRING = (
     2,
     3,
     4,
     5,
     6,
     7,
+    8,
     9,
     10,
     11,
@@ -85,7 +86,7 @@ class Payload:
 
 
 def _signed(value: int, datatype: int | None) -> int:
-    bits = {INT16: 16, INT32: 32, 1: 8}.get(datatype or 0)
+    bits = {INT16: 16, INT32: 32, INT64: 64, 1: 8}.get(datatype or 0)
     if bits is None:
         return value
     value &= (1 << bits) - 1

@@ -10,9 +10,11 @@ from ..cia301.abort import VALUE_RANGE
 from ..cia301.entries import Abort
 
 
-def to_int16(channel: Channel, value: bool | int | float | None = None) -> int:
+def to_int16(channel: Channel, value: bool | int | float | str | None = None) -> int:
     """A channel's value as the INTEGER16 CiA 401 shows (raw bits of a UINT16, clamped otherwise)."""
     v = channel.value if value is None else value
+    if isinstance(v, str):  # never served (FrontConfig.carried_types): the type allows it
+        return 0
     if channel.spec.data_type is DataType.UINT16 and isinstance(v, int) and v > 0x7FFF:
         return v - 0x10000
     if isinstance(v, float) and not math.isfinite(v):
