@@ -240,3 +240,14 @@ def test_no_import_cycle_closed_by_an_import_inside_a_function() -> None:
     # a deferred import hides a cycle from Python's import machinery, not from the design
     graph = {name: imports(m, MODULES, deferred=True) for name, m in MODULES.items()}
     assert [describe(c, graph) for c in find_cycles(graph)] == []
+
+
+def test_every_package_folder_is_listed_for_the_wheel() -> None:
+    """setuptools installs the packages pyproject.toml lists, nothing else: a new sub-package
+    left out works from the source tree and fails in an installed gateway (the wheel test
+    found fieldgate.isolation missing only in CI)."""
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    listed = set(config["tool"]["setuptools"]["packages"])
+    folders = {m.name for m in discover().values() if m.is_package}
+    assert folders - listed == set()
+    assert "fieldgate.isolation" in folders  # the finder sees sub-packages at all
