@@ -328,6 +328,8 @@ def campaign(args: argparse.Namespace, gw: Any, ports: dict[str, int], log_path:
     oldest, samples = max(oldest_each, default=0.0), len(oldest_each)
     ordered = sorted(oldest_each)
     median = ordered[len(ordered) // 2] if ordered else 0.0
+    p90 = ordered[len(ordered) * 9 // 10] if ordered else 0.0
+    checked = oldest if args.age_check == "oldest" else median
     rss_after, log_after = resident_bytes(me) or 0, log_path.stat().st_size
     probed_out, _ = prober.communicate(timeout=120)
     probed = json.loads(probed_out.strip().splitlines()[-1])
@@ -336,9 +338,10 @@ def campaign(args: argparse.Namespace, gw: Any, ports: dict[str, int], log_path:
     children = gw.children()
     limit = 2 * POLL_MS / 1000
     checks = [
-        (oldest <= limit and samples > 0,
+        (checked <= limit and samples > 0,
          f"RS-485 points in the fieldbus process: oldest {oldest * 1000:.0f} ms over {samples} "
-         f"samples (median of the oldest {median * 1000:.0f} ms), limit 2 poll periods = "
+         f"samples (median of the oldest {median * 1000:.0f} ms, 90th percentile "
+         f"{p90 * 1000:.0f} ms), limit on the {args.age_check}: 2 poll periods = "
          f"{limit * 1000:.0f} ms"),
         (probed["modbus_ok"] >= 9, f"fresh Modbus TCP client served {probed['modbus_ok']}/{TRIES}"),
         (probed["opcua_ok"] >= 9, f"fresh OPC UA client served {probed['opcua_ok']}/{TRIES}"),
@@ -369,6 +372,14 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--warmup-s", type=float, default=5.0)
+    parser.add_argument(
+        "--age-check",
+        choices=("oldest", "median"),
+        default="oldest",
+        help="which input age must stay within 2 poll periods: the oldest seen (the issue's "
+        "figure) or the median of the samples (CI on a shared host, where another job can take "
+        "the CPU for longer than a poll period; a stall such as issue 29's 24.8 s moves it too)",
+    )
     parser.add_argument(
         "--fieldbus-nice",
         type=int,
