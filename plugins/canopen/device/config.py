@@ -30,6 +30,7 @@ from pydantic_core import PydanticCustomError
 from fieldgate.can.front import CanBusConfig
 from fieldgate.topology import FrontConfig
 
+from .hooks import HookError, load_setup
 from .odfile import DeviceFileError, read_device_file
 
 ENTRY = re.compile(r"^\s*(0x[0-9a-fA-F]{1,4}|\d+)\s*(?::\s*(0x[0-9a-fA-F]{1,2}|\d+))?\s*$")
@@ -144,9 +145,16 @@ class CanopenDeviceConfig(FrontConfig, CanBusConfig):
         return [cid for cid in self.bind.values() if OUTPUT_ID.search(cid)]
 
     def check(self, topology: Any) -> list[tuple[tuple[Any, ...], str]]:
+        """Bound channels exist; the hook module loads (``validate`` imports it, as ``run`` does)."""
         ids = {c.id for c in topology.channel_specs}
-        return [
+        issues: list[tuple[tuple[Any, ...], str]] = [
             (("bind", key), f"{cid!r} is no channel of this topology")
             for key, cid in self.bind.items()
             if cid not in ids
         ]
+        if self.hooks is not None:
+            try:
+                load_setup(self.hooks)
+            except HookError as exc:
+                issues.append((("hooks",), str(exc)))
+        return issues

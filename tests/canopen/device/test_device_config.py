@@ -1,0 +1,89 @@
+"""The ``canopen-device`` front's configuration: the example validates as shipped and its
+EDS comes back from ``fieldgate eds``; a missing file, an entry the file lacks, a channel the
+topology lacks and a hook module that cannot load are each one clear error."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fieldgate import load_registry
+from fieldgate.cli import main as cli_main
+from fieldgate.plugins.canopen.device.hooks import HookError, load_setup
+from fieldgate.plugins.canopen.device.odfile import file_entries, read_device_file
+from fieldgate.topology import TopologyError, load_topology
+
+REPO = Path(__file__).resolve().parents[3]
+EXAMPLE = REPO / "examples" / "canopen-device" / "battery.yaml"
+REGISTRY = load_registry()
+
+
+def topology(**front) -> dict:
+    return {
+        "gateway": {"name": "t"},
+        "fronts": [
+            {
+                "name": "dev",
+                "type": "canopen-device",
+                "interface": "virtual",
+                "channel": "x",
+                "node_id": 5,
+                "eds": str(EXAMPLE.parent / "battery.eds"),
+                **front,
+            }
+        ],
+        "backs": [{"name": "io", "type": "loopback", "modules": [{"address": 1, "digital": 8}]}],
+    }
+
+
+def errors(topo: dict) -> str:
+    with pytest.raises(TopologyError) as info:
+        load_topology(topo, REGISTRY)
+    return "\n".join(issue.message for issue in info.value.issues)
+
+
+def test_the_example_validates_and_its_eds_round_trips(tmp_path):
+    loaded = load_topology(EXAMPLE, REGISTRY)
+    assert loaded.fronts[0].type == "canopen-device"
+    out = tmp_path / "pack.eds"
+    assert cli_main(["eds", str(EXAMPLE), "-o", str(out)]) == 0
+
+    def described(path):
+        return {
+            (v.index, v.subindex): (v.data_type, v.access_type, v.default, v.min, v.max)
+            for v in file_entries(read_device_file(path))
+        }
+
+    assert described(out) == described(EXAMPLE.parent / "battery.eds")
+
+
+def test_a_missing_file_names_it():
+    assert "nowhere.eds: cannot read it" in errors(topology(eds="/nowhere.eds"))
+
+
+def test_a_binding_needs_an_entry_of_the_file_and_a_channel_of_the_topology():
+    assert "bind: 0x6000:1 is no entry of battery.eds" in errors(
+        topology(bind={"0x6000:1": "io/m1/di0"})
+    )
+    assert "'io/m9/di0' is no channel" in errors(topology(bind={"0x2103": "io/m9/di0"}))
+    assert "write an entry as 'index:sub'" in errors(topology(bind={"six": "io/m1/di0"}))
+
+
+def test_validate_loads_the_hook_module():
+    assert "hooks: cannot import 'no_such_module_xyz'" in errors(
+        topology(hooks="no_such_module_xyz")
+    )
+
+
+def test_a_hook_module_that_cannot_load_is_one_line(tmp_path):
+    with pytest.raises(HookError, match="cannot import 'no_such_module_xyz'"):
+        load_setup("no_such_module_xyz")
+    broken = tmp_path / "broken.py"
+    broken.write_text("raise ImportError('missing dependency')\n")
+    with pytest.raises(HookError, match="broken.py failed to load: missing dependency"):
+        load_setup(str(broken))
+    empty = tmp_path / "empty.py"
+    empty.write_text("X = 1\n")
+    with pytest.raises(HookError, match="no setup"):
+        load_setup(str(empty))
