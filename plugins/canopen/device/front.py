@@ -76,6 +76,24 @@ class DeviceFront(CanFront):
         node.service("store").load()
         return node
 
+    # -- LSS (when the file supports it) --------------------------------------------------------
+    def _lss(self, engine: CanEngine) -> Any:
+        try:
+            return cast(Node, engine).service("lss")
+        except KeyError:
+            return None
+
+    def start_bitrate(self, engine: CanEngine) -> int | None:
+        """The bit rate LSS stored, else the configuration's."""
+        lss = self._lss(engine)
+        configured = self.config.bitrate
+        stored: int | None = lss.bitrate if lss is not None else None
+        return stored or (configured if isinstance(configured, int) else None)
+
+    def adapter_options(self, engine: CanEngine) -> dict[str, Any]:
+        lss = self._lss(engine)
+        return {} if lss is None else {"transmit_allowed": lss.transmit_allowed}
+
     # -- from other threads onto the loop --------------------------------------------------
     def _deliver(self, action: Callable[[], None]) -> None:
         loop = self._loop
@@ -125,12 +143,17 @@ class DeviceFront(CanFront):
 
         def apply() -> None:
             for change in changes:
+                value: Any = change.value  # (None: never read yet)
+                if value is None:
+                    continue
                 index, sub = inputs[change.id]
-                value = change.value
                 var = device.node.od.variable(index, sub)
                 if var.data_type not in (0x08, 0x11) and not isinstance(value, (str, bytes)):
                     value = int(value)
-                device.set(index, sub, value)
+                try:
+                    device.set(index, sub, value)
+                except (TypeError, ValueError) as exc:  # a value the entry cannot hold
+                    self.log.warning("%s -> %s:%s not taken: %s", change.id, index, sub, exc)
 
         self.pump(apply)
 
@@ -141,6 +164,9 @@ class DeviceFront(CanFront):
             self._subscription = self.context.image.subscribe_batch(
                 self._inputs_changed, ids=list(inputs)
             )
+        image = self.context.image
+        current = [_Current(cid, image[cid].value) for cid in inputs]
+        self._inputs_changed(cast("list[Change]", current))  # the values read before the boot
         node = cast(Node, engine)
         self.log.info(
             "CANopen device %s (%s) node %s on %s/%s",
@@ -161,7 +187,19 @@ class DeviceFront(CanFront):
     def status(self) -> dict[str, Any]:
         if self.node is None or self.device is None:
             return {}
-        return {**self.node.status(), "hooks": self.device.table.status(), **self.bus_status()}
+        return {
+            **self.node.status(),
+            "hooks": self.device.table.status(),
+            "notes": list(self.device.notes),
+            **self.bus_status(),
+        }
+
+
+class _Current:
+    """An input's value as it stands (shaped as a :class:`Change` for :meth:`_inputs_changed`)."""
+
+    def __init__(self, cid: str, value: Any):
+        self.id, self.value = cid, value
 
 
 # -- fieldgate eds ------------------------------------------------------------------------

@@ -117,6 +117,10 @@ class DeviceNode:
                     bitrate=bitrate, store=LssStore(lss_store_path) if lss_store_path else None
                 )
             )
+        serial_var = device.var(0x1018, 4)
+        if serial is not None and serial_var is not None:  # this unit's: served, in its EDS
+            serial_var.default = serial
+            serial_var.default_raw = f"0x{serial:08X}"  # type: ignore[attr-defined]  # (undeclared)
         node.add_service(PdoStore())
         self._lay_over()
         self.api = DeviceApi(

@@ -87,3 +87,44 @@ def test_a_hook_module_that_cannot_load_is_one_line(tmp_path):
     empty.write_text("X = 1\n")
     with pytest.raises(HookError, match="no setup"):
         load_setup(str(empty))
+
+
+def test_hooks_come_from_a_module_on_the_path_or_an_entry_point(tmp_path, monkeypatch):
+    (tmp_path / "acme_pack_hooks.py").write_text("def setup(device):\n    device.tag = 'module'\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    class Api:
+        tag = ""
+
+    api = Api()
+    load_setup("acme_pack_hooks")(api)
+    assert api.tag == "module"
+
+    class Point:
+        name = "acme-pack"
+
+        def load(self):
+            return lambda device: setattr(device, "tag", "entry point")
+
+    def entry_points(group: str):
+        return [Point()] if group == "fieldgate.canopen_hooks" else []
+
+    monkeypatch.setattr("importlib.metadata.entry_points", entry_points)
+    load_setup("acme-pack")(api)
+    assert api.tag == "entry point"
+
+
+def test_serial_is_the_one_value_the_topology_adds_and_the_eds_says_it(tmp_path):
+    source = tmp_path / "t.yaml"
+    import json
+
+    source.write_text(json.dumps(topology(serial=1001)))
+    out = tmp_path / "unit.eds"
+    assert cli_main(["eds", str(source), "-o", str(out)]) == 0
+    written = {(v.index, v.subindex): v.default for v in file_entries(read_device_file(out))}
+    shipped = {
+        (v.index, v.subindex): v.default
+        for v in file_entries(read_device_file(EXAMPLE.parent / "battery.eds"))
+    }
+    assert {k for k in written if written[k] != shipped[k]} == {(0x1018, 4)}
+    assert written[(0x1018, 4)] == 1001

@@ -249,3 +249,17 @@ def test_mapping_is_dynamic_where_the_file_allows_it(tmp_path):
 
     fixed = Device(variant(tmp_path, "static.eds", static), hooks=False)
     assert fixed.sdo("2F 00 1A 00 00 00 00 00") == ["585 80 00 1A 00 02 00 01 06"]  # read-only
+
+
+def test_an_unconfigured_device_waits_for_lss_and_answers_with_the_files_identity():
+    runner = ManualRunner()
+    dev = DeviceNode(read_device_file(BATTERY), None, runner=runner, serial=0xBEEF)
+    dev.node.service("store").load()
+    rig = Rig(dev.node)
+    assert rig.boot == []  # silent until it has a node-ID
+    rig.send("7E5 04 01 00 00 00 00 00 00")  # switch state global: configuration
+    assert rig.send("7E5 5A 00 00 00 00 00 00 00") == ["7E4 5A CE 0A 00 00 00 00 00"]  # vendor
+    assert rig.send("7E5 5D 00 00 00 00 00 00 00") == ["7E4 5D EF BE 00 00 00 00 00"]  # serial
+    assert rig.send("7E5 11 07 00 00 00 00 00 00") == ["7E4 11 00 00 00 00 00 00 00"]
+    assert rig.send("7E5 04 00 00 00 00 00 00 00") == ["707 00"]  # boots up as node 7
+    assert rig.send("607 40 14 10 00 00 00 00 00") == ["587 43 14 10 00 87 00 00 00"]
