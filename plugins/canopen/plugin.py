@@ -36,6 +36,8 @@ from .cia305.lss import LssService, LssStore
 from .cia401.iodevice import IoDevice
 from .cia401.layouts import device_type as io_device_type
 from .config import CanopenFrontConfig
+from .device.config import CanopenDeviceConfig
+from .device.front import DeviceFront, device_eds_for
 from .eds import eds_for
 from .front401 import io_device, io_settings
 from .locations import point_locations
@@ -428,3 +430,10 @@ def fieldgate_register(registry: Registry) -> None:
         "canopen", CanopenFrontConfig, CanopenFront, "CANopen CiA 301 slave on any python-can bus"
     )
     registry.add_eds("canopen", eds_for)
+    registry.add_front(
+        "canopen-device",
+        CanopenDeviceConfig,
+        DeviceFront,
+        "CANopen device of your own: any EDS/DCF, Python hooks, process-image bindings",
+    )
+    registry.add_eds("canopen-device", device_eds_for)

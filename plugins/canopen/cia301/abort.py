@@ -40,3 +40,18 @@ class SdoAbort(Exception):
     def __init__(self, code: int, text: str = ""):
         super().__init__(f"SDO abort 0x{code:08X}" + (f": {text}" if text else ""))
         self.code = code
+
+
+class Deferred(Exception):
+    """Raised by the dictionary when an access waits on application code (a hook of an EDS
+    device, :mod:`..device.hooks`): the SDO server holds its answer, keeps serving other
+    channels and frames, and replays the request when :meth:`.sdo.SdoServer.resolve` is
+    called with ``ticket``; at ``timeout_s`` it aborts with ``code`` instead."""
+
+    def __init__(self, ticket: int, index: int, subindex: int, timeout_s: float, code: int):
+        super().__init__(f"0x{index:04X}:{subindex} waits on ticket {ticket}")
+        self.ticket = ticket
+        self.index = index
+        self.subindex = subindex
+        self.timeout_s = timeout_s
+        self.code = code

@@ -48,7 +48,9 @@ BOOLEAN, INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32 = (
 )
 VISIBLE_STRING = 0x09
 DOMAIN = 0x0F  # a block of bytes of any length (the NA-9161's slot memory and parameters)
-Value = int | str | bytes
+REAL32, REAL64, INTEGER64, UNSIGNED64 = 0x08, 0x11, 0x15, 0x1B  # (an EDS device's objects)
+REAL_TYPES = (REAL32, REAL64)
+Value = int | float | str | bytes
 
 _FORMATS = {
     BOOLEAN: "<?",
@@ -58,6 +60,10 @@ _FORMATS = {
     UNSIGNED8: "<B",
     UNSIGNED16: "<H",
     UNSIGNED32: "<I",
+    REAL32: "<f",
+    REAL64: "<d",
+    INTEGER64: "<q",
+    UNSIGNED64: "<Q",
 }
 RANGES = {
     BOOLEAN: (0, 1),
@@ -95,7 +101,8 @@ def decode(dtype: int, data: bytes) -> Value:
         raise Abort(LENGTH_TOO_HIGH, "data too long")
     if len(data) < size:
         raise Abort(LENGTH_TOO_LOW, "data too short")
-    return int(struct.unpack(_FORMATS[dtype], data)[0])
+    value = struct.unpack(_FORMATS[dtype], data)[0]
+    return float(value) if dtype in REAL_TYPES else int(value)
 
 
 def check_range(dtype: int, value: int, low: int | None = None, high: int | None = None) -> int:

@@ -16,7 +16,12 @@ needs on top of it:
   write listeners (``on_write``) that react after a write took effect (an SDO write or
   :meth:`set`; reloads at a reset do not call them);
 * :meth:`write` checks existence, access, length, type and range (0609 0031/0032)
-  and runs the validators *before* the value changes; it raises :class:`SdoAbort`.
+  and runs the validators *before* the value changes; it raises :class:`SdoAbort`;
+* for a device read from an EDS/DCF (:mod:`..device`): objects added as canopen's import
+  made them (:meth:`add_object`), *readers* (:meth:`add_reader`) that serve SDO uploads
+  of an entry (and may raise :class:`~.abort.Deferred`, as validators may), objects the
+  node keeps for its services but does not serve (:meth:`hide`: 0602 0000, not in the
+  EDS) and entries a store does not save (``volatile``: StorageLocation=RAM).
 
 Other services (PDO engine, CiA 401 objects, LSS) add their entries with
 :meth:`add_variable` / :meth:`add_record` / :meth:`add_array` and hook in with
@@ -34,10 +39,11 @@ from canopen import objectdictionary as cod
 from canopen.objectdictionary import datatypes as dt
 
 from . import abort
-from .abort import SdoAbort
+from .abort import Deferred, SdoAbort
 
 Value = int | float | str | bytes
 Getter = Callable[[], Value]
+Reader = Callable[[], Value]  # an SDO upload's value; may raise SdoAbort or Deferred
 # Setters, validators and write listeners get a value of their entry's data type (encode()
 # checked it): an int for an integer entry. That type is known per entry, at run time, so the
 # value parameter is Any and each callback annotates the type of the entries it is bound to.
@@ -100,6 +106,12 @@ class Dictionary:
         # index -> (length, converter): writes of that length taken in the device's own width
         self._short_writes: dict[int, tuple[int, Callable[[bytes], bytes]]] = {}
         self._listeners: dict[int, list[WriteListener]] = {}
+        self._readers: dict[tuple[int, int], Reader] = {}
+        self._hidden: set[int] = set()
+        self.volatile: set[tuple[int, int]] = set()  # writable entries a store does not save
+        self.defers = (
+            False  # a reader or validator may raise Deferred (the SDO server then saves its state)
+        )
         self.generation = 0  # +1 on every change of entries, bindings or values: caches compare it
         self._sources: dict[
             tuple[int, int], tuple[cod.ODVariable, Getter | None, bool]
@@ -194,6 +206,50 @@ class Dictionary:
         assert isinstance(array, cod.ODArray)
         return array
 
+    def add_object(self, obj: cod.ODVariable | cod.ODRecord | cod.ODArray) -> None:
+        """An object as canopen's EDS/DCF import built it: its entries start at their defaults."""
+        self.model.add_object(obj)
+        members = [obj] if isinstance(obj, cod.ODVariable) else list(obj.subindices.values())
+        for var in members:
+            self._values[(var.index, var.subindex)] = self.default(var)
+        self.generation += 1
+
+    def adopt(self, var: cod.ODVariable) -> None:
+        """Describe an entry by ``var`` (an EDS/DCF device's name, access, limits, default), an
+        entry of an existing object or a new sub-index of one; its value restarts at that
+        default unless a getter serves it."""
+        index, sub = var.index, var.subindex
+        obj = self.model.indices[index]
+        if isinstance(obj, cod.ODVariable):
+            self.model.indices[index] = var
+            self.model.names[var.name] = var
+        else:
+            var.parent = obj
+            obj.subindices[sub] = var
+            obj.names[var.name] = var
+        if (index, sub) not in self._getters:
+            self._values[(index, sub)] = self.default(var)
+        self.generation += 1
+
+    def drop_entry(self, index: int, subindex: int) -> None:
+        """Stop serving one sub-index of a record (0609 0011) whose owner keeps its value
+        elsewhere (the PDO engine's parameters): an EDS device's file does not list it."""
+        obj = self.model.indices[index]
+        if not isinstance(obj, cod.ODVariable) and subindex in obj.subindices:
+            var = obj.subindices.pop(subindex)
+            obj.names.pop(var.name, None)
+            self.generation += 1
+
+    def hide(self, index: int) -> None:
+        """Keep ``index`` for the services that read it, but do not serve it (SDO: 0602 0000;
+        PDO mapping: no such entry; left out of the EDS)."""
+        self._hidden.add(index)
+        self.generation += 1
+
+    @property
+    def hidden(self) -> frozenset[int]:
+        return frozenset(self._hidden)
+
     def remove(self, index: int) -> None:
         if index in self.model.indices:
             obj = self.model.indices.pop(index)
@@ -204,6 +260,8 @@ class Dictionary:
 
     # -- lookup --------------------------------------------------------------------
     def __contains__(self, key: int | tuple[int, int]) -> bool:
+        if (key[0] if isinstance(key, tuple) else key) in self._hidden:
+            return False
         if isinstance(key, tuple):
             try:
                 self.variable(*key)
@@ -282,6 +340,13 @@ class Dictionary:
         :class:`SdoAbort`); every other length is checked as usual."""
         self._short_writes[index] = (length, convert)
 
+    def add_reader(self, index: int, subindex: int, reader: Reader) -> None:
+        """Serve SDO uploads of (index, subindex) from ``reader`` (only those: :meth:`get`, and
+        so TPDOs, keep the stored value); never from the receive thread."""
+        self.variable(index, subindex)
+        self._readers[(index, subindex)] = reader
+        self.generation += 1
+
     def add_validator(self, index: int, validator: Validator) -> None:
         self._validators.setdefault(index, []).append(validator)
 
@@ -320,11 +385,14 @@ class Dictionary:
             self._sources_generation = self.generation
         source = self._sources.get(key)
         if source is None:
+            if key[0] in self._hidden:
+                raise SdoAbort(abort.NO_OBJECT, f"0x{key[0]:04X}")
             getter = self._getters.get(key)
+            reader = self._readers.get(key)
             source = self._sources[key] = (
                 self.variable(*key),
-                getter,
-                getter is None or key in self._thread_safe,
+                getter if reader is None else reader,
+                reader is None and (getter is None or key in self._thread_safe),
             )
         return source
 
@@ -347,13 +415,15 @@ class Dictionary:
             raise SdoAbort(abort.WRITE_ONLY)
         try:
             return encode(var, getter() if getter is not None else self._values[key])
-        except SdoAbort:
+        except (SdoAbort, Deferred):
             raise
         except Exception as exc:  # a broken getter must not stop the node
             raise SdoAbort(abort.HARDWARE_ERROR, str(exc)) from exc
 
     def check_download(self, index: int, subindex: int, size: int | None = None) -> cod.ODVariable:
         """What a download initiate can check before any data arrive."""
+        if index in self._hidden:
+            raise SdoAbort(abort.NO_OBJECT, f"0x{index:04X}")
         var = self.variable(index, subindex)
         if not var.writable:
             raise SdoAbort(abort.READ_ONLY)
@@ -393,6 +463,7 @@ class Dictionary:
             if (
                 var.writable
                 and (var.index, var.subindex) not in self._getters
+                and (var.index, var.subindex) not in self.volatile
                 and var.index not in (0x1010, 0x1011)
             ):
                 yield var

@@ -23,6 +23,12 @@ Choices where CiA 301 leaves one (see docs/canopen.md):
   for a 1-byte object is therefore aborted).
 * Server-side timeout (default 1 s): an open transfer with no client frame for that
   long is aborted with 0504 0000.
+* An access the dictionary defers (:class:`~.abort.Deferred`: a hook of an EDS device at
+  work, :mod:`..device.hooks`) holds its answer: the server keeps the request and its
+  state as they were before it, answers nothing, and replays the request when
+  :meth:`SdoServer.resolve` gets its ticket (the hook's outcome is then ready), or aborts
+  with the Deferred's code at its timeout. Any other frame from the client meanwhile ends
+  the wait (the client gave up) and is served as usual.
 """
 
 from __future__ import annotations
@@ -40,7 +46,7 @@ from canopen.objectdictionary.datatypes import UNSIGNED_TYPES
 from fieldgate.can.frame import Frame
 
 from . import abort
-from .abort import SdoAbort
+from .abort import Deferred, SdoAbort
 from .nmt import NmtState
 from .od import Dictionary, size_of
 from .service import QUIET, NodeHost, Service, Taken
@@ -69,6 +75,23 @@ class Phase(Enum):
     BLOCK_DOWN_END = auto()  # last segment received, waiting for the end request
 
 
+_TRANSFER_STATE = frozenset(
+    {
+        "phase",
+        "index",
+        "subindex",
+        "data",
+        "pos",
+        "toggle",
+        "size",
+        "crc",
+        "blksize",
+        "seqno",
+        "block_start",
+    }
+)
+
+
 class SdoServer(Service):
     name = "sdo"
 
@@ -90,6 +113,7 @@ class SdoServer(Service):
             zero_extend  # accept short expedited writes to unsigned objects (NA-9161 masters)
         )
         self.expedited_uploads = 0
+        self._waiting: tuple[Deferred, Frame] | None = None
         self._idle()
 
     def attach(self, node: NodeHost) -> None:
@@ -129,9 +153,20 @@ class SdoServer(Service):
         self.last_deadline: float | None = None
 
     def deadline(self) -> float | None:
+        if self._waiting is not None:
+            return self.last_deadline
         return self.last_deadline if self.phase is not Phase.IDLE else None
 
     def poll(self, now: float) -> None:
+        waiting = self._waiting
+        if waiting is not None:
+            if self.last_deadline is not None and now >= self.last_deadline:
+                self._waiting = None
+                self.counters["deferred_timeouts"] += 1
+                wait = waiting[0]
+                self._idle()
+                self._send(b"\x80" + struct.pack("<HBI", wait.index, wait.subindex, wait.code))
+            return
         if (
             self.phase is not Phase.IDLE
             and self.last_deadline is not None
@@ -146,8 +181,25 @@ class SdoServer(Service):
             self._idle()
 
     def on_reset_communication(self, now: float) -> None:
+        self._waiting = None
         self._idle()
         self._load_cob_ids()
+
+    # -- deferred answers ----------------------------------------------------------------
+    def resolve(self, ticket: int, now: float) -> bool:
+        """The outcome of deferred access ``ticket`` is ready: replay the request that waits
+        on it (answered now from that outcome). False: no request of this channel waits on it."""
+        waiting = self._waiting
+        if waiting is None or waiting[0].ticket != ticket:
+            return False
+        self._waiting = None
+        self.on_frame(waiting[1], now)
+        return True
+
+    def _state(self) -> dict[str, Any]:
+        state = {k: v for k, v in vars(self).items() if k in _TRANSFER_STATE}
+        state["data"] = bytearray(self.data)
+        return state
 
     # -- frames ---------------------------------------------------------------------------
     def listen_ids(self) -> tuple[int, ...]:
@@ -162,6 +214,8 @@ class SdoServer(Service):
         if len(frame.data) != 8:
             self.counters["bad_dlc_dropped"] += 1
             return True
+        if self.node.od.defers:
+            return self._deferrable(frame, now)
         if frame.data[0] == 0x40 and self.phase is Phase.IDLE:
             answer = self._expedited_upload(frame.data)
             if answer is not None:
@@ -178,6 +232,31 @@ class SdoServer(Service):
         except (
             Exception
         ):  # a bug behind the dictionary (getter, setter, listener): answer, log, go on
+            self.counters["internal_errors"] += 1
+            log.exception("%s: SDO request %s failed", self.node.name, frame)
+            self._abort(abort.GENERAL)
+        return True
+
+    def _deferrable(self, frame: Frame, now: float) -> Taken:
+        """:meth:`on_frame` for a dictionary whose accesses may be deferred."""
+        if self._waiting is not None:  # the client gave up waiting and sent something else
+            self.counters["deferred_dropped"] += 1
+            self._waiting = None
+        saved = self._state()
+        self.counters["requests"] += 1
+        self.last_deadline = now + self.timeout_s
+        try:
+            self._dispatch(bytes(frame.data))
+        except Deferred as wait:
+            for key, value in saved.items():
+                setattr(self, key, value)
+            self.last_deadline = now + wait.timeout_s
+            self._waiting = (wait, frame)
+            self.counters["deferred"] += 1
+        except SdoAbort as exc:
+            self.counters["aborts"] += 1
+            self._abort(exc.code)
+        except Exception:
             self.counters["internal_errors"] += 1
             log.exception("%s: SDO request %s failed", self.node.name, frame)
             self._abort(abort.GENERAL)

@@ -96,7 +96,7 @@ class PdoCommParameters:
             return d.cob_id(self.node_id()), None
         return d.cob_id(
             self.node_id()
-        ), f"$NODEID+0x{d.cob_base | (0 if d.valid else COB_INVALID):X}"
+        ), f"$NODEID+0x{d.cob_base | d.flags | (0 if d.valid else COB_INVALID):X}"
 
     def comm_object(self, pdo: Pdo) -> ObjectDef:
         """0x1400+n / 0x1800+n of ``pdo``."""

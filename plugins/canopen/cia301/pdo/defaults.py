@@ -28,12 +28,15 @@ class PdoDefault:
     event_timer: int = 0
     entries: list[int] = field(default_factory=list)
     absolute: bool = False  # cob_base is the whole CAN-ID (set by the topology), no node-ID added
+    flags: int = (
+        0  # other bits of sub 1 kept in the default: bit 30 "no RTR" (an EDS device's file)
+    )
 
     def cob_id(self, node_id: int) -> int:
         if self.cob_base is None:
             return COB_INVALID
         base = self.cob_base if self.absolute else self.cob_base + node_id
-        return base | (0 if self.valid else COB_INVALID)
+        return base | self.flags | (0 if self.valid else COB_INVALID)
 
 
 @dataclass(frozen=True)
