@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import io
 import re
+from collections.abc import Iterable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -33,7 +34,17 @@ from fieldgate.topology import FrontConfig, Topology, load_topology
 from .cia301.pdo.engine import dummy_types
 from .cia401.layouts import LayoutError
 
-STANDARD_BITRATES = {10e3, 20e3, 50e3, 125e3, 250e3, 500e3, 800e3, 1000e3}
+STANDARD_BITRATES = (10e3, 20e3, 50e3, 125e3, 250e3, 500e3, 800e3, 1000e3)
+
+
+class AscendingRates(set[float]):
+    """The bit rates a device supports, listed in ascending order by canopen's EDS writer: it
+    iterates ``allowed_baudrates.union(...)``, a set, whose order for 20 kbit/s and 800 kbit/s
+    (equal hashes modulo the table size) depended on how the interpreter had built the set: two
+    installs wrote the same device's EDS in two orders."""
+
+    def union(self, *others: Iterable[Any]) -> Any:
+        return sorted(set(self).union(*others))
 
 
 class EdsError(CommandError):
@@ -102,7 +113,7 @@ def eds_text(front: Any, node: Any, file_name: str | None = None) -> str:
         info.nr_of_RXPDO = len(io_device.engine.rpdos)
         info.nr_of_TXPDO = len(io_device.engine.tpdos)
     info.LSS_supported = True
-    info.allowed_baudrates = set(STANDARD_BITRATES)
+    info.allowed_baudrates = AscendingRates(STANDARD_BITRATES)
     if (
         0x1003 in od.indices
     ):  # sub 0 counts the errors recorded: none at start (not the highest sub)

@@ -278,3 +278,27 @@ def test_every_canopen_examples_eds_passes_dcfchk(tmp_path, example):
         assert od[0x100C].default == 200 and od[0x6206][1].default == 0xFF
     else:  # an I-7232D / I-7231D: guarding only
         assert 0x1017 not in od and 0x1016 not in od
+
+
+def test_the_eds_is_the_same_from_any_interpreter_and_lists_bit_rates_in_ascending_order(
+    tmp_path,
+):
+    """canopen's writer iterates a set of rates; 20 and 800 kbit/s collide in it, and two
+    installs wrote the same example's EDS in two orders. Written without bytecode caches and
+    with them, under two hash seeds, the file is one and the same."""
+    example = str(Path(__file__).resolve().parents[2] / "examples" / "i7232d-style.yaml")
+    texts = []
+    for flags, seed in (([], "1"), (["-B"], "2")):
+        out = tmp_path / seed / "device.eds"
+        out.parent.mkdir()
+        env = {**os.environ, "PYTHONHASHSEED": seed}
+        subprocess.run(
+            [sys.executable, *flags, "-m", "fieldgate.cli", "eds", example, "-o", str(out)],
+            check=True,
+            env=env,
+            capture_output=True,
+        )
+        texts.append([line for line in out.read_text().splitlines() if "Time" not in line])
+    assert texts[0] == texts[1]
+    rates = [int(line[9:].split("=")[0]) for line in texts[0] if line.startswith("BaudRate_")]
+    assert rates == [10, 20, 50, 125, 250, 500, 800, 1000]
