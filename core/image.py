@@ -689,7 +689,7 @@ class ProcessImage:
         whole batch is in the image. Reacting once per batch is cheaper:
         :meth:`subscribe_batch`.
         """
-        return self._add_subscription(callback, kinds, ids, batch=False)
+        return self._subscribers.add(callback, kinds, ids, batch=False)
 
     def subscribe_batch(
         self,
@@ -709,21 +709,7 @@ class ProcessImage:
         batch, delivered before the next subscriber of this one. A callback that raises
         is logged and the others are still called.
         """
-        return self._add_subscription(callback, kinds, ids, batch=True)
-
-    def _add_subscription(
-        self,
-        callback: Callable[[Any], None],
-        kinds: Iterable[Kind] | None,
-        ids: Iterable[str] | None,
-        batch: bool,
-    ) -> Subscription:
-        return self._subscribers.add(
-            callback,
-            frozenset(kinds) if kinds is not None else None,
-            frozenset(ids) if ids is not None else None,
-            batch,
-        )
+        return self._subscribers.add(callback, kinds, ids, batch=True)
 
     def queue(
         self,

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import itertools
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, Protocol
 
 log = logging.getLogger("fieldgate.image")
@@ -85,11 +85,18 @@ class Subscribers:
     def add(
         self,
         callback: Callable[[Any], None],
-        kinds: frozenset[str] | None,
-        ids: frozenset[str] | None,
+        kinds: Iterable[str] | None,
+        ids: Iterable[str] | None,
         batch: bool,
     ) -> Subscription:
-        sub = Subscription(self, callback, kinds, ids, batch)
+        """A subscription to changes of channels of these kinds and ids (None: any)."""
+        sub = Subscription(
+            self,
+            callback,
+            frozenset(kinds) if kinds is not None else None,
+            frozenset(ids) if ids is not None else None,
+            batch,
+        )
         self.subscriptions.append(sub)
         self.forget_routes()
         return sub

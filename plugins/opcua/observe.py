@@ -78,24 +78,22 @@ def metric_rows(
         gauge("opcua_monitored_items", "monitored items", holding["monitored_items"], front=front),
     ]
     rows += [counter(name, text, counters[key], front=front) for name, text, key in COUNTERS]
-    rows += [
-        counter(
+    by_label = (
+        (
             "opcua_rejected_total",
             "connections, sessions and requests refused or closed, by reason",
-            n,
-            front=front,
-            reason=reason,
-        )
-        for reason, n in sorted(rejected.items())
-    ]
-    rows += [
-        counter(
+            "reason",
+            rejected,
+        ),
+        (
             "opcua_service_faults_total",
             "requests answered with a ServiceFault, by status",
-            n,
-            front=front,
-            status=status,
-        )
-        for status, n in sorted(faults.items())
-    ]
+            "status",
+            faults,
+        ),
+    )
+    for name, text, label, counts in by_label:
+        rows += [
+            counter(name, text, n, front=front, **{label: key}) for key, n in sorted(counts.items())
+        ]
     return rows

@@ -21,12 +21,7 @@ from fieldgate.metric_samples import Sample as MetricSample
 from fieldgate.persist import CorruptStore, read_json, write_json_atomic
 from fieldgate.plugin import Front, GatewayContext, PluginStartError
 
-from .config import SparkplugFrontConfig
-from .journal import JournalError, SqliteJournal
-from .link import Link, LinkEvents, LinkStats
-from .metrics import Figures, metric_rows
-from .model import NodeModel, Sample, Value
-from .session import (
+from .actions import (
     Action,
     Connect,
     DiscardQueuedData,
@@ -34,13 +29,17 @@ from .session import (
     Instant,
     Publish,
     SaveBdSeq,
-    Session,
-    SessionSettings,
     State,
     Subscribe,
     Sync,
     Write,
 )
+from .config import SparkplugFrontConfig
+from .journal import JournalError, SqliteJournal
+from .link import Link, LinkEvents, LinkStats
+from .metrics import Figures, metric_rows
+from .model import NodeModel, Sample, Value
+from .session import Session, SessionSettings
 
 MAX_OUTBOX_DATA = 1000
 """DATA messages waiting for the MQTT client at once (a stalled socket): beyond, they are

@@ -11,7 +11,8 @@ from typing import Protocol
 from fieldgate.metric_samples import Sample as MetricSample
 from fieldgate.metric_samples import counter, gauge
 
-from .session import Session, State
+from .actions import State
+from .session import Session
 
 
 @dataclass(frozen=True)

@@ -57,41 +57,16 @@ from dataclasses import dataclass
 
 from . import commands
 from . import payload as codec
-from .actions import (
-    Action,
-    Connect,
-    DiscardQueuedData,
-    Disconnect,
-    Instant,
-    Publish,
-    SaveBdSeq,
-    State,
-    Subscribe,
-    Sync,
-    Write,
-)
-from .commands import json_depth
+from .actions import Action, Connect, DiscardQueuedData, Disconnect, Instant, Publish, SaveBdSeq
+from .actions import State as State  # (the session's callers import its inputs and actions here)
+from .actions import Subscribe as Subscribe
+from .actions import Sync as Sync
+from .actions import Write as Write
+from .commands import json_depth as json_depth
 from .journal import Journal
 from .model import NEXT_SERVER, REBIRTH, NodeModel, Sample
 from .publisher import Publisher
 from .replay import Replay
-
-__all__ = [  # the session's inputs and outputs, as its callers have always imported them
-    "Action",
-    "Connect",
-    "DiscardQueuedData",
-    "Disconnect",
-    "Instant",
-    "Publish",
-    "SaveBdSeq",
-    "Session",
-    "SessionSettings",
-    "State",
-    "Subscribe",
-    "Sync",
-    "Write",
-    "json_depth",
-]
 
 CONNECT_TIMEOUT_S = 10.0
 BDSEQ_MODULO = 256
@@ -176,15 +151,13 @@ class Session:
 
     @property
     def dropped(self) -> int:
+        """Samples dropped from the journal (full, or their channel gone)."""
         return self.data.dropped
 
     @property
     def replayed(self) -> int:
+        """Journaled samples sent as historical DDATA."""
         return self.data.replayed
-
-    @property
-    def seq(self) -> int:
-        return self.data.seq
 
     # -- helpers ----------------------------------------------------------------------------
     def _advance_bdseq(self) -> None:
