@@ -11,7 +11,7 @@ import asyncio
 import logging
 import sys
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from .cliargs import (  # `X as X`: plugins import these from here too
     add_overrides_argument as add_overrides_argument,
@@ -200,39 +200,49 @@ def format_image(image: ProcessImage) -> str:
 LOG_LEVELS = ["debug", "info", "warning", "error"]
 
 
+Subparsers: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
+
+
 def build_parser(registry: Registry) -> argparse.ArgumentParser:
+    """The command line: core's commands, then the plugins' (``simulate BACK``, ``scan
+    BACK``, their own commands), in the order ``--help`` lists them."""
     parser = argparse.ArgumentParser(
         prog="fieldgate",
         description="Fieldbus gateway: fieldbus slave fronts, RS-485 poller backs, one YAML topology.",
     )
     parser.add_argument("--version", action="version", version=f"fieldgate {__version__}")
-    parser.add_argument(
-        "--log-level", default="info", choices=LOG_LEVELS, help="log verbosity (default info)"
-    )
-    parser.add_argument(
-        "--log-format",
-        default="text",
-        choices=LOG_FORMATS,
-        help="text (default) or json: one JSON object a line",
-    )
+    _log_options(parser, default_level="info", default_format="text")
     # the same options after the command too (`fieldgate run x.yaml --log-level debug`)
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument(
-        "--log-level",
-        default=argparse.SUPPRESS,
-        choices=LOG_LEVELS,
-        help="log verbosity (default info)",
-    )
-    common.add_argument(
-        "--log-format",
-        default=argparse.SUPPRESS,
-        choices=LOG_FORMATS,
-        help="text (default) or json: one JSON object a line",
-    )
+    _log_options(common, default_level=argparse.SUPPRESS, default_format=argparse.SUPPRESS)
     sub = _with_parents(
         parser.add_subparsers(dest="command", metavar="COMMAND", required=True), common
     )
+    _add_topology_commands(sub)
+    _add_host_commands(sub, registry)
+    groups = _CommandGroups(sub, common)
+    _add_back_commands(groups, registry)
+    _add_plugin_commands(sub, groups, registry)
+    return parser
 
+
+def _log_options(parser: argparse.ArgumentParser, default_level: str, default_format: str) -> None:
+    parser.add_argument(
+        "--log-level",
+        default=default_level,
+        choices=LOG_LEVELS,
+        help="log verbosity (default info)",
+    )
+    parser.add_argument(
+        "--log-format",
+        default=default_format,
+        choices=LOG_FORMATS,
+        help="text (default) or json: one JSON object a line",
+    )
+
+
+def _add_topology_commands(sub: Subparsers) -> None:
+    """``validate`` and ``run``: the two commands on a topology file."""
     p = sub.add_parser(
         "validate", help="check a topology file; print every error with file:line:column"
     )
@@ -276,6 +286,10 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     )
     p.set_defaults(handler=cmd_run)
 
+
+def _add_host_commands(sub: Subparsers, registry: Registry) -> None:
+    """``doctor``, ``status``, ``plugins``, ``service-unit``, ``eds``: the installation,
+    a running gateway, the plugins, a front's EDS."""
     from . import doctorcmd as doctor
 
     p = sub.add_parser(
@@ -302,7 +316,7 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     )
     p.set_defaults(handler=cmd_plugins)
 
-    from . import edscmd, scancmd, simcmd, unitcmd
+    from . import edscmd, unitcmd
 
     p = sub.add_parser(
         "service-unit",
@@ -315,22 +329,35 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
     edscmd.configure(p, registry)
     p.set_defaults(handler=edscmd.run)
 
-    groups: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]] = {}
 
-    def group(path: tuple[str, ...], help_text: str | None = None) -> Any:
-        parent = sub
+class _CommandGroups:
+    """Command words that hold sub-commands (``simulate``, ``scan``, a plugin's group),
+    made on first use."""
+
+    def __init__(self, sub: Subparsers, common: argparse.ArgumentParser):
+        self.sub = sub
+        self.common = common
+        self.groups: dict[str, Subparsers] = {}
+
+    def __call__(self, path: tuple[str, ...], help_text: str | None = None) -> Subparsers:
+        parent = self.sub
         for depth, word in enumerate(path):
             key = " ".join(path[: depth + 1])
-            if key not in groups:
+            if key not in self.groups:
                 group_parser = parent.add_parser(
                     word, help=help_text or f"{word} commands from plugins"
                 )
-                groups[key] = _with_parents(
+                self.groups[key] = _with_parents(
                     group_parser.add_subparsers(dest=f"sub{depth}", metavar="BACK", required=True),
-                    common,
+                    self.common,
                 )
-            parent = groups[key]
+            parent = self.groups[key]
         return parent
+
+
+def _add_back_commands(group: _CommandGroups, registry: Registry) -> None:
+    """``simulate BACK`` for every back with a simulator, ``scan BACK`` for every scanner."""
+    from . import scancmd, simcmd
 
     for back_type in sorted(registry.simulators):
         p = group(
@@ -349,6 +376,10 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
         scancmd.configure(p, scanner, back_type)
         p.set_defaults(handler=lambda a, r, t=back_type: scancmd.run(a, r, t))
 
+
+def _add_plugin_commands(sub: Subparsers, group: _CommandGroups, registry: Registry) -> None:
+    """The plugins' own commands; one whose name fieldgate has, or whose options fail to
+    set up, is reported by ``fieldgate plugins`` and left out."""
     for command in sorted(registry.commands, key=lambda c: c.path):
         parent = group(command.path[:-1]) if len(command.path) > 1 else sub
         if command.path[-1] in parent.choices:  # a core command (simulate BACK, eds) has the name
@@ -363,7 +394,6 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
             _command_broken(registry, command, cp, one_line(exc))
             continue
         cp.set_defaults(handler=lambda a, r, run=command.run: run(a))
-    return parser
 
 
 def _command_broken(

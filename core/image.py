@@ -55,7 +55,6 @@ from __future__ import annotations
 
 import asyncio
 import fnmatch
-import itertools
 import logging
 import re
 import time
@@ -63,6 +62,9 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, NoReturn
+
+from .subscriptions import Subscribers
+from .subscriptions import Subscription as Subscription  # (part of this module's API)
 
 log = logging.getLogger("fieldgate.image")
 
@@ -434,40 +436,6 @@ Callback = Callable[[Change], None]
 BatchCallback = Callable[[list[Change]], None]
 
 
-class Subscription:
-    """Handle returned by :meth:`ProcessImage.subscribe` / :meth:`ProcessImage.subscribe_batch`;
-    call :meth:`cancel` to stop."""
-
-    def __init__(
-        self,
-        image: ProcessImage,
-        callback: Callable[[Any], None],
-        kinds: frozenset[Kind] | None,
-        ids: frozenset[str] | None,
-        batch: bool = False,
-    ):
-        self._image = image
-        self.callback = callback
-        self.kinds = kinds
-        self.ids = ids
-        self.batch = batch
-        self.active = True
-        self.seq = next(image._seq)
-
-    def wants(self, channel: Channel) -> bool:
-        if self.kinds is not None and channel.kind not in self.kinds:
-            return False
-        return self.ids is None or channel.id in self.ids
-
-    def cancel(self) -> None:
-        self.active = False
-        self._image._remove(self)
-
-
-def _by_seq(item: tuple[Subscription, list[Change]]) -> int:
-    return item[0].seq
-
-
 _Staged = tuple[Channel, Value, Quality]
 
 
@@ -504,10 +472,9 @@ class ProcessImage:
 
     def __init__(self, clock: Callable[[], float] = time.monotonic):
         self._channels: dict[str, Channel] = {}
-        self._subscriptions: list[Subscription] = []
-        self._routes: dict[str, tuple[Subscription, ...]] = {}  # channel id -> who wants it
-        self._route_of: dict[tuple[Subscription, ...], tuple[Subscription, ...]] = {}
-        self._seq = itertools.count()
+        self._subscribers = Subscribers()
+        self._subscriptions = self._subscribers.subscriptions  # the same list, kept in place
+        self._notify = self._subscribers.notify  # (bound once: the writes' hot path)
         self.clock = clock
 
     # -- building -------------------------------------------------------------
@@ -523,7 +490,7 @@ class ProcessImage:
         quality = Quality.GOOD if spec.kind.is_output else Quality.NOT_READ
         channel = Channel(spec, value, quality, error_mode=spec.error_mode)
         self._channels[spec.id] = channel
-        self._forget_routes()
+        self._subscribers.forget_routes()
         return channel
 
     # -- reading --------------------------------------------------------------
@@ -708,66 +675,6 @@ class ProcessImage:
             self._notify(changes)
         return changes
 
-    def _notify(self, changes: list[Change]) -> None:
-        routes = self._routes
-        route: tuple[Subscription, ...] | None = None
-        for change in changes:  # usually every change goes to the same subscribers
-            subs = routes.get(change.id)
-            if subs is None:
-                subs = self._route(change.channel)
-            if route is None:
-                route = subs
-            elif subs is not route:
-                self._deliver(self._grouped(changes))
-                return
-        if route:
-            self._deliver([(sub, changes) for sub in route])
-
-    def _grouped(self, changes: list[Change]) -> list[tuple[Subscription, list[Change]]]:
-        """Each subscriber's changes, in write order; subscribers in subscription order."""
-        groups: dict[Subscription, list[Change]] = {}
-        routes = self._routes
-        for change in changes:
-            subs = routes.get(change.id)
-            if subs is None:
-                subs = self._route(change.channel)
-            for sub in subs:
-                group = groups.get(sub)
-                if group is None:
-                    groups[sub] = [change]
-                else:
-                    group.append(change)
-        return sorted(groups.items(), key=_by_seq)
-
-    def _deliver(self, deliveries: list[tuple[Subscription, list[Change]]]) -> None:
-        for sub, group in deliveries:
-            if not sub.active:  # cancelled by a subscriber served before it
-                continue
-            if sub.batch:
-                try:
-                    sub.callback(group[:])  # a list of its own
-                except Exception:  # a bad subscriber must never stop a writer
-                    log.exception(
-                        "subscriber %r failed on %s", sub.callback, ", ".join(c.id for c in group)
-                    )
-                continue
-            for change in group:
-                try:
-                    sub.callback(change)
-                except Exception:  # a bad subscriber must never stop a writer
-                    log.exception("subscriber %r failed on %s", sub.callback, change.id)
-
-    def _route(self, channel: Channel) -> tuple[Subscription, ...]:
-        """Who wants this channel; channels wanted by the same subscribers share one tuple."""
-        subs = tuple(s for s in self._subscriptions if s.wants(channel))
-        subs = self._route_of.setdefault(subs, subs)
-        self._routes[channel.spec.id] = subs
-        return subs
-
-    def _forget_routes(self) -> None:
-        self._routes.clear()
-        self._route_of.clear()
-
     # -- subscriptions --------------------------------------------------------
     def subscribe(
         self,
@@ -782,7 +689,7 @@ class ProcessImage:
         whole batch is in the image. Reacting once per batch is cheaper:
         :meth:`subscribe_batch`.
         """
-        return self._add_subscription(callback, kinds, ids, batch=False)
+        return self._subscribers.add(callback, kinds, ids, batch=False)
 
     def subscribe_batch(
         self,
@@ -802,29 +709,7 @@ class ProcessImage:
         batch, delivered before the next subscriber of this one. A callback that raises
         is logged and the others are still called.
         """
-        return self._add_subscription(callback, kinds, ids, batch=True)
-
-    def _add_subscription(
-        self,
-        callback: Callable[[Any], None],
-        kinds: Iterable[Kind] | None,
-        ids: Iterable[str] | None,
-        batch: bool,
-    ) -> Subscription:
-        sub = Subscription(
-            self,
-            callback,
-            frozenset(kinds) if kinds is not None else None,
-            frozenset(ids) if ids is not None else None,
-            batch,
-        )
-        self._subscriptions.append(sub)
-        self._forget_routes()
-        return sub
-
-    def _remove(self, sub: Subscription) -> None:
-        self._subscriptions = [s for s in self._subscriptions if s is not sub]
-        self._forget_routes()
+        return self._subscribers.add(callback, kinds, ids, batch=True)
 
     def queue(
         self,

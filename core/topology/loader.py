@@ -371,46 +371,12 @@ def validate(
         ("back", backs),
     )
     for role, out in sections:
-        section = f"{role}s"
-        entries = data.get(section)
-        if role == "model" and isinstance(entries, dict):
-            items: list[tuple[Any, Any]] = list(entries.items())
-        elif role != "model" and isinstance(entries, list):
-            items = list(enumerate(entries))
-        else:
-            continue  # reported above (or no models)
-        for i, entry in items:
+        for i, entry in _section_items(data, role):
             if not isinstance(entry, dict):
                 continue  # reported above
-            base = (section, i)
-            type_name = entry.get("type")
-            if not isinstance(type_name, str):
-                line, col = position(data, base)
-                issues.append(
-                    ConfigIssue(
-                        file,
-                        line,
-                        col,
-                        dotted(base + ("type",)),
-                        f"required field is missing: the {role} type, one of: {', '.join(registry.type_names(role)) or '(none installed)'}",
-                    )
-                )
-                continue
-            ctype = registry.lookup(role, type_name)
+            base = (f"{role}s", i)
+            ctype = _component_type(registry, role, entry, data, base, file, issues)
             if ctype is None:
-                line, col = position(data, base + ("type",))
-                installed = ", ".join(registry.type_names(role)) or "none"
-                hint = suggest(type_name, registry.type_names(role))
-                issues.append(
-                    ConfigIssue(
-                        file,
-                        line,
-                        col,
-                        dotted(base + ("type",)),
-                        f"no installed plugin provides {role} type '{type_name}'{hint} (installed {role} types: {installed})"
-                        + (registry.why_missing(role, type_name) or "; is the plugin installed?"),
-                    )
-                )
                 continue
             try:
                 config = ctype.model.model_validate(dict(entry), context=context)
@@ -435,6 +401,59 @@ def validate(
     if issues:
         raise TopologyError(_dedupe(issues))
     return topology
+
+
+def _section_items(data: dict[Any, Any], role: str) -> list[tuple[Any, Any]]:
+    """The entries of ``models`` (a mapping) or of ``fronts``/``backs`` (lists), with their
+    keys; none when the section is missing or of the wrong shape (the root model says so)."""
+    entries = data.get(f"{role}s")
+    if role == "model" and isinstance(entries, dict):
+        return list(entries.items())
+    if role != "model" and isinstance(entries, list):
+        return list(enumerate(entries))
+    return []
+
+
+def _component_type(
+    registry: ComponentTypes,
+    role: str,
+    entry: dict[Any, Any],
+    data: Any,
+    base: tuple[Any, ...],
+    file: str,
+    issues: list[ConfigIssue],
+) -> _ComponentType | None:
+    """The installed type an entry names; None, with the issue added, when it names none
+    or one no plugin provides."""
+    type_name = entry.get("type")
+    if not isinstance(type_name, str):
+        line, col = position(data, base)
+        issues.append(
+            ConfigIssue(
+                file,
+                line,
+                col,
+                dotted(base + ("type",)),
+                f"required field is missing: the {role} type, one of: {', '.join(registry.type_names(role)) or '(none installed)'}",
+            )
+        )
+        return None
+    ctype = registry.lookup(role, type_name)
+    if ctype is None:
+        line, col = position(data, base + ("type",))
+        installed = ", ".join(registry.type_names(role)) or "none"
+        hint = suggest(type_name, registry.type_names(role))
+        issues.append(
+            ConfigIssue(
+                file,
+                line,
+                col,
+                dotted(base + ("type",)),
+                f"no installed plugin provides {role} type '{type_name}'{hint} (installed {role} types: {installed})"
+                + (registry.why_missing(role, type_name) or "; is the plugin installed?"),
+            )
+        )
+    return ctype
 
 
 def _issues_from(

@@ -237,41 +237,8 @@ def resolve(cfg: Any) -> Resolved:
     master = MASTERS[cfg.master]
     notes: list[str] = []
     master_id = cfg.master_node_id if _given(cfg, "master_node_id") else master.node_id
-
-    # heartbeat producer: the style's, the master's requirement, then heartbeat_ms
-    if _given(cfg, "heartbeat_ms"):
-        heartbeat: int | None = cfg.heartbeat_ms
-    elif master.heartbeat_producer_ms is not None:
-        heartbeat = master.heartbeat_producer_ms
-        if not style.heartbeat_producer:
-            notes.append(
-                f"master {master.name} supervises its slaves by heartbeat only and the {style.name} "
-                f"style ({style.device}) has none: 0x1016/0x1017 added, producer "
-                f"{heartbeat} ms, guarding stays available"
-            )
-    else:
-        heartbeat = 0 if style.heartbeat_producer else None
-
-    # heartbeat consumer entries: the topology's list, else the master profile's entry
-    if _given(cfg, "consumer_heartbeats"):
-        entries = tuple(ConsumerEntry(e.node, e.time_ms) for e in cfg.consumer_heartbeats)
-        if (
-            master.consumer_time_ms is not None
-            and master_id is not None
-            and all(e.node != master_id for e in entries)
-        ):
-            notes.append(
-                f"consumer_heartbeats does not watch the master (node {master_id}): master loss "
-                f"is detected only when the master writes 0x1016 itself"
-            )
-    elif master.consumer_time_ms is not None and master_id is not None:
-        entries = (ConsumerEntry(master_id, master.consumer_time_ms),)
-    else:
-        entries = ()
-    if _given(cfg, "heartbeat_consumers") and cfg.heartbeat_consumers is not None:
-        consumers = cfg.heartbeat_consumers
-    else:
-        consumers = max(style.heartbeat_consumers, len(entries))
+    heartbeat = _heartbeat_producer(cfg, style, master, notes)
+    entries, consumers = _heartbeat_consumers(cfg, style, master, master_id, notes)
     if cfg.bit_mapping and master.name == "delta-as300":
         notes.append(
             "master delta-as300 maps 8/16/32/64-bit types only (REQ-AS-12): the default PDOs stay "
@@ -282,18 +249,7 @@ def resolve(cfg: Any) -> Resolved:
         value = getattr(cfg, name)
         return default if value is None else value
 
-    # TPDOs at Start: the style's, what the master needs, then tpdo_on_start
-    start = style.tpdo_on_start
-    if cfg.tpdo_on_start is not None:
-        start = cfg.tpdo_on_start
-    elif master.tpdo_on_start is not None and master.tpdo_on_start != style.tpdo_on_start:
-        if style.tpdo_on_start == "none":
-            start = master.tpdo_on_start
-            notes.append(
-                f"master {master.name} waits for every configured TPDO after Start (E2) and the "
-                f"{style.name} style sends none then: each asynchronous TPDO once at Start "
-                f"(tpdo_on_start: {start})"
-            )
+    start = _tpdo_on_start(cfg, style, master, notes)
     # analog TPDOs' event timer: what the master needs where the style leaves it 0
     analog_timer = 0
     if master.analog_event_timer_ms and analog_events_of(cfg, style) == "interrupt":
@@ -330,6 +286,73 @@ def resolve(cfg: Any) -> Resolved:
         analog_event_timer_ms=analog_timer,
         notes=tuple(notes),
     )
+
+
+def _heartbeat_producer(
+    cfg: Any, style: DeviceProfile, master: MasterProfile, notes: list[str]
+) -> int | None:
+    """The heartbeat producer: the style's, the master's requirement, then heartbeat_ms."""
+    if _given(cfg, "heartbeat_ms"):
+        heartbeat: int | None = cfg.heartbeat_ms
+        return heartbeat
+    if master.heartbeat_producer_ms is not None:
+        if not style.heartbeat_producer:
+            notes.append(
+                f"master {master.name} supervises its slaves by heartbeat only and the {style.name} "
+                f"style ({style.device}) has none: 0x1016/0x1017 added, producer "
+                f"{master.heartbeat_producer_ms} ms, guarding stays available"
+            )
+        return master.heartbeat_producer_ms
+    return 0 if style.heartbeat_producer else None
+
+
+def _heartbeat_consumers(
+    cfg: Any,
+    style: DeviceProfile,
+    master: MasterProfile,
+    master_id: int | None,
+    notes: list[str],
+) -> tuple[tuple[ConsumerEntry, ...], int]:
+    """The heartbeat consumer entries (the topology's list, else the master profile's
+    entry) and how many the object dictionary offers."""
+    if _given(cfg, "consumer_heartbeats"):
+        entries = tuple(ConsumerEntry(e.node, e.time_ms) for e in cfg.consumer_heartbeats)
+        if (
+            master.consumer_time_ms is not None
+            and master_id is not None
+            and all(e.node != master_id for e in entries)
+        ):
+            notes.append(
+                f"consumer_heartbeats does not watch the master (node {master_id}): master loss "
+                f"is detected only when the master writes 0x1016 itself"
+            )
+    elif master.consumer_time_ms is not None and master_id is not None:
+        entries = (ConsumerEntry(master_id, master.consumer_time_ms),)
+    else:
+        entries = ()
+    if _given(cfg, "heartbeat_consumers") and cfg.heartbeat_consumers is not None:
+        consumers: int = cfg.heartbeat_consumers
+    else:
+        consumers = max(style.heartbeat_consumers, len(entries))
+    return entries, consumers
+
+
+def _tpdo_on_start(
+    cfg: Any, style: DeviceProfile, master: MasterProfile, notes: list[str]
+) -> StartPolicy:
+    """TPDOs at Start: the style's, what the master needs, then tpdo_on_start."""
+    start = style.tpdo_on_start
+    if cfg.tpdo_on_start is not None:
+        start = cfg.tpdo_on_start
+    elif master.tpdo_on_start is not None and master.tpdo_on_start != style.tpdo_on_start:
+        if style.tpdo_on_start == "none":
+            start = master.tpdo_on_start
+            notes.append(
+                f"master {master.name} waits for every configured TPDO after Start (E2) and the "
+                f"{style.name} style sends none then: each asynchronous TPDO once at Start "
+                f"(tpdo_on_start: {start})"
+            )
+    return start
 
 
 def analog_events_of(cfg: Any, style: DeviceProfile) -> AnalogEvents:

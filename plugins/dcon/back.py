@@ -30,25 +30,20 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from fieldgate.host_watchdog import ClearSteps, clear_timeout
-from fieldgate.image import ChannelSpec, Kind
+from fieldgate.image import ChannelSpec
 from fieldgate.module_info import ModuleIdentity
-from fieldgate.plugin import GatewayContext, PluginStartError, PortUnavailable
+from fieldgate.plugin import GatewayContext, PluginStartError
 from fieldgate.polling import CommError, LineJob, SerialBack
 from fieldgate.serial_link import AsyncSerial
 from fieldgate.topology import ModuleConfig
 
-from .autoscan import NothingFound, StartScan, expected_modules, find_modules
 from .codec import BAUD_CODES, HOST_OK
-from .config import DconBackConfig, DconModuleConfig, parse_addresses
+from .config import DconBackConfig, DconModuleConfig
+from .discovery import LineDiscovery
 from .link import DconLink
 from .module import DconModule
-from .profiles import AIDIO, AO_SINGLE
-from .scan import scan_line, scanned
-from .scanfile import ScanFile
 
 log = logging.getLogger("fieldgate.dcon")
-SURVEY_PERIOD_S = 1.0  # listed modules: one other address probed a second
-RESCAN_FIRST_S, RESCAN_MAX_S = 2.0, 60.0  # modules: auto with nothing expected: scan back-off
 
 
 def configured_fields(
@@ -75,37 +70,28 @@ class DconBack(SerialBack):
         self._host_ok_running = False
         self._host_ok_was_allowed = True
         self.reply_timeout_ms = config.timeout_ms  # the I-7241D's Application class attribute 3
-        self.start_scan: StartScan | None = None  # modules: auto, once per process
-        # modules: auto whose start scan found nothing (port missing, line silent): why, and
-        # what the back does about it (status "start_scan")
-        self.scan_problem: dict[str, Any] | None = None
-        self._rescan_delay = RESCAN_FIRST_S
-        self._rescan_due: float | None = None
-        # listed modules: the other addresses of scan.addresses, probed once after start
-        self.survey: list[str] = []
-        self._survey_left: list[int] | None = None
-        self.survey_done = False
+        self.discovery = LineDiscovery(self.name, config, context, self._take_modules)
         context.masters.subscribe(self._on_master)
 
     # -- SerialBack -------------------------------------------------------------------
     async def start(self) -> None:
-        if self.config.auto and self.start_scan is None and self.scan_problem is None:
-            await self._find_modules()
+        d = self.discovery
+        if self.config.auto and d.start_scan is None and d.scan_problem is None:
+            await d.find_modules(self.reply_timeout_ms)
         await super().start()
 
-    async def _find_modules(self) -> None:
-        """``modules: auto``: the line's modules become the back's (a restart of the back
-        keeps them: the fronts built on them). A missing port or a silent line does not stop
-        the start: see :meth:`_start_without_scan`."""
-        cfg = self.config
-        try:
-            result = await find_modules(cfg, self.context.state_dir, self.reply_timeout_ms)
-        except (PortUnavailable, NothingFound) as exc:
-            self._start_without_scan(str(exc))
-            return
-        cfg.baudrate, cfg.checksum = result.baudrate, result.checksum
-        self._take_modules(result.configs())
-        self.start_scan = result
+    # (the discovery's state, as the tests and the status read it)
+    @property
+    def scan_problem(self) -> dict[str, Any] | None:
+        return self.discovery.scan_problem
+
+    @property
+    def survey_done(self) -> bool:
+        return self.discovery.survey_done
+
+    @property
+    def _survey_left(self) -> list[int] | None:
+        return self.discovery.survey_left
 
     def _take_modules(self, modules: list[DconModuleConfig]) -> None:
         cfg = self.config
@@ -113,44 +99,6 @@ class DconBack(SerialBack):
         for module in cfg.modules:
             self.register_health(module)
         self.context.add_channels(self.name, cfg.channel_specs())
-
-    def _start_without_scan(self, why: str) -> None:
-        """The I-7231D/I-7241D way: come up on the fieldbus and show the error. The back
-        starts with the modules it expects (the previous start's scan, else the scan file)
-        offline; they come online when they answer, as listed modules do. With nothing to
-        expect it starts with no module and scans the line again on a back-off."""
-        expected, source = expected_modules(self.config, self.context.state_dir)
-        self._take_modules(expected)
-        # the I-7231D/I-7241D's "DCON modules init error" (7-segment 1): the fronts serving this
-        # back show it their way until every expected module has answered (with none expected:
-        # until the gateway restarts with what a re-scan found)
-        self.context.health.back_error(self.name, f"DCON modules init error: {why}")
-        self.scan_problem = {
-            "error": why,
-            "modules_from": source,
-            "modules": [f"{m.model} at {m.address}" for m in expected],
-            "rescans": 0,
-            "found_later": [],
-            "restart_needed": False,
-        }
-        if expected:
-            log.error(
-                "%s: %s; started with the %d module(s) of %s, offline until they answer",
-                self.name,
-                why,
-                len(expected),
-                source,
-            )
-        else:
-            self._rescan_due = self.context.clock() + RESCAN_FIRST_S
-            log.error(
-                "%s: %s; started with no module (nothing to expect: no earlier scan, no scan "
-                "file); scanning the line again every %.0f-%.0f s",
-                self.name,
-                why,
-                RESCAN_FIRST_S,
-                RESCAN_MAX_S,
-            )
 
     async def open_link(self) -> AsyncSerial:
         cfg = self.config
@@ -179,21 +127,8 @@ class DconBack(SerialBack):
     def point_locations(self) -> dict[str, list[str]]:
         """The DCON command that reads or writes each point (status API)."""
         out: dict[str, list[str]] = {}
-        for address, module in self.modules.items():
-            aa, p = f"{address:02X}", module.profile
-            read_di, write_do = (
-                (f"@{aa}DI reply", f"@{aa}DO(data)")
-                if p.digital == AIDIO
-                else (f"@{aa} reply", f"@{aa}(data)")
-            )
-            for i, cid in enumerate(module.by_kind[Kind.DI]):
-                out[cid] = [f"{read_di} bit {i}"]
-            for i, cid in enumerate(module.by_kind[Kind.DO]):
-                out[cid] = [f"{write_do} bit {i}"]
-            for i, cid in enumerate(module.by_kind[Kind.AI]):
-                out[cid] = [f"#{aa} reply, value {i + 1}"]
-            for i, cid in enumerate(module.by_kind[Kind.AO]):
-                out[cid] = [f"#{aa}(data)" if p.ao_style == AO_SINGLE else f"#{aa}{i}(data)"]
+        for module in self.modules.values():
+            out.update(module.point_locations())
         return out
 
     def make_module(self, config: ModuleConfig, specs: list[ChannelSpec]) -> DconModule:
@@ -226,97 +161,11 @@ class DconBack(SerialBack):
         period = self.host_ok_period()
         jobs = [LineJob("requests", 0.0, self._run_request, lambda: bool(self._requests))]
         jobs.append(LineJob("host-ok", period or 1.0, self._host_ok, self._host_ok_wanted))
-        if self._rescan_due is not None:
-            jobs.append(LineJob("rescan", 0.5, self._rescan, self._rescan_wanted))
-        if self.scan_problem is not None and self.scan_problem["modules"]:
-            jobs.append(LineJob("init-check", 0.5, self._init_check, self._init_pending))
-        cfg = self.config
-        if self._survey_left is None:  # once per process, not at each restart of the back
-            listed = {m.address for m in cfg.modules}
-            wanted = not cfg.auto and cfg.scan.survey
-            self._survey_left = (
-                [a for a in parse_addresses(cfg.scan.addresses) if a not in listed]
-                if wanted
-                else []
-            )
-            self.survey_done = not self._survey_left
-        if self._survey_left:
-            start = self.context.clock() + SURVEY_PERIOD_S  # the listed modules' polls first
-            jobs.append(
-                LineJob("survey", SURVEY_PERIOD_S, self._survey_one, self._survey_wanted, start)
-            )
-        return jobs
-
-    def _init_pending(self) -> bool:
-        return self.name in self.context.health.back_errors
-
-    async def _init_check(self) -> None:
-        """The expected modules of a start without a scan: once every one has answered, the
-        init error ends (no line traffic: the health of the modules' polls says it)."""
-        if all(h.last_success is not None and h.online for h in self.health.values()):
-            assert self.scan_problem is not None
-            self.scan_problem["resolved"] = True
-            log.info("%s: every expected module answers: the init error ends", self.name)
-            self.context.health.back_error(self.name, None)
-
-    def _rescan_wanted(self) -> bool:
-        return self._rescan_due is not None and self.context.clock() >= self._rescan_due
-
-    async def _rescan(self) -> None:
-        """modules: auto, nothing expected: probe the line's addresses at its setting. When
-        supported modules answer, the scan is recorded (the next start builds the image from
-        it) and the status asks for a restart: the fronts' images were built without them."""
-        assert self.dcon is not None and self.scan_problem is not None
-        cfg = self.config
-        found = await scan_line(
-            self.dcon, parse_addresses(cfg.scan.addresses), cfg.baudrate, report=lambda t: None
+        return jobs + self.discovery.jobs(
+            lambda: self.dcon,
+            lambda: self.health.values(),
+            lambda: any(m.watchdog_enabled for m in self.modules.values()),
         )
-        self.scan_problem["rescans"] += 1
-        modules = [scanned(f, cfg.checksum) for f in found]
-        if not any(m.model is not None for m in modules):
-            self._rescan_delay = min(self._rescan_delay * 2, RESCAN_MAX_S)
-            self._rescan_due = self.context.clock() + self._rescan_delay
-            return
-        self._rescan_due = None
-        record = self.context.state_dir / f"{cfg.name}.dcon-scan.json"
-        scan = ScanFile(cfg.port, modules, cfg.scan.addresses, [cfg.baudrate], [cfg.checksum])
-        try:
-            record.parent.mkdir(parents=True, exist_ok=True)
-            scan.write(record)
-        except OSError as exc:
-            log.error("%s: cannot record the scan in %s: %s", self.name, record, exc)
-        self.scan_problem["found_later"] = [m.describe() for m in modules]
-        self.scan_problem["restart_needed"] = True
-        log.error(
-            "%s: modules answer now (%s), but the image was built without them: restart the "
-            "gateway to serve them (the scan is recorded for the next start)",
-            self.name,
-            ", ".join(self.scan_problem["found_later"]),
-        )
-
-    def _survey_wanted(self) -> bool:
-        """Addresses left, and no host watchdog on: an empty address holds the line for a reply
-        timeout and its silence, which may be longer than the keep-alive (~**) may wait."""
-        return bool(self._survey_left) and not any(
-            m.watchdog_enabled for m in self.modules.values()
-        )
-
-    async def _survey_one(self) -> None:
-        """Probe one address the topology does not list; after the last, warn about what answered."""
-        assert self.dcon is not None and self._survey_left
-        address = self._survey_left.pop(0)
-        found = await scan_line(
-            self.dcon, [address], self.config.baudrate, report=lambda text: None
-        )
-        self.survey += [scanned(f, self.config.checksum).describe() for f in found]
-        if not self._survey_left:
-            self.survey_done = True
-            if self.survey:
-                log.warning(
-                    "%s: modules answer but are not in the topology: %s (list them, or use modules: auto)",
-                    self.name,
-                    ", ".join(self.survey),
-                )
 
     # -- host OK ---------------------------------------------------------------------
     def host_ok_period(self) -> float | None:
@@ -558,12 +407,7 @@ class DconBack(SerialBack):
     def status(self) -> dict[str, Any]:
         status = super().status()
         status["reply_timeout_ms"] = self.reply_timeout_ms
-        if self.start_scan is not None:
-            status["start_scan"] = self.start_scan.status()
-        elif self.scan_problem is not None:
-            status["start_scan"] = dict(self.scan_problem)
-        if not self.config.auto and self.config.scan.survey:
-            status["survey"] = list(self.survey)
+        self.discovery.status(status)
         period = self.host_ok_period()
         status["host_ok"] = {
             "enabled": self.host_ok_enabled,

@@ -10,9 +10,9 @@ from fieldgate.health import ErrorKind
 from fieldgate.image import ChannelSpec, Kind, ProcessImage, Quality
 from fieldgate.polling import CommError, PolledModule
 
-from . import codec
+from . import codec, output_values
 from .config import DconModuleConfig
-from .formats import DataFormat, ao_text_to_raw, raw_to_text, split_values, text_to_raw
+from .formats import DataFormat, raw_to_text, split_values, text_to_raw
 from .link import DconLink
 from .profiles import AIDIO, AO_SINGLE, DIO, find_profile
 from .tables import TABLES, TypeRange
@@ -78,12 +78,12 @@ class DconModule(PolledModule):
     def link(self, link: DconLink) -> None:
         self._link = link
 
-    async def _ask(self, body: str, lead: str = "$") -> str:
+    async def ask(self, body: str, lead: str = "$") -> str:
         return codec.addressed(
             await self.link.transact(codec.command(lead, self.address, body)), self.address
         )
 
-    async def _command(self, text: str) -> None:
+    async def command(self, text: str) -> None:
         """A command whose answer is an acknowledgement only (an output write, a setting)."""
         codec.write_ack(await self.link.transact(text))
 
@@ -145,7 +145,7 @@ class DconModule(PolledModule):
             )
             readings.update(self._bits(Kind.DI, di_bits))
         elif p.digital == AIDIO:
-            body = await self._ask("DI", "@")  # !AASOOII
+            body = await self.ask("DI", "@")  # !AASOOII
             if len(body) != 5:
                 raise CommError(ErrorKind.GARBAGE, f"@AADI reply should carry SOOII, got {body!r}")
             readings.update(self._bits(Kind.DI, codec.hex_field(body[3:5], "DI")))
@@ -163,7 +163,7 @@ class DconModule(PolledModule):
     async def check_reset(self) -> bool:
         """``$AA5``: a module reset (power glitch) between two polls is back at its power-on
         values without ever looking offline; its outputs are written again."""
-        if await self._ask("5") != "1":
+        if await self.ask("5") != "1":
             return False
         self.resets += 1
         log.warning(
@@ -213,7 +213,7 @@ class DconModule(PolledModule):
                 await self._write_digital()
             for index, cid in enumerate(self.by_kind[Kind.AO]):
                 if cid in values:
-                    await self._write_analog(index, int(values[cid]))
+                    await self.write_analog(index, int(values[cid]))
             if self.latch_after_write and not self.in_watchdog:
                 await self.latch_safe_value()  # safe_value: current while the host OK is off
         except CommError as exc:
@@ -227,16 +227,16 @@ class DconModule(PolledModule):
     async def _write_digital(self) -> None:
         p, bits = self.profile, self._do_bits()
         if p.digital == AIDIO:
-            await self._ask(f"DO{bits:02X}", "@")
+            await self.ask(f"DO{bits:02X}", "@")
             if self.watchdog_enabled and await self.read_status() & WATCHDOG_TIMEOUT_BIT:
                 # this family answers !AA even when it ignores the write
                 raise CommError(
                     ErrorKind.WATCHDOG, "output write ignored: module in host-watchdog timeout"
                 )
             return
-        await self._command(codec.command("@", self.address, p.encode_do(bits)))
+        await self.command(codec.command("@", self.address, p.encode_do(bits)))
 
-    async def _write_analog(self, index: int, raw: int) -> None:
+    async def write_analog(self, index: int, raw: int) -> None:
         if self.range is None or self.data_format is None:
             await self.read_config()
         if self.config_error or self.range is None or self.data_format is None:
@@ -251,7 +251,7 @@ class DconModule(PolledModule):
             round_up=True,
         )
         body = text if p.ao_style == AO_SINGLE else f"{index}{text}"
-        await self._command(codec.command("#", self.address, body))
+        await self.command(codec.command("#", self.address, body))
 
     def output_quality(self) -> Quality:
         return Quality.WATCHDOG if self.in_watchdog else Quality.GOOD
@@ -272,7 +272,7 @@ class DconModule(PolledModule):
 
     async def read_status(self) -> int:
         """``~AA0``: bit 2 = host-watchdog timeout occurred (kept until ``~AA1``)."""
-        body = await self._ask("0", "~")
+        body = await self.ask("0", "~")
         status = codec.hex_field(body[:2], "module status")
         if status & WATCHDOG_TIMEOUT_BIT:
             self.enter_watchdog("module status says so")
@@ -281,11 +281,11 @@ class DconModule(PolledModule):
     async def send_clear(self) -> None:
         """``~AA1``: reset the host-watchdog timeout flag (the sequence around it is core's:
         ``fieldgate.host_watchdog.clear_timeout``)."""
-        await self._ask("1", "~")
+        await self.ask("1", "~")
 
     async def timeout_flag(self) -> bool:
         """``~AA0``: whether the host-watchdog timeout flag is set."""
-        body = await self._ask("0", "~")
+        body = await self.ask("0", "~")
         return bool(codec.hex_field(body[:2], "module status") & WATCHDOG_TIMEOUT_BIT)
 
     def watchdog_cleared(self, outcome: str) -> None:
@@ -299,7 +299,7 @@ class DconModule(PolledModule):
         self.image.set_quality(self.outputs, Quality.GOOD)
 
     async def configure_watchdog(self) -> None:
-        await self._ask(
+        await self.ask(
             codec.watchdog_setup(
                 self.address, self.watchdog_enabled, self.watchdog_timeout_ms or 100
             )[3:],
@@ -309,8 +309,8 @@ class DconModule(PolledModule):
     # -- coming online --------------------------------------------------------------------
     async def on_online(self) -> None:
         if not self.name:
-            self.name = await self._ask("M")
-            self.firmware = await self._ask("F")
+            self.name = await self.ask("M")
+            self.firmware = await self.ask("F")
             found = find_profile(self.name)
             if found is not None and found is not self.profile:
                 self.warnings.append(
@@ -323,7 +323,7 @@ class DconModule(PolledModule):
                     self.name,
                     self.profile.model,
                 )
-        if await self._ask("5") == "1":
+        if await self.ask("5") == "1":
             log.info(
                 "%s module %d (%s) was reset or powered up",
                 self.link_name,
@@ -341,82 +341,8 @@ class DconModule(PolledModule):
         if self.profile.do or self.profile.ao:
             await self.read_status()
             if not self._outputs_configured and not self.in_watchdog:
-                await self._configure_output_values()
+                await output_values.store_configured(self)
                 self._outputs_configured = True
-
-    async def _configure_output_values(self) -> None:
-        """Safe and power-on values: ``~AA5PPSS`` (I-7011 family), else latch a value written first.
-
-        Latching drives the outputs through the stored value for one transaction; what the
-        module output before is read back first and restored right after.
-        """
-        cfg, p = self.config, self.profile
-        if cfg.safe_value is None and cfg.power_on_value is None:
-            return
-        if p.digital == AIDIO:
-            current = await self._ask("4", "~")  # !AAPPSS
-            pp = (
-                cfg.power_on_value
-                if cfg.power_on_value is not None
-                else codec.hex_field(current[0:2], "power-on value")
-            )
-            ss = (
-                cfg.safe_value
-                if cfg.safe_value is not None
-                else codec.hex_field(current[2:4], "safe value")
-            )
-            await self._ask(f"5{pp:02X}{ss:02X}", "~")
-        elif p.do:
-            if not await self._latch_digital():
-                return
-        else:
-            await self._latch_analog()
-        log.info(
-            "%s module %d (%s): safe/power-on values stored", self.link_name, self.address, p.model
-        )
-
-    async def _latch_digital(self) -> bool:
-        """Returns False when the module already held both values (nothing written)."""
-        cfg, p = self.config, self.profile
-        wanted = [
-            (letter, value)
-            for letter, value in (("S", cfg.safe_value), ("P", cfg.power_on_value))
-            if isinstance(value, int)  # (a bit pattern: the config checks it for digital modules)
-        ]
-        missing = [
-            (letter, value)
-            for letter, value in wanted
-            if codec.hex_field((await self._ask(f"4{letter}", "~"))[:8], "DO value") != value
-        ]
-        if not missing:
-            return False  # already stored: no need to drive the outputs through them
-        before, _ = p.decode_dio(
-            codec.data(await self.link.transact(codec.command("@", self.address)), self.address)
-        )
-        for letter, value in missing:
-            await self._command(codec.command("@", self.address, p.encode_do(value)))
-            await self._ask(f"5{letter}", "~")
-        await self._command(codec.command("@", self.address, p.encode_do(before)))
-        return True
-
-    async def _latch_analog(self) -> None:
-        cfg, p = self.config, self.profile
-        if self.range is None or self.data_format is None or self.config_error:
-            return
-        channels = [""] if p.ao_style == AO_SINGLE else [str(i) for i in range(p.ao)]
-        before = [
-            ao_text_to_raw(await self._ask(f"6{ch}"), self.data_format, self.range)[0]
-            for ch in channels
-        ]
-        for value, (lead, body) in ((cfg.safe_value, ("~", "5")), (cfg.power_on_value, ("$", "4"))):
-            if value is None:
-                continue
-            values = value if isinstance(value, list) else [value] * p.ao
-            for index, raw in enumerate(values):
-                await self._write_analog(index, raw)
-                await self._ask(body + channels[index], lead)
-        for index, raw in enumerate(before):
-            await self._write_analog(index, raw)
 
     # -- safe values -------------------------------------------------------------------
     @property
@@ -424,26 +350,28 @@ class DconModule(PolledModule):
         return bool(self.profile.do or self.profile.ao)
 
     async def latch_safe_value(self) -> None:
-        """The module's current outputs become its safe values (what its host watchdog applies):
-        ``~AA5S`` (I-7000 digital), ``~AA5PPSS`` with the current DO (I-7011 family, power-on
-        value kept), ``~AA5`` / ``~AA5N`` (analog outputs)."""
-        p = self.profile
-        if p.digital == AIDIO and p.do:
-            current = await self._ask("4", "~")  # !AAPPSS
-            outputs = codec.hex_field((await self._ask("DI", "@"))[1:3], "DO")  # !AASOOII
-            await self._ask(f"5{current[0:2]}{outputs:02X}", "~")
-        elif p.do:
-            await self._ask("5S", "~")
-        if p.ao:
-            for channel in [""] if p.ao_style == AO_SINGLE else [str(i) for i in range(p.ao)]:
-                await self._ask("5" + channel, "~")
+        """The module's current outputs become its safe values (:mod:`.output_values`)."""
+        await output_values.latch_current(self)
         self.safe_values_latched += 1
-        log.info(
-            "%s module %d (%s): current outputs latched as the safe values",
-            self.link_name,
-            self.address,
-            p.model,
+
+    def point_locations(self) -> dict[str, list[str]]:
+        """The DCON command that reads or writes each of its points (status API)."""
+        out: dict[str, list[str]] = {}
+        aa, p = f"{self.address:02X}", self.profile
+        read_di, write_do = (
+            (f"@{aa}DI reply", f"@{aa}DO(data)")
+            if p.digital == AIDIO
+            else (f"@{aa} reply", f"@{aa}(data)")
         )
+        for i, cid in enumerate(self.by_kind[Kind.DI]):
+            out[cid] = [f"{read_di} bit {i}"]
+        for i, cid in enumerate(self.by_kind[Kind.DO]):
+            out[cid] = [f"{write_do} bit {i}"]
+        for i, cid in enumerate(self.by_kind[Kind.AI]):
+            out[cid] = [f"#{aa} reply, value {i + 1}"]
+        for i, cid in enumerate(self.by_kind[Kind.AO]):
+            out[cid] = [f"#{aa}(data)" if p.ao_style == AO_SINGLE else f"#{aa}{i}(data)"]
+        return out
 
     def status(self) -> dict[str, Any]:
         return {

@@ -24,92 +24,25 @@ import asyncio
 import contextlib
 import datetime
 import logging
-import socket
 import time
 from collections import Counter
-from pathlib import Path
 from typing import Any
 
 from asyncua import Server, ua
-from asyncua.server.internal_session import SessionState
 
 from fieldgate.events import MASTER_BACK, MASTER_LOST, NMT_STATE, Event
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.image import Change, Channel, Quality, Value
 from fieldgate.metric_samples import Sample as MetricSample
-from fieldgate.metric_samples import counter, gauge
 from fieldgate.plugin import Front, GatewayContext, PluginStartError
 
-from . import deadband, logs, model
-from .admission import AdmissionLimits
+from . import deadband, logs, model, nodes, observe, server_setup
 from .config import OpcUaFrontConfig
-from .framing import FramingLimits
 from .quality import status_code
-from .security import TrustDirectory, Users, certificate_der, ensure_certificate
-from .subscriptions import GuardedSubscriptions, SubscriptionLimits
+from .security import TrustDirectory, Users
+from .subscriptions import GuardedSubscriptions
 from .transport import Guard, GuardedServer
 from .writes import WriteGate, WriteTarget, data_value
-
-POLICY = {
-    "None": ua.SecurityPolicyType.NoSecurity,
-    "Sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
-    "SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
-}
-VARIANT = {
-    name: getattr(ua.VariantType, name)
-    for name in (
-        "Boolean",
-        "Byte",
-        "Int16",
-        "UInt16",
-        "Int32",
-        "UInt32",
-        "Int64",
-        "UInt64",
-        "Float",
-        "Double",
-        "String",
-    )
-}
-UNIT_NS = "http://www.opcfoundation.org/UA/units/un/cefact"
-# UNECE Rec. 20 common codes of the units module manuals use (UnitId = the code as base-256 ASCII)
-UNECE = {
-    "°C": "CEL",
-    "degC": "CEL",
-    "V": "VLT",
-    "mV": "2Z",
-    "mA": "4K",
-    "A": "AMP",
-    "%": "P1",
-    "bar": "BAR",
-    "Pa": "PAL",
-    "kPa": "KPA",
-    "Hz": "HTZ",
-    "ohm": "OHM",
-    "Ω": "OHM",
-    "m/s": "MTS",
-    "rpm": "RPM",
-    "K": "KEL",
-    "W": "WTT",
-    "kW": "KWT",
-    "kWh": "KWH",
-    "Wh": "WHR",
-    "kvar": "KVR",
-    "VA": "D46",
-    "kVA": "KVA",
-    "m3/h": "MQH",
-    "l/min": "L2",
-    "s": "SEC",
-    "min": "MIN",
-    "h": "HUR",
-}
-
-
-def unit_id(code: str) -> int:
-    value = 0
-    for ch in code:
-        value = (value << 8) | ord(ch)
-    return value
 
 
 class OpcUaFront(Front):
@@ -159,7 +92,7 @@ class OpcUaFront(Front):
         if var.data_type in ("Float", "Double"):
             value = float(value)
         return ua.DataValue(
-            ua.Variant(value, VARIANT[var.data_type]),
+            ua.Variant(value, nodes.VARIANT[var.data_type]),
             ua.StatusCode(ua.UInt32(status_code(channel.quality))),
             SourceTimestamp=self._stamp(channel),
             ServerTimestamp=_now(),
@@ -173,7 +106,6 @@ class OpcUaFront(Front):
         cfg = self.config
         ctx = self.context
         gateway = ctx.topology.gateway.name
-        host, port = cfg.host_port
         base_dir = ctx.topology.base_dir
         self._wall_offset = time.time() - ctx.image.clock()
         passwords: dict[str, str] = {}
@@ -185,61 +117,29 @@ class OpcUaFront(Front):
         logs.install()
         self.namespace_uri = cfg.namespace_uri or f"urn:fieldgate:{gateway}"
         app_uri = f"urn:fieldgate:{gateway}:{self.name}"
-        self.guard = Guard(
-            FramingLimits(cfg.max_chunk_size, cfg.max_message_size, cfg.max_chunk_count),
-            AdmissionLimits(
-                cfg.max_connections,
-                cfg.max_connections_per_peer,
-                cfg.max_sessions,
-                cfg.max_sessions_per_peer,
-                cfg.hello_timeout_s,
-                cfg.activation_timeout_s,
-            ),
-            self.log,
-            cfg.anonymous_allowed,
-            self.rejected,
-        )
+        self.guard = server_setup.new_guard(cfg, self.log, self.rejected)
         server = GuardedServer(
             self.guard, user_manager=Users(passwords, cfg.anonymous_allowed, self._reject)
         )
-        self._limit(server)
+        self._subscriptions = server_setup.limit(server, cfg, self._subscription_event)
         await server.init()
-        host_text = f"[{host}]" if ":" in host else host
-        self.url = f"opc.tcp://{host_text}:{port}/"
-        if host in ("0.0.0.0", "::"):  # every interface: advertise the host's name, bind to all
-            self.url = f"opc.tcp://{socket.gethostname()}:{port}/"
-            server.socket_address = (host, port)
-        server.set_endpoint(self.url)
-        server.set_server_name(f"fieldgate {gateway} ({self.name})")
-        await server.set_application_uri(app_uri)
-        server.set_security_policy([POLICY[m] for m in cfg.security])
-        tokens: list[type] = []
-        if cfg.anonymous_allowed:
-            tokens.append(ua.AnonymousIdentityToken)
-        if cfg.users:
-            tokens.append(ua.UserNameIdentityToken)
-        server.set_identity_tokens(tokens)
+        name = f"fieldgate {gateway} ({self.name})"
+        self.url = await server_setup.set_endpoint(server, cfg, name, app_uri)
         if any(m != "None" for m in cfg.security):
-            await self._load_security(server, app_uri, base_dir)
+            self._trust = await server_setup.load_security(
+                server,
+                cfg,
+                front=self.name,
+                gateway=gateway,
+                app_uri=app_uri,
+                state=ctx.state_dir,
+                base_dir=base_dir,
+                reject=self._reject,
+            )
         self._ns = await server.register_namespace(self.namespace_uri)
         self.server = server
         await self._build(server)
-        quiet = logging.getLogger(
-            "asyncua.server.server"
-        )  # it logs a bind failure with a traceback
-        level = quiet.level
-        quiet.setLevel(logging.CRITICAL)
-        try:
-            await server.start()
-        except OSError as exc:
-            raise PluginStartError(
-                f"cannot listen on {cfg.listen}: {exc.strerror or exc}"
-            ) from None
-        finally:
-            quiet.setLevel(level)
-        self._listening = True
-        if self._trust is not None:
-            self._trust.guard(server._policies)  # asyncua keeps its channel policies there
+        await self._listen(server)
         channels = [c for c in ctx.front_channels(cfg)]
         self._subscription = ctx.image.subscribe_batch(
             self._on_changes, ids=[c.id for c in channels]
@@ -258,30 +158,23 @@ class OpcUaFront(Front):
             self.namespace_uri,
         )
 
-    def _limit(self, server: GuardedServer) -> None:
-        """The configuration's limits on asyncua's internal server (before it is started)."""
-        cfg = self.config
-        iserver = server.iserver
-        iserver.max_session_timeout_ms = cfg.max_session_timeout_ms
-        iserver.max_monitored_item_queue_size = cfg.max_queue_size
-        iserver.max_unacked_messages_per_subscription = cfg.max_retransmission_queue
-        iserver.max_subscriptions = cfg.max_sessions * cfg.max_subscriptions_per_session
-        subscriptions = GuardedSubscriptions(
-            iserver.aspace,
-            iserver,
-            SubscriptionLimits(
-                cfg.min_publishing_interval_ms,
-                cfg.min_sampling_interval_ms,
-                cfg.max_subscriptions_per_session,
-                cfg.max_monitored_items_per_subscription,
-                cfg.max_monitored_items_per_session,
-                cfg.max_queue_size,
-            ),
-            self._subscription_event,
-        )
-        iserver.subscription_service = subscriptions
-        iserver.isession.subscription_service = subscriptions
-        self._subscriptions = subscriptions
+    async def _listen(self, server: GuardedServer) -> None:
+        quiet = logging.getLogger(
+            "asyncua.server.server"
+        )  # it logs a bind failure with a traceback
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
+        try:
+            await server.start()
+        except OSError as exc:
+            raise PluginStartError(
+                f"cannot listen on {self.config.listen}: {exc.strerror or exc}"
+            ) from None
+        finally:
+            quiet.setLevel(level)
+        self._listening = True
+        if self._trust is not None:
+            self._trust.guard(server._policies)  # asyncua keeps its channel policies there
 
     def _subscription_event(self, what: str, n: int) -> None:
         if what == "subscription_expired":
@@ -297,131 +190,28 @@ class OpcUaFront(Front):
             text = f"{n} {what.removeprefix('too_many_').replace('_', ' ')} refused ({limit})"
             self.guard.note(what, "of a session", text, n=n)
 
-    async def _load_security(self, server: Server, app_uri: str, base_dir: Path) -> None:
-        cfg = self.config
-        state = self.context.state_dir
-        try:
-            if cfg.certificate_file is not None and cfg.private_key_file is not None:
-                cert_path = _resolve(base_dir, cfg.certificate_file)
-                key_path = _resolve(base_dir, cfg.private_key_file)
-                cert, key = certificate_der(cert_path), key_path.read_bytes()
-            else:
-                cert, key = ensure_certificate(
-                    state / f"{self.name}.opcua-cert.der",
-                    state / f"{self.name}.opcua-key.pem",
-                    app_uri,
-                    f"fieldgate {self.context.topology.gateway.name}",
-                )
-            await server.load_certificate(cert, format="DER")
-            await server.load_private_key(key, format="PEM")
-        except (OSError, ValueError) as exc:
-            raise PluginStartError(f"server certificate: {exc}") from None
-        trusted = (
-            _resolve(base_dir, cfg.trusted_clients_dir)
-            if cfg.trusted_clients_dir is not None
-            else state / f"{self.name}.opcua-pki" / "trusted"
-        )
-        trusted.mkdir(parents=True, exist_ok=True)
-        self._trust = TrustDirectory(trusted, self._reject)
-        server.set_certificate_validator(self._trust)
-
     async def _build(self, server: Server) -> None:
+        """The address space (:mod:`.model`) on the server (:mod:`.nodes`), client writes
+        to its writable variables gated (:mod:`.writes`), and the values known now."""
         ctx = self.context
-        cfg = self.config
-        channels = ctx.front_channels(cfg)
-        modules = {m.key: m.model for m in ctx.health.modules()}
-        lines: dict[str, str] = {}
-        for back_cfg in ctx.topology.backs:
-            port = getattr(back_cfg, "port", None)
-            baud = getattr(back_cfg, "baudrate", None)
-            lines[back_cfg.name] = (
-                f"{back_cfg.type}"
-                + (f" on {port}" if port else "")
-                + (f" at {baud} baud" if baud else "")
-            )
+        channels = ctx.front_channels(self.config)
         try:
             locations = ctx.point_locations()
         except Exception:  # noqa: BLE001  (only descriptions depend on it)
             self.log.debug("point_locations failed", exc_info=True)
             locations = {}
         others = [f.name for f in ctx.topology.fronts if f.name != self.name]
-        space = model.build(
-            ctx.topology.gateway.name, channels, cfg.writable, modules, lines, locations, others
+        modules = {m.key: m.model for m in ctx.health.modules()}
+        self.space = model.build(
+            ctx.topology.gateway.name,
+            channels,
+            self.config.writable,
+            modules,
+            nodes.back_lines(ctx.topology),
+            locations,
+            others,
         )
-        self.space = space
-        nodes: dict[str | None, Any] = {None: server.nodes.objects}
-        for folder in space.folders:
-            parent = nodes[folder.parent]
-            node = await parent.add_folder(
-                self._nid(folder.node_id), ua.QualifiedName(folder.browse_name, self._ns)
-            )
-            if folder.description:
-                await node.write_attribute(
-                    ua.AttributeIds.Description,
-                    ua.DataValue(ua.Variant(ua.LocalizedText(folder.description))),
-                )
-            nodes[folder.node_id] = node
-        ranges: dict[ua.NodeId, tuple[float, float]] = {}
-        targets: dict[ua.NodeId, WriteTarget] = {}
-        by_id = {c.id: c for c in channels}
-        for var in space.variables:
-            nid = self._nid(var.node_id)
-            parent = nodes[var.parent]
-            vtype = VARIANT[var.data_type]
-            if var.channel_id is not None:
-                channel = by_id[var.channel_id]
-                initial = self._datavalue(var, channel)
-            else:
-                initial = ua.DataValue(ua.Variant(_zero(var.data_type), vtype))
-            node = await parent.add_variable(
-                nid,
-                ua.QualifiedName(var.browse_name, self._ns),
-                initial.Value,
-                varianttype=vtype,
-                datatype=ua.NodeId(vtype.value),
-            )
-            await node.write_attribute(
-                ua.AttributeIds.Description,
-                ua.DataValue(ua.Variant(ua.LocalizedText(var.description))),
-            )
-            access = ua.AccessLevel.CurrentRead.mask | (
-                ua.AccessLevel.CurrentWrite.mask if var.writable else 0
-            )
-            await node.write_attribute(
-                ua.AttributeIds.AccessLevel, ua.DataValue(ua.Variant(access, ua.VariantType.Byte))
-            )
-            await node.write_attribute(
-                ua.AttributeIds.UserAccessLevel,
-                ua.DataValue(ua.Variant(access, ua.VariantType.Byte)),
-            )
-            if var.eu_range is not None:
-                ranges[nid] = var.eu_range
-                await node.add_property(
-                    self._nid(f"{var.node_id}/EURange"),
-                    "EURange",
-                    ua.Range(Low=var.eu_range[0], High=var.eu_range[1]),
-                )
-            if var.unit is not None:
-                code = UNECE.get(var.unit)
-                eu = ua.EUInformation(
-                    NamespaceUri=UNIT_NS,
-                    UnitId=unit_id(code) if code else -1,
-                    DisplayName=ua.LocalizedText(var.unit),
-                    Description=ua.LocalizedText(var.unit),
-                )
-                await node.add_property(
-                    self._nid(f"{var.node_id}/EngineeringUnits"), "EngineeringUnits", eu
-                )
-            if var.channel_id is not None:
-                await server.write_attribute_value(nid, initial)
-                self._vars.setdefault(var.channel_id, []).append((nid, var))
-                if var.writable:
-                    targets[nid] = WriteTarget(
-                        var.channel_id, vtype, channel.spec.data_type, channel.check
-                    )
-            else:
-                self._other[var.node_id] = nid
-        deadband.set_ranges(server.iserver.aspace, ranges)
+        targets = await self._add_nodes(server, self.space, {c.id: c for c in channels})
         iserver = server.iserver
         iserver.attribute_service = WriteGate(
             iserver.attribute_service,
@@ -439,6 +229,37 @@ class OpcUaFront(Front):
         for event in ctx.events.recent():  # what the fronts started before this one reported
             self._on_event(event)
         self._schedule()
+
+    async def _add_nodes(
+        self, server: Server, space: model.AddressSpace, by_id: dict[str, Channel]
+    ) -> dict[ua.NodeId, WriteTarget]:
+        """Every folder and variable; the channels' variables get their current values.
+        Returns the write targets of the writable ones."""
+        folders = await nodes.add_folders(server, space, self._nid, self._ns)
+        ranges: dict[ua.NodeId, tuple[float, float]] = {}
+        targets: dict[ua.NodeId, WriteTarget] = {}
+        for var in space.variables:
+            nid = self._nid(var.node_id)
+            vtype = nodes.VARIANT[var.data_type]
+            channel = by_id[var.channel_id] if var.channel_id is not None else None
+            if channel is not None:
+                initial = self._datavalue(var, channel)
+            else:
+                initial = ua.DataValue(ua.Variant(nodes.zero(var.data_type), vtype))
+            await nodes.add_variable(folders[var.parent], var, self._nid, self._ns, initial)
+            if var.eu_range is not None:
+                ranges[nid] = var.eu_range
+            if var.channel_id is None or channel is None:
+                self._other[var.node_id] = nid
+                continue
+            await server.write_attribute_value(nid, initial)
+            self._vars.setdefault(var.channel_id, []).append((nid, var))
+            if var.writable:
+                targets[nid] = WriteTarget(
+                    var.channel_id, vtype, channel.spec.data_type, channel.check
+                )
+        deadband.set_ranges(server.iserver.aspace, ranges)
+        return targets
 
     async def run(self) -> None:
         await asyncio.Event().wait()  # the server runs on the loop; nothing else to do
@@ -511,7 +332,7 @@ class OpcUaFront(Front):
                 (
                     nid,
                     ua.DataValue(
-                        ua.Variant(value, VARIANT[dtype]),
+                        ua.Variant(value, nodes.VARIANT[dtype]),
                         SourceTimestamp=_now(),
                     ),
                 )
@@ -553,39 +374,11 @@ class OpcUaFront(Front):
 
     # -- observability -------------------------------------------------------------------------
     def clients(self) -> list[dict[str, Any]]:
-        server = self.server
-        if server is None or server.bserver is None:
-            return []
-        out = []
-        for proto in list(server.bserver.clients):
-            session = getattr(proto.processor, "session", None)
-            user = getattr(session, "user", None)
-            peer = proto.peer_name
-            out.append(
-                {
-                    "peer": f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else repr(peer),
-                    "session": str(getattr(session, "name", "")),
-                    "user": getattr(user, "name", None)
-                    or ("anonymous" if user is not None else ""),
-                }
-            )
-        return out
+        return [] if self.server is None else observe.clients(self.server)
 
     def held(self) -> dict[str, int]:
         """What clients hold now: connections, sessions, subscriptions, monitored items."""
-        server = self.server
-        if server is None:
-            return {}
-        iserver = server.iserver
-        subs = self._subscriptions
-        return {
-            "connections": len(server.bserver.clients) if server.bserver is not None else 0,
-            "sessions": sum(
-                1 for s in iserver._external_sessions.values() if s.state != SessionState.Closed
-            ),
-            "subscriptions": len(subs.subscriptions) if subs is not None else 0,
-            "monitored_items": subs.monitored_items if subs is not None else 0,
-        }
+        return {} if self.server is None else observe.held(self.server, self._subscriptions)
 
     def status(self) -> dict[str, Any]:
         if self.server is None:
@@ -613,60 +406,10 @@ class OpcUaFront(Front):
     def metrics(self) -> list[MetricSample]:
         if self.server is None:
             return []
-        front = self.name
-        held = self.held()
-        rows = [
-            gauge("opcua_clients", "client connections open", len(self.clients()), front=front),
-            gauge("opcua_sessions", "sessions open", held["sessions"], front=front),
-            gauge("opcua_subscriptions", "subscriptions", held["subscriptions"], front=front),
-            gauge("opcua_monitored_items", "monitored items", held["monitored_items"], front=front),
-            counter(
-                "opcua_value_updates_total",
-                "node values written from process image changes",
-                self.counters["value_updates"],
-                front=front,
-            ),
-            counter(
-                "opcua_writes_total",
-                "client writes applied to outputs",
-                self.counters["writes"],
-                front=front,
-            ),
-            counter(
-                "opcua_write_errors_total",
-                "client writes refused",
-                self.counters["write_errors"],
-                front=front,
-            ),
-            counter(
-                "opcua_subscriptions_expired_total",
-                "subscriptions deleted after their lifetime without a Publish request",
-                self.counters["subscriptions_expired"],
-                front=front,
-            ),
-        ]
-        rows += [
-            counter(
-                "opcua_rejected_total",
-                "connections, sessions and requests refused or closed, by reason",
-                n,
-                front=front,
-                reason=reason,
-            )
-            for reason, n in sorted(self.rejected.items())
-        ]
         faults = self.guard.faults if self.guard is not None else Counter()
-        rows += [
-            counter(
-                "opcua_service_faults_total",
-                "requests answered with a ServiceFault, by status",
-                n,
-                front=front,
-                status=status,
-            )
-            for status, n in sorted(faults.items())
-        ]
-        return rows
+        return observe.metric_rows(
+            self.name, len(self.clients()), self.held(), self.counters, self.rejected, faults
+        )
 
     def point_locations(self) -> dict[str, list[str]]:
         return {
@@ -675,17 +418,8 @@ class OpcUaFront(Front):
         }
 
 
-def _resolve(base: Path, name: str) -> Path:
-    path = Path(name)
-    return path if path.is_absolute() else base / path
-
-
 def _now() -> Any:  # asyncua types timestamps ua.DateTime (a datetime)
     return datetime.datetime.now(datetime.UTC)
-
-
-def _zero(dtype: str) -> Any:
-    return {"Boolean": False, "String": "", "Float": 0.0, "Double": 0.0}.get(dtype, 0)
 
 
 logging.getLogger("asyncua").setLevel(logging.WARNING)

@@ -153,81 +153,105 @@ def build(
                 )
             )
         key = (src.back, src.module)
-        folder = module_folder(src.back, src.module)
         if key not in modules_seen:
             modules_seen.add(key)
-            model = modules.get(key, "")
-            space.folders.append(
-                Folder(
-                    folder,
-                    f"m{src.module}",
-                    src.back,
-                    f"module {src.module}{f' ({model})' if model else ''} on back {src.back}",
-                )
-            )
-            health = f"{folder}/health"
-            space.folders.append(Folder(health, "Health", folder, f"health of module {src.module}"))
-            for name, suffix, dtype, text in HEALTH_VARIABLES:
-                space.variables.append(Variable(f"{health}/{suffix}", name, health, dtype, text))
-        local = channel.id.rsplit("/", 1)[-1]
-        where = "; ".join(locations.get(channel.id, []))
-        model = modules.get(key, "")
-        text = (
-            f"{KIND_TEXT[channel.kind]} {src.index} of module {src.module}"
-            f"{f' ({model})' if model else ''} on back {src.back}"
-            f"{f', {lines[src.back]}' if src.back in lines else ''}"
-            f"{f'; read as {where}' if where else ''}"
-        )
+            _add_module(space, src.back, src.module, modules.get(key, ""))
         is_writable = channel.kind.is_output and any(
             fnmatch.fnmatchcase(channel.id, p) for p in patterns
         )
-        scaling: Scaling | None = channel.spec.scaling
-        eng = channel.spec.engineering
-        dtype = UA_TYPE[channel.spec.data_type]
-        if channel.spec.label:
-            text = f"{channel.spec.label}: {text}"
-        if eng is not None:  # the value is in engineering units already: it carries them itself
-            text += f"; {eng.describe()}" if eng.describe() else ""
-            space.variables.append(
-                Variable(
-                    channel.id,
-                    local,
-                    folder,
-                    dtype,
-                    text,
-                    channel.id,
-                    is_writable,
-                    eu_range=eng.eu_range,
-                    unit=eng.unit or None,
-                )
-            )
-            continue
-        raw_range = (scaling.raw_min, scaling.raw_max) if scaling is not None else None
-        space.variables.append(
+        text = _describe(channel, modules.get(key, ""), lines, locations)
+        space.variables += _channel_variables(channel, text, is_writable)
+    _add_fronts(space, gateway, list(other_fronts))
+    return space
+
+
+def _add_module(space: AddressSpace, back: str, module: int, model: str) -> None:
+    """A module's folder with its health folder and variables."""
+    folder = module_folder(back, module)
+    space.folders.append(
+        Folder(
+            folder,
+            f"m{module}",
+            back,
+            f"module {module}{f' ({model})' if model else ''} on back {back}",
+        )
+    )
+    health = f"{folder}/health"
+    space.folders.append(Folder(health, "Health", folder, f"health of module {module}"))
+    for name, suffix, dtype, text in HEALTH_VARIABLES:
+        space.variables.append(Variable(f"{health}/{suffix}", name, health, dtype, text))
+
+
+def _describe(
+    channel: Channel, model: str, lines: Mapping[str, str], locations: Mapping[str, list[str]]
+) -> str:
+    """A channel variable's description: its label, what and where it is, how it is read."""
+    src = channel.source
+    where = "; ".join(locations.get(channel.id, []))
+    text = (
+        f"{KIND_TEXT[channel.kind]} {src.index} of module {src.module}"
+        f"{f' ({model})' if model else ''} on back {src.back}"
+        f"{f', {lines[src.back]}' if src.back in lines else ''}"
+        f"{f'; read as {where}' if where else ''}"
+    )
+    if channel.spec.label:
+        text = f"{channel.spec.label}: {text}"
+    return text
+
+
+def _channel_variables(channel: Channel, text: str, is_writable: bool) -> list[Variable]:
+    """A channel's variable, and its scaled twin ``<id>/eng`` where the channel has a
+    scaling (a value in engineering units already carries them itself: no twin)."""
+    local = channel.id.rsplit("/", 1)[-1]
+    folder = module_folder(channel.source.back, channel.source.module)
+    scaling: Scaling | None = channel.spec.scaling
+    eng = channel.spec.engineering
+    dtype = UA_TYPE[channel.spec.data_type]
+    if eng is not None:
+        text += f"; {eng.describe()}" if eng.describe() else ""
+        return [
             Variable(
-                channel.id, local, folder, dtype, text, channel.id, is_writable, eu_range=raw_range
+                channel.id,
+                local,
+                folder,
+                dtype,
+                text,
+                channel.id,
+                is_writable,
+                eu_range=eng.eu_range,
+                unit=eng.unit or None,
+            )
+        ]
+    raw_range = (scaling.raw_min, scaling.raw_max) if scaling is not None else None
+    out = [
+        Variable(
+            channel.id, local, folder, dtype, text, channel.id, is_writable, eu_range=raw_range
+        )
+    ]
+    if scaling is not None:
+        out.append(
+            Variable(
+                f"{channel.id}/eng",
+                f"{local}_eng",
+                folder,
+                "Double",
+                f"{local} in engineering units ({scaling.unit or 'no unit'}), scaled from the raw value; read-only",
+                channel.id,
+                engineering=True,
+                eu_range=(scaling.eng_min, scaling.eng_max),
+                unit=scaling.unit or None,
             )
         )
-        if scaling is not None:
-            space.variables.append(
-                Variable(
-                    f"{channel.id}/eng",
-                    f"{local}_eng",
-                    folder,
-                    "Double",
-                    f"{local} in engineering units ({scaling.unit or 'no unit'}), scaled from the raw value; read-only",
-                    channel.id,
-                    engineering=True,
-                    eu_range=(scaling.eng_min, scaling.eng_max),
-                    unit=scaling.unit or None,
-                )
-            )
-    fronts = list(other_fronts)
-    if fronts:
-        space.folders.append(Folder("fronts", "Fronts", gateway, "the gateway's other fronts"))
-        for name in fronts:
-            node = f"fronts/{name}"
-            space.folders.append(Folder(node, name, "fronts", f"front {name}"))
-            for browse, suffix, dtype, text in FRONT_VARIABLES:
-                space.variables.append(Variable(f"{node}/{suffix}", browse, node, dtype, text))
-    return space
+    return out
+
+
+def _add_fronts(space: AddressSpace, gateway: str, fronts: list[str]) -> None:
+    """The other fronts' folder: each one's master presence and protocol state."""
+    if not fronts:
+        return
+    space.folders.append(Folder("fronts", "Fronts", gateway, "the gateway's other fronts"))
+    for name in fronts:
+        node = f"fronts/{name}"
+        space.folders.append(Folder(node, name, "fronts", f"front {name}"))
+        for browse, suffix, dtype, text in FRONT_VARIABLES:
+            space.variables.append(Variable(f"{node}/{suffix}", browse, node, dtype, text))

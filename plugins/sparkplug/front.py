@@ -18,15 +18,10 @@ from typing import Any
 from fieldgate.health import HealthEvent, ModuleHealth
 from fieldgate.image import Change, Channel, Quality
 from fieldgate.metric_samples import Sample as MetricSample
-from fieldgate.metric_samples import counter, gauge
 from fieldgate.persist import CorruptStore, read_json, write_json_atomic
 from fieldgate.plugin import Front, GatewayContext, PluginStartError
 
-from .config import SparkplugFrontConfig
-from .journal import JournalError, SqliteJournal
-from .link import Link, LinkEvents, LinkStats
-from .model import NodeModel, Sample, Value
-from .session import (
+from .actions import (
     Action,
     Connect,
     DiscardQueuedData,
@@ -34,13 +29,17 @@ from .session import (
     Instant,
     Publish,
     SaveBdSeq,
-    Session,
-    SessionSettings,
     State,
     Subscribe,
     Sync,
     Write,
 )
+from .config import SparkplugFrontConfig
+from .journal import JournalError, SqliteJournal
+from .link import Link, LinkEvents, LinkStats
+from .metrics import Figures, metric_rows
+from .model import NodeModel, Sample, Value
+from .session import Session, SessionSettings
 
 MAX_OUTBOX_DATA = 1000
 """DATA messages waiting for the MQTT client at once (a stalled socket): beyond, they are
@@ -420,89 +419,15 @@ class SparkplugFront(Front):
         """Metric rows for the gateway's Prometheus endpoint (name without ``fieldgate_``)."""
         if self.session is None:
             return []
-        s = self.session
-        front = self.name
-        oldest = s.journal.oldest_ts_ms()
+        oldest = self.session.journal.oldest_ts_ms()
         age = 0.0 if oldest is None else max(0.0, (time.time() * 1000 - oldest) / 1000)
-        rows: list[MetricSample] = [
-            gauge(
-                "sparkplug_connected",
-                "1 while the edge node session is publishing (NBIRTH sent)",
-                s.state is State.ONLINE,
-                front=front,
-            ),
-            gauge(
-                "sparkplug_bdseq",
-                "bdSeq of the current or next MQTT connection",
-                s.bdseq,
-                front=front,
-            ),
-            gauge(
-                "sparkplug_backlog_messages",
-                "samples waiting in the store-and-forward journal",
-                s.journal.count(),
-                front=front,
-            ),
-            gauge(
-                "sparkplug_backlog_oldest_age_seconds",
-                "age of the oldest sample in the journal",
-                age,
-                front=front,
-            ),
-            counter(
-                "sparkplug_dropped_messages_total",
-                "samples dropped from the journal (full, or channel gone)",
-                s.dropped,
-                front=front,
-            ),
-            counter(
-                "sparkplug_replayed_messages_total",
-                "journaled samples sent as historical DDATA",
-                s.replayed,
-                front=front,
-            ),
-            counter(
-                "sparkplug_connects_total", "accepted MQTT connections", s.connects, front=front
-            ),
-            gauge(
-                "sparkplug_outbox_messages",
-                "messages waiting to be handed to the MQTT client",
-                self._link.queued if self._link is not None else 0,
-                front=front,
-            ),
-            counter("sparkplug_writes_total", "outputs written by DCMD", self._writes, front=front),
-            counter(
-                "sparkplug_write_errors_total",
-                "DCMD output writes refused by the process image",
-                self._write_errors,
-                front=front,
-            ),
-        ]
-        by_label = (
-            ("sparkplug_messages_total", "Sparkplug messages published, by type", "type", s.sent),
-            (
-                "sparkplug_published_messages_total",
-                "messages handed to the MQTT client, by type",
-                "type",
-                self._link_stats.published,
-            ),
-            (
-                "sparkplug_publish_dropped_total",
-                "messages never handed to the MQTT client, by reason (rebirth: DATA of the old births, its samples journaled)",
-                "reason",
-                self._link_stats.dropped,
-            ),
-            ("sparkplug_rebirths_total", "NBIRTH sequences, by reason", "reason", s.rebirths),
-            (
-                "sparkplug_ignored_commands_total",
-                "incoming messages ignored, by reason",
-                "reason",
-                s.ignored,
-            ),
+        figures = Figures(
+            self.session,
+            age,
+            self._link.queued if self._link is not None else 0,
+            self._writes,
+            self._write_errors,
+            self._link_stats.published,
+            self._link_stats.dropped,
         )
-        for name, help_text, label, counts in by_label:
-            rows += [
-                counter(name, help_text, count, front=front, **{label: key})
-                for key, count in sorted(counts.items())
-            ]
-        return rows
+        return metric_rows(self.name, figures)

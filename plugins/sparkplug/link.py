@@ -23,8 +23,8 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
+from .actions import Publish
 from .config import BrokerSettings
-from .session import Publish
 
 log = logging.getLogger("fieldgate.sparkplug.link")
 

@@ -50,123 +50,26 @@ back in the replay (historical ones): they follow the new births as historical d
 
 from __future__ import annotations
 
-import json
 import random
 from collections import Counter
 from collections.abc import Iterable
-from dataclasses import dataclass, field
-from enum import StrEnum
+from dataclasses import dataclass
 
-from fieldgate.image import Quality
-
+from . import commands
 from . import payload as codec
+from .actions import Action, Connect, DiscardQueuedData, Disconnect, Instant, Publish, SaveBdSeq
+from .actions import State as State  # (the session's callers import its inputs and actions here)
+from .actions import Subscribe as Subscribe
+from .actions import Sync as Sync
+from .actions import Write as Write
+from .commands import json_depth as json_depth
 from .journal import Journal
-from .model import NEXT_SERVER, REBIRTH, MetricDef, NodeModel, Sample, Value
+from .model import NEXT_SERVER, REBIRTH, NodeModel, Sample
+from .publisher import Publisher
+from .replay import Replay
 
 CONNECT_TIMEOUT_S = 10.0
-SEQ_MODULO = 256
 BDSEQ_MODULO = 256
-
-
-@dataclass(frozen=True)
-class Instant:
-    mono: float  # monotonic seconds: timers
-    wall_ms: int  # milliseconds since the epoch: payload timestamps
-
-
-class State(StrEnum):
-    DISCONNECTED = "disconnected"
-    CONNECTING = "connecting"
-    WAITING_HOST = "waiting-for-primary-host"
-    ONLINE = "online"
-    STOPPED = "stopped"
-
-
-# -- actions --------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Connect:
-    broker: int  # index into the configured broker list
-    client_id: str
-    will_topic: str
-    will_payload: bytes
-    bdseq: int
-
-
-@dataclass(frozen=True)
-class Subscribe:
-    topics: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class Publish:
-    topic: str
-    payload: bytes
-    qos: int = 0
-    retain: bool = False
-    token: int | None = None  # DATA only: confirmed by on_puback (QoS 1) or a Sync (QoS 0)
-    kind: str = ""  # nbirth, dbirth, ddata, ddata_historical, ddeath, ndeath: counters, logs
-    seq: int | None = None  # the payload's seq (logs)
-
-
-@dataclass(frozen=True)
-class Sync:
-    """Tell :meth:`Session.on_synced` (with this token) once the broker has read every
-    message handed to the MQTT client before this action."""
-
-    token: int
-
-
-@dataclass(frozen=True)
-class DiscardQueuedData:
-    """Drop every DATA message not yet handed to the MQTT client and report their tokens
-    to :meth:`Session.on_discarded` (a Rebirth request: they belong to the old births)."""
-
-
-@dataclass(frozen=True)
-class Disconnect:
-    reason: str
-
-
-@dataclass(frozen=True)
-class Write:
-    channel_id: str
-    value: Value
-
-
-@dataclass(frozen=True)
-class SaveBdSeq:
-    bdseq: int
-
-
-Action = Connect | Subscribe | Publish | Sync | DiscardQueuedData | Disconnect | Write | SaveBdSeq
-
-MAX_STATE_BYTES = 4096
-"""A STATE message is ``{"online": true, "timestamp": ...}``: anything much larger is not one."""
-
-MAX_STATE_DEPTH = 4
-"""Deepest JSON nesting a STATE may have (it has 1)."""
-
-
-def json_depth(data: bytes) -> int:
-    """Deepest nesting of ``[``/``{`` in JSON text, outside strings; linear, no recursion."""
-    depth = deepest = 0
-    in_string = escaped = False
-    for byte in data:
-        if in_string:
-            if escaped:
-                escaped = False
-            elif byte == 0x5C:  # backslash
-                escaped = True
-            elif byte == 0x22:
-                in_string = False
-        elif byte == 0x22:
-            in_string = True
-        elif byte in (0x5B, 0x7B):
-            depth += 1
-            deepest = max(deepest, depth)
-        elif byte in (0x5D, 0x7D):
-            depth -= 1
-    return deepest
 
 
 @dataclass
@@ -185,15 +88,17 @@ class SessionSettings:
     primary_host_wait_s: float = 10.0
 
 
-@dataclass
-class _InFlight:
-    historical: bool
-    samples: list[Sample] = field(default_factory=list)  # live: re-journaled when lost
-    ids: list[int] = field(default_factory=list)  # historical: journal rows to delete
-    qos: int = 0
+def reconnect_delay(settings: SessionSettings, attempt: int, rng: random.Random) -> float:
+    """Doubling from ``reconnect_min_s`` up to ``reconnect_max_s``, less up to a quarter at
+    random: a fleet does not reconnect in step."""
+    base = min(settings.reconnect_max_s, settings.reconnect_min_s * 2.0**attempt)
+    return base * (0.75 + 0.25 * rng.random())
 
 
 class Session:
+    """The connection, the primary host and the commands; what goes out while publishing
+    is :class:`~.publisher.Publisher`'s (``self.data``)."""
+
     def __init__(
         self,
         model: NodeModel,
@@ -213,52 +118,51 @@ class Session:
         self.broker = 0
         self._saved_bdseq = last_bdseq  # persisted: the last value a CONNECT may have carried
         self.bdseq = 0 if last_bdseq is None else (last_bdseq + 1) % BDSEQ_MODULO
-        self.seq = 0
-        self.current: dict[str, Sample] = {s.channel_id: s for s in current}
-        self.published: dict[str, Sample] = {}  # last value sent live, for deadbands
-        online = set(model.devices) if online_devices is None else set(online_devices)
-        self.device_online: dict[str, bool] = {d: d in online for d in model.devices}
-        self.birthed: set[str] = set()
-        self._birth_pending: set[str] = set()
-        self._pending: dict[str, list[Sample]] = {}
-        self._inflight: dict[int, _InFlight] = {}
-        self._token = 0
         self._attempt = 0
         self._reconnect_at: float | None = 0.0
         self._connect_deadline: float | None = None
-        self._replay_cursor = 0
-        self._replay_next_at = 0.0
-        self._replay_ids: set[int] = set()
-        self._replay_blocked = False  # every waiting row belongs to an offline device
         self._host_ts: int | None = None  # timestamp of the last accepted STATE
         self._host_wait_until: float | None = None  # waiting for the host: next broker then
-        self._unsynced: list[int] = []  # QoS 0 DATA tokens handed out since the last Sync
-        self._sync_token: int | None = None  # the Sync awaiting on_synced
-        self._sync_covers: list[int] = []  # the tokens it confirms
         # counters
         self.sent: Counter[str] = Counter()
         self.ignored: Counter[str] = Counter()
         self.rebirths: Counter[str] = Counter()
         self._last_rebirth = -1.0  # monotonic time of the last NCMD rebirth
         self._rebirth_at: float | None = None  # a coalesced rebirth is due then
-        self.dropped = 0
-        self.discarded: Counter[str] = Counter()  # DATA messages dropped before the wire, by reason
-        self.replayed = 0
-        self.journaled = 0
         self.connects = 0
+        replay = Replay(
+            model,
+            journal,
+            batch=settings.replay_batch,
+            window=settings.replay_window,
+            messages_per_s=settings.replay_messages_per_s,
+            on_unknown=lambda n: self.data.unknown_rows(n),
+        )
+        self.data = Publisher(
+            model,
+            journal,
+            replay,
+            data_qos=settings.data_qos,
+            sent=self.sent,
+            ignored=self.ignored,
+            current=current,
+            online_devices=online_devices,
+        )
+
+    @property
+    def dropped(self) -> int:
+        """Samples dropped from the journal (full, or their channel gone)."""
+        return self.data.dropped
+
+    @property
+    def replayed(self) -> int:
+        """Journaled samples sent as historical DDATA."""
+        return self.data.replayed
 
     # -- helpers ----------------------------------------------------------------------------
     def _advance_bdseq(self) -> None:
         """The current value went out in a CONNECT: the next CONNECT carries the next one."""
         self.bdseq = (self.bdseq + 1) % BDSEQ_MODULO
-
-    def _next_seq(self) -> int:
-        self.seq = (self.seq + 1) % SEQ_MODULO
-        return self.seq
-
-    def _new_token(self) -> int:
-        self._token += 1
-        return self._token
 
     @property
     def publishing(self) -> bool:
@@ -271,32 +175,14 @@ class Session:
 
     def _with_sync(self, actions: list[Action]) -> list[Action]:
         """Append a :class:`Sync` covering the QoS 0 DATA handed out, unless one is awaited."""
-        if self._unsynced and self._sync_token is None and self.publishing:
-            self._sync_token = self._new_token()
-            self._sync_covers, self._unsynced = self._unsynced, []
-            actions.append(Sync(self._sync_token))
+        if self.publishing:
+            sync = self.data.delivery.sync()
+            if sync is not None:
+                actions.append(sync)
         return actions
 
-    def _track(self, flight: _InFlight) -> int:
-        """A token for a DATA message, remembered until confirmed, discarded or lost."""
-        token = self._new_token()
-        self._inflight[token] = flight
-        if flight.qos == 0:
-            self._unsynced.append(token)
-        return token
-
-    def _confirm(self, token: int) -> None:
-        """The broker has the message: historical rows leave the journal."""
-        flight = self._inflight.pop(token, None)
-        if flight is not None and flight.historical:
-            self.journal.delete(flight.ids)
-            self._replay_ids.difference_update(flight.ids)
-
-    def _journal(self, samples: list[Sample]) -> None:
-        if not samples:
-            return
-        self.dropped += self.journal.append(samples)
-        self.journaled += len(samples)
+    def _replay(self, t: Instant) -> list[Action]:
+        return self.data.replay_step(t) if self.data_allowed else []
 
     def _schedule_reconnect(
         self, t: Instant, *, next_broker: bool, immediate: bool = False
@@ -304,13 +190,8 @@ class Session:
         if next_broker:
             self.broker = (self.broker + 1) % self.settings.brokers
             self._host_ts = None  # STATE timestamps are compared per broker
-        if immediate:
-            delay = 0.0
-        else:
-            base = min(
-                self.settings.reconnect_max_s, self.settings.reconnect_min_s * (2**self._attempt)
-            )
-            delay = base * (0.75 + 0.25 * self.rng.random())  # a fleet does not reconnect in step
+        delay = 0.0 if immediate else reconnect_delay(self.settings, self._attempt, self.rng)
+        if not immediate:
             self._attempt = min(self._attempt + 1, 30)
         self._reconnect_at = t.mono + delay
         self._connect_deadline = None
@@ -374,23 +255,9 @@ class Session:
 
     def _drop_connection(self) -> None:
         """Unacknowledged live samples back to the journal; historical ones are still there."""
-        lost: list[Sample] = []
-        for token in sorted(self._inflight):
-            flight = self._inflight[token]
-            if not flight.historical:
-                lost.extend(flight.samples)
-        self._inflight.clear()
-        self._unsynced.clear()
-        self._sync_covers.clear()
-        self._sync_token = None
         self._rebirth_at = None  # the new connection's births serve it
-        self._replay_ids.clear()
-        self._replay_cursor = 0
-        self._replay_blocked = False
-        self.birthed.clear()
-        self._birth_pending.clear()
         self._host_wait_until = None
-        self._journal(lost)
+        self.data.connection_dropped()
 
     def _leave(self, t: Instant, reason: str, *, immediate: bool = True) -> list[Action]:
         """Intentional disconnect: NDEATH first, then disconnect, then the next broker (at
@@ -413,16 +280,14 @@ class Session:
         actions: list[Action] = []
         if self.state in (State.ONLINE, State.WAITING_HOST):
             actions.append(self._ndeath(t))
-        pending = [s for samples in self._pending.values() for s in samples]
-        self._pending.clear()
+        pending = self.data.stopping()
         self._drop_connection()  # unacknowledged samples first: they are the older ones
-        self._journal(pending)
+        self.data.journal_samples(pending)
         self.state = State.STOPPED
         self._reconnect_at = None
         actions.append(Disconnect("gateway stopping"))
         return actions
 
-    # -- births -----------------------------------------------------------------------------
     def _birth(self, t: Instant, *, replay: bool = True) -> list[Action]:
         """NBIRTH and a DBIRTH per online device, nothing else in between; then the replay
         starts (at once after a connect; at the next tick after a rebirth, once the adapter
@@ -431,223 +296,32 @@ class Session:
         self._rebirth_at = None
         self._host_wait_until = None
         self._attempt = 0  # a session reached: the reconnect delay starts over
-        self.seq = 0
-        actions: list[Action] = [
-            Publish(
-                self.model.node_topic("NBIRTH"),
-                codec.node_birth(t.wall_ms, self.bdseq),
-                kind="nbirth",
-                seq=0,
-            )
-        ]
-        self.sent["nbirth"] += 1
-        self.birthed.clear()
-        for dev in self.model.devices:
-            if self.device_online[dev]:
-                actions.append(self._device_birth(t, dev))
-        self._birth_pending.clear()
-        self._replay_cursor = 0
-        self._replay_blocked = False
-        if replay:
-            actions.extend(self._replay(t))  # historical data goes beside live data from now on
-        return actions
-
-    def _device_birth(self, t: Instant, dev: str) -> Publish:
-        metrics = [(m, self._current(m, t)) for m in self.model.devices[dev].metrics]
-        for m, sample in metrics:
-            self.published[m.channel_id] = sample
-        self.birthed.add(dev)
-        self.sent["dbirth"] += 1
-        self._replay_cursor = 0  # its waiting journal rows can go now
-        self._replay_blocked = False
-        seq = self._next_seq()
-        return Publish(
-            self.model.device_topic("DBIRTH", dev),
-            codec.device_birth(t.wall_ms, seq, metrics),
-            kind="dbirth",
-            seq=seq,
-        )
-
-    def _current(self, m: MetricDef, t: Instant) -> Sample:
-        sample = self.current.get(m.channel_id)
-        if sample is None:
-            sample = Sample(m.channel_id, m.dtype.check(0), Quality.NOT_READ, t.wall_ms)
-        return sample
+        return self.data.births(t, self.bdseq, replay=replay)
 
     # -- data -------------------------------------------------------------------------------
     def on_change(self, sample: Sample) -> None:
         """A channel changed; published (or journaled) at the next :meth:`flush`."""
-        m = self.model.by_channel.get(sample.channel_id)
-        if m is None:
-            return
-        self.current[m.channel_id] = sample
-        if m.deadband > 0 and self.publishing:
-            last = self.published.get(m.channel_id)
-            if (
-                last is not None
-                and last.quality is sample.quality
-                and not isinstance(sample.value, bool | str)
-                and not isinstance(last.value, str)
-                and abs(float(sample.value) - float(last.value)) < m.deadband
-            ):
-                return
-        self._pending.setdefault(m.device, []).append(sample)
+        self.data.on_change(sample, self.publishing)
 
     def on_device_health(self, dev: str, online: bool) -> None:
         """A back module went offline or came back (DDEATH / DBIRTH at the next flush)."""
-        if dev not in self.device_online or self.device_online[dev] == online:
-            return
-        self.device_online[dev] = online
-        if online:
-            self._birth_pending.add(dev)
-        else:
-            self._birth_pending.discard(dev)
+        self.data.on_device_health(dev, online)
 
     def flush(self, t: Instant) -> list[Action]:
-        actions: list[Action] = []
         if not self.data_allowed:  # no session, or a rebirth due: the journal keeps them
-            if self.state is not State.STOPPED:
-                self._journal([s for samples in self._pending.values() for s in samples])
-            self._pending.clear()
-            return actions
-        for dev in self.model.devices:
-            if dev in self.birthed and not self.device_online[dev]:
-                self.birthed.discard(dev)
-                self._pending.pop(dev, None)
-                self.sent["ddeath"] += 1
-                seq = self._next_seq()
-                actions.append(
-                    Publish(
-                        self.model.device_topic("DDEATH", dev),
-                        codec.device_death(t.wall_ms, seq),
-                        kind="ddeath",
-                        seq=seq,
-                    )
-                )
-            elif dev in self._birth_pending and self.device_online[dev]:
-                actions.append(self._device_birth(t, dev))
-        self._birth_pending.clear()
-        for dev, samples in self._pending.items():
-            if dev not in self.birthed:
-                continue  # offline device: its DBIRTH will carry the current values
-            actions.append(self._data(t, dev, samples))
-        self._pending.clear()
-        actions.extend(self._replay(t))
-        return self._with_sync(actions)
-
-    def _data(self, t: Instant, dev: str, samples: list[Sample]) -> Publish:
-        metrics = [(self.model.by_channel[s.channel_id], s) for s in samples]
-        for _, s in metrics:
-            self.published[s.channel_id] = s
-        qos = self.settings.data_qos
-        token = self._track(_InFlight(False, samples=list(samples), qos=qos))
-        self.sent["ddata"] += 1
-        seq = self._next_seq()
-        return Publish(
-            self.model.device_topic("DDATA", dev),
-            codec.device_data(t.wall_ms, seq, metrics),
-            qos,
-            token=token,
-            kind="ddata",
-            seq=seq,
-        )
-
-    # -- replay -----------------------------------------------------------------------------
-    def _replay_inflight(self) -> int:
-        return sum(1 for f in self._inflight.values() if f.historical)
-
-    def _replay(self, t: Instant) -> list[Action]:
-        actions: list[Action] = []
-        s = self.settings
-        while (
-            self.data_allowed
-            and not self._replay_blocked
-            and self.journal.count() > len(self._replay_ids)
-            and self._replay_inflight() < s.replay_window
-            and t.mono + 1e-9 >= self._replay_next_at
-        ):
-            batch = self._next_replay_batch()
-            if batch is None:
-                self._replay_blocked = True
-                break
-            dev, rows = batch
-            ids = [row_id for row_id, _ in rows]
-            qos = s.data_qos
-            token = self._track(_InFlight(True, ids=ids, qos=qos))
-            self._replay_ids.update(ids)
-            metrics = [(self.model.by_channel[smp.channel_id], smp) for _, smp in rows]
-            self.sent["ddata_historical"] += 1
-            self.replayed += len(rows)
-            seq = self._next_seq()
-            actions.append(
-                Publish(
-                    self.model.device_topic("DDATA", dev),
-                    codec.device_data(t.wall_ms, seq, metrics, historical=True),
-                    qos,
-                    token=token,
-                    kind="ddata_historical",
-                    seq=seq,
-                )
-            )
-            step = 1.0 / s.replay_messages_per_s  # a burst of at most one second's worth
-            self._replay_next_at = max(self._replay_next_at, t.mono - 1.0 + step) + step
-        return actions
-
-    def _next_replay_batch(self) -> tuple[str, list[tuple[int, Sample]]] | None:
-        """The next rows of one birthed device, in journal order; rows of unknown channels are dropped."""
-        limit = self.settings.replay_batch
-        while True:
-            rows = self.journal.read(self._replay_cursor, limit * 4)
-            if not rows:
-                return None
-            unknown = []
-            dev: str | None = None
-            batch: list[tuple[int, Sample]] = []
-            for row_id, sample in rows:
-                if row_id in self._replay_ids:
-                    continue
-                m = self.model.by_channel.get(sample.channel_id)
-                if m is None:
-                    unknown.append(row_id)  # the topology no longer has this channel
-                    continue
-                if m.device not in self.birthed:
-                    continue  # waits for the device's DBIRTH
-                if dev is None:
-                    dev = m.device
-                if m.device != dev:
-                    break
-                batch.append((row_id, sample))
-                if len(batch) >= limit:
-                    break
-            if unknown:
-                self.journal.delete(unknown)
-                self.dropped += len(unknown)
-                self.ignored["journal_unknown_channel"] += len(unknown)
-            if batch:
-                # next search starts after the rows skipped before this batch's first
-                self._replay_cursor = max(self._replay_cursor, batch[0][0] - 1)
-                return dev or "", batch
-            last = rows[-1][0]
-            if last <= self._replay_cursor:
-                return None
-            self._replay_cursor = last
+            self.data.hold(stopped=self.state is State.STOPPED)
+            return []
+        return self._with_sync(self.data.flush(t))
 
     def on_puback(self, t: Instant, token: int) -> list[Action]:
         """The PUBACK of a QoS 1 DATA message."""
-        flight = self._inflight.get(token)
-        if flight is None or flight.qos != 1:
-            return []
-        self._confirm(token)
-        return self._with_sync(self._replay(t)) if flight.historical else []
+        historical = self.data.on_puback(token)
+        return self._with_sync(self._replay(t)) if historical else []
 
     def on_synced(self, t: Instant, token: int) -> list[Action]:
         """The broker has read everything handed out before :class:`Sync` ``token``."""
-        if token != self._sync_token:
+        if not self.data.on_synced(token):
             return []  # of a connection that is gone
-        self._sync_token = None
-        for covered in self._sync_covers:
-            self._confirm(covered)
-        self._sync_covers = []
         return self._with_sync(self._replay(t))
 
     def on_discarded(self, t: Instant, tokens: Iterable[int], reason: str = "rebirth") -> None:
@@ -655,19 +329,7 @@ class Session:
         (:class:`DiscardQueuedData`, or its outbox over its bound: ``reason``): live samples
         go to the journal, historical rows back to the replay; both follow as historical
         data (from the next :meth:`tick`, which :meth:`next_deadline` asks for)."""
-        lost: list[Sample] = []
-        for token in sorted(tokens):
-            flight = self._inflight.pop(token, None)
-            if flight is None:
-                continue
-            self.discarded[reason] += 1
-            if flight.historical:
-                self._replay_ids.difference_update(flight.ids)
-                self._replay_cursor = 0
-                self._replay_blocked = False
-            else:
-                lost.extend(flight.samples)
-        self._journal(lost)
+        self.data.on_discarded(tokens, reason)
 
     # -- incoming ---------------------------------------------------------------------------
     def on_message(self, t: Instant, topic: str, data: bytes) -> list[Action]:
@@ -675,8 +337,7 @@ class Session:
 
     def _on_message(self, t: Instant, topic: str, data: bytes) -> list[Action]:
         parts = topic.split("/")
-        limit = MAX_STATE_BYTES if parts[1:2] == ["STATE"] else self.settings.max_command_bytes
-        if len(data) > limit:  # every inbound payload, STATE too (it is retained: it comes back)
+        if commands.oversized(parts, data, self.settings.max_command_bytes):
             self.ignored["oversized"] += 1
             return []
         if len(parts) == 3 and parts[:2] == ["spBv1.0", "STATE"]:
@@ -684,19 +345,12 @@ class Session:
         if len(parts) == 4 and parts[2] == "NCMD" and parts[3] == self.model.edge_node_id:
             return self._ncmd(t, data)
         if len(parts) == 5 and parts[2] == "DCMD" and parts[3] == self.model.edge_node_id:
-            return self._dcmd(t, parts[4], data)
+            return self._dcmd(parts[4], data)
         self.ignored["unexpected_topic"] += 1
         return []
 
-    def _decode(self, data: bytes) -> list[codec.CommandMetric] | None:
-        try:
-            return codec.decode_command(data)
-        except (codec.PayloadError, RecursionError):  # nesting beyond protobuf's own limit
-            self.ignored["malformed"] += 1
-            return None
-
     def _ncmd(self, t: Instant, data: bytes) -> list[Action]:
-        metrics = self._decode(data)
+        metrics = commands.decode(data, self.ignored)
         if metrics is None:
             return []
         actions: list[Action] = []
@@ -715,36 +369,14 @@ class Session:
                 self.ignored["unknown_metric"] += 1
         return actions
 
-    def _dcmd(self, t: Instant, dev: str, data: bytes) -> list[Action]:
+    def _dcmd(self, dev: str, data: bytes) -> list[Action]:
         if dev not in self.model.devices:
             self.ignored["unknown_device"] += 1
             return []
-        metrics = self._decode(data)
+        metrics = commands.decode(data, self.ignored)
         if metrics is None:
             return []
-        actions: list[Action] = []
-        for cmd in metrics:
-            m = None
-            if cmd.alias is not None:
-                m = self.model.by_alias.get(cmd.alias)
-            elif cmd.name is not None:
-                m = self.model.by_device_name.get((dev, cmd.name))
-            if m is None or m.device != dev:
-                self.ignored["unknown_metric"] += 1
-                continue
-            if not m.writable:
-                self.ignored["not_writable"] += 1
-                continue
-            try:
-                value = codec.command_value(cmd, m.dtype)
-                m.dtype.check(value)
-                if m.engineering is not None:  # a setpoint outside its range is refused here
-                    m.engineering.check_output(value)
-            except ValueError:
-                self.ignored["bad_value"] += 1
-                continue
-            actions.append(Write(m.channel_id, value))
-        return actions
+        return list(commands.device_writes(self.model, dev, metrics, self.ignored))
 
     def _rebirth_request(self, t: Instant) -> list[Action]:
         """NCMD Rebirth: at once, unless one was done less than ``rebirth_min_interval_s``
@@ -765,17 +397,10 @@ class Session:
         if host != self.settings.primary_host_id:
             self.ignored["unexpected_topic"] += 1
             return []
-        if json_depth(data) > MAX_STATE_DEPTH:  # json.loads would recurse into it
-            self.ignored["bad_state"] += 1
+        state = commands.parse_state(data, self.ignored)
+        if state is None:
             return []
-        try:
-            doc = json.loads(data)
-            online, ts = doc["online"], doc["timestamp"]
-            if not isinstance(online, bool) or not isinstance(ts, int) or isinstance(ts, bool):
-                raise ValueError
-        except (ValueError, KeyError, TypeError, UnicodeDecodeError, RecursionError):
-            self.ignored["bad_state"] += 1
-            return []
+        online, ts = state
         if self._host_ts is not None and ts < self._host_ts:
             self.ignored["stale_state"] += 1  # an old will of a previous host session
             return []
@@ -837,33 +462,29 @@ class Session:
         due: list[float] = []
         if self._rebirth_at is not None and self.publishing:
             due.append(self._rebirth_at)
-        if (
-            self.data_allowed
-            and not self._replay_blocked
-            and self.journal.count() > len(self._replay_ids)
-            and self._replay_inflight() < self.settings.replay_window
-        ):
-            due.append(self._replay_next_at)
+        if self.data_allowed and self.data.replay_waiting():
+            due.append(self.data.replay.next_at)
         return min(due, default=None)
 
     # -- status -----------------------------------------------------------------------------
     def status(self, wall_ms: int) -> dict[str, object]:
         oldest = self.journal.oldest_ts_ms()
+        data = self.data
         return {
             "state": self.state.value,
             "broker": self.broker,
             "bdseq": self.bdseq,
-            "seq": self.seq,
+            "seq": data.seq,
             "connects": self.connects,
-            "devices_online": sorted(self.birthed),
+            "devices_online": sorted(data.birthed),
             "sent": dict(self.sent),
             "rebirths": dict(self.rebirths),
             "commands_ignored": dict(self.ignored),
             "backlog_messages": self.journal.count(),
             "backlog_oldest_age_s": None if oldest is None else max(0.0, (wall_ms - oldest) / 1000),
-            "dropped_messages": self.dropped,
-            "discarded_data_messages": dict(self.discarded),
-            "replayed_samples": self.replayed,
-            "journaled_samples": self.journaled,
-            "inflight": len(self._inflight),
+            "dropped_messages": data.dropped,
+            "discarded_data_messages": dict(data.discarded),
+            "replayed_samples": data.replayed,
+            "journaled_samples": data.journaled,
+            "inflight": len(data.delivery.inflight),
         }

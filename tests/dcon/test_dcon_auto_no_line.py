@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-import fieldgate.plugins.dcon.back as dcon_back
+import fieldgate.plugins.dcon.discovery as dcon_discovery
 from fieldgate import Gateway, Quality
 from fieldgate.plugins.dcon.simulator import DconSimulator
 from fieldgate.serial_link import PluggablePty, PtyPair
@@ -112,8 +112,8 @@ async def test_a_silent_line_keeps_the_previous_starts_modules(tmp_path, dcon_re
 async def test_nothing_to_expect_starts_empty_and_scans_again_until_modules_answer(
     tmp_path, dcon_registry, monkeypatch, caplog
 ):
-    monkeypatch.setattr(dcon_back, "RESCAN_FIRST_S", 0.1)
-    monkeypatch.setattr(dcon_back, "RESCAN_MAX_S", 0.2)
+    monkeypatch.setattr(dcon_discovery, "RESCAN_FIRST_S", 0.1)
+    monkeypatch.setattr(dcon_discovery, "RESCAN_MAX_S", 0.2)
     pair = PtyPair()
     sim = None
     try:

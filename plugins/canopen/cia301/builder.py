@@ -18,6 +18,7 @@ from canopen.objectdictionary import datatypes as dt
 from .emcy import EmcyProducer
 from .errctl import ErrorControl
 from .node import Node
+from .od import Dictionary
 from .pdo.service import PdoConfig, PdoService
 from .sdo import SdoServer
 from .sdo_channel import SdoChannel, channel_indices
@@ -108,8 +109,9 @@ class IdentityObjects(Service):
         )
 
 
-def build_node(settings: NodeSettings, name: str = "canopen") -> Node:
-    node = Node(settings.node_id, name=name)
+def build_node(settings: NodeSettings, name: str = "canopen", od: Dictionary | None = None) -> Node:
+    """The node of ``settings``; ``od`` when its objects come from elsewhere too (a file)."""
+    node = Node(settings.node_id, od=od, name=name)
     node.reset_emcy = settings.emcy_on_nmt_reset
     node.add_service(IdentityObjects(settings.identity))
     node.add_service(EmcyProducer(settings.emcy_history, settings.emcy_queue))

@@ -17,11 +17,12 @@ needs on top of it:
   :meth:`set`; reloads at a reset do not call them);
 * :meth:`write` checks existence, access, length, type and range (0609 0031/0032)
   and runs the validators *before* the value changes; it raises :class:`SdoAbort`;
-* for a device read from an EDS/DCF (:mod:`..device`): objects added as canopen's import
-  made them (:meth:`add_object`), *readers* (:meth:`add_reader`) that serve SDO uploads
-  of an entry (and may raise :class:`~.abort.Deferred`, as validators may), objects the
-  node keeps for its services but does not serve (:meth:`hide`: 0602 0000, not in the
-  EDS) and entries a store does not save (``volatile``: StorageLocation=RAM).
+* for a device read from an EDS/DCF (:mod:`..device`, whose objects
+  :class:`~.od_file.FileDictionary` adds as canopen's import made them): *readers*
+  (:meth:`add_reader`) that serve SDO uploads of an entry (and may raise
+  :class:`~.abort.Deferred`, as validators may), objects the node keeps for its services but
+  does not serve (``hidden``: 0602 0000, not in the EDS) and entries a store does not save
+  (``volatile``: StorageLocation=RAM).
 
 Other services (PDO engine, CiA 401 objects, LSS) add their entries with
 :meth:`add_variable` / :meth:`add_record` / :meth:`add_array` and hook in with
@@ -205,46 +206,6 @@ class Dictionary:
         array = self.add_record(index, name, members, array=True)
         assert isinstance(array, cod.ODArray)
         return array
-
-    def add_object(self, obj: cod.ODVariable | cod.ODRecord | cod.ODArray) -> None:
-        """An object as canopen's EDS/DCF import built it: its entries start at their defaults."""
-        self.model.add_object(obj)
-        members = [obj] if isinstance(obj, cod.ODVariable) else list(obj.subindices.values())
-        for var in members:
-            self._values[(var.index, var.subindex)] = self.default(var)
-        self.generation += 1
-
-    def adopt(self, var: cod.ODVariable) -> None:
-        """Describe an entry by ``var`` (an EDS/DCF device's name, access, limits, default), an
-        entry of an existing object or a new sub-index of one; its value restarts at that
-        default unless a getter serves it."""
-        index, sub = var.index, var.subindex
-        obj = self.model.indices[index]
-        if isinstance(obj, cod.ODVariable):
-            self.model.indices[index] = var
-            self.model.names[var.name] = var
-        else:
-            var.parent = obj
-            obj.subindices[sub] = var
-            obj.names[var.name] = var
-        if (index, sub) not in self._getters:
-            self._values[(index, sub)] = self.default(var)
-        self.generation += 1
-
-    def drop_entry(self, index: int, subindex: int) -> None:
-        """Stop serving one sub-index of a record (0609 0011) whose owner keeps its value
-        elsewhere (the PDO engine's parameters): an EDS device's file does not list it."""
-        obj = self.model.indices[index]
-        if not isinstance(obj, cod.ODVariable) and subindex in obj.subindices:
-            var = obj.subindices.pop(subindex)
-            obj.names.pop(var.name, None)
-            self.generation += 1
-
-    def hide(self, index: int) -> None:
-        """Keep ``index`` for the services that read it, but do not serve it (SDO: 0602 0000;
-        PDO mapping: no such entry; left out of the EDS)."""
-        self._hidden.add(index)
-        self.generation += 1
 
     @property
     def hidden(self) -> frozenset[int]:

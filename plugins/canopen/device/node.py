@@ -29,6 +29,7 @@ from canopen import objectdictionary as cod
 
 from ..cia301.builder import NodeSettings, build_node
 from ..cia301.entries import _FORMATS, Directory, Entry, ObjectDef
+from ..cia301.od_file import FileDictionary
 from ..cia301.pdo.engine import PdoEngine
 from ..cia301.pdo.service import PdoConfig, PdoService
 from ..cia301.sdo import SdoServer
@@ -109,7 +110,8 @@ class DeviceNode:
         self.notes: list[str] = list(device.notes)
         self.directory = Directory(self._mappable_objects())
         settings = self._settings(node_id, store_path, sdo_timeout_s, serial)
-        self.node = node = build_node(settings, name=name)
+        self.od = FileDictionary()
+        self.node = node = build_node(settings, name=name, od=self.od)
         self.clock = clock or (lambda: node.now)
         if lss if lss is not None else device.lss:
             node.add_service(
@@ -193,7 +195,7 @@ class DeviceNode:
         return [ObjectDef(i, names[i][0], names[i][1], entries) for i, entries in by_index.items()]
 
     def _lay_over(self) -> None:
-        od, model = self.node.od, self.node.od.model
+        od, model = self.od, self.od.model
         for index, obj in list(self.device.model.indices.items()):
             if index not in model.indices:
                 od.add_object(obj)
@@ -219,7 +221,7 @@ class DeviceNode:
                 od.hide(index)
 
     def _adopt(self, var: cod.ODVariable) -> None:
-        od = self.node.od
+        od = self.od
         key = (var.index, var.subindex)
         if key in od:
             ours = od.variable(*key)
