@@ -2,7 +2,7 @@
 under attack, in the same run (issue 29).
 
 Run:  .venv/bin/python bench/isolation.py [--phase-s S] [--rounds R] [--attacks LIST]
-      [--attackers-nice N] [--loop auto|uvloop|asyncio]
+      [--attackers-nice N] [--fieldbus-nice N] [--loop auto|uvloop|asyncio]
       (about (1 + attacks) x R x S seconds; default 2 rounds of 8 s, 6 attacks: about 2 minutes)
 
 One gateway (examples/plant-northbound.yaml: CANopen on python-can's in-process ``virtual``
@@ -436,7 +436,7 @@ def run(args: argparse.Namespace) -> int:
                 broker.start()
         except ImportError:
             pass
-        gw = GatewayThread(args.loop, state_dir, ports)
+        gw = GatewayThread(args.loop, state_dir, ports, fieldbus_nice=args.fieldbus_nice)
         gw.start()
         time.sleep(2.0)  # every child has reported once
         bus = can.Bus(interface="virtual", channel=gw.channel, receive_own_messages=False)
@@ -449,7 +449,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"fieldgate isolation bench: event loop {loop_name(gw.loop)}, {args.rounds} round(s) of "
             f"{args.phase_s:.0f} s per condition ({', '.join(conditions)}), attackers at nice "
-            f"{args.attackers_nice}, broker {'Mosquitto' if broker else 'none'}",
+            f"{args.attackers_nice}, fieldbus process at nice {os.nice(0) if args.fieldbus_nice is None else args.fieldbus_nice}, "
+            f"broker {'Mosquitto' if broker else 'none'}",
             flush=True,
         )
         try:
@@ -584,6 +585,12 @@ def main() -> int:
         "--attacks", default=",".join(ATTACKS), help="comma-separated: " + ",".join(ATTACKS)
     )
     parser.add_argument("--attackers-nice", type=int, default=19)
+    parser.add_argument(
+        "--fieldbus-nice",
+        type=int,
+        default=None,
+        help="niceness the fieldbus process asks for (the unit's Nice=-5; below 0 needs root)",
+    )
     parser.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto")
     parser.add_argument("--attack", help=argparse.SUPPRESS)
     parser.add_argument("--ports", help=argparse.SUPPRESS)
