@@ -200,7 +200,9 @@ def format_image(image: ProcessImage) -> str:
 LOG_LEVELS = ["debug", "info", "warning", "error"]
 
 
-def build_parser(registry: Registry) -> argparse.ArgumentParser:
+def build_parser(registry: Registry, *, run_only: bool = False) -> argparse.ArgumentParser:
+    """The command line; ``run_only``: ``validate`` and ``run`` alone (``fieldgate run FILE``:
+    the other commands' modules stay unloaded, a gateway's memory is what it runs)."""
     parser = argparse.ArgumentParser(
         prog="fieldgate",
         description="Fieldbus gateway: fieldbus slave fronts, RS-485 poller backs, one YAML topology.",
@@ -275,6 +277,8 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
         "a non-loopback address needs a token in the topology)",
     )
     p.set_defaults(handler=cmd_run)
+    if run_only:
+        return parser
 
     from . import doctorcmd as doctor
 
@@ -433,8 +437,9 @@ def topology_types(argv: list[str]) -> set[str] | None:
 def main(argv: list[str] | None = None) -> int:
     setup_logging("warning")
     args_given = sys.argv[1:] if argv is None else argv
-    registry = load_registry(only=topology_types(args_given))
-    parser = build_parser(registry)
+    types = topology_types(args_given)
+    registry = load_registry(only=types)
+    parser = build_parser(registry, run_only=types is not None)
     args = parser.parse_args(argv)
     setup_logging(args.log_level, args.log_format)
     try:
