@@ -37,17 +37,25 @@ from fieldgate.polling import CommError, LineJob, SerialBack
 from fieldgate.serial_link import AsyncSerial
 from fieldgate.topology import ModuleConfig
 
-from .autoscan import NothingFound, StartScan, expected_modules, find_modules
+from .autoscan import (
+    NothingFound,
+    StartScan,
+    expected_modules,
+    find_modules,
+    previous_start,
+    verified,
+)
 from .codec import BAUD_CODES, HOST_OK
 from .config import DconBackConfig, DconModuleConfig, parse_addresses
 from .link import DconLink
 from .module import DconModule
 from .profiles import AIDIO, AO_SINGLE
 from .scan import scan_line, scanned
-from .scanfile import ScanFile
+from .scanfile import ScanFile, ScannedModule
 
 log = logging.getLogger("fieldgate.dcon")
 SURVEY_PERIOD_S = 1.0  # listed modules: one other address probed a second
+VERIFY_PERIOD_S = 0.2  # modules: auto from the previous scan: one address checked each 0.2 s
 RESCAN_FIRST_S, RESCAN_MAX_S = 2.0, 60.0  # modules: auto with nothing expected: scan back-off
 
 
@@ -85,6 +93,11 @@ class DconBack(SerialBack):
         self.survey: list[str] = []
         self._survey_left: list[int] | None = None
         self.survey_done = False
+        # modules: auto started from the previous scan: the addresses still to verify, what
+        # answered, and the previous modules that get a second probe before they count missing
+        self._verify_left: list[int] = []
+        self._verify_found: list[ScannedModule] = []
+        self._verify_again: list[int] | None = None
         context.masters.subscribe(self._on_master)
 
     # -- SerialBack -------------------------------------------------------------------
@@ -98,6 +111,13 @@ class DconBack(SerialBack):
         keeps them: the fronts built on them). A missing port or a silent line does not stop
         the start: see :meth:`_start_without_scan`."""
         cfg = self.config
+        previous = previous_start(cfg, self.context.state_dir)
+        if previous is not None:  # start at once; the line is verified in the background
+            cfg.baudrate, cfg.checksum = previous.baudrate, previous.checksum
+            self._take_modules(previous.configs())
+            self.start_scan = previous
+            self._verify_left = parse_addresses(cfg.scan.addresses)
+            return
         try:
             result = await find_modules(cfg, self.context.state_dir, self.reply_timeout_ms)
         except (PortUnavailable, NothingFound) as exc:
@@ -228,7 +248,17 @@ class DconBack(SerialBack):
         jobs.append(LineJob("host-ok", period or 1.0, self._host_ok, self._host_ok_wanted))
         if self._rescan_due is not None:
             jobs.append(LineJob("rescan", 0.5, self._rescan, self._rescan_wanted))
-        if self.scan_problem is not None and self.scan_problem["modules"]:
+        if self._verify_left:
+            jobs.append(
+                LineJob(
+                    "verify",
+                    VERIFY_PERIOD_S,
+                    self._verify_one,
+                    self._verify_wanted,
+                    self.context.clock() + VERIFY_PERIOD_S,  # the modules' first polls first
+                )
+            )
+        if (self.scan_problem is not None and self.scan_problem["modules"]) or self._verify_left:
             jobs.append(LineJob("init-check", 0.5, self._init_check, self._init_pending))
         cfg = self.config
         if self._survey_left is None:  # once per process, not at each restart of the back
@@ -254,8 +284,8 @@ class DconBack(SerialBack):
         """The expected modules of a start without a scan: once every one has answered, the
         init error ends (no line traffic: the health of the modules' polls says it)."""
         if all(h.last_success is not None and h.online for h in self.health.values()):
-            assert self.scan_problem is not None
-            self.scan_problem["resolved"] = True
+            if self.scan_problem is not None:
+                self.scan_problem["resolved"] = True
             log.info("%s: every expected module answers: the init error ends", self.name)
             self.context.health.back_error(self.name, None)
 
@@ -292,6 +322,53 @@ class DconBack(SerialBack):
             "gateway to serve them (the scan is recorded for the next start)",
             self.name,
             ", ".join(self.scan_problem["found_later"]),
+        )
+
+    def _verify_wanted(self) -> bool:
+        """As the survey: not while a host watchdog is on (an empty address holds the line)."""
+        return bool(self._verify_left) and not any(
+            m.watchdog_enabled for m in self.modules.values()
+        )
+
+    async def _verify_one(self) -> None:
+        """modules: auto started from the previous scan: probe one address of the line at its
+        setting; after the last (and a second probe of a previous module that was silent),
+        compare with the image (:func:`verified`)."""
+        assert self.dcon is not None and self.start_scan is not None and self._verify_left
+        cfg = self.config
+        address = self._verify_left.pop(0)
+        found = await scan_line(self.dcon, [address], cfg.baudrate, report=lambda text: None)
+        self._verify_found += [scanned(f, cfg.checksum) for f in found]
+        if self._verify_left:
+            return
+        if self._verify_again is None:
+            seen = {m.address for m in self._verify_found}
+            self._verify_again = [
+                m.address
+                for m in self.start_scan.modules
+                if m.model is not None and m.address not in seen
+            ]
+            if self._verify_again:
+                self._verify_left = list(self._verify_again)
+                return
+        found_all = sorted(self._verify_found, key=lambda m: m.address)
+        if any(m.model is not None for m in found_all):
+            verified(cfg, self.context.state_dir, self.start_scan, found_all)
+            return
+        # a silent line: the previous scan stays the record (as a start that found nothing),
+        # and the fronts show the init error until every module has answered
+        self.start_scan.verified = "silent"
+        why = (
+            f"modules: auto: no DCON module answered on {cfg.port} (addresses "
+            f"{cfg.scan.addresses}; {cfg.baudrate} bit/s checksum "
+            f"{'on' if cfg.checksum else 'off'}; reply timeout {self.reply_timeout_ms} ms)"
+        )
+        self.context.health.back_error(self.name, f"DCON modules init error: {why}")
+        log.error(
+            "%s: %s; the %d module(s) of the previous start's scan stay offline until they answer",
+            self.name,
+            why,
+            len(cfg.modules),
         )
 
     def _survey_wanted(self) -> bool:
