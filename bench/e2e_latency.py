@@ -87,8 +87,17 @@ def responder(port: str) -> None:
                 buf = b""
                 break
             if function in (5, 6, 15, 16):  # a write, whichever function the master uses
-                at = {5: 4, 6: 5, 15: 7, 16: 8}[function]  # the (first) value's byte
-                coils = frame[at]
+                start = int.from_bytes(frame[2:4], "big")
+                if function == 5:  # one coil
+                    bit = 1 << start
+                    coils = coils | bit if frame[4] == 0xFF else coils & ~bit
+                elif function == 15:  # coils from `start`, LSB first
+                    count = int.from_bytes(frame[4:6], "big")
+                    bits = int.from_bytes(frame[7 : 7 + frame[6]], "little")
+                    for n in range(count):
+                        bit = 1 << (start + n)
+                        coils = coils | bit if bits >> n & 1 else coils & ~bit
+                coils &= 0xFF
                 print(f"W {time.monotonic():.6f} {coils} {function}", flush=True)
                 reply = frame[:6]
             elif function in (1, 2):
