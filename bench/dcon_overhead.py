@@ -32,6 +32,9 @@ from functools import partial
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout too
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the paced wire
+
+from paced_wire import PacedWire  # noqa: E402
 
 from fieldgate.plugin import GatewayContext  # noqa: E402
 from fieldgate.plugins.dcon import codec  # noqa: E402
@@ -181,7 +184,9 @@ async def start_child_simulator(port_args: list[str]):
 async def cycle_time(baud: int | None, cycles: int) -> tuple[float, float, list[float]]:
     """(seconds per poll cycle, transactions per cycle, master turnarounds) through DconBack +
     LineScheduler, the simulator in a child process serving the far end of a (paced) pty pair."""
-    with PtyPair(baudrate=baud) as pair, Turnaround() as turnaround:
+    # paced: the tests' wire (tests/paced_wire.py), byte by byte in a process of its own as
+    # a UART is other hardware (PtyPair relays whole chunks from threads of this process)
+    with PacedWire(baud) if baud else PtyPair() as pair, Turnaround() as turnaround:
         proc, _ = await start_child_simulator(["--port", pair.b])
         cfg = line_config(pair.a, baud or 115200)
         topology = Topology(
@@ -286,4 +291,9 @@ def _cycle_wire(baud: int) -> float:
 
 
 if __name__ == "__main__":
-    asyncio.run(main())
+    # on the loop `fieldgate run` uses (uvloop where installed; BENCH_LOOP=asyncio for the other)
+    from fieldgate.cli import loop_factory  # noqa: E402
+
+    with asyncio.Runner(loop_factory=loop_factory(os.environ.get("BENCH_LOOP", "auto"))) as runner:
+        print(f"event loop: {type(runner.get_loop()).__module__.split('.')[0]}")
+        runner.run(main())

@@ -203,9 +203,11 @@ LOG_LEVELS = ["debug", "info", "warning", "error"]
 Subparsers: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"
 
 
-def build_parser(registry: Registry) -> argparse.ArgumentParser:
+def build_parser(registry: Registry, *, run_only: bool = False) -> argparse.ArgumentParser:
     """The command line: core's commands, then the plugins' (``simulate BACK``, ``scan
-    BACK``, their own commands), in the order ``--help`` lists them."""
+    BACK``, their own commands), in the order ``--help`` lists them; ``run_only``:
+    ``validate`` and ``run`` alone (``fieldgate run FILE``: the other commands' modules stay
+    unloaded, a gateway's memory is what it runs)."""
     parser = argparse.ArgumentParser(
         prog="fieldgate",
         description="Fieldbus gateway: fieldbus slave fronts, RS-485 poller backs, one YAML topology.",
@@ -219,6 +221,8 @@ def build_parser(registry: Registry) -> argparse.ArgumentParser:
         parser.add_subparsers(dest="command", metavar="COMMAND", required=True), common
     )
     _add_topology_commands(sub)
+    if run_only:
+        return parser
     _add_host_commands(sub, registry)
     groups = _CommandGroups(sub, common)
     _add_back_commands(groups, registry)
@@ -463,8 +467,9 @@ def topology_types(argv: list[str]) -> set[str] | None:
 def main(argv: list[str] | None = None) -> int:
     setup_logging("warning")
     args_given = sys.argv[1:] if argv is None else argv
-    registry = load_registry(only=topology_types(args_given))
-    parser = build_parser(registry)
+    types = topology_types(args_given)
+    registry = load_registry(only=types)
+    parser = build_parser(registry, run_only=types is not None)
     args = parser.parse_args(argv)
     setup_logging(args.log_level, args.log_format)
     try:

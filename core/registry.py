@@ -13,7 +13,9 @@ from __future__ import annotations
 import argparse
 import copy
 import importlib.metadata
+import importlib.util
 import logging
+import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -76,6 +78,29 @@ class ComponentType:
     plugin: str
     description: str = ""
     north: bool = False  # accepts network clients or talks to a broker: runs in a child process
+    needs: tuple[str, ...] = ()  # modules its component imports (an optional dependency's)
+    install: str = ""  # what installs them, e.g. "pip install 'fieldgate[opcua]'"
+
+    def missing(self) -> str:
+        """One line when a module this type needs is not installed, naming what installs it
+        ("" when all are there). Checked without importing them (``find_spec``), so
+        ``validate`` and ``run`` say it before anything starts."""
+        absent = [name for name in self.needs if not module_installed(name)]
+        if not absent:
+            return ""
+        what = " and ".join(absent)
+        fix = f": {self.install}" if self.install else ""
+        return f"{self.role} type '{self.type_name}' needs {what}, which is not installed{fix}"
+
+
+def module_installed(name: str) -> bool:
+    """Whether ``name`` can be imported, without importing it (a parent package is)."""
+    if name in sys.modules:
+        return sys.modules[name] is not None  # None: an import that is known to fail
+    try:
+        return importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):  # a parent package missing or blocked
+        return False
 
 
 @dataclass(frozen=True)
@@ -130,14 +155,21 @@ class Registry:
         description: str = "",
         *,
         north: bool = False,
+        needs: tuple[str, ...] = (),
+        install: str = "",
     ) -> None:
         """A front type. ``north=True``: it accepts network clients (a server: OPC UA, Modbus
         TCP) or talks to a broker (Sparkplug); the gateway runs each such front in a child
         process of its own, against a mirror of the process image, so no client can stop or
         slow the fieldbus side (docs/architecture.md, "Process layout"). Its factory must be
         importable by name (a module-level function), and the front writes outputs only with
-        :meth:`GatewayContext.set_outputs`."""
-        self._add("front", type_name, model, factory, description, north)
+        :meth:`GatewayContext.set_outputs`.
+
+        ``needs``: modules its front imports that are an optional dependency (an extra of
+        the plugin's distribution), ``install``: the command that installs them; a topology
+        with this front then fails ``validate`` and ``run`` with one line naming that
+        command while one is missing (:meth:`ComponentType.missing`)."""
+        self._add("front", type_name, model, factory, description, north, needs, install)
 
     def add_back(
         self,
@@ -145,8 +177,12 @@ class Registry:
         model: type[BackModel],
         factory: Callable[[BackModel, GatewayContext], Back],
         description: str = "",
+        *,
+        needs: tuple[str, ...] = (),
+        install: str = "",
     ) -> None:
-        self._add("back", type_name, model, factory, description)
+        """A back type; ``needs`` and ``install`` as for :meth:`add_front`."""
+        self._add("back", type_name, model, factory, description, False, needs, install)
 
     def add_model(self, type_name: str, model: type[StrictModel], description: str = "") -> None:
         """A device model type: the topology's ``models:`` entries of this ``type`` are validated
@@ -231,6 +267,8 @@ class Registry:
         factory: Callable[..., Any],
         description: str,
         north: bool = False,
+        needs: tuple[str, ...] = (),
+        install: str = "",
     ) -> None:
         key = (role, type_name)
         if key in self.types:
@@ -238,7 +276,15 @@ class Registry:
                 f"{role} type {type_name!r} registered by both {self.types[key].plugin} and {self._current}"
             )
         self.types[key] = ComponentType(
-            role, type_name, model, factory, self._current, description, north
+            role,
+            type_name,
+            model,
+            factory,
+            self._current,
+            description,
+            north,
+            tuple(needs),
+            install,
         )
         if self._current in self.plugins:
             self.plugins[self._current].provides.append(f"{role}:{type_name}")

@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 from .backoff import Backoff
 from .cancellation import raise_if_cancelled
@@ -28,6 +29,9 @@ from .plugin import Component, GatewayContext, PluginStartError, Registry, load_
 from .procstat import own_process
 from .simulation import SimulationBench
 from .topology import Topology, load_topology
+
+if TYPE_CHECKING:
+    from .isolation.front import IsolatedFront
 
 log = logging.getLogger("fieldgate.runtime")
 
@@ -186,9 +190,10 @@ class Gateway:
 
     @staticmethod
     def _north(comp: Component) -> bool:
-        from .isolation.front import IsolatedFront
-
-        return isinstance(comp, IsolatedFront)
+        """A front in a child process (the isolation modules load only for a topology that
+        has one: a fieldbus-only gateway does not pay their memory)."""
+        front = sys.modules.get(f"{__package__}.isolation.front")
+        return front is not None and isinstance(comp, front.IsolatedFront)
 
     def _ask_priority(self) -> None:
         nice = self.topology.gateway.isolation.fieldbus_nice
@@ -421,10 +426,10 @@ class Gateway:
 
     def children_status(self) -> dict[str, dict[str, Any]]:
         """The north-facing child processes: pid, memory, CPU, feed, writes, kills."""
-        from .isolation.front import IsolatedFront
-
         children = {
-            c.name: c.child.process_status() for c in self.fronts if isinstance(c, IsolatedFront)
+            c.name: cast("IsolatedFront", c).child.process_status()
+            for c in self.fronts
+            if self._north(c)
         }
         child = getattr(self.http, "child", None)  # tests may run the service in this process
         if child is not None:

@@ -76,8 +76,12 @@ def test_the_example_builds_installs_and_runs_from_wheels_in_a_fresh_venv():
     assert done == [
         "ok: wheels built without warnings",
         "ok: installed in a fresh venv without warnings",
+        "ok: the base wheel pulls neither asyncua nor paho-mqtt nor protobuf"
+        " (extras opcua, sparkplug, modbus-tcp, all)",
         "ok: fieldgate plugins (no test plugin, no failure)",
         "ok: validate, eds and run --simulate of examples/i7232d-style.yaml",
+        "ok: validate of a topology whose fronts' extras are missing names"
+        " 'pip install fieldgate[opcua]' and [sparkplug]",
         "ok: eds of examples/i7241d-style.yaml (DeviceNet)",
         "ok: validate and run --simulate of the example plugin's lab.yaml",
         "ok: the example plugin's tests",

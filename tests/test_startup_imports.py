@@ -29,3 +29,46 @@ def loaded_after(code: str) -> set[str]:
 
 def test_loading_the_plugins_imports_no_server_library():
     assert loaded_after(PROBE % (HEAVY,)) == set()
+
+
+# what `fieldgate run` of a fieldbus-only topology leaves unloaded (issue 33, its memory):
+# the other commands, the north-facing children's modules, the Modbus TCP client, the
+# front's libraries and difflib (suggestions for a wrong name)
+NOT_ON_THE_FIELDBUS_PATH = (
+    "fieldgate.doctorcmd",
+    "fieldgate.statuscmd",
+    "fieldgate.simcmd",
+    "fieldgate.scancmd",
+    "fieldgate.edscmd",
+    "fieldgate.isolation.front",
+    "fieldgate.isolation.feed",
+    "fieldgate.plugins.modbus.tcp_back",
+    "fieldgate.plugins.modbus.tcp_link",
+    "fieldgate.plugins.modbus.tcp_simulator",
+    "fieldgate.plugins.sparkplug",
+    "fieldgate.plugins.opcua",
+    "pickle",
+    "difflib",
+    "aiohttp",
+    "asyncua",
+    "paho",
+    "google.protobuf",
+)
+
+RUN = """
+import sys
+from pathlib import Path
+from fieldgate.cli import main
+example = Path(%r)
+code = main(["run", str(example), "--simulate", "--duration", "0.3"])
+assert code == 0, code
+assert "fieldgate.plugins.modbus.simulator" in sys.modules  # the probe sees what it loaded
+print(" ".join(name for name in %r if name in sys.modules))
+"""
+
+
+def test_a_fieldbus_only_gateway_loads_no_module_it_does_not_run(tmp_path):
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "i7232d-style.yaml"
+    assert loaded_after(RUN % (str(example), NOT_ON_THE_FIELDBUS_PATH)) == set()

@@ -140,6 +140,8 @@ class _ComponentType(Protocol):
     @property
     def model(self) -> type[FrontConfig] | type[BackConfig] | type[StrictModel]: ...
 
+    def missing(self) -> str: ...  # an optional dependency it needs that is not installed
+
 
 class ComponentTypes(Protocol):
     """What validation needs of the plugin registry (:class:`fieldgate.plugin.Registry` is one)."""
@@ -377,6 +379,11 @@ def validate(
             base = (f"{role}s", i)
             ctype = _component_type(registry, role, entry, data, base, file, issues)
             if ctype is None:
+                continue
+            missing = ctype.missing()
+            if missing:
+                line, col = position(data, base + ("type",))
+                issues.append(ConfigIssue(file, line, col, dotted(base + ("type",)), missing))
                 continue
             try:
                 config = ctype.model.model_validate(dict(entry), context=context)

@@ -33,7 +33,7 @@ Identifier = Annotated[str, StringConstraints(pattern=r"^[A-Za-z][A-Za-z0-9_-]*$
 class StrictModel(BaseModel):
     """Every topology model forbids unknown keys; the error report suggests the closest one."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, defer_build=True)
 
 
 class ValueMode(StrictModel):

@@ -56,6 +56,9 @@ class StartScan:
     changes: list[str] = field(default_factory=list)  # against the previous start
     against_scan_file: list[str] = field(default_factory=list)
     scanned: str = ""
+    # started from the previous start's scan (its file), verified on the line in the background
+    from_previous: str = ""
+    verified: str = ""  # "pending", then "same", "changed" or "silent" (from_previous only)
 
     def configs(self) -> list[DconModuleConfig]:
         return [
@@ -73,7 +76,99 @@ class StartScan:
             "left_out": list(self.left_out),
             "changed_since_last_start": list(self.changes),
             "differs_from_scan_file": list(self.against_scan_file),
+            **(
+                {"from_previous": self.from_previous, "verified": self.verified}
+                if self.from_previous
+                else {}
+            ),
         }
+
+
+def previous_start(config: DconBackConfig, state_dir: Path) -> StartScan | None:
+    """The previous start's scan as this start's result, when it can stand for the line until
+    the background check has probed it (``scan.from_previous``, docs/dcon.md): recorded with
+    the topology's scan settings, with supported modules. None: probe first."""
+    if not config.scan.from_previous:
+        return None
+    record = state_dir / f"{config.name}.dcon-scan.json"
+    previous = _previous(config, record)
+    # (not the port's name: a pseudo-terminal's changes at each start, and a line moved to
+    # another adapter is what the background check finds)
+    if previous is None or (
+        previous.addresses,
+        previous.baudrates,
+        previous.checksums,
+    ) != (
+        config.scan.addresses,
+        config.scan.baudrates or [config.baudrate],
+        config.scan.checksums if config.scan.checksums is not None else [config.checksum],
+    ):
+        return None
+    supported = previous.supported()
+    if not supported:
+        return None
+    line = supported[0].baudrate, supported[0].checksum
+    modules = [m for m in previous.modules if (m.baudrate, m.checksum) == line]
+    result = StartScan(config.port, *line, sorted(modules, key=lambda m: m.address))
+    if not result.configs():
+        return None
+    result.scanned, result.from_previous, result.verified = previous.scanned, str(record), "pending"
+    log.info(
+        "%s: %d DCON module(s) from the previous start's scan (%s, %s), at %d bit/s, checksum "
+        "%s; verifying the line in the background",
+        config.name,
+        len(result.configs()),
+        record,
+        previous.scanned,
+        result.baudrate,
+        "on" if result.checksum else "off",
+    )
+    return result
+
+
+def verified(
+    config: DconBackConfig, state_dir: Path, result: StartScan, found: list[ScannedModule]
+) -> list[str]:
+    """The background check of a start from the previous scan is done: ``found`` is what the
+    line's addresses answered at its setting. Returns the changes (empty: the same image);
+    a changed line is recorded for the next start and logged (the image was built from the
+    previous scan: a restart serves the new one)."""
+    changes = differences(result.modules, found)
+    result.verified = "changed" if changes else "same"
+    if config.scan_file is not None:
+        result.against_scan_file = differences(config.scan_file.modules, found)
+        if result.against_scan_file:
+            log.warning(
+                "%s: the line differs from the scan file %s (an EDS made from it no longer "
+                "matches): %s",
+                config.name,
+                config.scan.file,
+                "; ".join(result.against_scan_file),
+            )
+    if not changes:
+        log.info("%s: the line answers as the previous start's scan said", config.name)
+        return []
+    result.changes = changes
+    record = state_dir / f"{config.name}.dcon-scan.json"
+    now = ScanFile(
+        config.port,
+        found,
+        config.scan.addresses,
+        config.scan.baudrates or [config.baudrate],
+        config.scan.checksums if config.scan.checksums is not None else [config.checksum],
+    )
+    try:
+        now.write(record)
+    except OSError as exc:
+        log.error("%s: cannot record the scan in %s: %s", config.name, record, exc.strerror or exc)
+    log.warning(
+        "%s: the line changed since the last start (%s); the image was built from the previous "
+        "scan: restart the gateway to serve the line as it is now (the scan is recorded for the "
+        "next start)",
+        config.name,
+        "; ".join(changes),
+    )
+    return changes
 
 
 async def find_modules(config: DconBackConfig, state_dir: Path, timeout_ms: int) -> StartScan:

@@ -144,6 +144,10 @@ class ScanSettings(StrictModel):
         None,
         description="scan file (fieldgate scan dcon --output) giving the modules where the line is not there: validate, EDS, --simulate; relative to the topology file",
     )
+    from_previous: bool = Field(
+        True,
+        description="modules: auto: start at once with the previous start's scan (in the state directory, made with these scan settings) and verify the line in the background; false: probe the line before starting, every start",
+    )
     survey: bool = Field(
         False,
         description="with listed modules: probe the other addresses once after start (one a second, not while a host watchdog is on) and warn about modules the topology does not list",

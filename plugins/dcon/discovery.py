@@ -1,6 +1,7 @@
 """How a ``dcon`` back learns its line's modules beyond the topology's list.
 
-* ``modules: auto``: the start scan (:mod:`.autoscan`); when the port is missing or the line
+* ``modules: auto``: the start scan (:mod:`.autoscan`), or at once the previous start's scan
+  with the line verified in the background (``scan.from_previous``); when the port is missing or the line
   silent, the back starts anyway with the modules it expects (the previous start's scan,
   else the scan file) and shows the I-7231D/I-7241D's "DCON modules init error" until they
   answer; with nothing to expect it scans the line again on a back-off and, when modules
@@ -21,14 +22,22 @@ from fieldgate.health import ModuleHealth
 from fieldgate.plugin import GatewayContext, PortUnavailable
 from fieldgate.polling import LineJob
 
-from .autoscan import NothingFound, StartScan, expected_modules, find_modules
+from .autoscan import (
+    NothingFound,
+    StartScan,
+    expected_modules,
+    find_modules,
+    previous_start,
+    verified,
+)
 from .config import DconBackConfig, DconModuleConfig, parse_addresses
 from .link import DconLink
 from .scan import scan_line, scanned
-from .scanfile import ScanFile
+from .scanfile import ScanFile, ScannedModule
 
 log = logging.getLogger("fieldgate.dcon")
 SURVEY_PERIOD_S = 1.0  # listed modules: one other address probed a second
+VERIFY_PERIOD_S = 0.2  # modules: auto from the previous scan: one address checked each 0.2 s
 RESCAN_FIRST_S, RESCAN_MAX_S = 2.0, 60.0  # modules: auto with nothing expected: scan back-off
 
 
@@ -44,6 +53,7 @@ class LineDiscovery:
         self.config = config
         self.context = context
         self.take_modules = take_modules  # the back registers their health and channels
+        self.reply_timeout_ms = config.timeout_ms
         self.start_scan: StartScan | None = None  # modules: auto, once per process
         # modules: auto whose start scan found nothing (port missing, line silent): why, and
         # what the back does about it (status "start_scan")
@@ -54,6 +64,11 @@ class LineDiscovery:
         self.survey: list[str] = []
         self.survey_left: list[int] | None = None
         self.survey_done = False
+        # modules: auto started from the previous scan: the addresses still to verify, what
+        # answered, and the previous modules that get a second probe before they count missing
+        self._verify_left: list[int] = []
+        self._verify_found: list[ScannedModule] = []
+        self._verify_again: list[int] | None = None
 
     # -- modules: auto ----------------------------------------------------------------------
     async def find_modules(self, reply_timeout_ms: int) -> None:
@@ -61,6 +76,14 @@ class LineDiscovery:
         keeps them: the fronts built on them). A missing port or a silent line does not stop
         the start: see :meth:`start_without_scan`."""
         cfg = self.config
+        self.reply_timeout_ms = reply_timeout_ms
+        previous = previous_start(cfg, self.context.state_dir)
+        if previous is not None:  # start at once; the line is verified in the background
+            cfg.baudrate, cfg.checksum = previous.baudrate, previous.checksum
+            self.take_modules(previous.configs())
+            self.start_scan = previous
+            self._verify_left = parse_addresses(cfg.scan.addresses)
+            return
         try:
             result = await find_modules(cfg, self.context.state_dir, reply_timeout_ms)
         except (PortUnavailable, NothingFound) as exc:
@@ -121,7 +144,17 @@ class LineDiscovery:
         jobs = []
         if self._rescan_due is not None:
             jobs.append(LineJob("rescan", 0.5, lambda: self._rescan(link()), self._rescan_wanted))
-        if self.scan_problem is not None and self.scan_problem["modules"]:
+        if self._verify_left:
+            jobs.append(
+                LineJob(
+                    "verify",
+                    VERIFY_PERIOD_S,
+                    lambda: self._verify_one(link()),
+                    lambda: bool(self._verify_left) and not watchdog_on(),  # as the survey
+                    self.context.clock() + VERIFY_PERIOD_S,  # the modules' first polls first
+                )
+            )
+        if (self.scan_problem is not None and self.scan_problem["modules"]) or self._verify_left:
             jobs.append(
                 LineJob("init-check", 0.5, lambda: self._init_check(health()), self._init_pending)
             )
@@ -157,8 +190,8 @@ class LineDiscovery:
         """The expected modules of a start without a scan: once every one has answered, the
         init error ends (no line traffic: the health of the modules' polls says it)."""
         if all(h.last_success is not None and h.online for h in health):
-            assert self.scan_problem is not None
-            self.scan_problem["resolved"] = True
+            if self.scan_problem is not None:
+                self.scan_problem["resolved"] = True
             log.info("%s: every expected module answers: the init error ends", self.name)
             self.context.health.back_error(self.name, None)
 
@@ -195,6 +228,47 @@ class LineDiscovery:
             "gateway to serve them (the scan is recorded for the next start)",
             self.name,
             ", ".join(self.scan_problem["found_later"]),
+        )
+
+    async def _verify_one(self, dcon: DconLink | None) -> None:
+        """modules: auto started from the previous scan: probe one address of the line at its
+        setting; after the last (and a second probe of a previous module that was silent),
+        compare with the image (:func:`.autoscan.verified`)."""
+        assert dcon is not None and self.start_scan is not None and self._verify_left
+        cfg = self.config
+        address = self._verify_left.pop(0)
+        found = await scan_line(dcon, [address], cfg.baudrate, report=lambda text: None)
+        self._verify_found += [scanned(f, cfg.checksum) for f in found]
+        if self._verify_left:
+            return
+        if self._verify_again is None:
+            seen = {m.address for m in self._verify_found}
+            self._verify_again = [
+                m.address
+                for m in self.start_scan.modules
+                if m.model is not None and m.address not in seen
+            ]
+            if self._verify_again:
+                self._verify_left = list(self._verify_again)
+                return
+        found_all = sorted(self._verify_found, key=lambda m: m.address)
+        if any(m.model is not None for m in found_all):
+            verified(cfg, self.context.state_dir, self.start_scan, found_all)
+            return
+        # a silent line: the previous scan stays the record (as a start that found nothing),
+        # and the fronts show the init error until every module has answered
+        self.start_scan.verified = "silent"
+        why = (
+            f"modules: auto: no DCON module answered on {cfg.port} (addresses "
+            f"{cfg.scan.addresses}; {cfg.baudrate} bit/s checksum "
+            f"{'on' if cfg.checksum else 'off'}; reply timeout {self.reply_timeout_ms} ms)"
+        )
+        self.context.health.back_error(self.name, f"DCON modules init error: {why}")
+        log.error(
+            "%s: %s; the %d module(s) of the previous start's scan stay offline until they answer",
+            self.name,
+            why,
+            len(cfg.modules),
         )
 
     async def _survey_one(self, dcon: DconLink | None) -> None:

@@ -16,20 +16,23 @@ See docs/modbus.md and docs/modbus-tcp-client.md.
 
 from __future__ import annotations
 
-from typing import Any
+import importlib
+from typing import TYPE_CHECKING, Any
 
-from fieldgate.plugin import Registry, SimulateCli, hookimpl
+from fieldgate.plugin import GatewayContext, Registry, SimulateCli, hookimpl
 
 from .back import ModbusBack
 from .config import ModbusBackConfig, ModbusModuleConfig
 from .groups import ChannelGroup
 from .models import ModbusDeviceModel
 from .scan import ModbusScanner
-from .simulator import Fault, ModbusSimulator
-from .tcp_back import ModbusTcpClientBack
 from .tcp_config import ModbusTcpClientBackConfig, ModbusTcpDeviceConfig
 from .tcp_scan import ModbusTcpScanner
-from .tcp_simulator import ModbusTcpSimulator
+
+if TYPE_CHECKING:
+    from .simulator import Fault, ModbusSimulator
+    from .tcp_back import ModbusTcpClientBack
+    from .tcp_simulator import ModbusTcpSimulator
 
 __all__ = [
     "ChannelGroup",
@@ -44,14 +47,39 @@ __all__ = [
     "ModbusTcpSimulator",
 ]
 
+# Loaded when first used (issue 33): a gateway on an RS-485 line does not carry the Modbus
+# TCP client's modules, nor a deployed one the simulators'.
+_LAZY = {
+    "Fault": ".simulator",
+    "ModbusSimulator": ".simulator",
+    "ModbusTcpClientBack": ".tcp_back",
+    "ModbusTcpSimulator": ".tcp_simulator",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 def _simulator(config: ModbusBackConfig, port: str, animate: bool = False) -> ModbusSimulator:
+    from .simulator import ModbusSimulator
+
     return ModbusSimulator(config, port, animate)
+
+
+def _tcp_back(config: ModbusTcpClientBackConfig, context: GatewayContext) -> ModbusTcpClientBack:
+    from .tcp_back import ModbusTcpClientBack
+
+    return ModbusTcpClientBack(config, context)
 
 
 def _tcp_simulator(
     config: ModbusTcpClientBackConfig, port: None = None, animate: bool = False
 ) -> ModbusTcpSimulator:
+    from .tcp_simulator import ModbusTcpSimulator
+
     return ModbusTcpSimulator(config, animate)
 
 
@@ -78,7 +106,7 @@ def fieldgate_register(registry: Registry) -> None:
     registry.add_back(
         "modbus-tcp-client",
         ModbusTcpClientBackConfig,
-        ModbusTcpClientBack,
+        _tcp_back,
         "Modbus TCP client (meters, drives, PLCs, TCP/RTU gateways on Ethernet)",
     )
     registry.add_simulator(

@@ -28,6 +28,7 @@ Retries are the line scheduler's business (``retries`` of the back).
 from __future__ import annotations
 
 import logging
+import time
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
@@ -164,6 +165,7 @@ class ModbusLink(Transactions):
         }
         self.serial: AsyncSerial | None = None
         self._quiet_since = 0.0
+        self._quiet_since_at = 0.0  # the same on the real clock (AsyncSerial.keep_silence)
         self._after_failure = False
 
     @classmethod
@@ -218,6 +220,7 @@ class ModbusLink(Transactions):
             self.stats.errors[ErrorKind.IO] += 1
             raise
         self._quiet_since = serial.now
+        self._quiet_since_at = time.monotonic()
         if self.echo.learn(outcome):
             log.info("%s: %s", self.port, self.echo.describe())
         if outcome.result is not Result.REPLY or outcome.rest:
@@ -242,9 +245,7 @@ class ModbusLink(Transactions):
         if self._after_failure:
             self._after_failure = False
             await serial.wait_silence(self.timing.silence, self.timing.silence_limit)
-        wait = max(self._quiet_since, serial.last_rx) + self.gap - serial.now
-        if wait > 0:
-            await serial.sleep(wait)
+        await serial.keep_silence(self.gap, self._quiet_since_at)
 
     def _failed(self, unit: int, function: int, outcome: Outcome) -> CommError:
         if outcome.result is Result.TIMEOUT:

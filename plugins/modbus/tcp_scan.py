@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fieldgate.health import ErrorKind
 from fieldgate.plugin import PluginStartError, Scanner, ScanProgress
@@ -20,7 +20,9 @@ from fieldgate.polling import CommError, LineLost
 from .client import ModbusExceptionError
 from .scan import PROBE, UNKNOWN_MODEL, Found
 from .tcp_config import host_key, parse_host
-from .tcp_link import ModbusTcpLink
+
+if TYPE_CHECKING:
+    from .tcp_link import ModbusTcpLink
 
 ABSENT = (0x0A, 0x0B)  # gateway path unavailable, gateway target failed to respond
 
@@ -42,6 +44,8 @@ class ModbusTcpScanner(Scanner):
             host, tcp_port = parse_host(port)
         except ValueError as exc:
             raise PluginStartError(f"--port {port!r}: {exc} (give HOST or HOST:PORT)") from None
+        from .tcp_link import ModbusTcpLink  # loaded by a scan, not by every gateway
+
         link = ModbusTcpLink(host, tcp_port, timeout=args.timeout_ms / 1000)
         try:
             await link.connect()

@@ -1,6 +1,7 @@
 """Serial ports over pseudo-terminal pairs: the real pyserial code path."""
 
 import asyncio
+import os
 
 import pytest
 
@@ -62,3 +63,36 @@ async def test_open_errors_are_one_line_causes(tmp_path):
         await AsyncSerial.open("/nonexistent/ttyX")
     with pytest.raises(PluginStartError, match="invalid serial settings"):
         await AsyncSerial.open("/dev/null", bytesize=9)
+
+
+def test_keep_silence_is_never_shorter_than_the_gap_on_uvloop():
+    """The Modbus t3.5 before a request is kept on the real clock: on uvloop (the default
+    loop of `fieldgate run`) a 1.75 ms asyncio.sleep ended after 1.18 ms, its timers and
+    loop.time() being whole milliseconds (issue 33). A lower bound: load can only lengthen."""
+    import time
+
+    import uvloop
+
+    from fieldgate.serial_link import AsyncSerial, PtyPair
+
+    async def run() -> list[float]:
+        with PtyPair() as pair:
+            port = await AsyncSerial.open(pair.a, 115200)
+            far = os.open(pair.b, os.O_RDWR | os.O_NOCTTY)
+            kept = []
+            try:
+                for i in range(150):
+                    os.write(far, b"\x01")
+                    await port.read_until(b"\x01", 1.0)
+                    sum(range(500 * (i % 7)))  # land anywhere in a millisecond of the loop
+                    await port.keep_silence(0.00175)
+                    kept.append(time.monotonic() - port.last_rx_at)
+                    since = time.monotonic()
+                    await port.keep_silence(0.00175, since=since)
+                    kept.append(time.monotonic() - since)
+            finally:
+                os.close(far)
+                await port.close()
+            return kept
+
+    assert min(uvloop.run(run())) >= 0.00175

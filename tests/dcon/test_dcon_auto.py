@@ -68,7 +68,7 @@ async def test_the_back_builds_its_modules_from_the_line_and_the_image_is_stable
     tmp_path, line, dcon_registry, caplog
 ):
     await line.serve(LINE)
-    source = topology(tmp_path, line.a)
+    source = topology(tmp_path, line.a, scan={"from_previous": False})  # probe at every start
     async with Gateway.load(source, registry=dcon_registry) as gw:
         ids = [c.id for c in gw.image]
         assert len(ids) == 28 and "rs485/m2/ai7" in ids and "rs485/m3/ao3" in ids
@@ -292,3 +292,86 @@ async def _sleep(seconds: float) -> None:
     import asyncio
 
     await asyncio.sleep(seconds)
+
+
+async def _until(check, seconds: float, what: str) -> None:
+    for _ in range(int(seconds / 0.02)):
+        if check():
+            return
+        await _sleep(0.02)
+    raise AssertionError(f"not within {seconds} s: {what}")
+
+
+def _scan_of(gw) -> dict:
+    return gw.status()["backs"]["rs485"]["start_scan"]
+
+
+async def test_a_start_takes_the_previous_scan_at_once_and_verifies_the_line_after(
+    tmp_path, line, dcon_registry, caplog
+):
+    """scan.from_previous (the default): the first start probes the line; the next ones build
+    the image from the previous start's scan before touching the line, so READY and the
+    fieldbus boot-up do not wait for the scan (issue 33), and verify the line in the
+    background: a changed line is recorded and logged (a restart serves it)."""
+    await line.serve(LINE)
+    source = topology(tmp_path, line.a)
+    async with Gateway.load(source, registry=dcon_registry) as first:
+        assert "from_previous" not in _scan_of(first)  # nothing recorded yet: probed
+        ids = [c.id for c in first.image]
+    record = tmp_path / "state" / "rs485.dcon-scan.json"
+    async with Gateway.load(source, registry=dcon_registry) as same:
+        assert _scan_of(same)["from_previous"] == str(record)
+        assert [c.id for c in same.image] == ids
+        await _until(lambda: _scan_of(same)["verified"] == "same", 5, "verified")
+        assert _scan_of(same)["changed_since_last_start"] == []
+        await _until(lambda: all(h.online for h in same.health.modules()), 3, "online")
+        assert not same.health.back_errors
+
+    await line.serve(LINE[:2] + [(4, "I-7053")])  # I-7024 gone, I-7053 added
+    with caplog.at_level(logging.WARNING):
+        async with Gateway.load(source, registry=dcon_registry) as changed:
+            assert [c.id for c in changed.image] == ids  # the previous image, at once
+            await _until(lambda: _scan_of(changed)["verified"] == "changed", 5, "verified")
+            assert _scan_of(changed)["changed_since_last_start"] == [
+                "I-7024 at 3 (type 0x33 +/-10 V, hex) is missing",
+                "I-7053 at 4 is new",
+            ]
+    assert "restart the gateway to serve the line as it is now" in caplog.text
+    assert [m.model for m in ScanFile.read(record).modules] == ["I-7055", "I-7017", "I-7053"]
+    async with Gateway.load(source, registry=dcon_registry) as restarted:
+        assert "rs485/m4/di15" in restarted.image and "rs485/m3/ao0" not in restarted.image
+
+
+async def test_a_silent_line_at_a_start_from_the_previous_scan_is_the_init_error(
+    tmp_path, line, dcon_registry
+):
+    await line.serve(LINE)
+    source = topology(tmp_path, line.a)
+    async with Gateway.load(source, registry=dcon_registry) as first:
+        ids = [c.id for c in first.image]
+    await line.sim.stop()  # the modules lose power
+    line.sim = None
+    async with Gateway.load(source, registry=dcon_registry) as silent:
+        # a probe first would have found nothing: the start took the previous scan
+        assert _scan_of(silent)["from_previous"] and [c.id for c in silent.image] == ids
+        await _until(lambda: _scan_of(silent)["verified"] == "silent", 8, "verified")
+        assert silent.health.back_errors["rs485"].startswith(
+            "DCON modules init error: modules: auto: no DCON module answered"
+        )
+        assert not any(h.online for h in silent.health.modules("rs485"))
+    recorded = ScanFile.read(tmp_path / "state" / "rs485.dcon-scan.json")
+    assert [m.model for m in recorded.modules] == ["I-7055", "I-7017", "I-7024"]  # kept
+
+
+async def test_other_scan_settings_or_from_previous_false_probe_first(
+    tmp_path, line, dcon_registry
+):
+    await line.serve(LINE)
+    async with Gateway.load(topology(tmp_path, line.a), registry=dcon_registry):
+        pass
+    for scan in ({"addresses": "1-3"}, {"from_previous": False}):
+        async with Gateway.load(
+            topology(tmp_path, line.a, scan=scan), registry=dcon_registry
+        ) as gw:
+            assert "from_previous" not in _scan_of(gw)
+            assert len([c.id for c in gw.image]) == 28

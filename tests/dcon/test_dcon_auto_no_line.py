@@ -94,10 +94,11 @@ async def test_a_silent_line_keeps_the_previous_starts_modules(tmp_path, dcon_re
     try:
         sim = DconSimulator.from_modules(pair.b, LINE)
         await sim.start()
-        async with Gateway.load(topology(tmp_path, pair.a), registry=dcon_registry) as first:
+        source = topology(tmp_path, pair.a, scan={"addresses": "1-4", "from_previous": False})
+        async with Gateway.load(source, registry=dcon_registry) as first:
             first_ids = [c.id for c in first.image]
         await sim.stop()  # the modules lose power
-        async with Gateway.load(topology(tmp_path, pair.a), registry=dcon_registry) as second:
+        async with Gateway.load(source, registry=dcon_registry) as second:
             scan = second.status()["backs"]["rs485"]["start_scan"]
             assert scan["error"].startswith("modules: auto: no DCON module answered")
             assert scan["modules_from"].startswith("the previous start's scan (")
