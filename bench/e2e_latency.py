@@ -18,7 +18,7 @@ CAN side stamps each TPDO as it is received, and each RPDO as it is sent.
   carries it. Floor: the change waits for the next FC2 poll of the module, up to one poll
   cycle, then the FC2 transaction on the wire: p99 floor = cycle + FC2 wire time.
 * RPDO -> output: RPDO1 (0x202) carries a new DO byte; the latency ends when the first write
-  request after it (FC5 for one changed coil, FC15 from the first changed one) has arrived
+  request after it (FC5 for one changed coil, else one FC15 over the changed span) has arrived
   at the module. Floor: up to one transaction in progress (the longest
   of the cycle), a t3.5, then the FC15 request's bytes.
 

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from itertools import groupby
 from typing import Any
 
-from fieldgate.image import ChannelSpec, Quality, Value
+from fieldgate.image import ChannelSpec, ProcessImage, Quality, Value
 from fieldgate.plugin import GatewayContext
 from fieldgate.polling import NOTHING_DUE, PolledModule, SerialBack
 from fieldgate.topology import ModuleConfig
@@ -47,6 +47,7 @@ class ModbusModule(PolledModule):
         retry_period: float = 5.0,
         clock: Callable[[], float],
         unit: int | None = None,
+        image: ProcessImage | None = None,
     ):
         super().__init__(config, specs)
         self.link = link
@@ -64,6 +65,17 @@ class ModbusModule(PolledModule):
         self.bad: dict[str, float] = {}  # channel -> when to try it again
         self.last: dict[str, object] = {}
         self.allow_multiple_writes = True
+        # Write spans (plan_writes): the image holds the values of the outputs between the
+        # changed ones; without it (or with write_span off) only adjacent changes share a request.
+        self.image = image if config.write_span else None
+        self._write_limits = (config.max_write_bits, config.max_write_registers)
+        self._fillable = {
+            p.channel: p
+            for p in self.outputs_by_id.values()
+            if p.bit is None and p.write_fc not in (5, 6)
+        }
+        self.written: set[str] = set()  # outputs written since the last contact
+        self.write_refused: set[str] = set()  # outputs whose last write was refused
         self._logged: set[tuple[object, ...]] = set()
         self.replan()
 
@@ -184,23 +196,57 @@ class ModbusModule(PolledModule):
         return readings
 
     # -- writes -----------------------------------------------------------------------
+    async def on_online(self) -> None:
+        self.written.clear()  # the module may have been reset: what it holds is unknown
+
     async def send_outputs(self, values: dict[str, Any]) -> None:
         changes: list[tuple[Point, Value]] = [
             (self.outputs_by_id[cid], v) for cid, v in values.items() if cid in self.outputs_by_id
         ]
-        for op in plan_writes(
-            [(p, v) for p, v in changes if p.bit is None], self.allow_multiple_writes
-        ):
-            await self._write_request(op.function, op.address, op.values, op.points)
+        whole = [(p, v) for p, v in changes if p.bit is None]
+        held = self._held(values) if len(whole) > 1 else []
+        for op in plan_writes(whole, self.allow_multiple_writes, held, *self._write_limits):
+            if await self._write_request(op.function, op.address, op.values, op.points, op.filled):
+                continue
+            if op.filled:  # refused with held values in it: the changed outputs on their own
+                self.write_refused |= op.filled
+                mine = [(p, values[p.channel]) for p in op.points if p.channel not in op.filled]
+                for alone in plan_writes(mine, self.allow_multiple_writes, (), *self._write_limits):
+                    await self._write_request(
+                        alone.function, alone.address, alone.values, alone.points
+                    )
         in_registers = sorted(
             ((p, v) for p, v in changes if p.bit is not None), key=lambda pv: pv[0].address
         )
         for address, items in groupby(in_registers, key=lambda pv: pv[0].address):
             await self._write_bits_of_register(address, list(items))
 
+    def _held(self, changed: dict[str, Any]) -> list[tuple[Point, Value]]:
+        """The outputs a write span may fill in: whole coils and registers of this module
+        whose value the gateway knows (written since the last contact, or set by a front or
+        the config), none whose last write was refused; with the image's values (a changed
+        output is in this batch, so the others hold what was last written)."""
+        image = self.image
+        if image is None or not self.allow_multiple_writes:
+            return []
+        held: list[tuple[Point, Value]] = []
+        for cid, p in self._fillable.items():
+            if cid in changed or cid in self.write_refused:
+                continue
+            channel = image[cid]
+            if cid in self.written or channel.written_by or channel.spec.initial is not None:
+                held.append((p, channel.value))
+        return held
+
     async def _write_request(
-        self, function: int, address: int, words: list[bool] | list[int], points: list[Point]
-    ) -> None:
+        self,
+        function: int,
+        address: int,
+        words: list[bool] | list[int],
+        points: list[Point],
+        filled: frozenset[str] = frozenset(),
+    ) -> bool:
+        """One write; False when the module refused it (logged once, its channels marked)."""
         try:
             await self.link.write(self.unit, function, address, words)
         except ModbusExceptionError as exc:
@@ -224,10 +270,12 @@ class ModbusModule(PolledModule):
                     if function == Function.WRITE_MULTIPLE_COILS
                     else Function.WRITE_SINGLE_REGISTER
                 )
-                for i, word in enumerate(words):
-                    await self._write_request(single, address + i, [word], points)
-                return
+                ok = True
+                for at, word, owners in _singles(address, words, points, filled):
+                    ok = await self._write_request(single, at, [word], owners) and ok
+                return ok
             # The module will not take this value: keep the line going, count it, say it once.
+            self.write_refused.update(p.channel for p in points)
             self._log_once(
                 ("write", function, address),
                 "module %d refused FC%d at %d with exception %d (%s)",
@@ -237,6 +285,11 @@ class ModbusModule(PolledModule):
                 exc.code,
                 ", ".join(p.channel for p in points),
             )
+            return False
+        channels = {p.channel for p in points}
+        self.written |= channels
+        self.write_refused -= channels
+        return True
 
     async def _write_bits_of_register(self, address: int, items: list[tuple[Point, Value]]) -> None:
         """Digital outputs or special bytes inside a holding register: read, change them, write back."""
@@ -259,6 +312,22 @@ class ModbusModule(PolledModule):
         else:
             self._logged.add(key)
             log.warning(message, *args)
+
+
+def _singles(
+    address: int, words: list[bool] | list[int], points: list[Point], filled: frozenset[str]
+) -> list[tuple[int, bool | int, list[Point]]]:
+    """A refused multiple write as single writes: (address, word, its points) for every
+    coil or register of the changed outputs (held values in a span are not rewritten)."""
+    if not filled:
+        return [(address + i, word, points) for i, word in enumerate(words)]
+    singles: list[tuple[int, bool | int, list[Point]]] = []
+    offset = 0
+    for p in points:  # a span holds whole coils and registers only
+        if p.channel not in filled:
+            singles.extend((p.address + i, words[offset + i], [p]) for i in range(p.width))
+        offset += p.width
+    return singles
 
 
 def _zero(p: Point) -> bool | int:
@@ -319,6 +388,7 @@ class ModbusBack(SerialBack):
             points,
             retry_period=self.config.offline_probe_ms / 1000,
             clock=self.context.clock,
+            image=self.context.image,
         )
         self.modules[config.address] = module
         return module

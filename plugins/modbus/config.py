@@ -18,11 +18,27 @@ from fieldgate.image import ChannelSpec, ErrorMode, Kind, Source, channel_id
 from fieldgate.topology import ModuleConfig, SerialBackConfig
 
 from . import presets
-from .codec import MAX_READ_BITS, MAX_READ_REGISTERS, inter_frame_gap
+from .codec import (
+    MAX_READ_BITS,
+    MAX_READ_REGISTERS,
+    MAX_WRITE_BITS,
+    MAX_WRITE_REGISTERS,
+    inter_frame_gap,
+)
 from .groups import ChannelGroup, _invalid
 from .models import ModbusDeviceModel
 from .plan import ReadBlock, plan_reads
 from .points import Point, Table
+
+_MODEL_DEFAULTS = (
+    "max_read_registers",
+    "max_read_bits",
+    "coalesce_gap",
+    "max_write_registers",
+    "max_write_bits",
+    "write_span",
+)
+"""What a topology's model gives its modules where they say nothing."""
 
 
 class ModbusModuleConfig(ModuleConfig):
@@ -53,6 +69,24 @@ class ModbusModuleConfig(ModuleConfig):
         le=100,
         description="also read across holes of up to this many unused registers/bits",
     )
+    max_write_registers: int = Field(
+        MAX_WRITE_REGISTERS,
+        ge=1,
+        le=MAX_WRITE_REGISTERS,
+        description="largest FC16 write (a write span is split here)",
+    )
+    max_write_bits: int = Field(
+        MAX_WRITE_BITS,
+        ge=1,
+        le=MAX_WRITE_BITS,
+        description="largest FC15 write (a write span is split here)",
+    )
+    write_span: bool = Field(
+        True,
+        description="write the outputs changed in one batch as one FC15/FC16 from the lowest "
+        "to the highest changed address, the outputs in between with the values the gateway "
+        "holds (false: only adjacent changes share a request)",
+    )
 
     _model: ModbusDeviceModel | None = PrivateAttr(None)  # the topology's model it names
 
@@ -71,6 +105,15 @@ class ModbusModuleConfig(ModuleConfig):
                 f"{self.max_read_registers}: it could never be read whole",
                 ("max_read_registers",),
             )
+        widest_out = max(
+            (g.words for g in groups if Kind(g.kind).is_output and not g.table.is_bits), default=1
+        )
+        if widest_out > self.max_write_registers:
+            raise _invalid(
+                f"an output takes {widest_out} registers, more than max_write_registers "
+                f"{self.max_write_registers}: it could never be written whole",
+                ("max_write_registers",),
+            )
         return self
 
     def _resolve_model(self, context: dict[str, Any]) -> None:
@@ -84,7 +127,7 @@ class ModbusModuleConfig(ModuleConfig):
             return  # validated before (an assignment re-validates without the topology)
         if found is not None:
             self._model = found
-            for name in ("max_read_registers", "max_read_bits", "coalesce_gap"):
+            for name in _MODEL_DEFAULTS:
                 limit = getattr(found, name)
                 if limit is not None and name not in self.model_fields_set:
                     self.__dict__[name] = limit  # (no re-validation: the model checked it)

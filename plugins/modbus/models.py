@@ -11,6 +11,7 @@ models:
       - {kind: ai, table: input_registers, address: 0x0102, type: int32, order: CDAB,
          divider: 10, unit: V, label: Voltage L1-N}
     max_read_registers: 60       # what a module of this model may read at once (it may say less)
+    max_write_registers: 20      # and write at once (max_write_bits for coils; write_span: false)
 backs:
   - name: meters
     type: modbus-tcp-client
@@ -40,7 +41,7 @@ from pydantic_core import PydanticCustomError
 
 from fieldgate.topology import StrictModel
 
-from .codec import MAX_READ_BITS, MAX_READ_REGISTERS
+from .codec import MAX_READ_BITS, MAX_READ_REGISTERS, MAX_WRITE_BITS, MAX_WRITE_REGISTERS
 from .groups import ChannelGroup
 
 MAX_MAP_BYTES = 2 * 1024 * 1024
@@ -97,6 +98,13 @@ class ModbusDeviceModel(StrictModel):
     )
     max_read_bits: int | None = Field(None, ge=1, le=MAX_READ_BITS)
     coalesce_gap: int | None = Field(None, ge=0, le=100)
+    max_write_registers: int | None = Field(
+        None, ge=1, le=MAX_WRITE_REGISTERS, description="largest FC16 write of such a device"
+    )
+    max_write_bits: int | None = Field(None, ge=1, le=MAX_WRITE_BITS)
+    write_span: bool | None = Field(
+        None, description="false: such a device gets only adjacent outputs in one write"
+    )
 
     @model_validator(mode="after")
     def _read_map(self, info: ValidationInfo) -> ModbusDeviceModel:

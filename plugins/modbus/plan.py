@@ -3,9 +3,12 @@
 * Reads: points of one table are sorted and coalesced into blocks of adjacent addresses
   (or across holes up to ``gap``), each within the protocol limit (125 registers,
   2000 bits) or the module's own lower limit.
-* Writes: changed outputs become runs of adjacent addresses; a run of one coil or one
-  16-bit register uses FC5/FC6, longer runs and 32-bit values FC15/FC16 (split at the
-  1968-bit / 123-register limits), unless a group forces its function code.
+* Writes: the changed outputs of one table become spans from the lowest to the highest
+  changed address, the unchanged outputs in between filled with the values the back holds
+  for them, so that one batch (one RPDO) reaches the module in one request where it can
+  (:func:`plan_writes`); a span of one coil or one 16-bit register uses FC5/FC6, longer
+  ones and 32-bit values FC15/FC16 (split at the 1968-bit / 123-register limits or the
+  module's own), unless a group forces its function code.
 """
 
 from __future__ import annotations
@@ -96,67 +99,104 @@ class WriteOp:
     address: int
     values: list[bool] | list[int]  # bools for coils, 16-bit words for registers
     points: list[Point]
+    filled: frozenset[str] = frozenset()  # channels of ``points`` not changed: held values
 
     def describe(self) -> str:
         return f"FC{self.function} at {self.address} x{len(self.values)}"
 
 
-def plan_writes(changes: list[tuple[Point, Value]], allow_multiple: bool = True) -> list[WriteOp]:
-    """Write requests for changed coil and register outputs (not bits inside registers)."""
+def plan_writes(
+    changes: list[tuple[Point, Value]],
+    allow_multiple: bool = True,
+    held: Sequence[tuple[Point, Value]] = (),
+    max_bits: int = MAX_WRITE_BITS,
+    max_registers: int = MAX_WRITE_REGISTERS,
+) -> list[WriteOp]:
+    """Write requests for changed coil and register outputs (not bits inside registers).
+
+    The changed outputs of one table go out as spans: one FC15/FC16 from the lowest to
+    the highest changed address, the addresses in between filled from ``held`` (outputs
+    the back owns, with the values it holds for them). A span stops where an address in
+    between is not held (a hole, an input, a bit field, an output of unknown value or one
+    forced to FC5/FC6) and at the request limit (``max_bits`` / ``max_registers``, never
+    inside a value); a span of one coil or one 16-bit register is FC5/FC6. Outputs forced
+    to FC5/FC6, and every output when ``allow_multiple`` is off, are written one request
+    per coil/register, in address order.
+    """
     ops: list[WriteOp] = []
-    coils = sorted(
-        ((p, v) for p, v in changes if p.table is Table.COILS), key=lambda pv: pv[0].address
-    )
-    registers = sorted(
-        ((p, v) for p, v in changes if p.table is Table.HOLDING_REGISTERS and p.bit is None),
-        key=lambda pv: pv[0].address,
-    )
-    for run in _runs(coils):
-        bits = [bool(v) for _, v in run]
-        ops.extend(
-            _ops(
-                run,
-                bits,
-                Function.WRITE_SINGLE_COIL,
-                Function.WRITE_MULTIPLE_COILS,
-                MAX_WRITE_BITS,
-                allow_multiple,
-            )
+    for table, single, multiple, limit in (
+        (Table.COILS, Function.WRITE_SINGLE_COIL, Function.WRITE_MULTIPLE_COILS, max_bits),
+        (
+            Table.HOLDING_REGISTERS,
+            Function.WRITE_SINGLE_REGISTER,
+            Function.WRITE_MULTIPLE_REGISTERS,
+            max_registers,
+        ),
+    ):
+        mine = sorted(
+            ((p, v) for p, v in changes if p.table is table and p.bit is None),
+            key=lambda pv: pv[0].address,
         )
-    for run in _runs(registers):
-        words = [
-            w for p, v in run for w in regvalues.encode(p.dtype, p.raw_of(v), p.order, p.length)
-        ]
-        ops.extend(
-            _ops(
-                run,
-                words,
-                Function.WRITE_SINGLE_REGISTER,
-                Function.WRITE_MULTIPLE_REGISTERS,
-                MAX_WRITE_REGISTERS,
-                allow_multiple,
-            )
-        )
+        changed = {p.channel for p, _ in mine}
+        if not allow_multiple:
+            spans = [[pv] for pv in mine]
+        else:
+            fill = {
+                p.address: (p, v)
+                for p, v in held
+                if p.table is table
+                and p.bit is None
+                and p.write_fc not in (5, 6)
+                and p.channel not in changed
+            }
+            spans = _spans(mine, fill, limit)
+        for span in spans:
+            for op in _ops(span, _words(span), single, multiple, limit, allow_multiple):
+                op.filled = frozenset(p.channel for p in op.points) - changed
+                ops.append(op)
     return ops
 
 
-def _runs(
-    items: list[tuple[Point, Value]],
+def _words(span: list[tuple[Point, Value]]) -> list[bool] | list[int]:
+    if span[0][0].table.is_bits:
+        return [bool(v) for _, v in span]
+    return [w for p, v in span for w in regvalues.encode(p.dtype, p.raw_of(v), p.order, p.length)]
+
+
+def _spans(
+    changes: list[tuple[Point, Value]],
+    fill: dict[int, tuple[Point, Value]],
+    limit: int,
 ) -> list[list[tuple[Point, Value]]]:
-    """Split sorted (point, value) pairs into runs of adjacent addresses with the same forced function."""
-    runs: list[list[tuple[Point, Value]]] = []
-    for p, v in items:
-        last = runs[-1][-1][0] if runs else None
-        if (
-            last is not None
-            and p.address == last.end
-            and p.write_fc == last.write_fc
-            and p.write_fc not in (5, 6)
-        ):
-            runs[-1].append((p, v))
-        else:
-            runs.append([(p, v)])
-    return runs
+    """Sorted changes (one table) grouped into spans, the held outputs in between filled in;
+    an output forced to FC5/FC6 is a span of its own."""
+    spans: list[list[tuple[Point, Value]]] = []
+    for p, v in changes:
+        last = spans[-1] if spans else None
+        if last is not None and p.write_fc not in (5, 6) and last[-1][0].write_fc not in (5, 6):
+            between = _filler(last[-1][0].end, p.address, fill)
+            if between is not None and p.end - last[0][0].address <= limit:
+                last.extend(between)
+                last.append((p, v))
+                continue
+        spans.append([(p, v)])
+    return spans
+
+
+def _filler(
+    start: int, end: int, fill: dict[int, tuple[Point, Value]]
+) -> list[tuple[Point, Value]] | None:
+    """The held outputs covering every address from ``start`` up to ``end``, or None
+    where an address is not held (or a held value runs past ``end``)."""
+    out: list[tuple[Point, Value]] = []
+    address = start
+    while address < end:
+        found = fill.get(address)
+        if found is None:
+            return None
+        out.append(found)
+        address = found[0].end
+    return out if address == end else None
 
 
 def _ops(
@@ -168,7 +208,7 @@ def _ops(
     allow_multiple: bool,
 ) -> list[WriteOp]:
     points = [p for p, _ in run]
-    forced = points[0].write_fc
+    forced = next((p.write_fc for p in points if p.write_fc is not None), None)
     use_single = forced == single or (forced is None and len(words) == 1) or not allow_multiple
     if use_single:
         return [WriteOp(single, points[0].address + i, [w], points) for i, w in enumerate(words)]

@@ -124,6 +124,7 @@ class ModbusTcpClientBack(Back):
             retry_period=self.config.offline_probe_ms / 1000,
             clock=self.context.clock,
             unit=self.config.unit_of(device),
+            image=self.context.image,
         )
         self.modules[device.address] = module
         return module

@@ -59,6 +59,7 @@ class Line:
                 points[m.address],
                 retry_period=PROBE,
                 clock=self.clock,
+                image=self.image,
             )
             for m in self.config.modules
         ]

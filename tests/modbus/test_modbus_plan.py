@@ -153,3 +153,86 @@ def test_long_runs_are_split_at_the_write_limits():
         (16, 0, 122),
         (16, 122, 2),
     ]
+
+
+def test_one_batch_of_non_adjacent_coils_is_one_fc15_over_the_span():
+    pts = points({"kind": "do", "table": "coils", "address": 0, "count": 8})
+    held = [(pts[2], False), (pts[3], True), (pts[4], False), (pts[7], True)]
+    ops = plan_writes([(pts[5], True), (pts[0], True), (pts[1], True)], held=held)
+    assert [(op.function, op.address, op.values) for op in ops] == [
+        (15, 0, [True, True, False, True, False, True])  # coils 2-4 at their held values
+    ]
+    assert ops[0].filled == {"rs485/m1/do2", "rs485/m1/do3", "rs485/m1/do4"}
+    # without held values only adjacent changes share a request (the former plan)
+    assert writes([(pts[0], True), (pts[1], True), (pts[5], True)]) == [
+        (15, 0, [True, True]),
+        (5, 5, [True]),
+    ]
+
+
+def test_one_batch_of_registers_is_one_fc16_with_wide_values_held_whole():
+    pts = points(
+        {"kind": "ao", "table": "holding_registers", "address": 10, "count": 2},
+        {"kind": "ao", "table": "holding_registers", "address": 12, "type": "float32"},
+        {"kind": "ao", "table": "holding_registers", "address": 14, "count": 2},
+    )
+    held = [(pts[1], 7), (pts[2], 1.0), (pts[4], 9)]
+    assert writes([(pts[0], 1), (pts[3], -1)], held=held) == [(16, 10, [1, 7, 0x3F80, 0, 0xFFFF])]
+
+
+def test_a_gap_the_back_does_not_hold_keeps_separate_writes():
+    pts = points(
+        {"kind": "do", "table": "coils", "address": 0, "count": 2},
+        {"kind": "di", "table": "coils", "address": 2},  # an input among the coils
+        {"kind": "do", "table": "coils", "address": 3, "count": 3},
+        {"kind": "do", "table": "coils", "address": 7, "count": 2},  # a hole at 6
+        {"kind": "ao", "table": "holding_registers", "address": 0},
+        {"kind": "ao", "table": "holding_registers", "address": 1, "write_fc": 6},
+        {"kind": "ao", "table": "holding_registers", "address": 2},
+    )
+    coil = {p.address: p for p in pts if p.kind.value == "do"}
+    ao = [p for p in pts if p.kind.value == "ao"]
+    held = [(p, False) for p in coil.values()]
+    assert writes([(coil[0], True), (coil[3], True)], held=held) == [(5, 0, [True]), (5, 3, [True])]
+    assert writes([(coil[5], True), (coil[7], True)], held=held) == [(5, 5, [True]), (5, 7, [True])]
+    # coil 4 of unknown value (not held): separate; held: one FC15
+    assert writes([(coil[3], True), (coil[5], True)]) == [(5, 3, [True]), (5, 5, [True])]
+    assert writes([(coil[3], True), (coil[5], True)], held=held) == [(15, 3, [True, False, True])]
+    # a register forced to FC6 is no filler; registers written singly stay single
+    assert writes([(ao[0], 1), (ao[2], 3)], held=[(ao[1], 2)]) == [(6, 0, [1]), (6, 2, [3])]
+    assert writes([(coil[3], True), (coil[5], True)], held=held, allow_multiple=False) == [
+        (5, 3, [True]),
+        (5, 5, [True]),
+    ]
+
+
+def test_spans_split_at_the_write_limits_and_the_module_maximum():
+    pts = points({"kind": "do", "table": "coils", "address": 0, "count": 2000})
+    held = [(p, False) for p in pts]
+    last = len(pts) - 1
+
+    def shape(ops):
+        return [(op.function, op.address, len(op.values)) for op in ops]
+
+    assert shape(plan_writes([(pts[0], True), (pts[1967], True)], held=held)) == [(15, 0, 1968)]
+    assert shape(plan_writes([(pts[0], True), (pts[1968], True)], held=held)) == [
+        (5, 0, 1),
+        (5, 1968, 1),
+    ]
+    assert shape(plan_writes([(p, True) for p in pts], held=held)) == [
+        (15, 0, 1968),
+        (15, 1968, 32),
+    ]
+    assert shape(
+        plan_writes([(pts[0], True), (pts[5], True), (pts[last], True)], held=held, max_bits=4)
+    ) == [(5, 0, 1), (5, 5, 1), (5, last, 1)]
+    regs = points({"kind": "ao", "table": "holding_registers", "address": 0, "count": 130})
+    held_regs = [(p, 0) for p in regs]
+    assert shape(plan_writes([(regs[0], 1), (regs[122], 1)], held=held_regs)) == [(16, 0, 123)]
+    assert shape(plan_writes([(regs[0], 1), (regs[123], 1)], held=held_regs)) == [
+        (6, 0, 1),
+        (6, 123, 1),
+    ]
+    assert shape(
+        plan_writes([(regs[0], 1), (regs[3], 1), (regs[9], 1)], held=held_regs, max_registers=4)
+    ) == [(16, 0, 4), (6, 9, 1)]
