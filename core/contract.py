@@ -14,10 +14,10 @@ from __future__ import annotations
 import argparse
 import logging
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import pluggy
 
@@ -363,6 +363,61 @@ class Scanner(ABC):
     def save(self, found: list[Any], args: argparse.Namespace, bauds: list[int]) -> None:  # noqa: B027  (optional)
         """After a complete scan: keep the result where the back's options say (DCON's
         ``-o FILE`` scan file); raise :class:`CommandError` (one line) when it cannot."""
+
+
+L = TypeVar("L")
+
+
+async def probe_each(
+    addresses: Sequence[int],
+    probe: Callable[[int], Awaitable[Any | None]],
+    found: list[Any],
+    progress: ScanProgress | None = None,
+) -> None:
+    """The loop of every scan: ``probe`` each address in turn, append what answers to
+    ``found`` at once (a cancelled scan keeps what it had) and call ``progress`` after each
+    address with the modules this call found."""
+    count = len(found)
+    for done, address in enumerate(addresses, 1):
+        module = await probe(address)
+        if module is not None:
+            found.append(module)
+        if progress is not None:
+            progress(done, len(addresses), len(found) - count)
+
+
+class LinkScanner(Scanner, Generic[L]):
+    """A :class:`Scanner` whose scan is the usual one: open a link at the baud rate, probe
+    each address on it in turn (:func:`probe_each`), close the link."""
+
+    @abstractmethod
+    async def open(self, port: str, baudrate: int, args: argparse.Namespace) -> L:
+        """The link; raise :class:`PluginStartError` (one line) when it cannot be opened."""
+
+    @abstractmethod
+    async def probe(self, link: L, address: int, baudrate: int) -> Any | None:
+        """The module found at ``address``, or None when nothing answers."""
+
+    @abstractmethod
+    async def close(self, link: L) -> None:
+        """Release the link (also after a failed or cancelled scan)."""
+
+    async def scan(
+        self,
+        port: str,
+        baudrate: int,
+        addresses: list[int],
+        args: argparse.Namespace,
+        progress: ScanProgress,
+        found: list[Any],
+    ) -> None:
+        link = await self.open(port, baudrate, args)
+        try:
+            await probe_each(
+                addresses, lambda address: self.probe(link, address, baudrate), found, progress
+            )
+        finally:
+            await self.close(link)
 
 
 def one_line(exc: BaseException) -> str:

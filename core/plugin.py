@@ -22,6 +22,7 @@ from .contract import (
     FrontFactory,
     FrontModel,
     GatewayContext,
+    LinkScanner,
     PluginStartError,
     PortUnavailable,
     Scanner,
@@ -33,6 +34,7 @@ from .contract import (
     hookspec,
     module_address_model,
     one_line,
+    probe_each,
 )
 from .registry import (
     Command,
@@ -62,6 +64,7 @@ __all__ = [
     "FrontFactory",
     "FrontModel",
     "GatewayContext",
+    "LinkScanner",
     "PluginInfo",
     "PluginSpec",
     "PluginStartError",
@@ -77,5 +80,6 @@ __all__ = [
     "load_registry",
     "module_address_model",
     "one_line",
+    "probe_each",
     "summary_of",
 ]
