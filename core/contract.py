@@ -173,6 +173,12 @@ class GatewayContext:
     def state_dir(self) -> Path:
         return self.topology.state_dir
 
+    def state_file(self, configured: str | None, default: str) -> Path:
+        """Where a component keeps a state file: ``configured`` (else ``default``), under
+        ``state_dir`` unless it is absolute."""
+        path = Path(configured or default)
+        return path if path.is_absolute() else self.state_dir / path
+
     def front_backs(self, front: FrontConfig) -> list[str]:
         """The backs whose channels a front serves or would serve: every back without an
         ``expose`` list, else those an ``expose`` pattern's back part matches (a back with no
