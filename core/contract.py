@@ -17,7 +17,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import pluggy
 
@@ -348,7 +348,6 @@ class Scanner(ABC):
     def configure(self, group: argparse._ArgumentGroup) -> None:  # noqa: B027  (optional)
         """Add the options of this back only (DCON's ``--checksum``)."""
 
-    @abstractmethod
     async def scan(
         self,
         port: str,
@@ -360,7 +359,30 @@ class Scanner(ABC):
     ) -> None:
         """Probe ``addresses`` at one baud rate, appending each module to ``found`` as it is
         identified and calling ``progress`` after each address; raise
-        :class:`PluginStartError` (one line) when the port cannot be opened."""
+        :class:`PluginStartError` (one line) when the port cannot be opened.
+
+        The usual scan, which a back gets by giving :meth:`open`, :meth:`probe` and
+        :meth:`close`: open a link at the baud rate, probe each address on it in turn
+        (:func:`probe_each`), close the link. A scan of another shape overrides this."""
+        link = await self.open(port, baudrate, args)
+        try:
+            await probe_each(
+                addresses, lambda address: self.probe(link, address, baudrate), found, progress
+            )
+        finally:
+            await self.close(link)
+
+    async def open(self, port: str, baudrate: int, args: argparse.Namespace) -> Any:
+        """The link the usual :meth:`scan` probes on; raise :class:`PluginStartError` (one
+        line) when it cannot be opened."""
+        raise NotImplementedError(f"{type(self).__name__} gives neither scan() nor open()")
+
+    async def probe(self, link: Any, address: int, baudrate: int) -> Any | None:
+        """The module found at ``address``, or None when nothing answers."""
+        raise NotImplementedError(f"{type(self).__name__} gives neither scan() nor probe()")
+
+    async def close(self, link: Any) -> None:  # noqa: B027  (optional)
+        """Release the link (also after a failed or cancelled scan)."""
 
     @abstractmethod
     def topology(self, found: list[Any], args: argparse.Namespace) -> str:
@@ -369,9 +391,6 @@ class Scanner(ABC):
     def save(self, found: list[Any], args: argparse.Namespace, bauds: list[int]) -> None:  # noqa: B027  (optional)
         """After a complete scan: keep the result where the back's options say (DCON's
         ``-o FILE`` scan file); raise :class:`CommandError` (one line) when it cannot."""
-
-
-L = TypeVar("L")
 
 
 async def probe_each(
@@ -390,40 +409,6 @@ async def probe_each(
             found.append(module)
         if progress is not None:
             progress(done, len(addresses), len(found) - count)
-
-
-class LinkScanner(Scanner, Generic[L]):
-    """A :class:`Scanner` whose scan is the usual one: open a link at the baud rate, probe
-    each address on it in turn (:func:`probe_each`), close the link."""
-
-    @abstractmethod
-    async def open(self, port: str, baudrate: int, args: argparse.Namespace) -> L:
-        """The link; raise :class:`PluginStartError` (one line) when it cannot be opened."""
-
-    @abstractmethod
-    async def probe(self, link: L, address: int, baudrate: int) -> Any | None:
-        """The module found at ``address``, or None when nothing answers."""
-
-    @abstractmethod
-    async def close(self, link: L) -> None:
-        """Release the link (also after a failed or cancelled scan)."""
-
-    async def scan(
-        self,
-        port: str,
-        baudrate: int,
-        addresses: list[int],
-        args: argparse.Namespace,
-        progress: ScanProgress,
-        found: list[Any],
-    ) -> None:
-        link = await self.open(port, baudrate, args)
-        try:
-            await probe_each(
-                addresses, lambda address: self.probe(link, address, baudrate), found, progress
-            )
-        finally:
-            await self.close(link)
 
 
 def one_line(exc: BaseException) -> str:

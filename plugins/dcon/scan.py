@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from fieldgate.health import ErrorKind
-from fieldgate.plugin import CommandError, LinkScanner, ScanProgress, probe_each
+from fieldgate.plugin import CommandError, Scanner, ScanProgress, probe_each
 from fieldgate.polling import CommError
 from fieldgate.serial_link import AsyncSerial
 from fieldgate.serial_timing import LineTiming
@@ -152,7 +152,7 @@ def topology_yaml(found: list[Found], port: str, checksum: bool, name: str = "rs
     return "\n".join(lines) + "\n"
 
 
-class DconScanner(LinkScanner[DconLink]):
+class DconScanner(Scanner):
     addresses = "0-255"
     address_range = (0, 255)
 

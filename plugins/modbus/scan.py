@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from fieldgate.health import ErrorKind
-from fieldgate.plugin import LinkScanner, PluginStartError
+from fieldgate.plugin import PluginStartError, Scanner
 from fieldgate.polling import CommError, LineLost
 
 from .client import ModbusExceptionError, ModbusLink, Transactions
@@ -35,7 +35,7 @@ class Found:
     answer: str  # what it answered to the probe
 
 
-class ModbusScanner(LinkScanner[ModbusLink]):
+class ModbusScanner(Scanner):
     addresses = "1-247"
     address_range = (1, 247)  # 0 is the broadcast address: nobody answers it
 

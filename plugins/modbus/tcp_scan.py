@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING, Any
 
-from fieldgate.plugin import LinkScanner, PluginStartError
+from fieldgate.plugin import PluginStartError, Scanner
 
 from .scan import UNKNOWN_MODEL, Found, probe
 from .tcp_config import host_key, parse_host
@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 ABSENT = (0x0A, 0x0B)  # gateway path unavailable, gateway target failed to respond
 
 
-class ModbusTcpScanner(LinkScanner["ModbusTcpLink"]):
+class ModbusTcpScanner(Scanner):
     addresses = "1-247"
     address_range = (0, 255)
 
