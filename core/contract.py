@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import logging
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
@@ -172,6 +172,12 @@ class GatewayContext:
     @property
     def state_dir(self) -> Path:
         return self.topology.state_dir
+
+    def state_file(self, configured: str | None, default: str) -> Path:
+        """Where a component keeps a state file: ``configured`` (else ``default``), under
+        ``state_dir`` unless it is absolute."""
+        path = Path(configured or default)
+        return path if path.is_absolute() else self.state_dir / path
 
     def front_backs(self, front: FrontConfig) -> list[str]:
         """The backs whose channels a front serves or would serve: every back without an
@@ -342,7 +348,6 @@ class Scanner(ABC):
     def configure(self, group: argparse._ArgumentGroup) -> None:  # noqa: B027  (optional)
         """Add the options of this back only (DCON's ``--checksum``)."""
 
-    @abstractmethod
     async def scan(
         self,
         port: str,
@@ -354,7 +359,30 @@ class Scanner(ABC):
     ) -> None:
         """Probe ``addresses`` at one baud rate, appending each module to ``found`` as it is
         identified and calling ``progress`` after each address; raise
-        :class:`PluginStartError` (one line) when the port cannot be opened."""
+        :class:`PluginStartError` (one line) when the port cannot be opened.
+
+        The usual scan, which a back gets by giving :meth:`open`, :meth:`probe` and
+        :meth:`close`: open a link at the baud rate, probe each address on it in turn
+        (:func:`probe_each`), close the link. A scan of another shape overrides this."""
+        link = await self.open(port, baudrate, args)
+        try:
+            await probe_each(
+                addresses, lambda address: self.probe(link, address, baudrate), found, progress
+            )
+        finally:
+            await self.close(link)
+
+    async def open(self, port: str, baudrate: int, args: argparse.Namespace) -> Any:
+        """The link the usual :meth:`scan` probes on; raise :class:`PluginStartError` (one
+        line) when it cannot be opened."""
+        raise NotImplementedError(f"{type(self).__name__} gives neither scan() nor open()")
+
+    async def probe(self, link: Any, address: int, baudrate: int) -> Any | None:
+        """The module found at ``address``, or None when nothing answers."""
+        raise NotImplementedError(f"{type(self).__name__} gives neither scan() nor probe()")
+
+    async def close(self, link: Any) -> None:  # noqa: B027  (optional)
+        """Release the link (also after a failed or cancelled scan)."""
 
     @abstractmethod
     def topology(self, found: list[Any], args: argparse.Namespace) -> str:
@@ -363,6 +391,24 @@ class Scanner(ABC):
     def save(self, found: list[Any], args: argparse.Namespace, bauds: list[int]) -> None:  # noqa: B027  (optional)
         """After a complete scan: keep the result where the back's options say (DCON's
         ``-o FILE`` scan file); raise :class:`CommandError` (one line) when it cannot."""
+
+
+async def probe_each(
+    addresses: Sequence[int],
+    probe: Callable[[int], Awaitable[Any | None]],
+    found: list[Any],
+    progress: ScanProgress | None = None,
+) -> None:
+    """The loop of every scan: ``probe`` each address in turn, append what answers to
+    ``found`` at once (a cancelled scan keeps what it had) and call ``progress`` after each
+    address with the modules this call found."""
+    count = len(found)
+    for done, address in enumerate(addresses, 1):
+        module = await probe(address)
+        if module is not None:
+            found.append(module)
+        if progress is not None:
+            progress(done, len(addresses), len(found) - count)
 
 
 def one_line(exc: BaseException) -> str:

@@ -33,6 +33,7 @@ from .contract import (
     hookspec,
     module_address_model,
     one_line,
+    probe_each,
 )
 from .registry import (
     Command,
@@ -77,5 +78,6 @@ __all__ = [
     "load_registry",
     "module_address_model",
     "one_line",
+    "probe_each",
     "summary_of",
 ]

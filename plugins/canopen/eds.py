@@ -121,25 +121,15 @@ def eds_text(front: Any, node: Any, file_name: str | None = None) -> str:
     for var in node.od.variables():
         if var.relative and isinstance(var.default, int):
             var.default_raw = f"$NODEID+0x{var.default:X}"
-    now = datetime.now(UTC)
-    file_info = {
-        "FileName": file_name or f"{front.name}.eds",
-        "FileVersion": 1,
-        "FileRevision": 0,
-        "EDSVersion": "4.0",
-        "Description": f"fieldgate CANopen front {front.name} ({getattr(front.config, 'style', 'icpdas')} style)",
-        "CreationTime": now.strftime("%I:%M%p"),
-        "CreationDate": now.strftime("%m-%d-%Y"),
-        "CreatedBy": "fieldgate eds",
-        "ModificationTime": now.strftime("%I:%M%p"),
-        "ModificationDate": now.strftime("%m-%d-%Y"),
-        "ModifiedBy": "fieldgate eds",
-    }
     buffer = io.StringIO()
     canopen.export_od(od, buffer, doc_type="eds")
     text = buffer.getvalue()
     dummies = dummy_types(granularity) if io_device is not None else []
-    return _set_dummy_usage(_replace_file_info(text, file_info), dummies)
+    description = (
+        f"fieldgate CANopen front {front.name} ({getattr(front.config, 'style', 'icpdas')} style)"
+    )
+    text = with_file_info(text, file_name or f"{front.name}.eds", description)
+    return _set_dummy_usage(text, dummies)
 
 
 def _set_dummy_usage(text: str, dummies: list[int]) -> str:
@@ -150,6 +140,25 @@ def _set_dummy_usage(text: str, dummies: list[int]) -> str:
         text,
         flags=re.MULTILINE,
     )
+
+
+def with_file_info(text: str, file_name: str, description: str) -> str:
+    """An EDS canopen wrote with fieldgate's ``[FileInfo]``, made now."""
+    now = datetime.now(UTC)
+    file_info = {
+        "FileName": file_name,
+        "FileVersion": 1,
+        "FileRevision": 0,
+        "EDSVersion": "4.0",
+        "Description": description,
+        "CreationTime": now.strftime("%I:%M%p"),
+        "CreationDate": now.strftime("%m-%d-%Y"),
+        "CreatedBy": "fieldgate eds",
+        "ModificationTime": now.strftime("%I:%M%p"),
+        "ModificationDate": now.strftime("%m-%d-%Y"),
+        "ModifiedBy": "fieldgate eds",
+    }
+    return _replace_file_info(text, file_info)
 
 
 def _replace_file_info(text: str, file_info: dict[str, object]) -> str:

@@ -16,7 +16,6 @@ import hashlib
 import logging
 from collections.abc import Callable, Iterable
 from functools import partial
-from pathlib import Path
 from typing import Any, cast
 
 from fieldgate.can.adapter import CanEngine
@@ -86,10 +85,6 @@ class CanopenFront(CanFront):
         return cast("Node | None", self.engine)
 
     # -- assembling ---------------------------------------------------------------------
-    def _state_path(self, configured: str | None, default: str) -> Path:
-        path = Path(configured or default)
-        return path if path.is_absolute() else self.context.state_dir / path
-
     def fingerprint(self, channels: Iterable[Channel]) -> str:
         text = "\n".join(f"{c.id}:{c.kind.value}" for c in channels)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -107,7 +102,9 @@ class CanopenFront(CanFront):
             LssService(
                 bitrate=cfg.bitrate if isinstance(cfg.bitrate, int) else None,
                 table=cfg.lss_table,
-                store=LssStore(self._state_path(cfg.lss_store_file, f"{self.name}.lss.json")),
+                store=LssStore(
+                    self.context.state_file(cfg.lss_store_file, f"{self.name}.lss.json")
+                ),
             )
         )
         node.add_service(io)
@@ -166,7 +163,7 @@ class CanopenFront(CanFront):
             sdo_zero_extend=profile.sdo_zero_extend,
             sdo_servers=cfg.sdo_servers,
             sync_cob_id=cfg.sync_cob_id,
-            store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),
+            store_path=self.context.state_file(cfg.store_file, f"{self.name}.canopen.json"),
             fingerprint=self.fingerprint(channels),
             announce_defaults=profile.style.hw_config_emcy_unsaved,
             keep_node_id_entries=profile.style.stored_cob_ids_kept,

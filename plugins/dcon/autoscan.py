@@ -84,13 +84,27 @@ class StartScan:
         }
 
 
+def record_path(state_dir: Path, back: str) -> Path:
+    """Where a DCON back records its start's scan (the previous start's, at the next start)."""
+    return state_dir / f"{back}.dcon-scan.json"
+
+
+def _warn_scan_file_differs(config: DconBackConfig, differences: list[str]) -> None:
+    log.warning(
+        "%s: the line differs from the scan file %s (an EDS made from it no longer matches): %s",
+        config.name,
+        config.scan.file,
+        "; ".join(differences),
+    )
+
+
 def previous_start(config: DconBackConfig, state_dir: Path) -> StartScan | None:
     """The previous start's scan as this start's result, when it can stand for the line until
     the background check has probed it (``scan.from_previous``, docs/dcon.md): recorded with
     the topology's scan settings, with supported modules. None: probe first."""
     if not config.scan.from_previous:
         return None
-    record = state_dir / f"{config.name}.dcon-scan.json"
+    record = record_path(state_dir, config.name)
     previous = _previous(config, record)
     # (not the port's name: a pseudo-terminal's changes at each start, and a line moved to
     # another adapter is what the background check finds)
@@ -138,18 +152,12 @@ def verified(
     if config.scan_file is not None:
         result.against_scan_file = differences(config.scan_file.modules, found)
         if result.against_scan_file:
-            log.warning(
-                "%s: the line differs from the scan file %s (an EDS made from it no longer "
-                "matches): %s",
-                config.name,
-                config.scan.file,
-                "; ".join(result.against_scan_file),
-            )
+            _warn_scan_file_differs(config, result.against_scan_file)
     if not changes:
         log.info("%s: the line answers as the previous start's scan said", config.name)
         return []
     result.changes = changes
-    record = state_dir / f"{config.name}.dcon-scan.json"
+    record = record_path(state_dir, config.name)
     now = ScanFile(
         config.port,
         found,
@@ -185,7 +193,7 @@ async def find_modules(config: DconBackConfig, state_dir: Path, timeout_ms: int)
         ", ".join(f"{b} bit/s checksum {'on' if c else 'off'}" for b, c in settings),
         timeout_ms,
     )
-    record = state_dir / f"{config.name}.dcon-scan.json"
+    record = record_path(state_dir, config.name)
     previous = _previous(config, record)
     by_setting: dict[tuple[int, bool], list[Found]] = {}
     for baud, checksum in settings:
@@ -268,7 +276,7 @@ def expected_modules(config: DconBackConfig, state_dir: Path) -> tuple[list[Dcon
     """The modules a back whose start scan found nothing expects, and where they come from:
     the previous start's scan (the image the master last saw), else the topology's scan file
     (the image the EDS was made from), else none."""
-    record = state_dir / f"{config.name}.dcon-scan.json"
+    record = record_path(state_dir, config.name)
     for scan, source in (
         (_previous(config, record), f"the previous start's scan ({record})"),
         (config.scan_file, f"the scan file {config.scan.file}"),
@@ -330,10 +338,4 @@ def _compare(
             "; ".join(result.changes),
         )
     if result.against_scan_file:
-        log.warning(
-            "%s: the line differs from the scan file %s (an EDS made from it no longer "
-            "matches): %s",
-            config.name,
-            config.scan.file,
-            "; ".join(result.against_scan_file),
-        )
+        _warn_scan_file_differs(config, result.against_scan_file)

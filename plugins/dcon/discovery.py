@@ -28,6 +28,7 @@ from .autoscan import (
     expected_modules,
     find_modules,
     previous_start,
+    record_path,
     verified,
 )
 from .config import DconBackConfig, DconModuleConfig, parse_addresses
@@ -214,7 +215,7 @@ class LineDiscovery:
             self._rescan_due = self.context.clock() + self._rescan_delay
             return
         self._rescan_due = None
-        record = self.context.state_dir / f"{cfg.name}.dcon-scan.json"
+        record = record_path(self.context.state_dir, cfg.name)
         scan = ScanFile(cfg.port, modules, cfg.scan.addresses, [cfg.baudrate], [cfg.checksum])
         try:
             record.parent.mkdir(parents=True, exist_ok=True)

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from fieldgate.health import ErrorKind
-from fieldgate.plugin import CommandError, Scanner, ScanProgress
+from fieldgate.plugin import CommandError, Scanner, ScanProgress, probe_each
 from fieldgate.polling import CommError
 from fieldgate.serial_link import AsyncSerial
 from fieldgate.serial_timing import LineTiming
@@ -23,7 +23,7 @@ from .profiles import Profile, find_profile
 from .scanfile import ScanFile, ScannedModule
 from .tables import TABLES
 
-__all__ = ["DconScanner", "Found", "scan_line", "scanned", "topology_yaml"]
+__all__ = ["DconScanner", "Found", "identify", "scan_line", "scanned", "topology_yaml"]
 
 
 @dataclass(frozen=True)
@@ -71,36 +71,37 @@ async def scan_line(
     found: list[Found] | None = None,
     report: Callable[[str], None] = _to_stderr,
 ) -> list[Found]:
-    """Probe each address; modules that answer ``$AA2`` are identified. Silence = nobody there.
-
-    The modules are appended to ``found`` (a new list by default) as they are identified,
-    so a caller that cancels the scan (Ctrl-C) still has the ones found so far; the
-    progress callback tells how many addresses were done. Returns ``found``.
+    """Probe each address (:func:`identify`). The modules are appended to ``found`` (a new
+    list by default) as they are identified, so a caller that cancels the scan (Ctrl-C)
+    still has the ones found so far; the progress callback tells how many addresses were
+    done. Returns ``found``.
     """
-    addresses = list(addresses)
     found = [] if found is None else found
-    count = len(found)
-    for done, address in enumerate(addresses, 1):
-        for attempt in (1, 2):  # an answer that is not one (noise, a late reply) is tried again
-            try:
-                config = codec.parse_config(
-                    await link.transact(codec.command("$", address, "2")), address
-                )
-                name = codec.addressed(
-                    await link.transact(codec.command("$", address, "M")), address
-                )
-                firmware = _optional(await _try(link, address, "F"))
-            except CommError as exc:
-                if exc.kind is ErrorKind.TIMEOUT:
-                    break
-                if attempt == 2:
-                    report(f"address {address}: answered but {exc.kind}: {exc}")
-            else:
-                found.append(Found(address, baudrate, name, firmware, config, find_profile(name)))
-                break
-        if progress is not None:
-            progress(done, len(addresses), len(found) - count)
+    await probe_each(
+        list(addresses), lambda address: identify(link, address, baudrate, report), found, progress
+    )
     return found
+
+
+async def identify(
+    link: DconLink, address: int, baudrate: int, report: Callable[[str], None] = _to_stderr
+) -> Found | None:
+    """The module at ``address`` when it answers ``$AA2``, identified; None for silence."""
+    for attempt in (1, 2):  # an answer that is not one (noise, a late reply) is tried again
+        try:
+            config = codec.parse_config(
+                await link.transact(codec.command("$", address, "2")), address
+            )
+            name = codec.addressed(await link.transact(codec.command("$", address, "M")), address)
+            firmware = _optional(await _try(link, address, "F"))
+        except CommError as exc:
+            if exc.kind is ErrorKind.TIMEOUT:
+                return None
+            if attempt == 2:
+                report(f"address {address}: answered but {exc.kind}: {exc}")
+        else:
+            return Found(address, baudrate, name, firmware, config, find_profile(name))
+    return None
 
 
 async def _try(link: DconLink, address: int, body: str) -> str | None:
@@ -164,28 +165,22 @@ class DconScanner(Scanner):
             help="also write a scan file (JSON) for modules: auto, the EDS generators and --simulate",
         )
 
-    async def scan(
-        self,
-        port: str,
-        baudrate: int,
-        addresses: list[int],
-        args: argparse.Namespace,
-        progress: ScanProgress,
-        found: list[Any],
-    ) -> None:
+    async def open(self, port: str, baudrate: int, args: argparse.Namespace) -> DconLink:
         serial = await AsyncSerial.open(port, baudrate)  # PluginStartError: one line
-        try:
-            # every scan reply carries its address, so a late one cannot be mistaken: no settling
-            link = DconLink(
-                serial,
-                args.checksum,
-                args.timeout_ms / 1000,
-                settle_after_timeout=False,
-                timing=LineTiming.of(baudrate, args.timeout_ms, bits=10),
-            )
-            await scan_line(link, addresses, baudrate, progress, found)
-        finally:
-            await serial.close()
+        # every scan reply carries its address, so a late one cannot be mistaken: no settling
+        return DconLink(
+            serial,
+            args.checksum,
+            args.timeout_ms / 1000,
+            settle_after_timeout=False,
+            timing=LineTiming.of(baudrate, args.timeout_ms, bits=10),
+        )
+
+    async def probe(self, link: DconLink, address: int, baudrate: int) -> Found | None:
+        return await identify(link, address, baudrate)
+
+    async def close(self, link: DconLink) -> None:
+        await link.serial.close()
 
     def topology(self, found: list[Any], args: argparse.Namespace) -> str:
         return topology_yaml(found, args.port, args.checksum, args.name)

@@ -237,26 +237,24 @@ class DeviceNetObject(CipObject):
             5: Attribute(lambda: bytes([slave.allocation_choice, slave.master_mac])),
         }
 
-    def _set_mac(self, data: bytes) -> bytes:
-        mac = self.sized.take(data, 1)
-        if mac > 63:
+    def _byte_up_to(self, data: bytes, highest: int) -> int:
+        """The one-byte value written; above ``highest``: Invalid attribute value."""
+        value = self.sized.take(data, 1)
+        if value > highest:
             raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
-        self.slave.change_mac(mac)
+        return value
+
+    def _set_mac(self, data: bytes) -> bytes:
+        self.slave.change_mac(self._byte_up_to(data, 63))
         return b""
 
     def _set_baud(self, data: bytes) -> bytes:
-        code = self.sized.take(data, 1)
-        if code > 2:
-            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
-        self.slave.pending_baud_code = code
+        self.slave.pending_baud_code = self._byte_up_to(data, 2)
         self.slave.settings_changed()
         return b""
 
     def _set_boi(self, data: bytes) -> bytes:
-        value = self.sized.take(data, 1)
-        if value > 1:
-            raise CipError(cip.INVALID_ATTRIBUTE_VALUE)
-        self.slave.bus_off_interrupt = value
+        self.slave.bus_off_interrupt = self._byte_up_to(data, 1)
         return b""
 
     def _set_bus_off_count(self, data: bytes) -> bytes:

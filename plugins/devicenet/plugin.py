@@ -11,7 +11,6 @@ the front's status.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, cast
 
 from fieldgate.can.adapter import CanEngine
@@ -59,9 +58,8 @@ class DeviceNetFront(CanFront):
 
     def build(self) -> DeviceNetSlave:
         cfg, ident = self.config, self.config.identity
-        path = Path(cfg.store_file or f"{self.name}.devicenet.json")
         store = NetworkStore(
-            path if path.is_absolute() else self.context.state_dir / path,
+            self.context.state_file(cfg.store_file, f"{self.name}.devicenet.json"),
             (cfg.mac_id, BAUD_RATES.index(cfg.bitrate)),
         )
         mac_id, baud_code = store.load() or (cfg.mac_id, BAUD_RATES.index(cfg.bitrate))

@@ -13,14 +13,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
 from fieldgate.health import ErrorKind
-from fieldgate.plugin import Scanner, ScanProgress
-from fieldgate.polling import CommError
+from fieldgate.plugin import PluginStartError, Scanner
+from fieldgate.polling import CommError, LineLost
 
-from .client import ModbusExceptionError, ModbusLink
+from .client import ModbusExceptionError, ModbusLink, Transactions
 from .codec import Function
 
 PROBE = (Function.READ_HOLDING_REGISTERS, 0, 1)  # function, address, count
@@ -43,45 +44,51 @@ class ModbusScanner(Scanner):
             "--parity", choices=("N", "E", "O"), default="N", help="parity of the line (default N)"
         )
 
-    async def scan(
-        self,
-        port: str,
-        baudrate: int,
-        addresses: list[int],
-        args: argparse.Namespace,
-        progress: ScanProgress,
-        found: list[Any],
-    ) -> None:
+    async def open(self, port: str, baudrate: int, args: argparse.Namespace) -> ModbusLink:
         link = ModbusLink(
             port, baudrate=baudrate, parity=args.parity, timeout=args.timeout_ms / 1000
         )
         await link.open()  # PluginStartError: one line
-        count = len(found)
-        try:
-            for done, address in enumerate(addresses, 1):
-                answer = await probe(link, address)
-                if answer is not None:
-                    found.append(Found(address, baudrate, answer))
-                progress(done, len(addresses), len(found) - count)
-        finally:
-            link.close()
+        return link
+
+    async def probe(self, link: ModbusLink, address: int, baudrate: int) -> Found | None:
+        answer = await probe(link, address)
+        return None if answer is None else Found(address, baudrate, answer)
+
+    async def close(self, link: ModbusLink) -> None:
+        link.close()
 
     def topology(self, found: list[Any], args: argparse.Namespace) -> str:
         return topology_yaml(found, args.port, args.parity, args.name)
 
 
-async def probe(link: ModbusLink, address: int) -> str | None:
-    """What unit ``address`` answers to the probe; None when nothing answers."""
+async def probe(
+    link: Transactions, address: int, absent: Collection[int] = (), lost_ends_scan: bool = False
+) -> str | None:
+    """What unit ``address`` answers to the probe; None when nothing answers, or when it
+    answers an exception code in ``absent`` (a TCP gateway saying its target is not there).
+    ``lost_ends_scan``: a lost link (LineLost) ends the scan as a PluginStartError."""
     function, register, count = PROBE
     try:
         values = await link.read_registers(address, function, register, count)
     except ModbusExceptionError as exc:
+        if exc.code in absent:
+            return None
         return f"FC{function} register {register}: exception {exc.code}"
+    except LineLost as exc:
+        if lost_ends_scan:
+            raise PluginStartError(f"{exc}") from None
+        _answered_but(address, exc)
+        return None
     except CommError as exc:
-        if exc.kind is not ErrorKind.TIMEOUT:
-            print(f"\nunit {address}: answered but {exc.kind}: {exc}", file=sys.stderr)
+        _answered_but(address, exc)
         return None
     return f"FC{function} register {register} = {values[0]}"
+
+
+def _answered_but(address: int, exc: CommError) -> None:
+    if exc.kind is not ErrorKind.TIMEOUT:
+        print(f"\nunit {address}: answered but {exc.kind}: {exc}", file=sys.stderr)
 
 
 def topology_yaml(found: list[Found], port: str, parity: str, name: str = "rs485") -> str:

@@ -10,15 +10,11 @@ for every unit: give a model (yours, or a preset) or declare the channels.
 from __future__ import annotations
 
 import argparse
-import sys
 from typing import TYPE_CHECKING, Any
 
-from fieldgate.health import ErrorKind
-from fieldgate.plugin import PluginStartError, Scanner, ScanProgress
-from fieldgate.polling import CommError, LineLost
+from fieldgate.plugin import PluginStartError, Scanner
 
-from .client import ModbusExceptionError
-from .scan import PROBE, UNKNOWN_MODEL, Found
+from .scan import UNKNOWN_MODEL, Found, probe
 from .tcp_config import host_key, parse_host
 
 if TYPE_CHECKING:
@@ -31,15 +27,7 @@ class ModbusTcpScanner(Scanner):
     addresses = "1-247"
     address_range = (0, 255)
 
-    async def scan(
-        self,
-        port: str,
-        baudrate: int,
-        addresses: list[int],
-        args: argparse.Namespace,
-        progress: ScanProgress,
-        found: list[Any],
-    ) -> None:
+    async def open(self, port: str, baudrate: int, args: argparse.Namespace) -> ModbusTcpLink:
         try:
             host, tcp_port = parse_host(port)
         except ValueError as exc:
@@ -53,15 +41,14 @@ class ModbusTcpScanner(Scanner):
             raise PluginStartError(
                 f"cannot connect to {link.name}: {getattr(exc, 'strerror', None) or exc or 'timed out'}"
             ) from None
-        count = len(found)
-        try:
-            for done, unit in enumerate(addresses, 1):
-                answer = await probe(link, unit)
-                if answer is not None:
-                    found.append(Found(unit, 0, answer))
-                progress(done, len(addresses), len(found) - count)
-        finally:
-            link.close()
+        return link
+
+    async def probe(self, link: ModbusTcpLink, address: int, baudrate: int) -> Found | None:
+        answer = await probe(link, address, ABSENT, lost_ends_scan=True)
+        return None if answer is None else Found(address, 0, answer)  # no baud rate on TCP
+
+    async def close(self, link: ModbusTcpLink) -> None:
+        link.close()
 
     def topology(self, found: list[Any], args: argparse.Namespace) -> str:
         host, port = parse_host(args.port)
@@ -80,21 +67,3 @@ class ModbusTcpScanner(Scanner):
         if not found:
             lines[-1] = "    modules: []  # no unit answered"
         return "\n".join(lines) + "\n"
-
-
-async def probe(link: ModbusTcpLink, unit: int) -> str | None:
-    """What ``unit`` answers to the probe; None when nobody does."""
-    function, register, count = PROBE
-    try:
-        values = await link.read_registers(unit, function, register, count)
-    except ModbusExceptionError as exc:
-        if exc.code in ABSENT:
-            return None
-        return f"FC{function} register {register}: exception {exc.code}"
-    except LineLost as exc:
-        raise PluginStartError(f"{exc}") from None
-    except CommError as exc:
-        if exc.kind is not ErrorKind.TIMEOUT:
-            print(f"\nunit {unit}: answered but {exc.kind}: {exc}", file=sys.stderr)
-        return None
-    return f"FC{function} register {register} = {values[0]}"

@@ -387,7 +387,7 @@ def test_a_topology_without_outputs_has_no_output_entry(tmp_path, caplog):
         ),
         (
             ["--front", "panel"],
-            "front 'panel' is a memory front, which has no EDS (EDS for: canopen, devicenet)",
+            "front 'panel' is a memory front, which has no EDS (EDS for: canopen, canopen-device, devicenet)",
         ),
     ],
 )
@@ -419,7 +419,7 @@ def test_no_front_with_an_eds_and_invalid_topology_exit_1_as_validate(tmp_path, 
     assert cli_main(["eds", str(topology)]) == 1
     assert capsys.readouterr().err == (
         f"{topology}: no front with an EDS in the topology (fronts: panel (memory); "
-        "EDS for: canopen, devicenet)\n"
+        "EDS for: canopen, canopen-device, devicenet)\n"
     )
     bad = write_topology(tmp_path, [dnet_front(mac_id=64)])
     assert cli_main(["eds", str(bad)]) == 1

@@ -13,7 +13,6 @@ import asyncio
 import io
 import time
 from collections.abc import Callable
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, cast
 
@@ -26,7 +25,7 @@ from fieldgate.image import Change, Subscription
 from fieldgate.plugin import EdsRequest, GatewayContext
 
 from ..cia301.node import Node
-from ..eds import _replace_file_info
+from ..eds import with_file_info
 from .config import CanopenDeviceConfig, parse_entry
 from .hooks import ThreadRunner, load_setup
 from .node import DeviceNode
@@ -46,10 +45,6 @@ class DeviceFront(CanFront):
     def node(self) -> Node | None:
         return cast("Node | None", self.engine)
 
-    def _state_path(self, configured: str | None, default: str) -> Path:
-        path = Path(configured or default)
-        return path if path.is_absolute() else self.context.state_dir / path
-
     def build(self) -> Node:
         cfg = self.config
         if self.device is not None:
@@ -59,8 +54,8 @@ class DeviceFront(CanFront):
             read_device_file(cfg.eds),
             cfg.node_id,
             name=self.name,
-            store_path=self._state_path(cfg.store_file, f"{self.name}.canopen.json"),
-            lss_store_path=self._state_path(cfg.lss_store_file, f"{self.name}.lss.json"),
+            store_path=self.context.state_file(cfg.store_file, f"{self.name}.canopen.json"),
+            lss_store_path=self.context.state_file(cfg.lss_store_file, f"{self.name}.lss.json"),
             lss=cfg.lss,
             bitrate=cfg.bitrate if isinstance(cfg.bitrate, int) else None,
             sdo_timeout_s=cfg.sdo_timeout_ms / 1000.0,
@@ -216,21 +211,8 @@ def device_eds_text(front: DeviceFront, node: Node, file_name: str | None = None
             out.add_object(node.od.model.indices[index])
     buffer = io.StringIO()
     canopen.export_od(out, buffer, doc_type="eds")
-    now = datetime.now(UTC)
-    info = {
-        "FileName": file_name or f"{front.name}.eds",
-        "FileVersion": 1,
-        "FileRevision": 0,
-        "EDSVersion": "4.0",
-        "Description": f"fieldgate canopen-device {front.name} from {Path(front.config.eds).name}",
-        "CreationTime": now.strftime("%I:%M%p"),
-        "CreationDate": now.strftime("%m-%d-%Y"),
-        "CreatedBy": "fieldgate eds",
-        "ModificationTime": now.strftime("%I:%M%p"),
-        "ModificationDate": now.strftime("%m-%d-%Y"),
-        "ModifiedBy": "fieldgate eds",
-    }
-    return _replace_file_info(buffer.getvalue(), info)
+    description = f"fieldgate canopen-device {front.name} from {Path(front.config.eds).name}"
+    return with_file_info(buffer.getvalue(), file_name or f"{front.name}.eds", description)
 
 
 def device_eds_for(request: EdsRequest) -> str:
