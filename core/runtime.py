@@ -35,8 +35,15 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("fieldgate.runtime")
 
-CANCEL_GRACE_S = 0.5  # how long a cancelled component task may take before it is cancelled again
+# Stopping is bounded (issue 33: a gateway stops as quickly as it starts, and a component
+# that does not stop never holds systemd's stop): a cancelled task is cancelled again every
+# CANCEL_GRACE_S and left behind after CANCEL_ATTEMPTS; a component's stop() (a north-facing
+# child's included: it has its own shorter grace, isolation.supervisor.STOP_GRACE_S) is left
+# behind, logged, after STOP_TIMEOUT_S. All tasks are cancelled together, so these bound the
+# whole stop, not each component's.
+CANCEL_GRACE_S = 0.1
 CANCEL_ATTEMPTS = 10
+STOP_TIMEOUT_S = 2.0
 
 
 class GatewayStartError(Exception):
@@ -114,7 +121,7 @@ class Gateway:
             http_started = asyncio.ensure_future(self.http.start())
         try:
             await self._start_components()
-        except GatewayStartError:
+        except (GatewayStartError, asyncio.CancelledError):
             if http_started is not None:
                 http_started.cancel()
                 await asyncio.gather(http_started, return_exceptions=True)
@@ -152,6 +159,9 @@ class Gateway:
                 if not self._north(comp):
                     await self._start_one(comp)
             self.fieldbus_up = True
+            north = sum(1 for c in self.fronts if self._north(c))
+            if north:
+                log.info("fieldbus side running; starting %d north-facing front(s)", north)
             if self._on_fieldbus_up is not None:
                 self._on_fieldbus_up()
             # the fieldbus is up; the north-facing children start together
@@ -295,10 +305,25 @@ class Gateway:
         await self._safe_stop(comp)
 
     async def _safe_stop(self, comp: Component) -> None:
-        try:
-            await comp.stop()
-        except Exception as exc:
+        """``comp.stop()``, logged with its duration; left behind after STOP_TIMEOUT_S."""
+        started = time.monotonic()
+        stopping = asyncio.ensure_future(comp.stop())
+        done, _ = await asyncio.wait({stopping}, timeout=STOP_TIMEOUT_S)
+        if not done:
+            stopping.cancel()  # not awaited: it may not end either
+            log.error(
+                "%s %s: still stopping after %.1f s; left behind",
+                comp.kind,
+                comp.name,
+                STOP_TIMEOUT_S,
+            )
+            return
+        exc = stopping.exception() if not stopping.cancelled() else None
+        if exc is not None:
             log.error("%s %s: error while stopping: %s", comp.kind, comp.name, exc)
+        log.debug(
+            "%s %s stopped in %.0f ms", comp.kind, comp.name, (time.monotonic() - started) * 1000
+        )
 
     async def stop(self) -> None:
         """Fronts stop, outputs go to their shutdown values, backs flush and close."""
@@ -308,9 +333,7 @@ class Gateway:
         # for its child's own stop; one after the other they took seconds)
         north = [c for c in self.fronts if self._north(c)]
         stopping = asyncio.gather(*(self._cancel_and_stop(c) for c in north))
-        for comp in self.fronts:
-            if comp not in north:
-                await self._cancel(comp)
+        await asyncio.gather(*(self._cancel(c) for c in self.fronts if c not in north))
         for comp in self.fronts:
             if comp not in north:
                 await self._safe_stop(comp)
@@ -318,20 +341,32 @@ class Gateway:
         changed = self.image.apply_shutdown_modes()
         if changed:
             log.info("shutdown values applied to %d output(s)", len(changed))
-        for comp in self.backs:
-            flush = getattr(comp, "flush_outputs", None)
-            if flush is not None and getattr(comp, "started", False):
-                await self._cancel(comp)
-                try:
-                    await flush()
-                except Exception as exc:
-                    log.error("back %s: could not write shutdown values: %s", comp.name, exc)
+        flushing = [
+            c
+            for c in self.backs
+            if getattr(c, "flush_outputs", None) is not None and getattr(c, "started", False)
+        ]
+        await asyncio.gather(*(self._cancel(c) for c in flushing))
+        await asyncio.gather(*(self._flush(c) for c in flushing))
         await self._stop_components()
         if self.bench is not None:
             await self.bench.stop()
         self.running = False
         await self._stop_http()
         log.info("gateway %s stopped", self.topology.gateway.name)
+
+    async def _flush(self, back: Component) -> None:
+        """A back writes its shutdown values (each back bounds its own flush; STOP_TIMEOUT_S
+        bounds one that does not)."""
+        flush = getattr(back, "flush_outputs")  # noqa: B009  (not every back has it)
+        try:
+            await asyncio.wait_for(flush(), STOP_TIMEOUT_S)
+        except TimeoutError:
+            log.error(
+                "back %s: shutdown values not written within %.1f s", back.name, STOP_TIMEOUT_S
+            )
+        except Exception as exc:
+            log.error("back %s: could not write shutdown values: %s", back.name, exc)
 
     async def _stop_http(self) -> None:
         if self.http is not None:
@@ -371,8 +406,7 @@ class Gateway:
         )
 
     async def _stop_components(self) -> None:
-        for comp in self.fronts + self.backs:
-            await self._cancel(comp)
+        await asyncio.gather(*(self._cancel(c) for c in self.fronts + self.backs))
         for comp in reversed(self.fronts + self.backs):
             if getattr(comp, "started", False):
                 await self._safe_stop(comp)
