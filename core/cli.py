@@ -139,7 +139,16 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
                 tasks.append(asyncio.create_task(notifier.keep_alive(lambda: status_line(gateway))))
 
         try:
-            await gateway.start(on_fieldbus_up=fieldbus_up)
+            if not await _start_unless_stopped(gateway, stop, fieldbus_up):
+                log.info("stopping (asked to while starting)")
+                if notifier is not None:
+                    notifier.stopping()
+                for task in tasks:
+                    task.cancel()
+                await gateway.stop()
+                if notifier is not None:
+                    notifier.close()
+                return ExitCode.OK
         except GatewayStartError as exc:
             log.error("cannot start: %s", exc)
             for task in tasks:
@@ -160,6 +169,24 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
         if notifier is not None:
             notifier.close()
     return ExitCode.OK
+
+
+async def _start_unless_stopped(
+    gateway: Gateway, stop: asyncio.Event, on_fieldbus_up: Callable[[], None]
+) -> bool:
+    """Start the gateway; False when SIGTERM/SIGINT came first (the start is cancelled: the
+    north-facing children start after READY and an OPC UA server's certificate took seconds
+    on a busy host, which a stop must not wait for)."""
+    starting = asyncio.ensure_future(gateway.start(on_fieldbus_up=on_fieldbus_up))
+    asked = asyncio.ensure_future(stop.wait())
+    await asyncio.wait({starting, asked}, return_when=asyncio.FIRST_COMPLETED)
+    asked.cancel()
+    if starting.done():
+        starting.result()  # GatewayStartError goes to the caller
+        return True
+    starting.cancel()
+    await asyncio.gather(starting, return_exceptions=True)
+    return False
 
 
 STATUS_LEGEND = (

@@ -35,8 +35,15 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("fieldgate.runtime")
 
-CANCEL_GRACE_S = 0.5  # how long a cancelled component task may take before it is cancelled again
+# Stopping is bounded (issue 33: a gateway stops as quickly as it starts, and a component
+# that does not stop never holds systemd's stop): a cancelled task is cancelled again every
+# CANCEL_GRACE_S and left behind after CANCEL_ATTEMPTS; a component's stop() (a north-facing
+# child's included: it has its own shorter grace, isolation.supervisor.STOP_GRACE_S) is left
+# behind, logged, after STOP_TIMEOUT_S. All tasks are cancelled together, so these bound the
+# whole stop, not each component's.
+CANCEL_GRACE_S = 0.1
 CANCEL_ATTEMPTS = 10
+STOP_TIMEOUT_S = 2.0
 
 
 class GatewayStartError(Exception):
@@ -114,7 +121,7 @@ class Gateway:
             http_started = asyncio.ensure_future(self.http.start())
         try:
             await self._start_components()
-        except GatewayStartError:
+        except (GatewayStartError, asyncio.CancelledError):
             if http_started is not None:
                 http_started.cancel()
                 await asyncio.gather(http_started, return_exceptions=True)
@@ -152,6 +159,9 @@ class Gateway:
                 if not self._north(comp):
                     await self._start_one(comp)
             self.fieldbus_up = True
+            north = sum(1 for c in self.fronts if self._north(c))
+            if north:
+                log.info("fieldbus side running; starting %d north-facing front(s)", north)
             if self._on_fieldbus_up is not None:
                 self._on_fieldbus_up()
             # the fieldbus is up; the north-facing children start together
@@ -264,7 +274,7 @@ class Gateway:
             )
             self.image.set_quality(comp.channel_ids(), Quality.COMM_FAULT, origin=comp.name)
             self._state_changed()
-            await self._safe_stop(comp)
+            await stop_component(comp)
             while True:
                 await asyncio.sleep(delay)
                 try:
@@ -288,17 +298,11 @@ class Gateway:
                         exc,
                         delay,
                     )
-                    await self._safe_stop(comp)
+                    await stop_component(comp)
 
     async def _cancel_and_stop(self, comp: Component) -> None:
         await self._cancel(comp)
-        await self._safe_stop(comp)
-
-    async def _safe_stop(self, comp: Component) -> None:
-        try:
-            await comp.stop()
-        except Exception as exc:
-            log.error("%s %s: error while stopping: %s", comp.kind, comp.name, exc)
+        await stop_component(comp)
 
     async def stop(self) -> None:
         """Fronts stop, outputs go to their shutdown values, backs flush and close."""
@@ -308,24 +312,21 @@ class Gateway:
         # for its child's own stop; one after the other they took seconds)
         north = [c for c in self.fronts if self._north(c)]
         stopping = asyncio.gather(*(self._cancel_and_stop(c) for c in north))
+        await asyncio.gather(*(self._cancel(c) for c in self.fronts if c not in north))
         for comp in self.fronts:
             if comp not in north:
-                await self._cancel(comp)
-        for comp in self.fronts:
-            if comp not in north:
-                await self._safe_stop(comp)
+                await stop_component(comp)
         await stopping
         changed = self.image.apply_shutdown_modes()
         if changed:
             log.info("shutdown values applied to %d output(s)", len(changed))
-        for comp in self.backs:
-            flush = getattr(comp, "flush_outputs", None)
-            if flush is not None and getattr(comp, "started", False):
-                await self._cancel(comp)
-                try:
-                    await flush()
-                except Exception as exc:
-                    log.error("back %s: could not write shutdown values: %s", comp.name, exc)
+        flushing = [
+            c
+            for c in self.backs
+            if getattr(c, "flush_outputs", None) is not None and getattr(c, "started", False)
+        ]
+        await asyncio.gather(*(self._cancel(c) for c in flushing))
+        await asyncio.gather(*(flush_back(c) for c in flushing))
         await self._stop_components()
         if self.bench is not None:
             await self.bench.stop()
@@ -342,40 +343,15 @@ class Gateway:
             self._feed = None
 
     async def _cancel(self, comp: Component) -> None:
-        """Cancel a component's task and wait for it, cancelling again while it goes on.
-
-        A cancellation can be lost inside a library (Python 3.11's ``asyncio.wait_for``
-        drops one that arrives together with the awaited result; pymodbus waits that way),
-        and a stop must never hang on it: the task is cancelled again every
-        ``CANCEL_GRACE_S`` and, after ``CANCEL_ATTEMPTS``, left behind with an error.
-        """
         task = self._tasks.pop(comp.name, None)
-        if task is None:
-            return
-        for attempt in range(1, CANCEL_ATTEMPTS + 1):
-            task.cancel()
-            done, _ = await asyncio.wait({task}, timeout=CANCEL_GRACE_S)
-            if done:
-                if not task.cancelled():
-                    task.exception()  # retrieved: a failure while stopping is not worth a warning at exit
-                return
-            log.warning(
-                "%s %s: still running %.1f s after being cancelled (attempt %d); cancelling again",
-                comp.kind,
-                comp.name,
-                CANCEL_GRACE_S * attempt,
-                attempt,
-            )
-        log.error(
-            "%s %s does not stop when cancelled; leaving its task behind", comp.kind, comp.name
-        )
+        if task is not None:
+            await cancel_task(comp, task)
 
     async def _stop_components(self) -> None:
-        for comp in self.fronts + self.backs:
-            await self._cancel(comp)
+        await asyncio.gather(*(self._cancel(c) for c in self.fronts + self.backs))
         for comp in reversed(self.fronts + self.backs):
             if getattr(comp, "started", False):
-                await self._safe_stop(comp)
+                await stop_component(comp)
                 comp.started = False  # type: ignore[attr-defined]
 
     async def __aenter__(self) -> Gateway:
@@ -435,3 +411,61 @@ class Gateway:
         if child is not None:
             children["http"] = {**child.process_status(), "restarts": self.http.restarts}
         return children
+
+
+# -- stopping (module functions: bounded by the constants above) --------------------------
+async def cancel_task(comp: Component, task: asyncio.Task[None]) -> None:
+    """Cancel a component's task and wait for it, cancelling again while it goes on.
+
+    A cancellation can be lost inside a library (Python 3.11's ``asyncio.wait_for``
+    drops one that arrives together with the awaited result; pymodbus waits that way),
+    and a stop must never hang on it: the task is cancelled again every
+    ``CANCEL_GRACE_S`` and, after ``CANCEL_ATTEMPTS``, left behind with an error.
+    """
+    for attempt in range(1, CANCEL_ATTEMPTS + 1):
+        task.cancel()
+        done, _ = await asyncio.wait({task}, timeout=CANCEL_GRACE_S)
+        if done:
+            if not task.cancelled():
+                task.exception()  # retrieved: a failure while stopping is not worth a warning at exit
+            return
+        log.warning(
+            "%s %s: still running %.1f s after being cancelled (attempt %d); cancelling again",
+            comp.kind,
+            comp.name,
+            CANCEL_GRACE_S * attempt,
+            attempt,
+        )
+    log.error("%s %s does not stop when cancelled; leaving its task behind", comp.kind, comp.name)
+
+
+async def stop_component(comp: Component) -> None:
+    """``comp.stop()``, logged with its duration; left behind after STOP_TIMEOUT_S."""
+    started = time.monotonic()
+    stopping = asyncio.ensure_future(comp.stop())
+    done, _ = await asyncio.wait({stopping}, timeout=STOP_TIMEOUT_S)
+    if not done:
+        stopping.cancel()  # not awaited: it may not end either
+        log.error(
+            "%s %s: still stopping after %.1f s; left behind",
+            comp.kind,
+            comp.name,
+            STOP_TIMEOUT_S,
+        )
+        return
+    exc = stopping.exception() if not stopping.cancelled() else None
+    if exc is not None:
+        log.error("%s %s: error while stopping: %s", comp.kind, comp.name, exc)
+    log.debug("%s %s stopped in %.0f ms", comp.kind, comp.name, (time.monotonic() - started) * 1000)
+
+
+async def flush_back(back: Component) -> None:
+    """A back writes its shutdown values (each back bounds its own flush; STOP_TIMEOUT_S
+    bounds one that does not)."""
+    flush = getattr(back, "flush_outputs")  # noqa: B009  (not every back has it)
+    try:
+        await asyncio.wait_for(flush(), STOP_TIMEOUT_S)
+    except TimeoutError:
+        log.error("back %s: shutdown values not written within %.1f s", back.name, STOP_TIMEOUT_S)
+    except Exception as exc:
+        log.error("back %s: could not write shutdown values: %s", back.name, exc)

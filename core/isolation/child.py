@@ -34,6 +34,7 @@ from .parts import Part, make_part
 log = logging.getLogger("fieldgate.isolation.child")
 
 STATUS_PERIOD_S = 1.0
+PART_STOP_S = 1.0  # how long the part's stop() may take (supervisor.STOP_GRACE_S is longer)
 STATUS_LIMIT = 256 * 1024  # bytes of one status report (the fieldbus process drops larger ones)
 PR_SET_PDEATHSIG = 1
 
@@ -85,10 +86,15 @@ def main(argv: list[str]) -> int:
         prefix=f"{init['name']}[{os.getpid()}] ",
     )
     runner = asyncio.Runner(loop_factory=_loop_factory(init.get("loop", "asyncio")))
-    try:
-        return runner.run(Child(sock, init, budget).serve())
-    finally:
-        runner.close()
+    code = runner.run(Child(sock, init, budget).serve())
+    # The part has stopped and said its last word on the channel. Exit now: the runner's
+    # close would join worker threads (paho's blocking connect to a broker that does not
+    # answer: seconds) and the interpreter's teardown of a large heap took 100-500 ms
+    # (asyncua's) on a busy host, while the fieldbus process waits for this exit.
+    logging.shutdown()  # the log's last lines are written
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def _loop_factory(name: str) -> Any:
@@ -150,7 +156,7 @@ class Child:
         for task in (run, report, stop, listen):
             task.cancel()
         try:
-            await asyncio.wait_for(part.stop(), 2.0)
+            await asyncio.wait_for(part.stop(), PART_STOP_S)
         except Exception as exc:  # noqa: BLE001  (stopping: say it, exit anyway)
             log.warning("error while stopping: %s", one_line(exc))
         context.fail_writes("the child is stopping")

@@ -42,7 +42,9 @@ log = logging.getLogger("fieldgate.isolation")
 MAX_WRITES_WAITING = 64
 MAX_STATUS_BYTES = 512 * 1024  # a status frame larger than this is dropped unread
 WRITE_CHUNK = 256 * 1024  # bytes handed to the socket per wake-up
-STOP_GRACE_S = 3.0
+# a child asked to stop gets this long (its part's own stop is bounded shorter, at
+# child.PART_STOP_S, and it exits without the interpreter's teardown) before SIGKILL
+STOP_GRACE_S = 1.5
 
 WriteHandler = Callable[[dict[str, bool | int | float | str]], str | None]
 
@@ -152,7 +154,15 @@ class ChildProcess:
     async def stop(self) -> None:
         """Ask the child to stop; kill it if it has not within STOP_GRACE_S."""
         proc = self.process
-        if proc is not None and proc.returncode is None and self._transport is not None:
+        if self.state == "starting" and proc is not None and proc.returncode is None:
+            # not serving yet: nothing to close gracefully, and its start (an OPC UA
+            # certificate, a broker) could take seconds before it reads the stop
+            log.info("%s: stopped while starting (its child process is ended)", self.name)
+            self._reason = self._reason or "stopped while starting"
+            self.state = "stopping"
+            proc.send_signal(signal.SIGKILL)
+            await proc.wait()
+        elif proc is not None and proc.returncode is None and self._transport is not None:
             self.state = "stopping"
             self.outbox.put_control(wire.down(("stop",)))
             self._flush()

@@ -42,6 +42,7 @@ from .model import NodeModel, Sample, Value
 from .session import Session, SessionSettings
 
 MAX_OUTBOX_DATA = 1000
+CLOSE_TIMEOUT_S = 0.5  # stopping: how long the disconnect may take (docs/sparkplug.md)
 """DATA messages waiting for the MQTT client at once (a stalled socket): beyond, they are
 dropped from the outbox, counted, and their samples go to the journal as history."""
 MAX_QUEUED_WRITES = 256
@@ -57,6 +58,7 @@ class SparkplugFront(Front):
         self.journal: SqliteJournal | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._link: Link | None = None
+        self._closing: set[asyncio.Future[None]] = set()  # links closing (NDEATH, DISCONNECT)
         self._generation = 0
         self._link_stats = LinkStats()
         self._passwords: list[str | None] = []
@@ -227,9 +229,16 @@ class SparkplugFront(Front):
             self._subscription = None
         if self.session is not None and self.session.state is not State.STOPPED:
             self._execute(self.session.stop(self._now()))
-        link, self._link = self._link, None
-        if link is not None:
-            await link.close()
+        self._drop_link()
+        closing, self._closing = self._closing, set()
+        if closing:  # the NDEATH and DISCONNECT handed over; a broker that does not take them:
+            _, late = await asyncio.wait(closing, timeout=CLOSE_TIMEOUT_S)  # its will says it
+            if late:
+                self.log.warning(
+                    "the broker did not take the disconnect within %.1f s; its will (NDEATH) "
+                    "tells the host",
+                    CLOSE_TIMEOUT_S,
+                )
         if self.journal is not None:
             self.journal.close()
             self.journal = None
@@ -368,7 +377,9 @@ class SparkplugFront(Front):
         self._generation += 1
         if link is not None:
             link.closed = True
-            asyncio.ensure_future(link.close())
+            closing = asyncio.ensure_future(link.close())
+            self._closing.add(closing)
+            closing.add_done_callback(self._closing.discard)
 
     def _open(self, action: Connect) -> None:
         assert self._loop is not None

@@ -281,3 +281,31 @@ def test_restart_delays_double_up_to_a_minute_and_start_over_after_a_stable_run(
     assert [b.next() for _ in range(2)] == [1, 2]
     long_first = Backoff(300.0)  # a first delay above the cap is never shortened
     assert [long_first.next() for _ in range(3)] == [300, 300, 300]
+
+
+async def test_a_component_whose_stop_never_returns_is_left_behind_and_logged(
+    registry, topology_dict, monkeypatch, caplog
+):
+    """Issue 33: a stop is bounded; a back that never finishes stopping is logged and left
+    behind (the process exits anyway) instead of holding the service manager's stop."""
+    from fieldgate import runtime
+
+    monkeypatch.setattr(runtime, "STOP_TIMEOUT_S", 0.05)
+    never = asyncio.Event()
+    stops = 0
+
+    async def stuck_stop(self):
+        nonlocal stops
+        stops += 1
+        await never.wait()
+
+    monkeypatch.setattr(registry.lookup("back", "loopback").factory, "stop", stuck_stop)
+    gw = Gateway.load(topology_dict(), registry=registry)
+    await gw.start()
+    async with asyncio.timeout(5):
+        await gw.stop()
+    assert stops == 1 and not gw.running
+    assert any(
+        "back io: still stopping after" in r.getMessage() and "left behind" in r.getMessage()
+        for r in caplog.records
+    )

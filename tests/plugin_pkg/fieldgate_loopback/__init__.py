@@ -168,6 +168,12 @@ class ProbeFrontConfig(FrontConfig):
     writable: list[str] = Field(default_factory=list, description="outputs it may write")
     fail_start: str | None = Field(None, description="test hook: start() fails with this cause")
     start_s: float = Field(0.0, ge=0, description="test hook: start() takes this long")
+    thread_s: float = Field(
+        0.0,
+        ge=0,
+        description="test hook: start() leaves a worker thread blocked this long (a library's "
+        "blocking call, e.g. paho's connect to a broker that does not answer)",
+    )
 
     def written_outputs(self) -> list[str] | None:
         return self.writable
@@ -182,11 +188,16 @@ class ProbeFront(Front):
         self.port = 0
         self._crash = asyncio.Event()
         self._held: list[bytearray] = []
+        self._blocked: asyncio.Future[None] | None = None
 
     async def start(self) -> None:
         if self.config.fail_start:
             raise PluginStartError(self.config.fail_start)
         await asyncio.sleep(self.config.start_s)  # a server that takes long (certificates, ...)
+        if self.config.thread_s:
+            self._blocked = asyncio.ensure_future(
+                asyncio.to_thread(time.sleep, self.config.thread_s)
+            )
         host, port = self.config.listen.rsplit(":", 1)
         self.context.image.subscribe_batch(self._changed)
         self.server = await asyncio.start_server(self._serve, host, int(port))
