@@ -45,6 +45,9 @@ from .tcp_link import ModbusTcpLink
 log = logging.getLogger("fieldgate.modbus.tcp")
 
 
+STABLE_S = 5.0  # a connection lost sooner than this after it opened counts as dropped at once
+
+
 @dataclass
 class Lane:
     host: str
@@ -67,6 +70,9 @@ class ModbusTcpClientBack(Back):
         self.lanes: list[Lane] = []
         self.modules: dict[int, ModbusModule] = {}
         self._outage: dict[int, bool] = {}  # id(link) -> its devices were marked lost
+        # id(link) -> (when it last connected, connections in a row lost within STABLE_S): a
+        # host that accepts and drops at once is re-tried with the same back-off as a refusal
+        self._flaps: dict[int, tuple[float, int]] = {}
 
     # -- life cycle -----------------------------------------------------------------------------
     async def start(self) -> None:
@@ -76,6 +82,7 @@ class ModbusTcpClientBack(Back):
         self.lanes.clear()
         self.modules.clear()
         self._outage.clear()
+        self._flaps.clear()
         for key, devices in cfg.by_host().items():
             connections, _pipeline, timeout, _rtt = cfg.host_settings(key)
             host, port = cfg.endpoint(devices[0])
@@ -153,6 +160,22 @@ class ModbusTcpClientBack(Back):
                 return
             delay, cap = 0.0, max(REOPEN_FIRST_S, self.config.offline_probe_ms / 1000)
             lost_at = self.context.clock()
+            connected_at, flaps = self._flaps.get(id(link), (lost_at, 0))
+            if cause is not None and lost_at - connected_at < STABLE_S:
+                flaps += 1  # lost right after it connected: not a network blip, a host that drops
+                delay = min(REOPEN_FIRST_S * 2 ** (flaps - 1), cap)
+                if flaps == 1:
+                    log.warning(
+                        "back %s: %s dropped the connection %.1f s after it opened (%s); "
+                        "re-tried every %.1f s at most while it does",
+                        self.name,
+                        link.name,
+                        lost_at - connected_at,
+                        cause,
+                        cap,
+                    )
+            else:
+                flaps = 0
             while True:
                 if delay:
                     await asyncio.sleep(delay)
@@ -175,7 +198,8 @@ class ModbusTcpClientBack(Back):
                         for lane in self._lanes_of(link):
                             lane.scheduler.line_lost(text)
                     delay = min(max(delay * 2, REOPEN_FIRST_S), cap)
-            if self._outage.pop(id(link), False) or cause is not None:
+            self._flaps[id(link)] = (self.context.clock(), flaps)
+            if self._outage.pop(id(link), False) or (cause is not None and not flaps):
                 log.warning(
                     "back %s: connected to %s again after %.1f s",
                     self.name,

@@ -214,3 +214,35 @@ async def test_simulate_serves_modules_on_a_loopback_port():
         proc.stdin.write(b"quit\n")
         await proc.stdin.drain()
         assert await asyncio.wait_for(proc.wait(), 30) == 0
+
+
+async def test_a_host_that_accepts_and_drops_at_once_is_retried_with_back_off():
+    """A TCP/RTU gateway whose serial side is gone may accept a connection and close it at
+    once: the back must not reconnect in a tight loop (it did: a connection per loop turn)."""
+    accepted = 0
+
+    async def drop(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        nonlocal accepted
+        accepted += 1
+        writer.close()
+
+    port = free_port()
+    server = await asyncio.start_server(drop, "127.0.0.1", port)
+    loaded = load_topology(
+        topology([device(1, f"127.0.0.1:{port}")], offline_probe_ms=800), load_registry()
+    )
+    context = GatewayContext.build(loaded)
+    back = ModbusTcpClientBack(loaded.back("net"), context)
+    await back.start()
+    task = asyncio.ensure_future(back.run())
+    try:
+        await asyncio.sleep(2.5)
+        # 0, 0.1, 0.3, 0.7, 1.5, 2.3 s: doubling from 0.1 s to offline_probe_ms
+        assert 3 <= accepted <= 10, accepted
+        assert context.image["net/m1/ai0"].quality is Quality.COMM_FAULT
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await back.stop()
+        server.close()
+        await server.wait_closed()
