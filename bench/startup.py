@@ -80,7 +80,8 @@ def baseline(python: str, env: dict[str, str]) -> tuple[float, int]:
 
 def overrides(example: Path) -> list[str]:
     """A front on SocketCAN runs on python-can's virtual bus here (no SocketCAN on every host;
-    the bus's kind is not what this bench measures)."""
+    the bus's kind is not what this bench measures), and a listener on a free loopback port
+    (the examples' 4840 and 5020 may be another program's on a shared host)."""
     from ruamel.yaml import YAML
 
     data = YAML(typ="safe").load(example.read_text())
@@ -88,7 +89,15 @@ def overrides(example: Path) -> list[str]:
     for i, front in enumerate(data.get("fronts", [])):
         if front.get("interface") == "socketcan":
             out += ["--set", f"fronts.{i}.interface=virtual"]
+        if "listen" in front:
+            out += ["--set", f"fronts.{i}.listen=127.0.0.1:{free_port()}"]
     return out
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
 
 
 class StartFailed(RuntimeError):
