@@ -66,6 +66,7 @@ class FakeSerial:
 
     now = 0.0
     last_rx = 0.0
+    last_rx_at = 0.0
 
     def __init__(self, answer: Callable[[bytes], bytes]):
         self.answer = answer
@@ -78,6 +79,9 @@ class FakeSerial:
 
     async def wait_silence(self, silence: float, limit: float) -> bool:
         return True
+
+    async def keep_silence(self, gap: float, since: float = 0.0) -> None:
+        pass  # the Modbus t3.5 before a request: the clock stands still here
 
     async def write(self, data: bytes) -> None:
         self.answer(data)
