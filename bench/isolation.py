@@ -296,15 +296,21 @@ async def _quiet(job: Any) -> None:
 
 
 class Attacker:
-    def __init__(self, name: str, ports: dict[str, int], nice: int):
+    def __init__(self, name: str, ports: dict[str, int], nice: int, cpus: set[int] | None = None):
         self.name = name
+
+        def lower() -> None:
+            os.nice(nice)
+            if cpus:  # other machines on the plant network: their work off the gateway's CPUs
+                os.sched_setaffinity(0, cpus)
+
         self.proc = subprocess.Popen(
             [sys.executable, __file__, "--attack", name, "--ports", json.dumps(ports)],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.DEVNULL,
             text=True,
-            preexec_fn=lambda: os.nice(nice),  # noqa: PLW1509  (no threads in this process yet)
+            preexec_fn=lower,  # noqa: PLW1509  (no threads in this process yet)
         )
         assert self.proc.stdout is not None
         if self.proc.stdout.readline().strip() != "ready":
@@ -460,9 +466,13 @@ def run(args: argparse.Namespace) -> int:
                     attackers: list[Attacker] = []
                     kill = None
                     if condition not in ("quiet", "kill"):
-                        attackers.append(Attacker(condition, ports, args.attackers_nice))
+                        attackers.append(
+                            Attacker(condition, ports, args.attackers_nice, args.attackers_cpus)
+                        )
                     if condition in ("kill", "all"):
-                        attackers.append(Attacker("writer", ports, args.attackers_nice))
+                        attackers.append(
+                            Attacker("writer", ports, args.attackers_nice, args.attackers_cpus)
+                        )
                         kill = KillLoop(gw)
                         kill.start()
                     if attackers:
@@ -585,6 +595,13 @@ def main() -> int:
         "--attacks", default=",".join(ATTACKS), help="comma-separated: " + ",".join(ATTACKS)
     )
     parser.add_argument("--attackers-nice", type=int, default=19)
+    parser.add_argument(
+        "--attackers-cpus",
+        type=lambda text: {int(c) for c in text.split(",")},
+        default=None,
+        help="CPUs the attackers run on (e.g. 1): on a plant network they are other machines, "
+        "here their own work and their side of the loopback traffic stay off the other CPUs",
+    )
     parser.add_argument(
         "--fieldbus-nice",
         type=int,
