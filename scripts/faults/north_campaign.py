@@ -77,18 +77,33 @@ async def modbus_garbage(host: str, port: int, counts: dict[str, int]) -> None:
         struct.pack(">HHHB", 5, 1, 6, 1) + b"\x03\x00\x00\x00\x01",  # protocol id 1
         b"\xde\xad\xbe\xef" * 16,
     ] + [struct.pack(">HHHBB", 10 + fc, 0, 2, 1, fc) for fc in (8, 17, 24, 43)]
+    await each_on_a_connection(host, port, frames, 2.0, 0.05, counts, "modbus_garbage")
+
+
+async def each_on_a_connection(
+    host: str,
+    port: int,
+    messages: list[bytes],
+    answer_s: float,
+    pause_s: float,
+    counts: dict[str, int],
+    key: str,
+) -> None:
+    """Over and over: each message on a new connection, up to ``answer_s`` for the server's
+    answer (or its close), then the next; ``pause_s`` after each round. Counted as ``key`` or
+    ``key_failed``."""
     while True:
-        for frame in frames:
+        for message in messages:
             try:
                 reader, writer = await asyncio.open_connection(host, port)
-                writer.write(frame)
+                writer.write(message)
                 await writer.drain()
-                await asyncio.wait_for(reader.read(300), 2)
+                await asyncio.wait_for(reader.read(300), answer_s)
                 writer.close()
-                counts["modbus_garbage"] += 1
+                counts[key] += 1
             except (OSError, TimeoutError, ConnectionError):
-                counts["modbus_garbage_failed"] += 1
-        await asyncio.sleep(0.05)
+                counts[f"{key}_failed"] += 1
+        await asyncio.sleep(pause_s)
 
 
 async def modbus_slowloris(host: str, port: int, counts: dict[str, int]) -> None:
@@ -111,18 +126,7 @@ async def bad_hellos(host: str, port: int, counts: dict[str, int]) -> None:
     bodies = [ua_hello(f"opc.tcp://{host}:{port}/", size) for size in (0, 1)]
     url = struct.pack("<IIIII", 0, 65535, 65535, 0, 0) + struct.pack("<i", 0x7FFFFFFF) + b"x" * 64
     bodies.append(b"HELF" + struct.pack("<I", 8 + len(url)) + url)
-    while True:
-        for hello in bodies:
-            try:
-                reader, writer = await asyncio.open_connection(host, port)
-                writer.write(hello)
-                await writer.drain()
-                await asyncio.wait_for(reader.read(300), 3)
-                writer.close()
-                counts["bad_hellos"] += 1
-            except (OSError, TimeoutError, ConnectionError):
-                counts["bad_hellos_failed"] += 1
-        await asyncio.sleep(0.1)
+    await each_on_a_connection(host, port, bodies, 3.0, 0.1, counts, "bad_hellos")
 
 
 async def long_sessions(url: str, count: int, counts: dict[str, int]) -> None:
