@@ -11,6 +11,7 @@ stage starts it as its own process)::
 from __future__ import annotations
 
 import argparse
+import asyncio
 import signal
 import threading
 from pathlib import Path
@@ -21,17 +22,27 @@ NODE_ID = 9
 
 
 class DurandDevice:
-    """A durand MinimalNode on ``bus``, scheduled by durand's own thread scheduler."""
+    """A durand MinimalNode on ``bus``, run as durand means it to run: its receive callbacks and
+    its timers on one asyncio loop (``AsyncScheduler``), in a thread of its own.
+
+    durand's ``SyncScheduler`` fires timers in a second thread while the notifier's thread
+    serves SDO, with no lock between them: a write of 0 to 0x1017 racing the heartbeat timer
+    could leave the producer running (seen once in the SocketCAN stage, under load). One loop
+    serialises both, so every verdict is about durand and none about the harness's threads.
+    """
 
     def __init__(self, bus: can.BusABC, node_id: int = NODE_ID):
-        import durand
-        from durand.scheduler import SyncScheduler
-
-        self.scheduler = SyncScheduler()
-        durand.set_scheduler(self.scheduler)
-        self._thread = threading.Thread(target=self.scheduler.run, daemon=True)
+        self.loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self._thread.start()
-        self.network = durand.CANBusNetwork(bus)
+        asyncio.run_coroutine_threadsafe(self._build(bus, node_id), self.loop).result(10)
+
+    async def _build(self, bus: can.BusABC, node_id: int) -> None:
+        import durand
+        from durand.scheduler import AsyncScheduler
+
+        durand.set_scheduler(AsyncScheduler(self.loop))
+        self.network = durand.CANBusNetwork(bus, loop=self.loop)
         self.node = durand.MinimalNode(self.network, node_id)
         od = self.node.object_dictionary
         dt = durand.DatatypeEnum
@@ -57,9 +68,13 @@ class DurandDevice:
         return path
 
     def close(self) -> None:
-        self.network.stop()
-        self.scheduler.stop()
+        async def stop() -> None:
+            self.network.stop()
+
+        asyncio.run_coroutine_threadsafe(stop(), self.loop).result(5)
+        self.loop.call_soon_threadsafe(self.loop.stop)
         self._thread.join(2)
+        self.loop.close()
 
 
 def main() -> None:
