@@ -47,7 +47,6 @@ import json
 import os
 import resource
 import signal
-import socket
 import struct
 import subprocess
 import sys
@@ -61,16 +60,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout too
 sys.path.insert(0, str(ROOT / "bench"))
+sys.path.append(str(ROOT / "tests"))
+from netkit import free_port  # noqa: E402  (tests/netkit.py: one helper for tests, benches and scripts)
 
 TARGET = 1.2
 NODE_ID = 4  # examples/plant-northbound.yaml's node-ID
 ATTACKS = ("d1", "d2", "idle", "items", "kill", "all")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def cpu_of(pid: int) -> float:

@@ -43,6 +43,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.append(str(ROOT / "tests"))
+from netkit import free_port  # noqa: E402  (tests/netkit.py: one helper for tests, benches and scripts)
+
 BOOT_MARKERS = ("NMT INITIALISING -> PRE-OPERATIONAL", "DeviceNet MAC ")
 READY_RATIO, RSS_RATIO = 3.0, 1.5
 BASELINE = (
@@ -92,12 +95,6 @@ def overrides(example: Path) -> list[str]:
         if "listen" in front:
             out += ["--set", f"fronts.{i}.listen=127.0.0.1:{free_port()}"]
     return out
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class StartFailed(RuntimeError):

@@ -51,6 +51,9 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.append(str(ROOT / "tests"))
+from netkit import free_port  # noqa: E402  (tests/netkit.py: one helper for tests, benches and scripts)
+
 SERVED = {1, 2, 3, 4, 5, 6, 15, 16, 23}
 READ = struct.pack(">BHH", 3, 0, 1)  # FC3, one holding register: every map has one here
 BODIES = {43: bytes((0x0E, 0x01, 0x00))}  # FC 43/14: Read Device Identification, basic
@@ -511,10 +514,6 @@ CASES = [
 
 
 # -- a gateway of its own --------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def start_gateway(

@@ -43,7 +43,6 @@ import argparse
 import asyncio
 import json
 import os
-import socket
 import struct
 import subprocess
 import sys
@@ -55,15 +54,11 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "bench"))
+sys.path.append(str(ROOT / "tests"))
+from netkit import free_port  # noqa: E402  (tests/netkit.py: one helper for tests, benches and scripts)
 
 POLL_MS = 100  # examples/plant-northbound.yaml's poll period
 TRIES = 10
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 # == the attacker process =====================================================================

@@ -30,7 +30,6 @@ import json
 import logging
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -45,15 +44,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import uaraw  # noqa: E402  (scripts/faults)
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.append(str(ROOT / "tests"))
+from netkit import free_port  # noqa: E402  (tests/netkit.py: one helper for tests, benches and scripts)
+
 EXAMPLE = ROOT / "examples" / "plant-northbound.yaml"
 NAMESPACE = "urn:fieldgate:line4"
 MB = 1024 * 1024
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 @dataclass
