@@ -2,7 +2,7 @@
 under attack, in the same run (issue 29).
 
 Run:  .venv/bin/python bench/isolation.py [--phase-s S] [--rounds R] [--attacks LIST]
-      [--attackers-nice N] [--fieldbus-nice N] [--loop auto|uvloop|asyncio]
+      [--attackers-nice N] [--fieldbus-nice N] [--fieldbus-cpus LIST] [--loop auto|uvloop|asyncio]
       (about (1 + attacks) x R x S seconds; default 2 rounds of 8 s, 6 attacks: about 2 minutes)
 
 One gateway (examples/plant-northbound.yaml: CANopen on python-can's in-process ``virtual``
@@ -330,6 +330,7 @@ class GatewayThread:
         ports: dict[str, int],
         fast: bool = True,
         fieldbus_nice: int | None = None,
+        fieldbus_cpus: set[int] | None = None,
     ):
         from fieldgate.cli import loop_factory
         from fieldgate.runtime import Gateway
@@ -347,6 +348,8 @@ class GatewayThread:
             overrides["backs.rs485.poll_ms"] = 0
         if fieldbus_nice is not None:  # as the systemd unit's Nice= would (docs/deploy.md)
             overrides["gateway.isolation.fieldbus_nice"] = fieldbus_nice
+        if fieldbus_cpus:  # the children on the other CPUs (docs/architecture.md)
+            overrides["gateway.isolation.fieldbus_cpus"] = sorted(fieldbus_cpus)
         self.gateway = Gateway.load(
             ROOT / "examples" / "plant-northbound.yaml",
             overrides=overrides,
@@ -437,7 +440,15 @@ def run(args: argparse.Namespace) -> int:
                 broker.start()
         except ImportError:
             pass
-        gw = GatewayThread(args.loop, state_dir, ports, fieldbus_nice=args.fieldbus_nice)
+        if args.fieldbus_cpus and not args.attackers_cpus:  # else they inherit the pinned mask
+            args.attackers_cpus = (set(os.sched_getaffinity(0)) - args.fieldbus_cpus) or None
+        gw = GatewayThread(
+            args.loop,
+            state_dir,
+            ports,
+            fieldbus_nice=args.fieldbus_nice,
+            fieldbus_cpus=args.fieldbus_cpus,
+        )
         gw.start()
         time.sleep(2.0)  # every child has reported once
         bus = can.Bus(interface="virtual", channel=gw.channel, receive_own_messages=False)
@@ -451,6 +462,8 @@ def run(args: argparse.Namespace) -> int:
             f"fieldgate isolation bench: event loop {loop_name(gw.loop)}, {args.rounds} round(s) of "
             f"{args.phase_s:.0f} s per condition ({', '.join(conditions)}), attackers at nice "
             f"{args.attackers_nice}, fieldbus process at nice {os.nice(0) if args.fieldbus_nice is None else args.fieldbus_nice}, "
+            f"fieldbus CPUs {','.join(map(str, sorted(os.sched_getaffinity(0))))}, "
+            f"attackers' CPUs {','.join(map(str, sorted(args.attackers_cpus or os.sched_getaffinity(0))))}, "
             f"broker {'Mosquitto' if broker else 'none'}",
             flush=True,
         )
@@ -602,6 +615,13 @@ def main() -> int:
         type=int,
         default=None,
         help="niceness the fieldbus process asks for (the unit's Nice=-5; below 0 needs root)",
+    )
+    parser.add_argument(
+        "--fieldbus-cpus",
+        type=lambda text: {int(c) for c in text.split(",")},
+        default=None,
+        help="gateway.isolation.fieldbus_cpus (e.g. 0): the fieldbus process (this one, with "
+        "the SDO master that measures) on these CPUs, the children and attackers on the others",
     )
     parser.add_argument("--loop", choices=("auto", "uvloop", "asyncio"), default="auto")
     parser.add_argument("--attack", help=argparse.SUPPRESS)

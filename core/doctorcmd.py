@@ -12,7 +12,9 @@ One line per finding, each with its fix (docs/deploy.md, "Before the first start
   one below 1024 only with CAP_NET_BIND_SERVICE;
 * **the systemd unit** (the installed one, else the shipped one, or ``--unit FILE``): the
   capabilities and address families those need (CAP_NET_ADMIN and AF_CAN for SocketCAN,
-  CAP_SYS_NICE for a negative ``fieldbus_nice``).
+  CAP_SYS_NICE for a negative ``fieldbus_nice``);
+* **CPUs**: ``fieldbus_cpus`` and ``north_cpus`` name CPUs this host offers, and leave the
+  children at least one.
 
 Exit code (README, "Exit codes"): 0 when nothing stops the gateway (notes and warnings
 only), 1 when something will (a FAIL line; an invalid topology), 2 when the command line is
@@ -116,8 +118,10 @@ class Host:
         users: Callable[[str], tuple[int, int] | None] | None = None,
         groups: Callable[[str], int | None] | None = None,
         group_name: Callable[[int], str] | None = None,
+        cpus: Callable[[], set[int]] | None = None,
     ):
         self.root = Path(root)
+        self._cpus = cpus
         self._read_link = read_link
         self._users = users
         self._groups = groups
@@ -132,6 +136,10 @@ class Host:
         from .can.link import read_link
 
         return read_link(name)
+
+    def cpus(self) -> set[int]:
+        """The CPUs the gateway may run on (this process's affinity, as the service inherits)."""
+        return self._cpus() if self._cpus is not None else set(os.sched_getaffinity(0))
 
     def user(self, name: str) -> tuple[int, int] | None:
         """(uid, primary gid) of a user, None when there is no such user."""
@@ -221,6 +229,7 @@ def check(
     findings += _serial(topology, host, unit)
     findings += _listeners(topology, host, unit, bind or _try_bind)
     findings += _unit(topology, unit)
+    findings += _cpus(topology, host)
     return findings
 
 
@@ -569,6 +578,45 @@ def _unit(topology: Topology, unit: Unit | None) -> list[Finding]:
             )
         )
     return out
+
+
+# -- CPUs -------------------------------------------------------------------------------------
+def _cpus(topology: Topology, host: Host) -> list[Finding]:
+    """``fieldbus_cpus`` and ``north_cpus`` against the CPUs this host offers."""
+    iso = topology.gateway.isolation
+    if not iso.fieldbus_cpus and not iso.north_cpus:
+        return []
+    have = host.cpus()
+    shown = ",".join(map(str, sorted(have)))
+    out = []
+    for key, wanted in (("fieldbus_cpus", iso.fieldbus_cpus), ("north_cpus", iso.north_cpus)):
+        missing = sorted(set(wanted or ()) - have)
+        if missing:
+            out.append(
+                Finding(
+                    WARN,
+                    "cpus",
+                    f"{key}: CPU {','.join(map(str, missing))} not on this host (it offers {shown}); "
+                    "the process runs unpinned",
+                    f"name CPUs of {shown}",
+                )
+            )
+    if not out and iso.fieldbus_cpus and not iso.north_cpus and have <= set(iso.fieldbus_cpus):
+        out.append(
+            Finding(
+                WARN,
+                "cpus",
+                f"fieldbus_cpus takes every CPU ({shown}): the children share them",
+                "leave at least one CPU out of fieldbus_cpus",
+            )
+        )
+    return out or [
+        Finding(
+            OK,
+            "cpus",
+            f"fieldbus {iso.fieldbus_cpus or '-'}, children {iso.north_cpus or 'the others'}",
+        )
+    ]
 
 
 # -- the command ------------------------------------------------------------------------------

@@ -206,6 +206,9 @@ class Gateway:
         return front is not None and isinstance(comp, front.IsolatedFront)
 
     def _ask_priority(self) -> None:
+        from .isolation.cpus import apply_fieldbus
+
+        apply_fieldbus(self.topology.gateway.isolation)
         nice = self.topology.gateway.isolation.fieldbus_nice
         if nice is None:
             return

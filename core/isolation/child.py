@@ -28,6 +28,7 @@ from typing import Any
 from ..logsetup import LogBudget, setup_logging
 from ..plugin import one_line
 from . import wire
+from .cpus import apply_north
 from .mirror import MirrorContext
 from .parts import Part, make_part
 
@@ -70,6 +71,7 @@ def main(argv: list[str]) -> int:
     init: dict[str, Any] = wire.read_down(_read_frame(sock))
     _die_with_parent(parent)
     settings = init["isolation"]
+    apply_north(init.get("cpus"))
     try:
         os.nice(settings.nice)
     except OSError:

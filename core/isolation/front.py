@@ -38,6 +38,7 @@ def child_init(
 ) -> dict[str, Any]:
     """What every child gets first (the snapshot is added when the feed attaches)."""
     from ..logsetup import current_settings
+    from .cpus import north_set
 
     level, fmt = current_settings()
     return {
@@ -46,6 +47,7 @@ def child_init(
         "topology": context.topology,
         "locations": context.point_locations(),
         "isolation": settings,
+        "cpus": north_set(settings),
         "log_level": level,
         "log_format": fmt,
         "loop": loop,

@@ -198,6 +198,18 @@ class IsolationSettings(StrictModel):
         description="niceness the fieldbus process asks for at start (below 0 needs CAP_SYS_NICE; "
         "refused: one line and it runs on)",
     )
+    fieldbus_cpus: list[Annotated[int, Field(ge=0, le=4095)]] | None = Field(
+        None,
+        min_length=1,
+        description="CPUs the fieldbus process runs on (e.g. [0]); the north-facing children "
+        "then run on the others, and so does the kernel's work for their connections",
+    )
+    north_cpus: list[Annotated[int, Field(ge=0, le=4095)]] | None = Field(
+        None,
+        min_length=1,
+        description="CPUs the north-facing children run on; default: every CPU but fieldbus_cpus "
+        "when that is set, else as inherited",
+    )
     liveness_timeout_s: float = Field(
         5.0,
         ge=0.5,
@@ -234,6 +246,16 @@ class IsolationSettings(StrictModel):
         le=1_000_000,
         description="log lines one child may write a minute; more are counted and left out",
     )
+
+    @model_validator(mode="after")
+    def _cpus_apart(self) -> IsolationSettings:
+        shared = set(self.fieldbus_cpus or ()) & set(self.north_cpus or ())
+        if shared:
+            raise ValueError(
+                f"fieldbus_cpus and north_cpus share CPU {','.join(map(str, sorted(shared)))}: "
+                "give the fieldbus process CPUs the children do not use"
+            )
+        return self
 
 
 class GatewaySection(StrictModel):

@@ -16,7 +16,7 @@ import pytest
 from fieldgate import load_registry
 from fieldgate.can.link import LinkError
 from fieldgate.can.rtnetlink import RawLink
-from fieldgate.doctorcmd import FAIL, NOTE, OK, WARN, Host, Unit, check, run
+from fieldgate.doctorcmd import FAIL, NOTE, OK, WARN, Finding, Host, Unit, check, run
 from fieldgate.exitcodes import ExitCode
 from fieldgate.topology import load_topology
 
@@ -222,6 +222,29 @@ def test_the_unit_s_capabilities_and_address_families(tmp_path):
     warned = " ".join(only(found, WARN, "unit"))
     assert "no CAP_NET_ADMIN" in warned and "AF_NETLINK" in warned
     assert "fieldbus_nice -5 needs CAP_SYS_NICE" in warned and "Nice=-5" in warned
+
+
+def test_the_cpu_sets_against_the_cpus_the_host_offers(tmp_path):
+    device(tmp_path, "/dev/ttyS1")
+
+    def cpus_found(isolation: dict, offered: set[int]) -> list[Finding]:
+        topo = topology(tmp_path, gateway={"isolation": isolation})
+        return [
+            f
+            for f in check(topo, Host(root=str(tmp_path), cpus=lambda: offered), None)
+            if f.subject == "cpus"
+        ]
+
+    assert cpus_found({}, {0, 1}) == []  # nothing pinned: nothing to say
+    (ok,) = cpus_found({"fieldbus_cpus": [0]}, {0, 1})
+    assert ok.level == OK
+    (missing,) = cpus_found({"fieldbus_cpus": [2], "north_cpus": [0]}, {0, 1})
+    assert (
+        missing.level == WARN
+        and "fieldbus_cpus: CPU 2 not on this host (it offers 0,1)" in missing.text
+    )
+    (crowded,) = cpus_found({"fieldbus_cpus": [0]}, {0})
+    assert crowded.level == WARN and "takes every CPU (0): the children share them" in crowded.text
 
 
 def test_exit_codes_as_documented(tmp_path, unit, capsys):
