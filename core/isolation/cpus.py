@@ -45,6 +45,7 @@ def apply_fieldbus(settings: Any) -> None:
     """Pin the fieldbus process to ``fieldbus_cpus`` when given; CPUs this process may not use
     are one warning line and it runs on where it was (never a failed start)."""
     global _before_pinning
+    _before_pinning = None  # a gateway started before in this process says nothing of this one
     wanted = settings.fieldbus_cpus
     if not wanted:
         return
