@@ -19,8 +19,10 @@ child has at most ``MAX_WRITES_WAITING`` batches waiting (it waits for their ans
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
+import os
 import signal
 import socket
 import subprocess
@@ -35,6 +37,7 @@ from ..plugin import PluginStartError
 from ..procstat import cpu_seconds, resident_bytes
 from ..topology.model import IsolationSettings
 from . import wire
+from .cpus import north_set
 from .feed import GatewayFeed, Outbox
 
 log = logging.getLogger("fieldgate.isolation")
@@ -105,6 +108,7 @@ class ChildProcess:
             self.process = await Spawned.start(
                 [sys.executable, "-m", "fieldgate.isolation.child", str(theirs.fileno())],
                 theirs.fileno(),
+                north_set(self.settings),
             )
         except OSError as exc:
             ours.close()
@@ -427,11 +431,11 @@ class Spawned:
         ).start()
 
     @classmethod
-    async def start(cls, args: list[str], fd: int) -> Spawned:
+    async def start(cls, args: list[str], fd: int, cpus: list[int] | None = None) -> Spawned:
+        """``cpus``: where the child is born (the forking thread's CPUs: its interpreter's start
+        and imports never run on the fieldbus process's CPUs)."""
         loop = asyncio.get_running_loop()
-        popen = await asyncio.to_thread(
-            subprocess.Popen, args, pass_fds=(fd,), stdin=subprocess.DEVNULL
-        )
+        popen = await asyncio.to_thread(_popen_on, cpus, args, fd)
         return cls(popen, loop)
 
     def _reap(self, loop: asyncio.AbstractEventLoop) -> None:
@@ -481,3 +485,16 @@ class _Link(asyncio.Protocol):
     def connection_lost(self, exc: Exception | None) -> None:
         # the exit (and its code) usually follows at once: the reaper says why it ended
         asyncio.get_running_loop().call_later(1.0, self.child.channel_closed, self.process)
+
+
+def _popen_on(cpus: list[int] | None, args: list[str], fd: int) -> subprocess.Popen[bytes]:
+    """Popen from this (worker) thread moved onto ``cpus`` for the fork, then put back."""
+    before = os.sched_getaffinity(0) if cpus else None
+    if cpus:
+        with contextlib.suppress(OSError):  # not available: the child pins itself or warns
+            os.sched_setaffinity(0, cpus)  # this thread only; the child inherits it
+    try:
+        return subprocess.Popen(args, pass_fds=(fd,), stdin=subprocess.DEVNULL)
+    finally:
+        if before is not None:
+            os.sched_setaffinity(0, before)

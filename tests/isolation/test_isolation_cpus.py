@@ -147,3 +147,21 @@ def test_overlapping_sets_are_refused_at_validation(registry):
     topo = topology(isolation={"fieldbus_cpus": [0, 1], "north_cpus": [1]})
     with pytest.raises(TopologyError, match="fieldbus_cpus and north_cpus share CPU 1"):
         load_topology(topo, registry)
+
+
+@two_cpus
+def test_a_child_is_born_on_its_cpus_and_the_forking_thread_keeps_its_own(capfd):
+    """Its interpreter's start and imports (~0.1 s of CPU) never run on the fieldbus CPUs."""
+    from fieldgate.isolation.supervisor import _popen_on
+
+    before = os.sched_getaffinity(0)
+    code = "import os; print('born on', sorted(os.sched_getaffinity(0)))"
+    r, w = os.pipe()
+    try:
+        child = _popen_on([CPUS[-1]], [sys.executable, "-c", code], w)
+        assert child.wait(30) == 0
+    finally:
+        os.close(r)
+        os.close(w)
+    assert f"born on {[CPUS[-1]]}" in capfd.readouterr().out
+    assert os.sched_getaffinity(0) == before
