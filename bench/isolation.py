@@ -592,6 +592,11 @@ def report(results: dict, per_round: dict, side: dict, acked: int, lost: list[in
     return 0 if verdict else 1
 
 
+def cpu_list(text: str) -> set[int]:
+    """``0,1`` -> {0, 1}: a set of CPUs on the command line."""
+    return {int(c) for c in text.split(",")}
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -605,7 +610,7 @@ def main() -> int:
     parser.add_argument("--attackers-nice", type=int, default=19)
     parser.add_argument(
         "--attackers-cpus",
-        type=lambda text: {int(c) for c in text.split(",")},
+        type=cpu_list,
         default=None,
         help="CPUs the attackers run on (e.g. 1): on a plant network they are other machines, "
         "here their own work and their side of the loopback traffic stay off the other CPUs",
@@ -618,7 +623,7 @@ def main() -> int:
     )
     parser.add_argument(
         "--fieldbus-cpus",
-        type=lambda text: {int(c) for c in text.split(",")},
+        type=cpu_list,
         default=None,
         help="gateway.isolation.fieldbus_cpus (e.g. 0): the fieldbus process (this one, with "
         "the SDO master that measures) on these CPUs, the children and attackers on the others",
