@@ -138,16 +138,19 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
                 notifier.ready(status_line(gateway))
                 tasks.append(asyncio.create_task(notifier.keep_alive(lambda: status_line(gateway))))
 
+        async def shut_down(why: str) -> None:
+            log.info(why)
+            if notifier is not None:
+                notifier.stopping()
+            for task in tasks:
+                task.cancel()
+            await gateway.stop()
+            if notifier is not None:
+                notifier.close()
+
         try:
             if not await _start_unless_stopped(gateway, stop, fieldbus_up):
-                log.info("stopping (asked to while starting)")
-                if notifier is not None:
-                    notifier.stopping()
-                for task in tasks:
-                    task.cancel()
-                await gateway.stop()
-                if notifier is not None:
-                    notifier.close()
+                await shut_down("stopping (asked to while starting)")
                 return ExitCode.OK
         except GatewayStartError as exc:
             log.error("cannot start: %s", exc)
@@ -160,14 +163,7 @@ async def _run(gateway: Gateway, args: argparse.Namespace) -> int:
         if args.status_every:
             tasks.append(asyncio.create_task(_print_status(gateway, args.status_every)))
         await wait_until(stop, args.duration)
-        log.info("stopping")
-        if notifier is not None:
-            notifier.stopping()
-        for task in tasks:
-            task.cancel()
-        await gateway.stop()
-        if notifier is not None:
-            notifier.close()
+        await shut_down("stopping")
     return ExitCode.OK
 
 
