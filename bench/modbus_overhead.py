@@ -102,26 +102,7 @@ async def overhead_in_process(n: int) -> dict[str, float]:
 
 
 async def overhead_child_process(n: int) -> dict[str, float]:
-    args = [
-        sys.executable,
-        "-m",
-        "fieldgate",
-        "simulate",
-        "modbus",
-        "--pty",
-        "--baudrate",
-        "115200",
-        "--duration",
-        "120",
-    ]
-    for m in I7232D:
-        args += ["--module", f"{m['address']}:{m['model']}"]
-    proc = await asyncio.create_subprocess_exec(
-        *args,
-        stdin=asyncio.subprocess.PIPE,
-        stdout=asyncio.subprocess.PIPE,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
+    proc = await simulator_process(["--pty", "--baudrate", "115200"])
     try:
         banner = (await asyncio.wait_for(proc.stdout.readline(), 20)).decode()
         port = re.search(r"point the gateway at (\S+)", banner).group(1)
@@ -136,19 +117,23 @@ async def overhead_child_process(n: int) -> dict[str, float]:
         await proc.wait()
 
 
-async def child_simulator(port: str, baud: int) -> asyncio.subprocess.Process:
-    """``fieldgate simulate modbus --port PORT``: the modules in a process of their own, as
-    real modules are other hardware (their answers never wait for the master's loop)."""
-    args = [sys.executable, "-m", "fieldgate", "simulate", "modbus", "--port", port]
-    args += ["--baudrate", str(baud), "--duration", "120"]
+async def simulator_process(wire: list[str]) -> asyncio.subprocess.Process:
+    """``fieldgate simulate modbus WIRE`` with the i7232d line's modules, in a process of its own."""
+    args = [sys.executable, "-m", "fieldgate", "simulate", "modbus", *wire, "--duration", "120"]
     for m in I7232D:
         args += ["--module", f"{m['address']}:{m['model']}"]
-    proc = await asyncio.create_subprocess_exec(
+    return await asyncio.create_subprocess_exec(
         *args,
         stdin=asyncio.subprocess.PIPE,
         stdout=asyncio.subprocess.PIPE,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
+
+
+async def child_simulator(port: str, baud: int) -> asyncio.subprocess.Process:
+    """``fieldgate simulate modbus --port PORT``: the modules in a process of their own, as
+    real modules are other hardware (their answers never wait for the master's loop)."""
+    proc = await simulator_process(["--port", port, "--baudrate", str(baud)])
     while "simulating back" not in (await asyncio.wait_for(proc.stdout.readline(), 20)).decode():
         pass
     return proc
