@@ -586,8 +586,10 @@ def _cpus(topology: Topology, host: Host) -> list[Finding]:
     iso = topology.gateway.isolation
     if not iso.fieldbus_cpus and not iso.north_cpus:
         return []
+    from .isolation.cpus import cpu_list_text
+
     have = host.cpus()
-    shown = ",".join(map(str, sorted(have)))
+    shown = cpu_list_text(have)
     out = []
     for key, wanted in (("fieldbus_cpus", iso.fieldbus_cpus), ("north_cpus", iso.north_cpus)):
         missing = sorted(set(wanted or ()) - have)
@@ -596,7 +598,7 @@ def _cpus(topology: Topology, host: Host) -> list[Finding]:
                 Finding(
                     WARN,
                     "cpus",
-                    f"{key}: CPU {','.join(map(str, missing))} not on this host (it offers {shown}); "
+                    f"{key}: CPU {cpu_list_text(missing)} not on this host (it offers {shown}); "
                     "the process runs unpinned",
                     f"name CPUs of {shown}",
                 )

@@ -7,8 +7,9 @@ fieldbus process needs. Pinning gives the fieldbus process CPUs of its own: the 
 the network work they cause stay on the others (bench/isolation.py ``--fieldbus-cpus``).
 
 Linux keeps an affinity mask per thread: the fieldbus process pins every thread it has, and
-threads started later inherit the mask of the thread that starts them. A child inherits the
-fieldbus process's mask at fork and sets its own first thing (``apply_north``).
+threads started later inherit the mask of the thread that starts them. A child is forked
+from a thread moved onto its CPUs (``supervisor._popen_on``), so it is born there, and sets
+them again first thing (``apply_north``), which is where a CPU the host refuses is reported.
 """
 
 from __future__ import annotations
@@ -55,14 +56,14 @@ def apply_fieldbus(settings: Any) -> None:
         log.warning(
             "gateway.isolation.fieldbus_cpus %s: CPU %s not available here (allowed: %s); "
             "the fieldbus process runs on all of them",
-            _fmt(wanted),
-            _fmt(missing),
-            _fmt(have),
+            cpu_list_text(wanted),
+            cpu_list_text(missing),
+            cpu_list_text(have),
         )
         return
     _before_pinning = have
     pin_process(wanted)
-    log.info("fieldbus process pinned to CPU %s", _fmt(wanted))
+    log.info("fieldbus process pinned to CPU %s", cpu_list_text(wanted))
 
 
 def north_set(settings: Any) -> list[int] | None:
@@ -87,11 +88,12 @@ def apply_north(cpus: list[int] | None) -> None:
     except OSError as exc:
         log.warning(
             "gateway.isolation.north_cpus %s: not available here (%s); left on CPU %s",
-            _fmt(cpus),
+            cpu_list_text(cpus),
             exc.strerror or exc,
-            _fmt(allowed()),
+            cpu_list_text(allowed()),
         )
 
 
-def _fmt(cpus: Iterable[int]) -> str:
+def cpu_list_text(cpus: Iterable[int]) -> str:
+    """{2, 0} -> '0,2': a set of CPUs as the settings and the log show it."""
     return ",".join(str(c) for c in sorted(cpus))
