@@ -229,21 +229,6 @@ def percentile(values: list[float], p: float) -> float:
     return ordered[min(len(ordered) - 1, int(round(p / 100 * (len(ordered) - 1))))]
 
 
-def in_flight_repeats(samples: list[tuple[int, int, bool, bool, float]], restart_at: float) -> int:
-    """Repeats of one channel's samples that are replays of a DDATA in flight at the broker's
-    kill: the first copy arrived before the restart, each repeat after it, as historical."""
-    copies: dict[tuple[int, int, bool], list[tuple[float, bool]]] = {}
-    for ts, v, ok, hist, arrived in samples:
-        copies.setdefault((ts, v, ok), []).append((arrived, hist))
-    count = 0
-    for seen in copies.values():
-        seen.sort()
-        first, repeats = seen[0], seen[1:]
-        if first[0] < restart_at and all(hist and at >= restart_at for at, hist in repeats):
-            count += len(repeats)
-    return count
-
-
 def analyse(
     raw: list[tuple[str, bytes, float]],
     reports: dict[str, dict[str, Any]],
@@ -251,6 +236,7 @@ def analyse(
     restart_at: float = float("inf"),
 ) -> dict[str, Any]:
     from fieldgate.plugins.sparkplug import sparkplug_b_pb2 as pb
+    from tests.sparkplug.broker import in_flight_repeats
 
     names: dict[tuple[str, str, int], str] = {}
     # (edge, channel) -> DDATA samples (timestamp, value, good, historical, arrival)
@@ -302,7 +288,8 @@ def analyse(
                 examples.append(f"{edge} {cid} lost values {sorted(missing)[:5]} of {len(values)}")
             keys = [(ts, v, ok) for ts, v, ok, _, _ in samples]
             dup += len(keys) - len(set(keys))
-            redelivered += in_flight_repeats(samples, restart_at)
+            copies = (((ts, v, ok), arrived, hist) for ts, v, ok, hist, arrived in samples)
+            redelivered += in_flight_repeats(copies, restart_at)
             # arrival order of live samples, of historical ones, and the values along time
             live = [ts for ts, _, _, hist, _ in samples if not hist]
             hist = [ts for ts, _, _, hist, _ in samples if hist]

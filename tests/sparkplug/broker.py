@@ -15,6 +15,7 @@ import socket
 import subprocess
 import threading
 import time
+from collections.abc import Hashable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -218,6 +219,29 @@ class Subscriber:
         self.client.publish(topic, payload, qos=1)
 
 
+def in_flight_repeats(copies: Iterable[tuple[Hashable, float, bool]], restart_at: float) -> int:
+    """How many repeated samples are replays of a DDATA in flight when the broker was killed.
+
+    ``copies``: one ``(sample, arrived, historical)`` per copy received, where ``sample``
+    identifies a sample (acquisition timestamp and value at least) and ``arrived`` is the
+    subscriber's ``time.time()``. A repeat counts when the sample's first copy arrived before
+    the broker's restart and every repeat after it, as historical: the broker had read the
+    DDATA (and passed it on) when it died, before the gateway's sync or PUBACK came back, so
+    the journal replayed it (at-least-once; docs/sparkplug.md, "Delivery to the broker is at
+    least once"). Any other repeat is the gateway's fault and is not counted here.
+    """
+    seen: dict[Hashable, list[tuple[float, bool]]] = {}
+    for sample, arrived, historical in copies:
+        seen.setdefault(sample, []).append((arrived, historical))
+    count = 0
+    for arrivals in seen.values():
+        arrivals.sort()
+        first, repeats = arrivals[0], arrivals[1:]
+        if first[0] < restart_at and all(hist and at >= restart_at for at, hist in repeats):
+            count += len(repeats)
+    return count
+
+
 class SampleLog:
     """Samples (DDATA metrics) per device and alias, decoded independently of the front."""
 
@@ -238,3 +262,8 @@ class SampleLog:
 
     def values(self, device: str, name: str) -> list[Any]:
         return [v for _, v, _, _ in self.samples.get((device, name), [])]
+
+    def in_flight_repeats(self, device: str, name: str, restart_at: float) -> int:
+        """in_flight_repeats() of one metric's samples (a sample: timestamp and value)."""
+        samples = self.samples.get((device, name), [])
+        return in_flight_repeats((((ts, v), at, h) for ts, v, h, at in samples), restart_at)

@@ -11,13 +11,12 @@ restarted with SIGTERM and persistence redelivers QoS 1 messages: duplicates by 
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
 
-from .broker import require_mosquitto
+from .broker import in_flight_repeats, require_mosquitto
 
 BENCH = Path(__file__).resolve().parents[2] / "bench" / "fleet.py"
 
@@ -59,22 +58,15 @@ def test_a_small_fleet_loses_nothing_across_a_broker_restart(tmp_path):
 
 
 def test_only_a_replay_of_what_was_in_flight_at_the_restart_counts_as_in_flight():
-    spec = importlib.util.spec_from_file_location("fleet_bench", BENCH)
-    assert spec is not None and spec.loader is not None
-    fleet = importlib.util.module_from_spec(spec)
-    path = list(sys.path)
-    try:
-        spec.loader.exec_module(fleet)  # (it puts the checkout on sys.path: put back after)
-    finally:
-        sys.path[:] = path
-    in_flight_repeats = fleet.in_flight_repeats
-
     restart = 100.0
-    live_then_replayed = [(1, 5, True, False, 99.0), (1, 5, True, True, 101.0)]
+    # (sample, arrived, historical)
+    live_then_replayed = [((1, 5), 99.0, False), ((1, 5), 101.0, True)]
     assert in_flight_repeats(live_then_replayed, restart) == 1
-    twice_live = [(1, 5, True, False, 99.0), (1, 5, True, False, 99.5)]  # the gateway's fault
+    twice_live = [((1, 5), 99.0, False), ((1, 5), 99.5, False)]  # the gateway's fault
     assert in_flight_repeats(twice_live, restart) == 0
-    replayed_live_after = [(1, 5, True, False, 99.0), (1, 5, True, False, 101.0)]  # not historical
+    replayed_live_after = [((1, 5), 99.0, False), ((1, 5), 101.0, False)]  # not historical
     assert in_flight_repeats(replayed_live_after, restart) == 0
-    both_after = [(2, 6, True, True, 101.0), (2, 6, True, True, 102.0)]  # replayed twice
+    both_after = [((2, 6), 101.0, True), ((2, 6), 102.0, True)]  # replayed twice
     assert in_flight_repeats(both_after, restart) == 0
+    other_sample = [((1, 5), 99.0, False), ((2, 5), 101.0, True)]  # same value, another time
+    assert in_flight_repeats(other_sample, restart) == 0
